@@ -1,0 +1,82 @@
+"""The ``bmctl`` command line: one entry point, one module per subcommand.
+
+Each subcommand lives in ``bmctl/commands/<name>.py`` and provides
+``configure(parser)`` (adds its arguments) and ``run(args) -> int``.
+Bad input anywhere (:class:`bmctl.errors.InputError`, argparse errors) prints
+one line ``bmctl: error: ...`` on stderr and exits with status 2, no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .errors import InputError
+
+#: subcommand -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("bmctl.commands.simulate", "run the stochastic milling plant on a model card"),
+    "identify": ("bmctl.commands.identify", "fit the moment model to plant experiments"),
+    "linearize": ("bmctl.commands.linearize", "linear analysis of the moment model (python-control)"),
+    "verify": ("bmctl.commands.verify", "verify the Monte Carlo engine against analytic solutions"),
+    "measure": ("bmctl.commands.measure", "segment micrographs into per-particle size and aspect ratio"),
+    "estimate": ("bmctl.commands.estimate", "particle-filter state and parameter estimates from samples"),
+    "trial": ("bmctl.commands.trial", "closed-loop trial: plant, sampling, estimator, controller"),
+    "whatif": ("bmctl.commands.whatif", "compare rpm schedules on a plant ensemble"),
+    "design": ("bmctl.commands.design", "offline open-loop rpm/rest schedule from the MPC problem"),
+}
+
+
+class _Parser(argparse.ArgumentParser):
+    """ArgumentParser whose errors are one line and exit 2."""
+
+    def error(self, message: str):  # noqa: D401 - argparse API
+        raise InputError(f"{self.prog}: {message}")
+
+
+def build_parser(available: dict[str, object] | None = None) -> argparse.ArgumentParser:
+    """Build the top-level parser with the subcommands whose modules import."""
+    parser = _Parser(prog="bmctl", description="Closed-loop control and optimisation of ball milling.")
+    from . import __version__
+
+    parser.add_argument("--version", action="version", version=f"bmctl {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for name, (modname, help_) in COMMANDS.items():
+        mod = (available or {}).get(name)
+        if mod is None:
+            continue
+        p = sub.add_parser(name, help=help_, description=(mod.__doc__ or help_).strip().splitlines()[0])
+        mod.configure(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def _modules() -> dict[str, object]:
+    mods = {}
+    for name, (modname, _) in COMMANDS.items():
+        try:
+            mods[name] = importlib.import_module(modname)
+        except ModuleNotFoundError as exc:
+            if exc.name != modname:
+                raise
+    return mods
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the exit status (0 ok, 2 bad input)."""
+    try:
+        parser = build_parser(_modules())
+        args = parser.parse_args(argv)
+        return int(args._run(args) or 0)
+    except InputError as exc:
+        print(f"bmctl: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("bmctl: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

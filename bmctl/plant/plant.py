@@ -1,0 +1,390 @@
+"""The milling plant: the paper's stochastic model as a fast, seeded simulator.
+
+One class, :class:`Plant`, and a factory, :func:`make_plant`. The Monte Carlo
+scheme is constant-number (Smith & Matsoukas 1998): M simulated particles stand for
+the vial's population with a common weight w = X / sum(s^2), where X is the
+represented total of s^2 (planar mass, eqn 2) and stays exact. Bonding frees one slot
+and fracture needs one; the batch fills freed slots with fracture fragments and the
+rest with copies of random particles, or removes random particles.
+
+Events are processed in vectorised batches: in a step dt a Poisson number of impacts,
+each on a pair of distinct particles (the impacted particle i and its bonding partner
+j, eqn 15), drawn without replacement so that no particle takes part in two events of
+one batch.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+from ..config import ModelCard, card_schedule, load_card
+from ..errors import InputError
+from . import events as ev
+from . import thermal
+from .kinematics import MEAN_LOSS_RATIO, Kinematics, kinematics
+from .population import UM, initial_sample, moments, raster
+
+MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+
+
+def default_card() -> ModelCard:
+    """The lab card (Al-Ni 1:1, 300 rpm) shipped in ``models/``."""
+    return load_card(MODELS_DIR / "alni-1to1-300rpm-lab.toml")
+
+
+@dataclass
+class EventCounts:
+    """Counters of events in the simulated sample."""
+
+    impacts: int = 0
+    bonds: int = 0
+    fractures: int = 0
+
+    def copy(self) -> "EventCounts":
+        return EventCounts(self.impacts, self.bonds, self.fractures)
+
+
+@dataclass
+class Record:
+    """One recorded time of a run."""
+
+    t_h: float
+    moments: dict
+    temperature_c: float
+    bonds: int
+    fractures: int
+    p: np.ndarray | None = None
+
+
+class Plant:
+    """The stochastic milling plant (eqns 1-20 with kinematics, heat and hardening).
+
+    Parameters
+    ----------
+    card : ModelCard
+        Calibrated parameters (see ``models/``).
+    rng : numpy.random.Generator
+        The single source of randomness of this plant.
+    particles : int, optional
+        Number M of simulated particles (default: the card's, 20,000).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from bmctl.plant import make_plant
+    >>> plant = make_plant("models/alni-1to1-300rpm-lab.toml", seed=1, particles=2000)  # doctest: +SKIP
+    >>> plant.advance(rpm=300, hours=1.0)  # doctest: +SKIP
+    >>> plant.moments()["s_mean_um"] > 40  # doctest: +SKIP
+    True
+    """
+
+    def __init__(self, card: ModelCard, rng: np.random.Generator, particles: int | None = None):
+        self.card = card
+        self.rng = rng
+        M = int(particles or card.simulation.particles)
+        if M < 2:
+            raise InputError(f"particles: must be >= 2 (got {M})")
+        init = card.initial
+        self.s, self.r = initial_sample(rng, M, init.s_mean_um, init.s_std_um, init.r_mean)
+        mat, mill = card.material, card.mill
+        self.powder_kg = mill.ball_count * mat.impactor_mass_kg / mill.ball_to_powder_ratio
+        n_real = self.powder_kg / (mat.powder_density_kg_m3 * math.pi / 6 * np.mean(self.s**3))
+        self.total_area = float(n_real * np.mean(self.s**2))  # X: represented sum of s^2 (eqn 2), m^2
+        self.t_s = 0.0
+        self.temperature_C = card.thermal.ambient_C
+        self.hardening = 0.0
+        self.counts = EventCounts()
+        st = card.stochastic
+        self._gamma = st.gamma_per_um2 * 1e12  # 1/um^2 -> 1/m^2 (eqn 15)
+        self._delta = st.delta_per_um2 * 1e12  # (eqn 20)
+        self._dissipated_share = ev.mean_dissipated_share(st.alpha, st.beta)
+
+    # --- state -----------------------------------------------------------------------------
+    @property
+    def M(self) -> int:
+        """Number of simulated particles."""
+        return self.s.size
+
+    @property
+    def weight(self) -> float:
+        """Real particles per simulated particle, w = X / sum(s^2)."""
+        return self.total_area / float(np.dot(self.s, self.s))
+
+    @property
+    def represented_particles(self) -> float:
+        """Number of real particles the sample stands for (w M)."""
+        return self.weight * self.M
+
+    def hit_rate(self, kin: Kinematics) -> float:
+        """Impacts per particle per second: f * trapped share * E[(U_in-U_out)/U_in] / E[dissipated share]."""
+        if kin.frequency == 0:
+            return 0.0
+        return kin.frequency * kin.trapped_fraction * MEAN_LOSS_RATIO / self._dissipated_share
+
+    def effective_yield_stress(self) -> float:
+        """sigma_eff at the current temperature and hardening."""
+        return thermal.effective_yield_stress(
+            self.card.material.yield_stress_Pa, self.temperature_C, self.hardening, self.card.thermal
+        )
+
+    # --- dynamics --------------------------------------------------------------------------
+    def advance(self, rpm: float, hours: float, milling: float = 1.0, progress: Callable[[float], None] | None = None):
+        """Mill at ``rpm`` for ``hours * milling``, then rest for ``hours * (1 - milling)``.
+
+        Parameters
+        ----------
+        rpm : float
+            Sun-disc speed, 0 <= rpm <= the card's ``mill.rpm_max``; 0 is a rest.
+        hours : float
+            Length of the interval (h), >= 0.
+        milling : float, optional
+            Fraction of the interval spent milling, in [0, 1].
+        progress : callable, optional
+            Called with the hours done in each step (for progress bars).
+        """
+        _check_input(rpm, hours, milling, self.card.mill.rpm_max)
+        mill_s = hours * 3600.0 * milling
+        rest_s = hours * 3600.0 - mill_s
+        if mill_s > 0 and rpm > 0:
+            self._run(kinematics(self.card, rpm), mill_s, progress)
+        else:
+            rest_s += mill_s
+        if rest_s > 0:
+            self._run(kinematics(self.card, 0.0), rest_s, progress)
+
+    def run_schedule(
+        self,
+        segments: Sequence[tuple[float, float]],
+        record_every_h: float = 1.0,
+        keep_raster: bool = False,
+        progress: Callable[[float], None] | None = None,
+    ) -> list[Record]:
+        """Run (hours, rpm) segments, recording every ``record_every_h`` hours (t = 0 included)."""
+        total = sum(h for h, _ in segments)
+        times = np.arange(0.0, total + 1e-9, record_every_h)
+        if total - times[-1] > 1e-9:
+            times = np.append(times, total)
+        records = [self._record(keep_raster, self.counts.copy())]
+        last = self.counts.copy()
+        bounds = np.cumsum([0.0] + [h for h, _ in segments])
+        t0 = self.t_s / 3600.0
+        for k in range(1, times.size):
+            a, b = times[k - 1], times[k]
+            for (h, rpm), lo, hi in zip(segments, bounds[:-1], bounds[1:]):
+                x0, x1 = max(a, lo), min(b, hi)
+                if x1 > x0 + 1e-12:
+                    self.advance(rpm, x1 - x0, progress=progress)
+            rec = self._record(keep_raster, last)
+            rec.t_h = t0 + b
+            records.append(rec)
+            last = self.counts.copy()
+        records[0].t_h = t0
+        return records
+
+    def _record(self, keep_raster: bool, last: EventCounts) -> Record:
+        return Record(
+            t_h=self.t_s / 3600.0,
+            moments=self.moments(),
+            temperature_c=self.temperature_C,
+            bonds=self.counts.bonds - last.bonds,
+            fractures=self.counts.fractures - last.fractures,
+            p=self.raster() if keep_raster else None,
+        )
+
+    def _run(self, kin: Kinematics, seconds: float, progress) -> None:
+        sim = self.card.simulation
+        rate = self.hit_rate(kin)
+        power = kin.mean_power_W
+        th = self.card.thermal
+        done = 0.0
+        while done < seconds - 1e-9:
+            dt = min(sim.max_step_s, seconds - done)
+            if rate > 0:
+                dt = min(dt, sim.batch_fraction / rate)
+            if rate > 0:
+                n_pairs = min(int(self.rng.poisson(rate * self.M * dt / 2.0)), self.M // 2)
+                if n_pairs:
+                    self._impacts(kin, n_pairs)
+            self.temperature_C = thermal.step_temperature(self.temperature_C, power, dt, th)
+            self.hardening = thermal.step_hardening(self.hardening, power, self.powder_kg, dt, th)
+            self.t_s += dt
+            done += dt
+            if progress is not None:
+                progress(dt / 3600.0)
+
+    def _impacts(self, kin: Kinematics, n: int) -> None:
+        """One batch of ``n`` impacts on disjoint particle pairs (i, j)."""
+        rng, card = self.rng, self.card
+        st, mat, part = card.stochastic, card.material, card.partition
+        M = self.M
+        idx = rng.choice(M, size=2 * n, replace=False)
+        i, j = idx[:n], idx[n:]
+        si, ri, sj, rj = self.s[i], self.r[i], self.s[j], self.r[j]
+
+        u_in, _u_out = ev.sample_impact_energies(rng, kin.energy_scale, n)  # (5)
+        psi = rng.uniform(-np.pi / 2, np.pi / 2, size=n)
+        trapped_area = kin.trapped_fraction * self.total_area  # (6): u_in = U_in / A_trapped
+        e_i = u_in * np.minimum(si**2 / trapped_area, 1.0)  # a particle gets at most the whole impact
+        e_j = u_in * np.minimum(sj**2 / trapped_area, 1.0)
+        zeta = ev.sample_zeta(rng, st.alpha, 2 * n)  # (9)
+        xi = ev.sample_xi(rng, st.beta, 2 * n)
+        psi2 = np.concatenate([psi, psi])
+        e2 = np.concatenate([e_i, e_j])
+        dUf = ev.friction_heat(e2, psi2, zeta)  # (7)
+        dUp = ev.plastic_heat(e2, psi2, xi)  # (8)
+        dUd = dUf + dUp  # (10)
+
+        sigma_eff = self.effective_yield_stress()
+        u_bond, u_frac = thermal.thresholds(mat.bond_threshold_J_per_m, mat.yield_stress_Pa, sigma_eff, card.thermal)
+        s2 = np.concatenate([si, sj])
+        r2 = np.concatenate([ri, rj])
+        eps = ev.plastic_strain(dUp, s2, sigma_eff, part.strain_efficiency, psi2, r2, part.max_strain)  # (11), (14)
+        r2 = np.clip(r2 + ev.aspect_change(r2, eps), 0.0, ev.R_MAX)  # (13)
+        r2 = ev.equiaxing(r2, dUp, s2, sigma_eff, part.equiaxing_efficiency, self.hardening)
+        ri, rj = r2[:n], r2[n:]
+
+        # fracture under the impact load first: (20), (17)
+        x = rng.random(2 * n)
+        dc = ev.crack_length(s2, x)
+        pc = ev.fracture_probability(s2, r2, x, self._delta)
+        pu_c = ev.threshold_probability(dUd / np.maximum(dc, 1e-300), u_frac, part.threshold_sharpness)
+        frac = rng.random(2 * n) < pc * pu_c
+        s1, r1, s2b, r2b = ev.fractured(s2[frac], r2[frac], x[frac], dc[frac])
+
+        # bonding of i with j if neither broke: (15)-(18)
+        d = ev.hertz_contact_length(si, sj, u_in, mat.elastic_modulus_Pa)
+        pu = ev.threshold_probability((dUd[:n] + dUd[n:]) / d, u_bond, part.threshold_sharpness)
+        bond = (rng.random(n) < ev.bond_probability(si, ri, sj, rj, self._gamma) * pu) & ~(frac[:n] | frac[n:])
+        sb, rb = ev.bonded(si[bond], ri[bond], sj[bond], rj[bond], d[bond])
+
+        # write back: survivors of shape change, bonded into slot i, fragment 1 in place
+        self.r[idx] = r2
+        self.s[i[bond]] = sb
+        self.r[i[bond]] = rb
+        fidx = idx[frac]
+        self.s[fidx] = s1
+        self.r[fidx] = r1
+        self._rebalance(j[bond], s2b, r2b)
+        self.counts.impacts += n
+        self.counts.bonds += int(bond.sum())
+        self.counts.fractures += int(frac.sum())
+
+    def _rebalance(self, free: np.ndarray, s_new: np.ndarray, r_new: np.ndarray) -> None:
+        """Constant-number step: fill freed slots with new fragments; clone or drop at random."""
+        rng = self.rng
+        k = min(free.size, s_new.size)
+        self.s[free[:k]] = s_new[:k]
+        self.r[free[:k]] = r_new[:k]
+        if free.size > k:  # more bonds than fractures: copy random occupied particles into free slots
+            holes = free[k:]
+            occupied = np.ones(self.M, dtype=bool)
+            occupied[holes] = False
+            pool = np.flatnonzero(occupied)
+            src = pool[rng.integers(0, pool.size, size=holes.size)]
+            self.s[holes] = self.s[src]
+            self.r[holes] = self.r[src]
+        elif s_new.size > k:  # more fractures: the extra fragments replace random members of M + extra
+            extra_s, extra_r = s_new[k:], r_new[k:]
+            e = extra_s.size
+            victims = rng.choice(self.M + e, size=e, replace=False)
+            in_pop = victims[victims < self.M]
+            survivors = np.setdiff1d(np.arange(e), victims[victims >= self.M] - self.M, assume_unique=True)
+            self.s[in_pop] = extra_s[survivors]
+            self.r[in_pop] = extra_r[survivors]
+
+    # --- observation -----------------------------------------------------------------------
+    def moments(self) -> dict:
+        """Mean/std/mode of s (um) and r, plus time, temperature and hardening."""
+        m = moments(self.s, self.r)
+        m.update(t_h=self.t_s / 3600.0, temperature_c=self.temperature_C, hardening=self.hardening)
+        return m
+
+    def raster(self) -> np.ndarray:
+        """Population fractions p(s, r) on the paper's raster (1 um x 0.01)."""
+        return raster(self.s, self.r, self.card.simulation.s_max_um)
+
+    def sample(self, n: int, rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Draw ``n`` particles as a micrograph sees them (number-weighted, without replacement).
+
+        Returns ``(s_um, r)``. Uses the plant's generator unless ``rng`` is given.
+        """
+        if n < 1:
+            raise InputError(f"sample: n must be >= 1 (got {n})")
+        g = self.rng if rng is None else rng
+        k = g.choice(self.M, size=min(n, self.M), replace=n > self.M)
+        return self.s[k] / UM, self.r[k].copy()
+
+    def snapshot(self) -> dict:
+        """The full state (arrays, clocks, counters, generator state) as a plain dict."""
+        return {
+            "s": self.s.copy(),
+            "r": self.r.copy(),
+            "t_s": self.t_s,
+            "temperature_C": self.temperature_C,
+            "hardening": self.hardening,
+            "total_area": self.total_area,
+            "counts": (self.counts.impacts, self.counts.bonds, self.counts.fractures),
+            "rng": self.rng.bit_generator.state,
+        }
+
+    def restore(self, snap: dict) -> None:
+        """Restore a state produced by :meth:`snapshot` (the generator state included)."""
+        self.s = np.array(snap["s"], dtype=float)
+        self.r = np.array(snap["r"], dtype=float)
+        self.t_s = float(snap["t_s"])
+        self.temperature_C = float(snap["temperature_C"])
+        self.hardening = float(snap["hardening"])
+        self.total_area = float(snap["total_area"])
+        self.counts = EventCounts(*snap["counts"])
+        self.rng.bit_generator.state = snap["rng"]
+
+
+def _check_input(rpm: float, hours: float, milling: float, rpm_max: float) -> None:
+    for name, val in (("rpm", rpm), ("hours", hours), ("milling", milling)):
+        if not np.isfinite(val):
+            raise InputError(f"{name}: must be a finite number (got {val})")
+    if rpm < 0 or rpm > rpm_max:
+        raise InputError(f"rpm: must be in [0, {rpm_max:g}] (got {rpm:g})")
+    if hours < 0:
+        raise InputError(f"hours: must be >= 0 (got {hours:g})")
+    if not 0 <= milling <= 1:
+        raise InputError(f"milling: must be in [0, 1] (got {milling:g})")
+
+
+def make_plant(card: ModelCard | str | Path, seed: int | None = None, particles: int | None = None,
+               rng: np.random.Generator | None = None) -> Plant:
+    """Create a :class:`Plant` from a model card (object or TOML path).
+
+    Parameters
+    ----------
+    card : ModelCard or path-like
+        The model card.
+    seed : int, optional
+        Seed of the plant's ``numpy.random.Generator`` (ignored when ``rng`` is given).
+    particles : int, optional
+        Number of simulated particles M.
+    rng : numpy.random.Generator, optional
+        Use this generator instead of a new one.
+
+    Returns
+    -------
+    Plant
+
+    Examples
+    --------
+    >>> from bmctl.plant import make_plant
+    >>> p = make_plant("models/alni-1to1-300rpm-lab.toml", seed=0, particles=500)  # doctest: +SKIP
+    >>> p.M  # doctest: +SKIP
+    500
+    """
+    if not isinstance(card, ModelCard):
+        card = load_card(card)
+    return Plant(card, rng if rng is not None else np.random.default_rng(seed), particles)
+
+
+__all__ = ["Plant", "make_plant", "default_card", "Record", "EventCounts", "card_schedule"]
