@@ -32,7 +32,8 @@ class _Parser(argparse.ArgumentParser):
     """ArgumentParser whose errors are one line and exit 2."""
 
     def error(self, message: str):  # noqa: D401 - argparse API
-        raise InputError(f"{self.prog}: {message}")
+        prefix = "" if self.prog == "bmctl" else f"{self.prog.removeprefix('bmctl ')}: "
+        raise InputError(f"{prefix}{message}")
 
 
 def build_parser(available: dict[str, object] | None = None) -> argparse.ArgumentParser:

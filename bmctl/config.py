@@ -109,7 +109,8 @@ class Thermal(Strict):
     ambient_C: Finite = 25.0
     heat_capacity_J_per_K: Pos = 800.0
     cooling_time_s: Pos = 1800.0
-    softening_per_K: NonNeg = 0.0
+    softening_max: Annotated[float, Field(ge=0, lt=1)] = 0.0  # S: largest relative loss of yield stress
+    softening_scale_K: Pos = 30.0  # T_s: temperature rise for 63 % of S
     hardening_max: NonNeg = 0.0
     hardening_work_J_per_kg: Pos = 1e8
     recovery_time_s: Pos = 1e9  # static recovery of hardening (large = none)

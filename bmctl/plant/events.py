@@ -119,16 +119,16 @@ def aspect_change(r, eps):
     return (1 - r) * np.sqrt(np.clip(1 - (1 - r) ** 2, 0, 1)) * eps
 
 
-def equiaxing(r, dU_p, s, sigma, efficiency, hardening=0.0):
-    """Rounding of irregular particles by plastic work: r <- r exp(-eta_eq (1-h) (3/2) dU_p / (A s sigma)).
+def equiaxing(r, dU_p, s, sigma, efficiency):
+    """Rounding of irregular particles by plastic work: r <- r exp(-eta_eq (3/2) dU_p / (A s sigma)).
 
     Not in the paper: Benjamin & Volin's (1974) equiaxed-particle stage of mechanical
     alloying, in which repeated impacts flatten the protrusions that welding and fracture
-    leave; work-hardened material (h -> 1) has lost the ductility to round up.
+    leave; hardened material (higher sigma) rounds more slowly.
     ``efficiency`` = 0 switches it off (docs/model.md, after eqn 13).
     """
     area = np.pi / 4 * s**2
-    return r * np.exp(-efficiency * (1.0 - hardening) * 1.5 * dU_p / (area * s * sigma))
+    return r * np.exp(-efficiency * 1.5 * dU_p / (area * s * sigma))
 
 
 # --- bonding and fracture ---------------------------------------------------------------------

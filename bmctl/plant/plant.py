@@ -240,12 +240,12 @@ class Plant:
         dUd = dUf + dUp  # (10)
 
         sigma_eff = self.effective_yield_stress()
-        u_bond, u_frac = thermal.thresholds(mat.bond_threshold_J_per_m, mat.yield_stress_Pa, sigma_eff, card.thermal)
+        u_bond, u_frac = thermal.thresholds(mat.bond_threshold_J_per_m, self.temperature_C, self.hardening, card.thermal)
         s2 = np.concatenate([si, sj])
         r2 = np.concatenate([ri, rj])
         eps = ev.plastic_strain(dUp, s2, sigma_eff, part.strain_efficiency, psi2, r2, part.max_strain)  # (11), (14)
         r2 = np.clip(r2 + ev.aspect_change(r2, eps), 0.0, ev.R_MAX)  # (13)
-        r2 = ev.equiaxing(r2, dUp, s2, sigma_eff, part.equiaxing_efficiency, self.hardening)
+        r2 = ev.equiaxing(r2, dUp, s2, sigma_eff, part.equiaxing_efficiency)  # after (13)
         ri, rj = r2[:n], r2[n:]
 
         # fracture under the impact load first: (20), (17)

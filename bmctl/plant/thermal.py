@@ -2,10 +2,10 @@
 
 dT/dt = P / C - (T - T_amb) / tau            (heating by dissipated power, Newton cooling)
 dh/dt = P / (m_p W_h) (1 - h) - h / tau_rec  (hardening by plastic work, slow recovery)
-sigma_eff = sigma (1 + H h) exp(-c_T (T - T_amb))
-u_bond = u (sigma_eff / sigma)^n_b,  u_fracture = u (sigma / sigma_eff)^n_c
+sigma_eff = sigma (1 + H h) (1 - S (1 - exp(-(T - T_amb) / T_s)))
+u_bond = u (sigma_eff / sigma)^n_b,  u_fracture = u (sigma_eff / sigma)^-n_c
 
-With c_T = 0 and H = 0 ("neutral") sigma_eff = sigma and both thresholds are the
+With S = 0 and H = 0 ("neutral") sigma_eff = sigma and both thresholds are the
 paper's u: the steady-state model of Sec. 3.2.
 """
 
@@ -31,16 +31,22 @@ def step_hardening(h: float, power_W: float, powder_kg: float, dt_s: float, th: 
 
 
 def softening_factor(T_C: float, th: Thermal) -> float:
-    """Thermal softening multiplier of the yield stress, exp(-c_T (T - T_amb))."""
-    return math.exp(-th.softening_per_K * (T_C - th.ambient_C))
+    """Thermal softening multiplier of the yield stress, 1 - S (1 - exp(-(T - T_amb)^+ / T_s))."""
+    dT = max(T_C - th.ambient_C, 0.0)
+    return 1.0 - th.softening_max * (1.0 - math.exp(-dT / th.softening_scale_K))
 
 
 def effective_yield_stress(sigma: float, T_C: float, h: float, th: Thermal) -> float:
-    """sigma_eff = sigma (1 + H h) exp(-c_T (T - T_amb))."""
+    """sigma_eff = sigma (1 + H h) (1 - S (1 - exp(-(T - T_amb) / T_s)))."""
     return sigma * (1.0 + th.hardening_max * h) * softening_factor(T_C, th)
 
 
-def thresholds(u: float, sigma: float, sigma_eff: float, th: Thermal) -> tuple[float, float]:
-    """Bonding and fracture thresholds (J/m) at the current effective yield stress."""
-    ratio = sigma_eff / sigma
+def thresholds(u: float, T_C: float, h: float, th: Thermal) -> tuple[float, float]:
+    """Bonding and fracture thresholds (J/m) at temperature ``T_C`` and hardening ``h``.
+
+    Bonding needs plastic flow at the joint: u_b = u (sigma_eff / sigma)^n_b, lowered by
+    heat and raised by hardening. Cracking is the reverse: u_c = u (sigma_eff / sigma)^-n_c,
+    raised in hot ductile material and lowered in hardened, brittle material.
+    """
+    ratio = (1.0 + th.hardening_max * h) * softening_factor(T_C, th)
     return u * ratio**th.bond_hardening_exponent, u * ratio ** (-th.fracture_hardening_exponent)

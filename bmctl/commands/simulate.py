@@ -1,0 +1,94 @@
+"""Run the stochastic milling plant on a model card and write moments, populations and figures."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+from ..config import card_schedule, load_card, load_schedule
+from ..errors import InputError
+
+
+def _nonneg_float(name):
+    def parse(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise InputError(f"{name}: not a number: {text!r}") from None
+        if not math.isfinite(v) or v < 0:
+            raise InputError(f"{name}: must be a finite number >= 0 (got {text})")
+        return v
+    return parse
+
+
+def _int(name, lo):
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise InputError(f"{name}: not an integer: {text!r}") from None
+        if v < lo:
+            raise InputError(f"{name}: must be >= {lo} (got {v})")
+        return v
+    return parse
+
+
+def configure(p):
+    p.add_argument("model", metavar="MODEL.toml", help="model card (see models/)")
+    p.add_argument("--hours", type=_nonneg_float("--hours"), default=None, help="milling time (default: the card's)")
+    p.add_argument("--seed", type=_int("--seed", 0), default=0, help="random seed (default 0)")
+    p.add_argument("--particles", type=_int("--particles", 100), default=None, help="simulated particles M")
+    p.add_argument("--rpm", type=_nonneg_float("--rpm"), default=None, help="sun-disc speed (default: the card's)")
+    p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest)")
+    p.add_argument("--every", type=_nonneg_float("--every"), default=None, help="recording interval in h (default 1)")
+    p.add_argument("--out", default="out/simulate", metavar="DIR", help="output folder (default out/simulate)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args) -> int:
+    from ..simulate import simulate, write_outputs
+
+    card = load_card(args.model)
+    if args.schedule is not None:
+        if args.hours is not None or args.rpm is not None:
+            raise InputError("--schedule: cannot be combined with --hours or --rpm")
+        sched = load_schedule(args.schedule)
+        segments = [(s.hours, s.rpm) for s in sched.segment]
+    else:
+        if args.hours == 0:
+            raise InputError("--hours: must be > 0 (got 0)")
+        segments = card_schedule(card, args.hours, args.rpm)
+    for h, rpm in segments:
+        if rpm > card.mill.rpm_max:
+            src = args.schedule or "--rpm"
+            raise InputError(f"{src}: rpm {rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g} ({args.model})")
+    if args.every is not None and args.every <= 0:
+        raise InputError(f"--every: must be > 0 (got {args.every:g})")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out: {out} exists and is not a folder")
+    total_h = sum(h for h, _ in segments)
+    bar = None
+    progress = None
+    if not args.no_progress and total_h * (args.particles or card.simulation.particles) > 2e5:  # runs > ~1 s
+        from tqdm import tqdm
+
+        bar = tqdm(total=round(total_h, 3), unit="h", desc="milling", leave=False,
+                   bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} h [{elapsed}<{remaining}]", mininterval=0.5)
+        progress = bar.update
+    try:
+        res = simulate(card, segments, seed=args.seed, particles=args.particles, record_every_h=args.every,
+                       progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    paths = write_outputs(res, out)
+    last = res.records[-1]
+    m = last.moments
+    print(f"{card.card.name}: {total_h:g} h, M={args.particles or card.simulation.particles}, seed {args.seed}: "
+          f"s mean {m['s_mean_um']:.1f} um, std {m['s_std_um']:.1f} um, r mean {m['r_mean']:.3f}, "
+          f"T {last.temperature_c:.1f} C")
+    for p in paths:
+        print(f"  wrote {p}")
+    return 0
