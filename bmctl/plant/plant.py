@@ -163,13 +163,19 @@ class Plant:
         record_every_h: float = 1.0,
         keep_raster: bool = False,
         progress: Callable[[float], None] | None = None,
+        on_record: Callable[["Plant"], None] | None = None,
     ) -> list[Record]:
-        """Run (hours, rpm) segments, recording every ``record_every_h`` hours (t = 0 included)."""
+        """Run (hours, rpm) segments, recording every ``record_every_h`` hours (t = 0 included).
+
+        ``on_record(plant)`` is called at each recorded time (t = 0 included), e.g. to keep samples.
+        """
         total = sum(h for h, _ in segments)
         times = np.arange(0.0, total + 1e-9, record_every_h)
         if total - times[-1] > 1e-9:
             times = np.append(times, total)
         records = [self._record(keep_raster, self.counts.copy())]
+        if on_record is not None:
+            on_record(self)
         last = self.counts.copy()
         bounds = np.cumsum([0.0] + [h for h, _ in segments])
         t0 = self.t_s / 3600.0
@@ -182,6 +188,8 @@ class Plant:
             rec = self._record(keep_raster, last)
             rec.t_h = t0 + b
             records.append(rec)
+            if on_record is not None:
+                on_record(self)
             last = self.counts.copy()
         records[0].t_h = t0
         return records

@@ -1,0 +1,210 @@
+"""Per-particle tables: area, perimeter, size s (eqn 1) and aspect ratio r (eqn 3), in micrometres.
+
+A particle table CSV has a header and one row per particle, either with columns
+``area_um2,perimeter_um`` (s and r are derived; extra columns, ``s_um`` and ``r`` too,
+are ignored) or with columns ``s_um,r`` (area and perimeter are derived). Tables are
+written with the four columns ``area_um2,perimeter_um,s_um,r``.
+
+Isoperimetric bound: every closed curve of area A has L >= 2 sqrt(pi A) = pi s, i.e.
+r >= 0. A measured perimeter a little below the bound (estimator noise on small, round
+particles) is raised to it (r = 0); one more than ``ISOPERIMETRIC_TOL`` below it is an error.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io import write_csv
+from ..plant.events import aspect_from_perimeter, perimeter_from_aspect, size_from_area
+
+COLUMNS = ("area_um2", "perimeter_um", "s_um", "r")
+ISOPERIMETRIC_TOL = 0.05  # relative shortfall of L below pi s accepted (and raised to pi s)
+
+
+@dataclass(frozen=True)
+class ParticleTable:
+    """Measured particles: four aligned 1-D float arrays, lengths in micrometres.
+
+    Attributes
+    ----------
+    area_um2 : ndarray
+        Section area A.
+    perimeter_um : ndarray
+        Boundary length L (>= pi s).
+    s_um : ndarray
+        Size s = 2 sqrt(A / pi) (eqn 1).
+    r : ndarray
+        Aspect ratio r = 1 - pi s / L (eqn 3), in [0, 1).
+
+    Examples
+    --------
+    >>> t = ParticleTable.from_size_aspect([10.0, 20.0], [0.0, 0.1])
+    >>> len(t), round(float(t.perimeter_um[1]), 3)
+    (2, 69.813)
+    """
+
+    area_um2: np.ndarray
+    perimeter_um: np.ndarray
+    s_um: np.ndarray
+    r: np.ndarray
+
+    def __post_init__(self):
+        n = None
+        for name in COLUMNS:
+            v = np.atleast_1d(np.asarray(getattr(self, name), dtype=float)).ravel()
+            if n is not None and v.size != n:
+                raise ValueError(f"ParticleTable: column {name} has {v.size} rows, expected {n}")
+            n = v.size
+            object.__setattr__(self, name, v)
+
+    @classmethod
+    def from_area_perimeter(cls, area_um2, perimeter_um) -> "ParticleTable":
+        """Table from areas and perimeters; perimeters below pi s are raised to pi s (r = 0).
+
+        Parameters
+        ----------
+        area_um2, perimeter_um : array_like
+            Positive areas and perimeters.
+
+        Returns
+        -------
+        ParticleTable
+        """
+        area = np.atleast_1d(np.asarray(area_um2, dtype=float))
+        s = size_from_area(area)
+        perim = np.maximum(np.atleast_1d(np.asarray(perimeter_um, dtype=float)), np.pi * s)
+        return cls(area, perim, s, aspect_from_perimeter(s, perim))
+
+    @classmethod
+    def from_size_aspect(cls, s_um, r) -> "ParticleTable":
+        """Table from sizes and aspect ratios: A = pi s^2 / 4, L = pi s / (1 - r)."""
+        s = np.atleast_1d(np.asarray(s_um, dtype=float))
+        r = np.broadcast_to(np.asarray(r, dtype=float), s.shape)
+        return cls(np.pi * s**2 / 4.0, perimeter_from_aspect(s, r), s, r)
+
+    @classmethod
+    def empty(cls) -> "ParticleTable":
+        """A table with no particles."""
+        return cls(*(np.empty(0) for _ in COLUMNS))
+
+    def __len__(self) -> int:
+        return self.s_um.size
+
+    def take(self, index) -> "ParticleTable":
+        """Rows selected by an index array or boolean mask."""
+        return ParticleTable(*(getattr(self, c)[index] for c in COLUMNS))
+
+    @staticmethod
+    def concat(tables) -> "ParticleTable":
+        """Rows of several tables, in order."""
+        tables = list(tables)
+        if not tables:
+            return ParticleTable.empty()
+        return ParticleTable(*(np.concatenate([getattr(t, c) for t in tables]) for c in COLUMNS))
+
+    def rows(self):
+        """Iterate over rows as tuples (area_um2, perimeter_um, s_um, r)."""
+        return zip(*(getattr(self, c).tolist() for c in COLUMNS))
+
+    def summary(self) -> dict[str, float]:
+        """Count, median s (um) and median r."""
+        n = len(self)
+        return {
+            "count": n,
+            "s_median_um": float(np.median(self.s_um)) if n else float("nan"),
+            "r_median": float(np.median(self.r)) if n else float("nan"),
+        }
+
+
+def _parse(path: str, lineno: int, col: str, text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise InputError(f"{path}: row {lineno}, column {col}: not a number ({text!r})") from None
+    if not np.isfinite(v):
+        raise InputError(f"{path}: row {lineno}, column {col}: must be finite (got {text.strip()})")
+    return v
+
+
+def read_table(path: str | os.PathLike) -> ParticleTable:
+    """Read a particle table CSV (``area_um2,perimeter_um`` or ``s_um,r`` columns).
+
+    Row numbers in error messages are file line numbers (the header is line 1); blank lines
+    and lines starting with ``#`` are skipped.
+
+    Parameters
+    ----------
+    path : path-like
+
+    Returns
+    -------
+    ParticleTable
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        Missing or unreadable file, no header or no rows, missing columns, a value that is
+        not a finite number, area/perimeter/s <= 0, r outside [0, 1), or a perimeter more
+        than ``ISOPERIMETRIC_TOL`` below pi s.
+    """
+    p = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{p}: cannot read particle table ({type(exc).__name__})") from None
+    lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise InputError(f"{p}: empty particle table (no header, no rows)")
+    reader = csv.reader([ln for _, ln in lines])
+    header = [h.strip() for h in next(reader)]
+    if {"area_um2", "perimeter_um"} <= set(header):
+        cols = ("area_um2", "perimeter_um")
+    elif {"s_um", "r"} <= set(header):
+        cols = ("s_um", "r")
+    else:
+        raise InputError(f"{p}: missing columns: need area_um2,perimeter_um or s_um,r (header has {','.join(header)})")
+    idx = [header.index(c) for c in cols]
+    vals = []
+    for (lineno, _), row in zip(lines[1:], reader):
+        if len(row) < len(header):
+            raise InputError(f"{p}: row {lineno}: {len(row)} fields, header has {len(header)}")
+        a, b = (_parse(p, lineno, c, row[j]) for c, j in zip(cols, idx))
+        if a <= 0:
+            raise InputError(f"{p}: row {lineno}, column {cols[0]}: must be > 0 (got {a:g})")
+        if cols[1] == "r" and not 0.0 <= b < 1.0:
+            raise InputError(f"{p}: row {lineno}, column r: must be in [0, 1) (got {b:g})")
+        if cols[1] == "perimeter_um":
+            if b <= 0:
+                raise InputError(f"{p}: row {lineno}, column perimeter_um: must be > 0 (got {b:g})")
+            bound = np.pi * float(size_from_area(a))
+            if b < (1.0 - ISOPERIMETRIC_TOL) * bound:
+                raise InputError(
+                    f"{p}: row {lineno}, column perimeter_um: {b:g} is below the isoperimetric bound "
+                    f"pi*s = {bound:.6g} (r = {1 - bound / b:.3f} < 0)"
+                )
+        vals.append((a, b))
+    if not vals:
+        raise InputError(f"{p}: empty particle table (header but no rows)")
+    arr = np.array(vals, dtype=float)
+    if cols == ("s_um", "r"):
+        return ParticleTable.from_size_aspect(arr[:, 0], arr[:, 1])
+    return ParticleTable.from_area_perimeter(arr[:, 0], arr[:, 1])
+
+
+def write_table(path: str | os.PathLike, table: ParticleTable) -> None:
+    """Write ``area_um2,perimeter_um,s_um,r`` atomically (:func:`bmctl.io.write_csv`).
+
+    Parameters
+    ----------
+    path : path-like
+    table : ParticleTable
+    """
+    write_csv(path, COLUMNS, table.rows(), fmt="{:.7g}")
