@@ -26,7 +26,8 @@ from ..config import ModelCard, card_schedule, load_card
 from ..errors import InputError
 from . import events as ev
 from . import thermal
-from .kinematics import MEAN_LOSS_RATIO, Kinematics, kinematics
+from .kernels import Kernels, PaperKernels
+from .kinematics import Kinematics, kinematics
 from .population import UM, initial_sample, moments, raster
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
@@ -72,6 +73,9 @@ class Plant:
         The single source of randomness of this plant.
     particles : int, optional
         Number M of simulated particles (default: the card's, 20,000).
+    kernels : Kernels, optional
+        The impact physics the event machinery runs (default: the paper's,
+        :class:`bmctl.plant.kernels.PaperKernels`); verification swaps in simple kernels.
 
     Examples
     --------
@@ -83,8 +87,10 @@ class Plant:
     True
     """
 
-    def __init__(self, card: ModelCard, rng: np.random.Generator, particles: int | None = None):
+    def __init__(self, card: ModelCard, rng: np.random.Generator, particles: int | None = None,
+                 kernels: Kernels | None = None):
         self.card = card
+        self.kernels: Kernels = PaperKernels() if kernels is None else kernels
         self.rng = rng
         M = int(particles or card.simulation.particles)
         if M < 2:
@@ -122,9 +128,7 @@ class Plant:
 
     def hit_rate(self, kin: Kinematics) -> float:
         """Impacts per particle per second: f * trapped share * E[(U_in-U_out)/U_in] / E[dissipated share]."""
-        if kin.frequency == 0:
-            return 0.0
-        return kin.frequency * kin.trapped_fraction * MEAN_LOSS_RATIO / self._dissipated_share
+        return self.kernels.rate(self, kin)
 
     def effective_yield_stress(self) -> float:
         """sigma_eff at the current temperature and hardening."""
@@ -226,58 +230,20 @@ class Plant:
                 progress(dt / 3600.0)
 
     def _impacts(self, kin: Kinematics, n: int) -> None:
-        """One batch of ``n`` impacts on disjoint particle pairs (i, j)."""
-        rng, card = self.rng, self.card
-        st, mat, part = card.stochastic, card.material, card.partition
-        M = self.M
-        idx = rng.choice(M, size=2 * n, replace=False)
+        """One batch of ``n`` impacts on disjoint particle pairs (i, j); the physics is ``self.kernels``."""
+        idx = self.rng.choice(self.M, size=2 * n, replace=False)
         i, j = idx[:n], idx[n:]
-        si, ri, sj, rj = self.s[i], self.r[i], self.s[j], self.r[j]
-
-        u_in, _u_out = ev.sample_impact_energies(rng, kin.energy_scale, n)  # (5)
-        psi = rng.uniform(-np.pi / 2, np.pi / 2, size=n)
-        trapped_area = kin.trapped_fraction * self.total_area  # (6): u_in = U_in / A_trapped
-        e_i = u_in * np.minimum(si**2 / trapped_area, 1.0)  # a particle gets at most the whole impact
-        e_j = u_in * np.minimum(sj**2 / trapped_area, 1.0)
-        zeta = ev.sample_zeta(rng, st.alpha, 2 * n)  # (9)
-        xi = ev.sample_xi(rng, st.beta, 2 * n)
-        psi2 = np.concatenate([psi, psi])
-        e2 = np.concatenate([e_i, e_j])
-        dUf = ev.friction_heat(e2, psi2, zeta)  # (7)
-        dUp = ev.plastic_heat(e2, psi2, xi)  # (8)
-        dUd = dUf + dUp  # (10)
-
-        sigma_eff = self.effective_yield_stress()
-        u_bond, u_frac = thermal.thresholds(mat.bond_threshold_J_per_m, self.temperature_C, self.hardening, card.thermal)
-        s2 = np.concatenate([si, sj])
-        r2 = np.concatenate([ri, rj])
-        eps = ev.plastic_strain(dUp, s2, sigma_eff, part.strain_efficiency, psi2, r2, part.max_strain)  # (11), (14)
-        r2 = np.clip(r2 + ev.aspect_change(r2, eps), 0.0, ev.R_MAX)  # (13)
-        r2 = ev.equiaxing(r2, dUp, s2, sigma_eff, part.equiaxing_efficiency)  # after (13)
-        ri, rj = r2[:n], r2[n:]
-
-        # fracture under the impact load first: (20), (17)
-        x = rng.random(2 * n)
-        dc = ev.crack_length(s2, x)
-        pc = ev.fracture_probability(s2, r2, x, self._delta)
-        pu_c = ev.threshold_probability(dUd / np.maximum(dc, 1e-300), u_frac, part.threshold_sharpness)
-        frac = rng.random(2 * n) < pc * pu_c
-        s1, r1, s2b, r2b = ev.fractured(s2[frac], r2[frac], x[frac], dc[frac])
-
-        # bonding of i with j if neither broke: (15)-(18)
-        d = ev.hertz_contact_length(si, sj, u_in, mat.elastic_modulus_Pa)
-        pu = ev.threshold_probability((dUd[:n] + dUd[n:]) / d, u_bond, part.threshold_sharpness)
-        bond = (rng.random(n) < ev.bond_probability(si, ri, sj, rj, self._gamma) * pu) & ~(frac[:n] | frac[n:])
-        sb, rb = ev.bonded(si[bond], ri[bond], sj[bond], rj[bond], d[bond])
+        out = self.kernels.collide(self, kin, self.s[i], self.r[i], self.s[j], self.r[j], self.rng)
+        bond, frac = out.bond, out.frac
 
         # write back: survivors of shape change, bonded into slot i, fragment 1 in place
-        self.r[idx] = r2
-        self.s[i[bond]] = sb
-        self.r[i[bond]] = rb
+        self.r[idx] = out.r
+        self.s[i[bond]] = out.s_bond
+        self.r[i[bond]] = out.r_bond
         fidx = idx[frac]
-        self.s[fidx] = s1
-        self.r[fidx] = r1
-        self._rebalance(j[bond], s2b, r2b)
+        self.s[fidx] = out.s1
+        self.r[fidx] = out.r1
+        self._rebalance(j[bond], out.s2, out.r2)
         self.counts.impacts += n
         self.counts.bonds += int(bond.sum())
         self.counts.fractures += int(frac.sum())

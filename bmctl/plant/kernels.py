@@ -1,0 +1,235 @@
+"""Collision kernels of the plant: the paper's impact physics and simple verification kernels.
+
+The plant's event machinery (:meth:`bmctl.plant.plant.Plant._impacts`: Poisson batches of
+disjoint random pairs, constant-number rebalancing, weight bookkeeping) asks a
+:class:`Kernels` object two things:
+
+* ``rate(plant, kin)``: processings per particle per second (each impact of a batch
+  processes the two particles of its pair);
+* ``collide(plant, kin, s_i, r_i, s_j, r_j, rng)``: what a batch of impacts on the pairs
+  (i, j) does, as an :class:`Outcome` (new aspect ratios, which particles broke and into
+  what, which pairs bonded and into what).
+
+:class:`PaperKernels` is the paper's physics, eqns (5)-(20) (the default of every plant).
+:class:`PopulationKernels` holds simple kernels in the area coordinate x = s^2 with known
+solutions (constant-kernel Smoluchowski, Ziff-McGrady breakage, the bonding kernel (15) on
+its own), used by :mod:`bmctl.verify` to check the machinery (docs/verification.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable, Protocol
+
+import numpy as np
+
+from . import events as ev
+from . import thermal
+from .kinematics import MEAN_LOSS_RATIO, Kinematics
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .plant import Plant
+
+
+@dataclass
+class Outcome:
+    """What one batch of n impacts on pairs (i, j) did.
+
+    Attributes
+    ----------
+    r : ndarray, shape (2n,)
+        Aspect ratios of ``[i..., j...]`` after the impacts' shape change.
+    frac : ndarray of bool, shape (2n,)
+        Which of ``[i..., j...]`` broke.
+    s1, r1 : ndarray
+        The part of each broken particle that stays in its slot (order of ``frac``).
+    s2, r2 : ndarray
+        The other part of each broken particle (needs a slot: constant-number rebalancing).
+    bond : ndarray of bool, shape (n,)
+        Which pairs bonded (only pairs of which neither particle broke).
+    s_bond, r_bond : ndarray
+        The bonded particles (they take slot i; slot j is freed).
+    """
+
+    r: np.ndarray
+    frac: np.ndarray
+    s1: np.ndarray
+    r1: np.ndarray
+    s2: np.ndarray
+    r2: np.ndarray
+    bond: np.ndarray
+    s_bond: np.ndarray
+    r_bond: np.ndarray
+
+
+class Kernels(Protocol):
+    """What the plant's event machinery needs from the physics of an impact."""
+
+    def rate(self, plant: "Plant", kin: Kinematics) -> float:
+        """Processings per particle per second at kinematics ``kin`` (0: no impacts)."""
+
+    def collide(self, plant: "Plant", kin: Kinematics, s_i: np.ndarray, r_i: np.ndarray,
+                s_j: np.ndarray, r_j: np.ndarray, rng: np.random.Generator) -> Outcome:
+        """Outcome of impacts on the disjoint pairs (i, j); every draw from ``rng``."""
+
+
+class PaperKernels:
+    """The paper's impact physics, eqns (5)-(20) with the energy partition of docs/model.md.
+
+    Each impact processes its pair (i, j): energies (5), (6); friction and plastic heat
+    (7)-(10); shape change (11)-(14) and rounding; fracture (20) of either particle first,
+    then bonding (15)-(18) of the pair if neither broke.
+    """
+
+    def rate(self, plant: "Plant", kin: Kinematics) -> float:
+        """Impacts per particle per second: f * trapped share * E[(U_in-U_out)/U_in] / E[dissipated share]."""
+        if kin.frequency == 0:
+            return 0.0
+        return kin.frequency * kin.trapped_fraction * MEAN_LOSS_RATIO / plant._dissipated_share
+
+    def collide(self, plant: "Plant", kin: Kinematics, si: np.ndarray, ri: np.ndarray,
+                sj: np.ndarray, rj: np.ndarray, rng: np.random.Generator) -> Outcome:
+        card = plant.card
+        st, mat, part = card.stochastic, card.material, card.partition
+        n = si.size
+        u_in, _u_out = ev.sample_impact_energies(rng, kin.energy_scale, n)  # (5)
+        psi = rng.uniform(-np.pi / 2, np.pi / 2, size=n)
+        trapped_area = kin.trapped_fraction * plant.total_area  # (6): u_in = U_in / A_trapped
+        e_i = u_in * np.minimum(si**2 / trapped_area, 1.0)  # a particle gets at most the whole impact
+        e_j = u_in * np.minimum(sj**2 / trapped_area, 1.0)
+        zeta = ev.sample_zeta(rng, st.alpha, 2 * n)  # (9)
+        xi = ev.sample_xi(rng, st.beta, 2 * n)
+        psi2 = np.concatenate([psi, psi])
+        e2 = np.concatenate([e_i, e_j])
+        dUf = ev.friction_heat(e2, psi2, zeta)  # (7)
+        dUp = ev.plastic_heat(e2, psi2, xi)  # (8)
+        dUd = dUf + dUp  # (10)
+
+        sigma_eff = plant.effective_yield_stress()
+        u_bond, u_frac = thermal.thresholds(mat.bond_threshold_J_per_m, plant.temperature_C, plant.hardening,
+                                            card.thermal)
+        s2 = np.concatenate([si, sj])
+        r2 = np.concatenate([ri, rj])
+        eps = ev.plastic_strain(dUp, s2, sigma_eff, part.strain_efficiency, psi2, r2, part.max_strain)  # (11), (14)
+        r2 = np.clip(r2 + ev.aspect_change(r2, eps), 0.0, ev.R_MAX)  # (13)
+        r2 = ev.equiaxing(r2, dUp, s2, sigma_eff, part.equiaxing_efficiency)  # after (13)
+        ri, rj = r2[:n], r2[n:]
+
+        # fracture under the impact load first: (20), (17)
+        x = rng.random(2 * n)
+        dc = ev.crack_length(s2, x)
+        pc = ev.fracture_probability(s2, r2, x, plant._delta)
+        pu_c = ev.threshold_probability(dUd / np.maximum(dc, 1e-300), u_frac, part.threshold_sharpness)
+        frac = rng.random(2 * n) < pc * pu_c
+        s1, r1, s2b, r2b = ev.fractured(s2[frac], r2[frac], x[frac], dc[frac])
+
+        # bonding of i with j if neither broke: (15)-(18)
+        d = ev.hertz_contact_length(si, sj, u_in, mat.elastic_modulus_Pa)
+        pu = ev.threshold_probability((dUd[:n] + dUd[n:]) / d, u_bond, part.threshold_sharpness)
+        bond = (rng.random(n) < ev.bond_probability(si, ri, sj, rj, plant._gamma) * pu) & ~(frac[:n] | frac[n:])
+        sb, rb = ev.bonded(si[bond], ri[bond], sj[bond], rj[bond], d[bond])
+        return Outcome(r2, frac, s1, r1, s2b, r2b, bond, sb, rb)
+
+
+# --- verification kernels (area coordinate x = s^2) ------------------------------------------
+
+BondProbability = Callable[[np.ndarray, np.ndarray, float], np.ndarray]
+FractureProbability = Callable[[np.ndarray], np.ndarray]
+Split = Callable[[np.random.Generator, int], np.ndarray]
+
+
+def uniform_split(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Area fraction u ~ U(0, 1) of the first part: binary breakage, daughter density b(x|y) = 2/y."""
+    return rng.random(n)
+
+
+@dataclass(frozen=True)
+class PopulationKernels:
+    """Verification kernels in the area coordinate x = s^2: bonding and breakage only.
+
+    No energies, no shape change: r is left as it is (use r = 0). Each particle is
+    processed at ``rate_per_s``; a processed particle breaks with probability
+    ``fracture(x)`` into parts u x and (1 - u) x (u from ``split``), and a processed
+    pair of which neither broke bonds with probability ``bond(x_i, x_j, N)`` (N: the
+    represented number of particles) into x_i + x_j. Probabilities above 1 raise
+    ``ValueError``: ``rate_per_s`` must be a majorant (a clipped probability would be a
+    silent bias).
+
+    Attributes
+    ----------
+    rate_per_s : float
+        Processings per particle per second, rho.
+    bond : callable, optional
+        Bond probability per processed pair; agglomeration kernel K(x_i, x_j) = rho p / N.
+    fracture : callable, optional
+        Break probability per processing; selection rate S(x) = rho p.
+    split : callable
+        Draws the area fraction of the first part.
+    """
+
+    rate_per_s: float
+    bond: BondProbability | None = None
+    fracture: FractureProbability | None = None
+    split: Split = uniform_split
+
+    def rate(self, plant: "Plant", kin: Kinematics) -> float:
+        """``rate_per_s`` while milling, 0 at rest."""
+        return self.rate_per_s if kin.frequency > 0 else 0.0
+
+    def collide(self, plant: "Plant", kin: Kinematics, si: np.ndarray, ri: np.ndarray,
+                sj: np.ndarray, rj: np.ndarray, rng: np.random.Generator) -> Outcome:
+        n = si.size
+        s2 = np.concatenate([si, sj])
+        r2 = np.concatenate([ri, rj])
+        frac = np.zeros(2 * n, dtype=bool)
+        s1 = r1 = s2b = r2b = np.empty(0)
+        if self.fracture is not None:
+            x = s2**2
+            p = _checked(self.fracture(x), "fracture")
+            u = self.split(rng, 2 * n)
+            frac = rng.random(2 * n) < p
+            s1, s2b = np.sqrt(u[frac] * x[frac]), np.sqrt((1.0 - u[frac]) * x[frac])
+            r1, r2b = r2[frac], r2[frac]
+        bond = np.zeros(n, dtype=bool)
+        if self.bond is not None:
+            p = _checked(self.bond(si**2, sj**2, plant.represented_particles), "bond")
+            bond = (rng.random(n) < p) & ~(frac[:n] | frac[n:])
+        sb = np.sqrt(si[bond] ** 2 + sj[bond] ** 2)
+        rb = np.zeros(sb.size)
+        return Outcome(r2, frac, s1, r1, s2b, r2b, bond, sb, rb)
+
+
+def _checked(p: np.ndarray, what: str) -> np.ndarray:
+    p = np.asarray(p, dtype=float)
+    if p.size and (p.max() > 1.0 + 1e-12 or p.min() < 0.0):
+        raise ValueError(f"{what} probability outside [0, 1] (max {p.max():.3g}): raise rate_per_s")
+    return p
+
+
+def constant_agglomeration(K: float, N0: float, headroom: float = 1.0) -> PopulationKernels:
+    """Constant Smoluchowski kernel K (per pair of real particles per second, unit volume).
+
+    rho = headroom * K * N0 and p = K N / rho <= 1 while N <= headroom * N0.
+    """
+    rho = headroom * K * N0
+    return PopulationKernels(rate_per_s=rho, bond=lambda xi, xj, N: np.full(xi.shape, K * N / rho))
+
+
+def linear_breakage(k: float, x_max: float, headroom: float = 1.0) -> PopulationKernels:
+    """Binary breakage with selection rate S(x) = k x and uniform daughters (Ziff & McGrady 1985).
+
+    rho = headroom * k * x_max, p = k x / rho <= 1 for x <= headroom * x_max.
+    """
+    rho = headroom * k * x_max
+    return PopulationKernels(rate_per_s=rho, fracture=lambda x: k * x / rho)
+
+
+def paper_bonding(gamma_per_m2: float, rate_per_s: float) -> PopulationKernels:
+    """Bonding by eqn (15) alone, p_b = gamma s_i s_j (r = 0, p_u = 1), at ``rate_per_s`` processings.
+
+    The agglomeration kernel is K(x_i, x_j) = rho min(gamma sqrt(x_i x_j), 1) / N.
+    """
+    return PopulationKernels(
+        rate_per_s=rate_per_s,
+        bond=lambda xi, xj, N: ev.bond_probability(np.sqrt(xi), 0.0, np.sqrt(xj), 0.0, gamma_per_m2),  # (15)
+    )
