@@ -1,0 +1,407 @@
+"""The moment equations: ONE definition evaluated with numpy (batched) or casadi (symbolic).
+
+Every function takes a backend ``B`` (:data:`NP` or :data:`CA`) that supplies the few
+elementary operations used; everything else is arithmetic, so the same code builds a
+numpy value and a casadi expression graph. Components of a state are passed as a list
+(``xs[i]`` is a scalar, a numpy array over a batch, or a casadi SX/MX scalar).
+
+State x = (s_mean_um, s_std_um, r_mean, r_std, temperature_c, hardening)
+Input u = (rpm, milling),  parameters p = (bond_mult, frac_mult).
+
+The particle part is integrated in raw-moment coordinates y = (ln E[s], ln E[s^2], E[r], E[r^2])
+and read back through a smooth projection onto realisable sets (std > 0, 0 < r_mean < 1,
+Beta-feasible r_std < sqrt(r_mean (1 - r_mean))), so every step returns a realisable state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .physics import EXP_RATE, UM, Constants
+
+# --- backends -----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Backend:
+    name: str
+    exp: Callable
+    log: Callable
+    sqrt: Callable
+    tanh: Callable
+    stack: Callable
+
+
+def _np_stack(xs):
+    return np.stack(np.broadcast_arrays(*[np.asarray(v, dtype=float) for v in xs]), axis=-1)
+
+
+NP = Backend("numpy", np.exp, np.log, np.sqrt, np.tanh, _np_stack)
+
+
+def _ca_backend() -> Backend:
+    import casadi as ca
+
+    return Backend("casadi", ca.exp, ca.log, ca.sqrt, ca.tanh, lambda xs: ca.vertcat(*xs))
+
+
+def backend(xp: Any) -> Backend:
+    """Backend for ``xp``: the numpy or casadi module (or a Backend, or the strings)."""
+    if isinstance(xp, Backend):
+        return xp
+    name = xp if isinstance(xp, str) else getattr(xp, "__name__", "")
+    if name == "numpy":
+        return NP
+    if name == "casadi":
+        return CA()
+    raise ValueError(f"xp: expected numpy or casadi (got {xp!r})")
+
+
+_CA_CACHE: list[Backend] = []
+
+
+def CA() -> Backend:  # noqa: N802 - a constant-like accessor
+    if not _CA_CACHE:
+        _CA_CACHE.append(_ca_backend())
+    return _CA_CACHE[0]
+
+
+# --- smooth helpers ---------------------------------------------------------------------------
+
+
+def sigmoid(B, v):
+    """1 / (1 + exp(-v)) written with tanh (no overflow in numpy, smooth in casadi)."""
+    return 0.5 * (1.0 + B.tanh(0.5 * v))
+
+
+def smax(B, a, lo, eps):
+    """Smooth max(a, lo): lo + ((a - lo) + sqrt((a - lo)^2 + eps^2)) / 2  (>= lo, ~a for a >> lo + eps)."""
+    d = a - lo
+    return lo + 0.5 * (d + B.sqrt(d * d + eps * eps))
+
+
+def smin(B, a, hi, eps):
+    """Smooth min(a, hi)."""
+    d = hi - a
+    return hi - 0.5 * (d + B.sqrt(d * d + eps * eps))
+
+
+def smin_pos(B, a, b, n=8):
+    """Smooth min(a, b) of positive a, b: (a^-n + b^-n)^(-1/n) (scale-free, within 9 % of the min)."""
+    return B.exp(-B.log(B.exp(-n * B.log(a)) + B.exp(-n * B.log(b))) / n)
+
+
+def sat(B, q):
+    """Smooth min(q, 1) for q >= 0: q / (1 + q^4)^(1/4) (a probability that saturates)."""
+    q2 = q * q
+    return q / B.sqrt(B.sqrt(1.0 + q2 * q2))
+
+
+# --- quadrature ---------------------------------------------------------------------------------
+
+N_S = 5  # Gauss-Hermite nodes over ln s
+N_X = 4  # Gauss-Legendre nodes over the fracture split x in (0, 1)
+_T, _W = np.polynomial.hermite_e.hermegauss(N_S)
+GH_T = tuple(float(v) for v in _T)
+GH_W = tuple(float(v) for v in _W / math.sqrt(2 * math.pi))
+_XL, _WL = np.polynomial.legendre.leggauss(N_X)
+GL_X = tuple(float(0.5 * (v + 1)) for v in _XL)
+GL_W = tuple(float(0.5 * v) for v in _WL)
+
+# limits of the realisable projection
+S_FLOOR_UM = 0.1
+CV_FLOOR = 1e-3
+R_LO, R_HI, R_EPS = 1e-4, 0.99, 1e-4
+RHO_LO, RHO_HI, RHO_EPS = 1e-3, 0.98, 1e-3
+RPM_SOFT = 1e-3  # rpm/rpm_max below which the speed is softened (rates ~ 0 there)
+
+
+# --- projection and coordinates -----------------------------------------------------------------
+
+
+def project(B, xs):
+    """Smoothly project (s_mean, s_std, r_mean, r_std) onto realisable moment sets.
+
+    Returns (m, sd, rm, rho): s_mean >= 0.1 um, s_std > 0 (cv >= 1e-3),
+    r_mean in [1e-4, 0.99], rho = r_std / sqrt(rm (1 - rm)) in [1e-3, 0.98].
+    Identity (to < 1e-6 relative) on realisable sets away from these limits.
+    """
+    m = smax(B, xs[0], S_FLOOR_UM, S_FLOOR_UM)
+    sd = B.sqrt(xs[1] * xs[1] + (CV_FLOOR * m) ** 2)
+    rm = smax(B, smin(B, xs[2], R_HI, R_EPS), R_LO, R_EPS)
+    rs = B.sqrt(xs[3] * xs[3] + 1e-12)
+    rho = smax(B, smin(B, rs / B.sqrt(rm * (1 - rm)), RHO_HI, RHO_EPS), RHO_LO, RHO_EPS)
+    return m, sd, rm, rho
+
+
+def to_y(B, xs):
+    """Integration coordinates y = (ln E[s], ln E[s^2], E[r], E[r^2]) of a (projected) state.
+
+    Raw moments evolve without artificial stiffness (the log of a vanishing variance would
+    be stiff); realisability is restored smoothly by :func:`y_to_state` wherever y is read.
+    """
+    m, sd, rm, rho = project(B, xs)
+    return [B.log(m), B.log(m * m + sd * sd), rm, rm * rm + rho * rho * rm * (1 - rm)]
+
+
+def y_to_state(B, y):
+    """Realisable (m, sd, rm, rho) of integration coordinates (smooth projection)."""
+    m = B.exp(y[0])
+    fl = (CV_FLOOR * m) ** 2
+    var = smax(B, B.exp(y[1]) - m * m, fl, fl)
+    rm = smax(B, smin(B, y[2], R_HI, R_EPS), R_LO, R_EPS)
+    rho2 = (y[3] - rm * rm) / (rm * (1 - rm))
+    rho2 = smax(B, smin(B, rho2, RHO_HI**2, RHO_EPS), RHO_LO**2, RHO_LO**2)
+    return m, B.sqrt(var), rm, B.sqrt(rho2)
+
+
+def state_to_x(B, m, sd, rm, rho):
+    """(s_mean, s_std, r_mean, r_std) of a realisable state."""
+    return [m, sd, rm, rho * B.sqrt(rm * (1 - rm))]
+
+
+# --- thermal part (exact) -----------------------------------------------------------------------
+
+
+def power_W(c: Constants, w):
+    """Mean dissipated power at rpm = w rpm_max (exact: P ~ rpm^3)."""
+    return c.power_max_W * w * w * w
+
+
+def thermal_rhs(c: Constants, T, h, w):
+    """dT/dt and dh/dt (per hour) while milling at w = rpm / rpm_max (w = 0: rest)."""
+    P = power_W(c, w)
+    dT = P * (3600.0 / c.heat_capacity_J_per_K) - (T - c.ambient_C) / c.cooling_time_h
+    a = c.hardening_rate_max_per_h * w * w * w
+    dh = a * (1 - h) - h / c.recovery_time_h
+    return dT, dh
+
+
+def thermal_exact(B, c: Constants, T, h, w, t_h):
+    """Closed-form T and h after ``t_h`` hours at constant w (as plant.thermal)."""
+    T_ss = c.ambient_C + power_W(c, w) * c.cooling_time_h * 3600.0 / c.heat_capacity_J_per_K
+    T1 = T_ss + (T - T_ss) * B.exp(-t_h / c.cooling_time_h)
+    a = c.hardening_rate_max_per_h * w * w * w
+    b = 1.0 / c.recovery_time_h
+    h_ss = a / (a + b)
+    h1 = h_ss + (h - h_ss) * B.exp(-(a + b) * t_h)
+    return T1, h1
+
+
+def strength_ratio(B, c: Constants, T, h):
+    """sigma_eff / sigma = (1 + H h)(1 - S (1 - exp(-(T - T_amb)/T_s))) (thermal.py, smooth in T)."""
+    soft = 1.0 - c.softening_max * (1.0 - B.exp(-(T - c.ambient_C) / c.softening_scale_K))
+    return (1.0 + c.hardening_max * h) * soft
+
+
+# --- the particle field -------------------------------------------------------------------------
+
+
+def raw_rates(B, c: Constants, q: dict, m, sd, rm, rho, T, h, w, bm, fm):
+    """Rates (per hour of milling) of E[s], E[s^2], E[r], E[r^2] at speed w = rpm / rpm_max.
+
+    The population is closed as s ~ log-normal(m, sd) (5 Gauss-Hermite nodes) and
+    r ~ its mean rm in the kernels (mean field). Per particle and impact (rate k(w)):
+    fracture probability Pf(s) = E_x[sat(delta s^2 x(1-x)/(1-r))] * logistic law of
+    eqn (17) in ln(dU_d / (d_c u_c)); bonding of a pair Pb(si, sj) = sat(gamma si sj/(1-r)^2)
+    * logistic law in ln((dU_i + dU_j)/(d_ij u_b)) * (1 - Pf_i)(1 - Pf_j).
+    The total s^2 is conserved exactly (eqn 2); N changes by -1 per bond, +1 per fracture.
+    """
+    var_ln = B.log(1.0 + (sd / m) ** 2)
+    sig_ln = B.sqrt(var_ln)
+    ws = smax(B, w, 0.0, RPM_SOFT)
+    rate = c.rate_max_per_h * B.exp(EXP_RATE * B.log(ws))  # impacts per particle per hour
+    lw = B.log(ws)
+    ratio = strength_ratio(B, c, T, h)
+    lratio = B.log(ratio)
+    ln_ub = math.log(c.u_J_per_m) + c.n_bond * lratio
+    ln_uc = math.log(c.u_J_per_m) - c.n_frac * lratio
+    e_coef = c.e_max_J_per_um2 * B.exp(1.2 * lw)  # J per um^2 of s^2
+    u_mean = c.u_mean_max_J * ws * ws
+    one_r = 1.0 - rm
+    sigma_eff = c.yield_Pa * ratio
+    cb = bm * math.exp(q["bond_log_scale"])
+    cf = fm * math.exp(q["frac_log_scale"])
+    cr = math.exp(q["round_log_scale"])
+    ab, ob, ac, oc = q["bond_slope"], q["bond_offset"], q["frac_slope"], q["frac_offset"]
+    gbr, gfr = q["bond_r_gain"], q["frac_r_gain"]
+
+    # size nodes
+    s = [m * B.exp(sig_ln * t - 0.5 * var_ln) for t in GH_T]
+    # fracture per node: probability, change of s, r-sum and r^2-sum of the fragments
+    Pf, dsf, drf, dr2f, lam = [], [], [], [], []
+    for sk in s:
+        e_k = e_coef * sk * sk
+        lnL0 = B.log(e_k / (sk * UM))  # ln(dU_d / s): crack length d_c = 2 s sqrt(x(1-x))
+        pf = ds = dr = dr2 = 0.0
+        q_k = c.delta_per_um2 * sk * sk / one_r
+        for x, wx in zip(GL_X, GL_W):
+            xx = x * (1 - x)
+            lnL = lnL0 - math.log(2 * math.sqrt(xx))
+            p = wx * cf * sat(B, q_k * xx) * sigmoid(B, ac * (lnL - ln_uc) + oc)
+            r1 = _fragment_r(B, x, one_r, xx) * gfr
+            r2 = _fragment_r(B, 1 - x, one_r, xx) * gfr
+            pf = pf + p
+            ds = ds + p * (math.sqrt(x) + math.sqrt(1 - x) - 1.0) * sk
+            dr = dr + p * (r1 + r2 - rm)
+            dr2 = dr2 + p * (r1 * r1 + r2 * r2)
+        Pf.append(pf)
+        dsf.append(ds)
+        drf.append(dr)
+        dr2f.append(dr2)
+        # rounding (equiaxing) per impact: r <- r exp(-lam)
+        lam.append(cr * c.equiaxing * 1.5 * c.plastic_share * e_k / (math.pi / 4 * sk**3 * UM**3 * sigma_eff))
+
+    Pb_sum = dsb = drb = dr2b = 0.0
+    for i in range(N_S):
+        for j in range(i, N_S):
+            wij = GH_W[i] * GH_W[j] * (1.0 if i == j else 2.0)
+            si, sj = s[i], s[j]
+            si2, sj2 = si * si, sj * sj
+            s_new = B.sqrt(si2 + sj2)
+            d_h = 0.75 * si * sj / (si + sj) * B.sqrt(3 * math.pi * u_mean / (c.modulus_Pa * (si2 * si + sj2 * sj) * UM**3))
+            d_um = smin_pos(B, d_h, 0.5 * math.pi * smin_pos(B, si, sj))  # eqn 16, capped
+            lnLb = B.log(e_coef * (si2 + sj2) / (d_um * UM))
+            pb = sat(B, c.gamma_per_um2 * si * sj / (one_r * one_r)) * sigmoid(B, ab * (lnLb - ln_ub) + ob)
+            p = wij * cb * pb * (1 - Pf[i]) * (1 - Pf[j])
+            r_new = smax(B, 1.0 - s_new / ((si + sj) / one_r - 2 * d_um / math.pi), 0.0, 0.01) * gbr
+            Pb_sum = Pb_sum + p
+            dsb = dsb + p * (s_new - si - sj)
+            drb = drb + p * (r_new - 2 * rm)
+            dr2b = dr2b + p * r_new * r_new
+
+    Pf_sum = sum(GH_W[k] * Pf[k] for k in range(N_S))
+    g_N = rate * (Pf_sum - 0.5 * Pb_sum)  # d ln N / dt
+    Es = m
+    Es2 = m * m + sd * sd
+    rs2 = rho * rho * rm * one_r
+    Er2 = rm * rm + rs2
+    gv = q["r_var_gain"]
+    round1 = sum(GH_W[k] * (1 - B.exp(-lam[k])) for k in range(N_S))
+    round2 = sum(GH_W[k] * (1 - B.exp(-2 * lam[k])) for k in range(N_S))
+    dEs = rate * (0.5 * q["bond_ds_gain"] * dsb + q["frac_ds_gain"] * sum(GH_W[k] * dsf[k] for k in range(N_S))) - Es * g_N
+    dEs2 = -Es2 * g_N
+    dEr = rate * (0.5 * drb + sum(GH_W[k] * drf[k] for k in range(N_S)) - round1 * rm) - rm * g_N
+    src2 = 0.5 * (dr2b - Pb_sum * 2 * Er2) + sum(GH_W[k] * (dr2f[k] - Pf[k] * Er2) for k in range(N_S))
+    # the variance source beyond what the mean-field r^2 of new particles gives (identified gain)
+    src2 = gv * src2 + (1 - gv) * (2 * rm * (0.5 * drb + sum(GH_W[k] * drf[k] for k in range(N_S))))
+    dEr2 = rate * (src2 - round2 * Er2) - Er2 * g_N
+    return dEs, dEs2, dEr, dEr2
+
+
+def _fragment_r(B, x, one_r, xx):
+    """Aspect ratio of the fragment with area share x (plant events.fractured, smooth clip at 0)."""
+    r = 1.0 - math.sqrt(x) / (x / one_r + 2 * math.sqrt(xx) / math.pi)
+    return smax(B, r, 0.0, 0.01)
+
+
+def y_rates(B, c, q, y, T, h, w, bm, fm):
+    """dy/dt (per hour of milling) of the integration coordinates y."""
+    m, sd, rm, rho = y_to_state(B, y)
+    dEs, dEs2, dEr, dEr2 = raw_rates(B, c, q, m, sd, rm, rho, T, h, w, bm, fm)
+    return [dEs / m, dEs2 / (m * m + sd * sd), dEr, dEr2]
+
+
+def rhs(B, c, q, xs, us, ps):
+    """Continuous-time field dx/dt (per hour), duty-averaged over the milling fraction.
+
+    dx/dt = milling * f_mill(x, rpm) + (1 - milling) * f_rest(x); f_rest moves only T and h.
+    Evaluated at the smooth projection of x (so it is defined for any x).
+    """
+    m, sd, rm, rho = project(B, xs)
+    T, h = xs[4], xs[5]
+    w = us[0] / c.rpm_max
+    duty = us[1]
+    dEs, dEs2, dEr, dEr2 = raw_rates(B, c, q, m, sd, rm, rho, T, h, w, ps[0], ps[1])
+    rs = rho * B.sqrt(rm * (1 - rm))
+    dsd = (dEs2 - 2 * m * dEs) / (2 * sd)
+    drs = (dEr2 - 2 * rm * dEr) / (2 * rs)
+    dT1, dh1 = thermal_rhs(c, T, h, w)
+    dT0, dh0 = thermal_rhs(c, T, h, 0.0)
+    return [duty * dEs, duty * dsd, duty * dEr, duty * drs,
+            duty * dT1 + (1 - duty) * dT0, duty * dh1 + (1 - duty) * dh0]
+
+
+def rkc_coefficients(stages: int, damping: float = 2.0 / 13.0) -> dict:
+    """Coefficients of the second-order Runge-Kutta-Chebyshev method (Sommeijer, Shampine & Verwer 1998).
+
+    An explicit method whose real stability interval grows as ~0.65 stages^2, suited to the
+    dissipative, stiff-at-high-rpm moment field (eigenvalues down to ~-1.4 per impact).
+    Returns lists mu, nu, mut, gamt (index j = 1..s) and stage times c.
+    """
+    s = int(stages)
+    if s < 2:
+        raise ValueError("RKC needs >= 2 stages")
+    w0 = 1.0 + damping / s**2
+    # Chebyshev T_j(w0) and derivatives
+    T = [1.0, w0]
+    dT = [0.0, 1.0]
+    ddT = [0.0, 0.0]
+    for j in range(2, s + 1):
+        T.append(2 * w0 * T[j - 1] - T[j - 2])
+        dT.append(2 * T[j - 1] + 2 * w0 * dT[j - 1] - dT[j - 2])
+        ddT.append(4 * dT[j - 1] + 2 * w0 * ddT[j - 1] - ddT[j - 2])
+    w1 = dT[s] / ddT[s]
+    b = [0.0] * (s + 1)
+    for j in range(2, s + 1):
+        b[j] = ddT[j] / dT[j] ** 2
+    b[0] = b[1] = b[2]
+    a = [1.0 - b[j] * T[j] for j in range(s + 1)]
+    c = [0.0] * (s + 1)
+    for j in range(2, s + 1):
+        c[j] = w1 * ddT[j] / dT[j]
+    c[1] = c[2] / dT[2]
+    c[s] = 1.0
+    mu = [0.0] * (s + 1)
+    nu = [0.0] * (s + 1)
+    mut = [0.0] * (s + 1)
+    gamt = [0.0] * (s + 1)
+    mut[1] = b[1] * w1
+    for j in range(2, s + 1):
+        mu[j] = 2 * b[j] * w0 / b[j - 1]
+        nu[j] = -b[j] / b[j - 2]
+        mut[j] = 2 * b[j] * w1 / b[j - 1]
+        gamt[j] = -a[j - 1] * mut[j]
+    beta = (2.0 / 3.0) * (s * s - 1) * (1 - 2.0 * damping / 15.0)
+    return {"s": s, "mu": mu, "nu": nu, "mut": mut, "gamt": gamt, "c": c, "beta": beta}
+
+
+def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int):
+    """Advance over ``dt_h`` hours: mill ``milling * dt_h`` at rpm, then rest (as Plant.advance).
+
+    Milling phase: ``n_sub`` substeps of RKC2 with ``stages`` stages in y coordinates,
+    T and h exact (closed form) at every stage time. Rest: particles unchanged, T and h exact.
+    """
+    w = us[0] / c.rpm_max
+    duty = us[1]
+    bm, fm = ps[0], ps[1]
+    z = to_y(B, xs)
+    T0, h0 = xs[4], xs[5]
+    t_mill = duty * dt_h
+    hs = t_mill / n_sub
+    K = rkc_coefficients(stages)
+
+    def F(zz, t):
+        Tt, ht = thermal_exact(B, c, T0, h0, w, t)
+        return y_rates(B, c, q, zz, Tt, ht, w, bm, fm)
+
+    t = 0.0
+    for _ in range(n_sub):
+        F0 = F(z, t)
+        y_prev2 = z
+        y_prev = [zi + K["mut"][1] * hs * fi for zi, fi in zip(z, F0)]
+        for j in range(2, K["s"] + 1):
+            Fj = F(y_prev, t + K["c"][j - 1] * hs)
+            mu, nu, mut, gamt = K["mu"][j], K["nu"][j], K["mut"][j], K["gamt"][j]
+            y = [(1 - mu - nu) * z0 + mu * a + nu * b_ + mut * hs * f + gamt * hs * f0
+                 for z0, a, b_, f, f0 in zip(z, y_prev, y_prev2, Fj, F0)]
+            y_prev2, y_prev = y_prev, y
+        z = y_prev
+        t = t + hs
+    T1, h1 = thermal_exact(B, c, T0, h0, w, t_mill)
+    T2, h2 = thermal_exact(B, c, T1, h1, 0.0, dt_h - t_mill)
+    return state_to_x(B, *y_to_state(B, z)) + [T2, h2]

@@ -1,0 +1,352 @@
+"""The moment model: :class:`MomentModel` and its factory :func:`make_moment_model`.
+
+State  x = (s_mean_um, s_std_um, r_mean, r_std, temperature_c, hardening)
+Input  u = (rpm, milling)        milling in [0, 1]: share of an interval spent milling
+Param  p = (bond_mult, frac_mult) multipliers on the bonding and fracture rates (default 1)
+
+The equations are in :mod:`bmctl.moments.equations` (one definition for numpy and
+casadi); docs/moments.md derives them and lists where they break.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ..config import ModelCard, load_card
+from ..errors import InputError
+from . import coeffs as cf
+from . import equations as eq
+from .physics import Constants, constants, derived_threshold_laws
+
+STATE_NAMES = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening")
+INPUT_NAMES = ("rpm", "milling")
+PARAM_NAMES = ("bond_mult", "frac_mult")
+MAX_SUBSTEP_H = 0.125  # RKC substep of the milling phase (accuracy of the slow modes)
+STIFFNESS_PER_IMPACT = 2.0  # bound on |eigenvalue| of the z field per impact (measured ~1.4)
+
+
+def n_substeps(dt_h: float) -> int:
+    """Substeps for an interval of ``dt_h`` hours (substep <= MAX_SUBSTEP_H)."""
+    return max(1, int(math.ceil(dt_h / MAX_SUBSTEP_H - 1e-9)))
+
+
+def rkc_stages(rate_max_per_h: float, sub_h: float) -> int:
+    """RKC2 stages whose stability interval covers the stiffest mode at the top speed (80 % margin)."""
+    need = STIFFNESS_PER_IMPACT * rate_max_per_h * sub_h / 0.8
+    s = 2
+    while (2.0 / 3.0) * (s * s - 1) * (1 - 4.0 / 195.0) < need:
+        s += 1
+    return s
+
+
+class MomentModel:
+    """Moment model of the milled powder: size and shape moments, vial temperature, hardening.
+
+    Build with :func:`make_moment_model`. Arrays of states are ``(..., 6)``; inputs
+    ``(..., 2)``; parameters ``(..., 2)`` (batches broadcast, e.g. a particle filter's cloud).
+
+    Attributes
+    ----------
+    card : ModelCard
+    const : Constants
+        Card-derived scalars (physics.py).
+    coeffs : dict
+        Identified (or default) coefficients.
+    coeffs_source : str
+        Where the coefficients came from ("defaults" or a file path).
+    """
+
+    nx, nu, np = 6, 2, 2
+    state_names = STATE_NAMES
+    input_names = INPUT_NAMES
+    param_names = PARAM_NAMES
+
+    def __init__(self, card: ModelCard, coeffs: dict[str, float], coeffs_source: str = "defaults"):
+        self.card = card
+        self.const: Constants = constants(card)
+        self.coeffs = dict(coeffs)
+        self.coeffs_source = coeffs_source
+        self._ca_steps: dict = {}
+        self._ca_sims: dict = {}
+
+    # --- basics --------------------------------------------------------------------------------
+    @property
+    def rpm_max(self) -> float:
+        return self.const.rpm_max
+
+    def x0(self) -> np.ndarray:
+        """Initial state from the card: powder moments (r ~ exponential: std = mean), ambient T, h = 0."""
+        c = self.const
+        return np.array([c.s0_mean_um, c.s0_std_um, c.r0_mean, c.r0_mean, c.ambient_C, 0.0])
+
+    def p0(self) -> np.ndarray:
+        """Nominal parameters (bond_mult, frac_mult) = (1, 1)."""
+        return np.ones(2)
+
+    def _p(self, p):
+        return self.p0() if p is None else np.asarray(p, dtype=float)
+
+    # --- dynamics (numpy) ---------------------------------------------------------------------
+    def rhs(self, x, u, p=None, xp=None):
+        """dx/dt (per hour), duty-averaged over the milling fraction.
+
+        ``xp=numpy``: arrays ``(..., 6)`` in, ``(..., 6)`` out. ``xp=casadi``: casadi
+        column vectors (SX/MX/DM) in, a column vector out.
+        """
+        B = eq.NP if xp is None else eq.backend(xp)
+        if B is eq.NP:
+            x, u, p = _arr(x), _arr(u), _arr(self._p(p))
+            out = eq.rhs(B, self.const, self.coeffs, _cols(x), _cols(u), _cols(p))
+            return B.stack(out)
+        p = self.p0() if p is None else p
+        return B.stack(eq.rhs(B, self.const, self.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2)))
+
+    def step(self, x, u, dt_h: float, p=None) -> np.ndarray:
+        """Next state after ``dt_h`` hours: mill ``milling * dt_h`` at rpm, then rest.
+
+        Parameters
+        ----------
+        x : array_like, (..., 6)
+        u : array_like, (..., 2)
+            (rpm, milling); rpm in [0, rpm_max], milling in [0, 1].
+        dt_h : float
+            Interval length (h), > 0.
+        p : array_like, (..., 2), optional
+            (bond_mult, frac_mult); default (1, 1).
+        """
+        dt_h = float(dt_h)
+        x, u, p = _arr(x), _arr(u), _arr(self._p(p))
+        out = eq.step(eq.NP, self.const, self.coeffs, _cols(x), _cols(u), _cols(p), dt_h, *self._integration(dt_h))
+        return eq.NP.stack(out)
+
+    def simulate(self, x0, U, dt_h: float, p=None) -> np.ndarray:
+        """States over a piecewise-constant input sequence.
+
+        Parameters
+        ----------
+        x0 : array_like, (6,)
+        U : array_like, (K, 2)
+            (rpm, milling) per interval.
+        dt_h : float
+            Interval length (h).
+        p : array_like, (2,), optional
+
+        Returns
+        -------
+        ndarray, (K + 1, 6)
+            x0 first. Single trajectories use the compiled casadi step (same math, faster).
+        """
+        U = np.atleast_2d(np.asarray(U, dtype=float))
+        x0 = np.asarray(x0, dtype=float)
+        pp = self._p(p)
+        if x0.ndim == 1 and pp.ndim == 1:
+            F = self._casadi_sim(float(dt_h), U.shape[0])
+            X = np.asarray(F(x0, U.T, pp)).T
+            return np.vstack([x0[None, :], X])
+        out = [x0]
+        for k in range(U.shape[0]):
+            out.append(self.step(out[-1], U[k], dt_h, pp))
+        return np.stack(out)
+
+    def _integration(self, dt_h: float) -> tuple[int, int]:
+        """(substeps, RKC stages) for an interval of ``dt_h`` hours."""
+        if not (dt_h > 0 and math.isfinite(dt_h)):
+            raise InputError(f"dt_h: must be a finite number > 0 (got {dt_h})")
+        n = n_substeps(dt_h)
+        return n, rkc_stages(self.const.rate_max_per_h, dt_h / n)
+
+    # --- casadi --------------------------------------------------------------------------------
+    def casadi_step(self, dt_h: float):
+        """casadi.Function ``F(x[6], u[2], p[2]) -> x_next[6]`` over ``dt_h`` hours (SX, cached)."""
+        key = round(float(dt_h), 12)
+        if key not in self._ca_steps:
+            import casadi as ca
+
+            x = ca.SX.sym("x", 6)
+            u = ca.SX.sym("u", 2)
+            p = ca.SX.sym("p", 2)
+            B = eq.CA()
+            out = eq.step(B, self.const, self.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
+                          float(dt_h), *self._integration(float(dt_h)))
+            self._ca_steps[key] = ca.Function("moment_step", [x, u, p], [ca.vertcat(*out)],
+                                              ["x", "u", "p"], ["x_next"])
+        return self._ca_steps[key]
+
+    def casadi_rhs(self):
+        """casadi.Function ``f(x, u, p) -> dx/dt`` (per hour)."""
+        import casadi as ca
+
+        x, u, p = ca.SX.sym("x", 6), ca.SX.sym("u", 2), ca.SX.sym("p", 2)
+        return ca.Function("moment_rhs", [x, u, p], [self.rhs(x, u, p, xp=ca)], ["x", "u", "p"], ["xdot"])
+
+    def _casadi_sim(self, dt_h: float, K: int):
+        key = (round(dt_h, 12), K)
+        if key not in self._ca_sims:
+            import casadi as ca
+
+            F = self.casadi_step(dt_h)
+            x = ca.SX.sym("x", 6)
+            u = ca.SX.sym("u", 2)
+            p = ca.SX.sym("p", 2)
+            G = ca.Function("g", [x, u, p], [F(x, u, p)])
+            self._ca_sims[key] = G.mapaccum("sim", K, [0], [0])
+            if len(self._ca_sims) > 16:
+                self._ca_sims.pop(next(iter(self._ca_sims)))
+        return self._ca_sims[key]
+
+    # --- outputs -------------------------------------------------------------------------------
+    def distributions(self, x):
+        """The s and r laws implied by a state: (log-normal s in um, Beta r) as scipy frozen objects.
+
+        The moments are first projected onto realisable sets (equations.project).
+        Batched states give frozen objects with array parameters.
+        """
+        from scipy import stats
+
+        sig, mu, a, b = self.distribution_params(x)
+        return stats.lognorm(s=sig, scale=np.exp(mu)), stats.beta(a, b)
+
+    def distribution_params(self, x):
+        """(sigma_ln, mu_ln, beta_a, beta_b) of the s and r laws of a state (arrays broadcast)."""
+        x = _arr(x)
+        m, sd, rm, rho = eq.project(eq.NP, _cols(x))
+        var_ln = np.log1p((sd / m) ** 2)
+        mu = np.log(m) - 0.5 * var_ln
+        nu = 1.0 / (rho * rho) - 1.0  # a + b, from var = m(1-m)/(a+b+1)
+        return np.sqrt(var_ln), mu, rm * nu, (1 - rm) * nu
+
+    def loglik(self, x, s_um, r, r_floor: float = 0.005, s_floor_um: float = 0.5, sum_over=True):
+        """Log-likelihood of measured particles (s_um, r) under the state's laws.
+
+        s and r are taken as independent (the mean-field closure). Values of r below
+        ``r_floor`` (round to the resolution of a perimeter measurement; the plant has
+        many exact zeros) count as censored: log P(r < r_floor). Sizes below ``s_floor_um``
+        likewise. Returns the sum over particles (``sum_over``) for each state in a batch,
+        else the per-particle values ``(..., n)``.
+        """
+        s_um = np.asarray(s_um, dtype=float)
+        r = np.asarray(r, dtype=float)
+        if s_um.shape != r.shape:
+            raise InputError(f"loglik: s_um and r must have the same shape (got {s_um.shape} and {r.shape})")
+        if not (np.all(np.isfinite(s_um)) and np.all(np.isfinite(r))):
+            raise InputError("loglik: measured s_um and r must be finite")
+        from scipy import special
+
+        sig, mu, a, b = (v[..., None] for v in self.distribution_params(x))
+        ls = np.log(np.maximum(s_um, s_floor_um))
+        z = (ls - mu) / sig
+        ll_s = -0.5 * z * z - np.log(sig) - ls - 0.5 * math.log(2 * math.pi)
+        low_s = s_um < s_floor_um
+        if np.any(low_s):
+            ll_s = np.where(low_s, special.log_ndtr((math.log(s_floor_um) - mu) / sig), ll_s)
+        rc = np.clip(r, r_floor, 1 - 1e-6)
+        ll_r = (a - 1) * np.log(rc) + (b - 1) * np.log1p(-rc) - special.betaln(a, b)
+        low_r = r < r_floor
+        if np.any(low_r):
+            cens = np.log(np.maximum(special.betainc(a, b, r_floor), 1e-300))
+            ll_r = np.where(low_r, cens, ll_r)
+        ll = ll_s + ll_r
+        return ll.sum(axis=-1) if sum_over else ll
+
+    def outputs(self, x) -> dict:
+        """Moments of a state as a dict (plant.moments() names; modes of the implied laws)."""
+        x = _arr(x)
+        sig, mu, a, b = self.distribution_params(x)
+        r_mode = np.where((a > 1) & (b > 1), (a - 1) / np.maximum(a + b - 2, 1e-12), np.where(a <= 1, 0.0, 1.0))
+        return {
+            "s_mean_um": x[..., 0], "s_std_um": x[..., 1], "s_mode_um": np.exp(mu - sig**2),
+            "r_mean": x[..., 2], "r_std": x[..., 3], "r_mode": r_mode,
+            "temperature_c": x[..., 4], "hardening": x[..., 5],
+        }
+
+    # --- linear analysis -----------------------------------------------------------------------
+    def linearize(self, x, u, p=None, dt_h: float | None = None):
+        """Linearisation as a python-control ``StateSpace``.
+
+        Continuous (per hour) from the duty-averaged field, or discrete with period
+        ``dt_h`` from the step map. Outputs: the four micrograph moments
+        (s_mean, s_std, r_mean, r_std). Inputs: (rpm, milling).
+        """
+        from .linear import linearize
+
+        return linearize(self, x, u, p, dt_h)
+
+    def __repr__(self) -> str:
+        return f"MomentModel({self.card.card.name!r}, coeffs={self.coeffs_source!r})"
+
+
+def _arr(v) -> np.ndarray:
+    return np.asarray(v, dtype=float)
+
+
+def _cols(a: np.ndarray) -> list:
+    return [a[..., i] for i in range(a.shape[-1])]
+
+
+def _ca_cols(v, n: int) -> list:
+    import casadi as ca
+
+    if isinstance(v, (list, tuple, np.ndarray)):
+        v = ca.DM(np.asarray(v, dtype=float).reshape(-1))
+    if v.shape[0] != n:
+        raise ValueError(f"expected a casadi vector of length {n} (got shape {v.shape})")
+    return [v[i] for i in range(n)]
+
+
+@lru_cache(maxsize=16)
+def _derived(card_json: str) -> dict:
+    return derived_threshold_laws(ModelCard.model_validate_json(card_json))
+
+
+def default_coeffs(card: ModelCard) -> dict[str, float]:
+    """Built-in coefficients: unit multipliers and the derived threshold laws of the card."""
+    return cf.defaults(_derived(card.model_dump_json()))
+
+
+def make_moment_model(card_or_path, coeffs: dict | str | Path | None = None) -> MomentModel:
+    """Build the moment model of a model card.
+
+    Parameters
+    ----------
+    card_or_path : ModelCard or path-like
+        The card (``models/*.toml``).
+    coeffs : dict or path-like, optional
+        Coefficients (a dict, or a ``*.moments.toml`` file). Default: the identified file
+        next to the card (``models/<name>.moments.toml``) when the card is given as a path
+        and the file exists, else the built-in defaults; missing names take the defaults.
+
+    Returns
+    -------
+    MomentModel
+
+    Examples
+    --------
+    >>> from bmctl.moments import make_moment_model
+    >>> model = make_moment_model("models/alni-1to1-300rpm-lab.toml")
+    >>> x = model.x0()
+    >>> X = model.simulate(x, [[300.0, 1.0]] * 12, dt_h=1.0)
+    >>> X.shape
+    (13, 6)
+    >>> bool(X[-1, 4] > 50.0)   # the vial heats up at 300 rpm
+    True
+    """
+    source = "defaults"
+    if isinstance(card_or_path, ModelCard):
+        card, card_path = card_or_path, None
+    else:
+        card_path = Path(card_or_path)
+        card = load_card(card_path)
+    table = default_coeffs(card)
+    if coeffs is None and card_path is not None and cf.coeffs_path(card_path).exists():
+        coeffs = cf.coeffs_path(card_path)
+    if isinstance(coeffs, (str, Path)):
+        table.update(cf.load_coeffs(coeffs))
+        source = str(coeffs)
+    elif isinstance(coeffs, dict):
+        table.update(cf.check(coeffs, "coeffs"))
+        source = "dict"
+    return MomentModel(card, table, source)
