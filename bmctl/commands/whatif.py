@@ -1,0 +1,53 @@
+"""Compare rpm schedules on an ensemble of the plant: bands of the moments, final pdfs, heat, energy."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+
+
+def _pos_int(name, lo, hi):
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise InputError(f"{name}: not an integer: {text!r}") from None
+        if not lo <= v <= hi:
+            raise InputError(f"{name}: must be in [{lo}, {hi}] (got {v})")
+        return v
+    return parse
+
+
+def configure(p):
+    p.add_argument("model", metavar="MODEL.toml", help="model card")
+    p.add_argument("schedules", metavar="SCHEDULE.toml", nargs="+", help="[[segment]] hours, rpm (rpm 0 = rest)")
+    p.add_argument("--seeds", type=_pos_int("--seeds", 1, 1000), default=5, help="ensemble size (default 5)")
+    p.add_argument("--particles", type=_pos_int("--particles", 100, 10**7), default=5000,
+                   help="simulated particles per plant (default 5000)")
+    p.add_argument("--seed", type=_pos_int("--seed", 0, 2**31), default=0, help="first seed (default 0)")
+    p.add_argument("--out", default="out/whatif", metavar="DIR", help="output folder (default out/whatif)")
+
+
+def run(args) -> int:
+    from ..config import load_card, load_schedule
+    from ..whatif import run_schedule_ensemble, table_rows, write_outputs
+
+    card = load_card(args.model)
+    scheds = []
+    for path in args.schedules:
+        sched = load_schedule(path)
+        for i, seg in enumerate(sched.segment):
+            if seg.rpm > card.mill.rpm_max:
+                raise InputError(f"{path}: segment[{i}].rpm: {seg.rpm:g} exceeds the mill's rpm_max "
+                                 f"{card.mill.rpm_max:g}")
+        scheds.append((sched.name or Path(path).stem, [(s.hours, s.rpm) for s in sched.segment]))
+    results = [run_schedule_ensemble(card, name, segs, args.seeds, args.particles, args.seed) for name, segs in scheds]
+    header, rows = table_rows(results)
+    print(f"{'schedule':28s} {'h':>5s} {'kJ':>7s} {'Tpeak':>6s} {'s_mean':>16s} {'s_std':>16s} {'r_mean':>17s}")
+    for r in rows:
+        print(f"{r[0][:28]:28s} {r[1]:5.1f} {r[2]:7.0f} {r[3]:6.1f} {r[5]:6.1f} [{r[6]:4.0f},{r[7]:4.0f}] "
+              f"{r[8]:6.1f} [{r[9]:4.0f},{r[10]:4.0f}] {r[11]:6.3f} [{r[12]:.2f},{r[13]:.2f}]")
+    for p in write_outputs(results, Path(args.out)):
+        print(f"  wrote {p}")
+    return 0

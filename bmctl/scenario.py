@@ -1,0 +1,99 @@
+"""Closed-loop trial scenarios (``scenarios/trial-*.toml``): typed, validated, one-line errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from .config import Frac, NonNeg, Pos, Strict, load
+from .errors import InputError
+
+TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
+
+
+class ScenarioInfo(Strict):
+    name: str
+    description: str  # one line: what the scenario shows
+
+
+class PlantSpec(Strict):
+    """The truth: a stochastic plant, possibly with gamma/delta off the controller's card."""
+
+    model: str | None = None  # default: the scenario's model card
+    particles: Annotated[int, Field(ge=100, le=1_000_000)] = 5000
+    gamma_factor: Pos = 1.0
+    delta_factor: Pos = 1.0
+
+
+class SamplingSpec(Strict):
+    """Micrograph sampling (multi-rate: every_h may be longer than the control interval)."""
+
+    every_h: Pos = 1.0
+    particles: Annotated[int, Field(ge=5, le=100_000)] = 300
+    um_per_px: Pos | None = 1.0
+    noise: NonNeg = 0.03
+    render: bool = False
+    temperature_reading: bool = True
+
+
+class EstimatorSpec(Strict):
+    particles: Annotated[int, Field(ge=50, le=200_000)] = 1000
+
+
+class ControllerSpec(Strict):
+    kind: Literal["mpc", "lqr", "recipe"] = "mpc"
+    config: str | None = None  # controllers/*.toml (mpc, lqr)
+    schedule: str | None = None  # recipe: a schedule TOML ([[segment]] hours, rpm)
+
+
+class Scenario(Strict):
+    """A closed-loop (or open-loop recipe) trial."""
+
+    scenario: ScenarioInfo
+    model: str  # the controller's and estimator's model card
+    hours: Pos = 12.0
+    interval_h: Pos = 0.5
+    temperature_max_c: Pos | None = None  # ceiling counted as violations (default: the controller's)
+    target: dict[str, Annotated[float, Field(gt=0)]] = {}
+    plant: PlantSpec = PlantSpec()
+    sampling: SamplingSpec = SamplingSpec()
+    estimator: EstimatorSpec = EstimatorSpec()
+    controller: ControllerSpec = ControllerSpec()
+
+    @model_validator(mode="after")
+    def _check(self):
+        for k in self.target:
+            if k not in TARGET_KEYS:
+                raise ValueError(f"target.{k}: unknown target; choose from {', '.join(TARGET_KEYS)}")
+        if self.controller.kind == "recipe" and self.controller.schedule is None:
+            raise ValueError("controller.schedule: a recipe controller needs a schedule file")
+        if self.controller.kind != "recipe" and not self.target:
+            raise ValueError("target: a feedback controller needs at least one target")
+        if self.interval_h > self.hours:
+            raise ValueError("interval_h: longer than the trial")
+        return self
+
+
+def resolve(path: str, base: Path) -> Path:
+    """A path from a scenario: as given (from the working directory), else next to the scenario,
+    else relative to the scenario folder's parent (the project root)."""
+    p = Path(path)
+    for cand in (p, base / p, base.parent / p):
+        if cand.exists():
+            return cand
+    raise InputError(f"{path}: file not found (looked in ., {base}, {base.parent})")
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Load and validate a scenario TOML; referenced files must exist."""
+    sc = load(Scenario, path)
+    base = Path(path).resolve().parent
+    for ref in (sc.model, sc.plant.model, sc.controller.config, sc.controller.schedule):
+        if ref is not None:
+            try:
+                resolve(ref, base)
+            except InputError as exc:
+                raise InputError(f"{path}: {exc}") from None
+    return sc
