@@ -12,7 +12,10 @@ offsets and orientations:
     Length of the marching-squares contour at level 0.5 of the mask itself.
 ``smooth``
     Length of the contour at level 0.5 of the mask smoothed by a Gaussian of
-    ``SMOOTH_SIGMA`` px (the default estimator, :func:`perimeter_smooth`).
+    ``SMOOTH_SIGMA`` px (:func:`perimeter_smooth`).
+
+Crofton is the least biased (|bias| <= 0.4 % from 7 px across up, no drift with size)
+and is the default (:data:`DEFAULT_METHOD`); the others drift from -14 % to +5 %.
 
 Run ``python -m bmctl.measure.perimeter`` for the table in ``docs/measurement.md``.
 """
@@ -27,6 +30,7 @@ from .shapes import Shapes, shapes_for
 
 SMOOTH_SIGMA = 0.7  # px; the Gaussian applied to the mask before the 0.5 contour
 ESTIMATORS = ("pixel", "crofton", "contour", "smooth")
+DEFAULT_METHOD = "crofton"
 
 
 def _contour_length(img: np.ndarray, level: float = 0.5) -> float:
@@ -67,17 +71,25 @@ def perimeter_smooth(mask: np.ndarray, sigma: float = SMOOTH_SIGMA) -> float:
     return _contour_length(img, 0.5)
 
 
-def perimeter(mask: np.ndarray, method: str = "smooth") -> float:
+def perimeter(mask: np.ndarray, method: str = DEFAULT_METHOD) -> float:
     """Boundary length in px of a binary mask by one of :data:`ESTIMATORS`.
 
     Parameters
     ----------
     mask : ndarray of bool
-    method : {"pixel", "crofton", "contour", "smooth"}
+        One region; needs a zero border of at least 1 px for ``pixel`` and ``crofton``.
+    method : {"crofton", "pixel", "contour", "smooth"}
 
     Returns
     -------
     float
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> yy, xx = np.mgrid[-30:31, -30:31]
+    >>> round(perimeter(np.hypot(yy, xx) < 20.0) / (2 * np.pi * 20), 2)
+    1.0
     """
     if method == "pixel":
         return float(measure.perimeter(mask, 4))

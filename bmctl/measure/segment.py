@@ -24,6 +24,7 @@ from __future__ import annotations
 import heapq
 import os
 import re
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,13 +33,16 @@ from skimage import filters, measure, morphology, segmentation, transform
 from skimage.feature import peak_local_max
 
 from ..errors import InputError
-from .perimeter import perimeter
+from .perimeter import DEFAULT_METHOD, perimeter
 from .tables import ParticleTable
 
 MIN_AREA_PX = 30  # ~ 6 px diameter; below 7 px r is unreliable (docs/measurement.md)
-NECK_RATIO = 0.65
-SMOOTH_PX = 1.0
-PERIMETER_METHOD = "crofton"
+NECK_RATIO = 0.8
+SMOOTH_PX = 0.5
+THRESHOLD = "minimum"
+CUT_PX = 3.0
+CUT_CONTRAST = 0.08
+REFINE_RING_PX = 4
 
 
 # --- input ----------------------------------------------------------------------------------------
@@ -65,9 +69,11 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     if not os.path.isfile(p):
         raise InputError(f"{p}: no such file")
     try:
-        img = io.imread(p)
+        with warnings.catch_warnings():  # imageio warns while probing plugins on junk files
+            warnings.simplefilter("ignore")
+            img = io.imread(p)
     except Exception as exc:  # imageio/PIL/tifffile raise many types
-        raise InputError(f"{p}: cannot read image ({type(exc).__name__}: {str(exc).splitlines()[0][:80] if str(exc) else ''})") from None
+        raise InputError(f"{p}: cannot read image ({type(exc).__name__})") from None
     return as_gray_float(img, p)
 
 
@@ -166,6 +172,119 @@ def flatten_background(img: np.ndarray, valid: np.ndarray, background_px: float)
     if f > 1:
         bg = transform.resize(bg, (bg.shape[0] * f, bg.shape[1] * f), order=1, mode="edge")[: img.shape[0], : img.shape[1]]
     return img - bg
+
+
+THRESHOLDS = ("otsu", "li", "minimum", "triangle")
+
+
+def _threshold(vals: np.ndarray, method) -> float:
+    if not isinstance(method, str):
+        return float(method)
+    if method == "otsu":
+        return float(filters.threshold_otsu(vals))
+    if method == "li":
+        return float(filters.threshold_li(vals))
+    if method == "triangle":
+        return float(filters.threshold_triangle(vals))
+    if method == "minimum":
+        try:  # the valley between the two histogram modes; Otsu if there is no second mode
+            return float(filters.threshold_minimum(vals))
+        except RuntimeError:
+            return float(filters.threshold_otsu(vals))
+    raise ValueError(f"unknown threshold method {method!r}; expected a number or one of {THRESHOLDS}")
+
+
+def cut_dark_lines(sm: np.ndarray, fg: np.ndarray, valid: np.ndarray, cut_px: float, cut_contrast: float) -> np.ndarray:
+    """Foreground minus thin dark lines (the shadows between overlapping particles).
+
+    A foreground pixel is cut when it is darker than its Gaussian (``cut_px``) neighbourhood
+    mean by more than ``cut_contrast`` x (median foreground - median background level).
+    Holes are filled again, so only lines open to the outside, i.e. the gaps between
+    particles, survive.
+
+    Returns
+    -------
+    ndarray of bool
+    """
+    contrast = float(np.median(sm[fg]) - np.median(sm[~fg & valid]))
+    core = fg & (sm > ndi.gaussian_filter(sm, cut_px) - cut_contrast * contrast)
+    return ndi.binary_fill_holes(core)
+
+
+def expand_labels_into(lab: np.ndarray, fg: np.ndarray) -> np.ndarray:
+    """Grow labels over the whole foreground (watershed on its distance transform).
+
+    Foreground components without any label become labels of their own.
+    """
+    comps, ncomp = ndi.label(fg)
+    seeded = np.unique(comps[lab > 0])
+    markers = lab.copy()
+    orphan = np.isin(comps, seeded, invert=True) & fg
+    markers[orphan] = comps[orphan] + int(lab.max())
+    return segmentation.watershed(-ndi.distance_transform_edt(fg), markers, mask=fg)
+
+
+def refine_local(sm: np.ndarray, lab: np.ndarray, fg: np.ndarray, valid: np.ndarray, ring_px: int = REFINE_RING_PX) -> np.ndarray:
+    """Move each particle's boundary to the midpoint of its own local contrast.
+
+    A global threshold sits at one level for all particles; for small, faint or blurred
+    particles it is far from the 50 % point of their edge (size bias). Per label: the
+    background level B is the median of the non-foreground pixels 3 to ``2 + ring_px`` px
+    away from it (the blurred edge itself excluded),
+    the particle level F the median of its interior (eroded by 2 px; the maximum for tiny
+    particles), and the region becomes the connected part of ``sm > (F + B) / 2`` within
+    2 px of the old region, not taking pixels of other labels.
+
+    Parameters
+    ----------
+    sm : ndarray of float
+        Smoothed, flattened image.
+    lab : ndarray of int
+        Labels to refine.
+    fg, valid : ndarray of bool
+        Global foreground and valid pixels.
+    ring_px : int, optional
+
+    Returns
+    -------
+    ndarray of int
+    """
+    out = lab.copy()
+    pad = ring_px + 5
+    h, w = lab.shape
+    ring_fp = morphology.disk(ring_px)
+    grow_fp = morphology.disk(2)
+    for i, obj in enumerate(ndi.find_objects(lab), start=1):
+        if obj is None:
+            continue
+        y0, y1 = max(obj[0].start - pad, 0), min(obj[0].stop + pad, h)
+        x0, x1 = max(obj[1].start - pad, 0), min(obj[1].stop + pad, w)
+        win = (slice(y0, y1), slice(x0, x1))
+        own = lab[win] == i
+        near = ndi.binary_dilation(own, grow_fp)
+        ring = ndi.binary_dilation(near, ring_fp) & ~near & ~fg[win] & valid[win]
+        if ring.sum() < 8:
+            continue  # no background nearby (dense cluster): keep the global boundary
+        s_win = sm[win]
+        core = ndi.binary_erosion(own, iterations=2)
+        level_f = float(np.median(s_win[core])) if core.sum() >= 9 else float(s_win[own].max())
+        level_b = float(np.median(s_win[ring]))
+        if level_f <= level_b:
+            continue
+        cand = near & ((lab[win] == 0) | own) & valid[win]
+        new = cand & (s_win > 0.5 * (level_f + level_b))
+        comps, n = ndi.label(new)
+        if n == 0:
+            continue
+        if n > 1:
+            keep = np.bincount(comps[own], minlength=n + 1)
+            keep[0] = 0
+            new = comps == int(np.argmax(keep))
+        new = ndi.binary_fill_holes(new)
+        o = out[win]
+        o[own & ~new] = 0
+        o[new & ((o == 0) | own)] = i
+    return out
 
 
 def split_touching(fg: np.ndarray, neck_ratio: float = NECK_RATIO) -> np.ndarray:
@@ -323,6 +442,10 @@ def segment(
     smooth_px: float = SMOOTH_PX,
     neck_ratio: float = NECK_RATIO,
     dark_particles: bool = False,
+    threshold=THRESHOLD,
+    cut_px: float = CUT_PX,
+    cut_contrast: float = CUT_CONTRAST,
+    refine: bool = True,
     name: str = "image",
 ) -> Segmentation:
     """Segment the particles of a grayscale micrograph.
@@ -379,14 +502,20 @@ def segment(
     vals = sm[valid]
     if np.ptp(vals) <= 1e-12:
         raise InputError(f"{name}: image is uniform, nothing to segment")
-    thr = float(filters.threshold_otsu(vals))
+    thr = _threshold(vals, threshold)
     fg = ndi.binary_fill_holes((sm > thr) & valid)
-    lab = split_touching(fg, neck_ratio)
+    if cut_contrast and cut_contrast > 0 and fg.any() and (~fg & valid).any():
+        core = cut_dark_lines(sm, fg, valid, cut_px, cut_contrast)
+        lab = expand_labels_into(split_touching(core, neck_ratio), fg)
+    else:
+        lab = split_touching(fg, neck_ratio)
+    if refine:
+        lab = refine_local(sm, lab, fg, valid)
     lab = remove_edge_and_specks(lab, valid, int(min_area_px))
     return Segmentation(lab, fg, thr, offset)
 
 
-def measure_labels(labels: np.ndarray, um_per_px: float, method: str = PERIMETER_METHOD) -> ParticleTable:
+def measure_labels(labels: np.ndarray, um_per_px: float, method: str = DEFAULT_METHOD) -> ParticleTable:
     """Area (pixel count) and perimeter of each label, as a :class:`ParticleTable` in um.
 
     Row ``i`` is label ``i + 1`` (labels must be sequential, as :func:`segment` returns).

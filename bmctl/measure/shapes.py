@@ -181,7 +181,7 @@ def _bisect(fun, lo, hi, target, iters: int = 40):
     return 0.5 * (lo + hi)
 
 
-def shapes_for(s, r, rng: np.random.Generator, *, elongation_share=None, k_range=(3, 7)) -> Shapes:
+def shapes_for(s, r, rng: np.random.Generator, *, elongation_share=None, k_range=(3, 5)) -> Shapes:
     """Warped ellipses with prescribed size ``s`` and true-perimeter aspect ratio ``r``.
 
     The excess perimeter is split at random between elongation (the axis ratio ``q``) and
