@@ -21,10 +21,10 @@ from bmctl.measure import (
     micrograph_sample,
     read_table,
     render_micrograph,
-    segment,
     write_table,
 )
 from bmctl.measure.perimeter import bias_study, perimeter
+from bmctl.measure.segment import segment
 from bmctl.measure.shapes import Shapes, shapes_for
 from bmctl.measure.validate import (
     compare,

@@ -7,7 +7,8 @@ section area A and measured boundary length L. See ``docs/measurement.md``.
 
 from .render import Micrograph, render_micrograph
 from .sampler import micrograph_sample
-from .segment import Segmentation, load_image, measure_image, measure_labels, segment
+from .segment import Segmentation, load_image, measure_image, measure_labels
+from .segment import segment as segment_image  # ``bmctl.measure.segment`` stays the module
 from .tables import ParticleTable, read_table, write_table
 
 __all__ = [
@@ -20,6 +21,6 @@ __all__ = [
     "micrograph_sample",
     "read_table",
     "render_micrograph",
-    "segment",
+    "segment_image",
     "write_table",
 ]

@@ -207,7 +207,7 @@ def render_micrograph(
     --------
     >>> import numpy as np
     >>> m = render_micrograph(np.random.default_rng(0), n=10, shape=(200, 200))
-    >>> m.image.shape, len(m.truth) == m.labels.max()
+    >>> m.image.shape, bool(len(m.truth) == m.labels.max())
     ((200, 200), True)
     """
     if shapes is None:
