@@ -1,13 +1,38 @@
-"""A bootstrap particle filter over the moment-model state and uncertain rate parameters.
+"""A particle filter over the moment-model state and uncertain rate parameters.
 
 The model is one small object (the moment model: ``step``, ``x0``, ``p0``, ``state_names``);
 the algorithm lives here, apart (as in Chopin's ``particles``). Each particle carries the
-moment state x (s_mean_um, s_std_um, r_mean, r_std, temperature_c, hardening) and the log of
-the parameter multipliers (bond_mult, frac_mult). Propagation: the moment model under the
-applied (rpm, milling) with multiplicative process noise. Update: likelihood of a micrograph
-sample (``likelihood.loglik_sample``) and optionally a vial-temperature reading. Resampling
-when ESS < ``ess_fraction`` N (filterpy schemes, seeded), then roughening of the parameters
-(Gordon, Salmond & Smith 1993) so they do not collapse onto a few values.
+moment state x = (s_mean_um, s_std_um, r_mean, r_std, temperature_c, hardening) and the log
+of the parameter multipliers (bond_mult, frac_mult).
+
+Propagation
+    the moment model under the applied (rpm, milling), then model-discrepancy noise: a
+    random walk in z = ln(s_mean, s_std, r_mean, r_std) of std ``q * sqrt(tau)`` (tau: hours
+    since the noise was last applied) and an additive walk of the temperature. The noise is
+    applied lazily, once per update (or when an estimate is read), so that the update can
+    draw it from a guided proposal. The parameters take a small random walk.
+Update
+    the likelihood of a micrograph sample (:func:`likelihood.loglik_raster`: the measured
+    particles under the laws the state implies, through a measurement-noise model), raised
+    to a learning rate (power likelihood), and optionally a vial-temperature reading.
+Proposal
+    for every particle, the Gaussian product of its discrepancy prior N(m_i, Q) with a
+    Gaussian approximation N(z_hat, (eta I)^-1) of the (tempered) likelihood, mixed with the
+    prior itself (defensive importance sampling, weight ``defensive``); the weights carry
+    the exact likelihood and densities, so the target is unchanged (Doucet, Godsill &
+    Andrieu 2000). This keeps the filter alive when n measured particles make the
+    likelihood far narrower than the model's one-step error.
+Resampling
+    when ESS < ``ess_fraction`` N (filterpy schemes, seeded), then roughening of the log
+    parameters (Gordon, Salmond & Smith 1993).
+
+Misspecification (docs/estimation.md): the plant's particles do not follow the implied laws
+exactly and the moment model is not exact between samples. The filter handles this
+explicitly with (1) the measurement-noise model (r noise and the r = 0 floor), (2) a power
+likelihood whose learning rate is the per-sample calibration of Lyddon, Holmes & Walker
+(2019) capped by ``learning_rate`` (Holmes & Walker 2017 power likelihood), and (3) process
+noise sized to the model's one-step error, optionally adapted online from the innovations
+(``adapt``, Mehra 1972).
 
 Multi-rate by construction: call ``predict`` every control interval and ``update`` only when
 a sample (or reading) arrives.
@@ -15,12 +40,15 @@ a sample (or reading) arrives.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .likelihood import SampleStats, loglik_sample
+from .likelihood import LawSettings, Raster, fit_sample, loglik_raster
 from .resampling import SCHEMES, effective_sample_size, resample
+
+N_MOMENTS = 4  # s_mean, s_std, r_mean, r_std: the log-moment block z
 
 
 @dataclass
@@ -35,22 +63,34 @@ class FilterSettings:
         Resample when ESS < ess_fraction * N.
     scheme : str
         Resampling scheme (filterpy): systematic, stratified, residual, multinomial.
-    process_noise_per_sqrt_h : float
-        Relative (log-space) random walk of s_mean, s_std, r_mean, r_std per sqrt(hour).
+    process_noise_per_sqrt_h : tuple of 4 floats
+        Model-discrepancy random walk of ln(s_mean, s_std, r_mean, r_std) per sqrt(hour).
+        Defaults from the moment model's one-step (1 h) errors against the plant
+        (docs/estimation.md): the r moments relax to the model's own level within an hour.
+    adapt : bool
+        Adapt the process noise from the innovations (sample fit minus prediction).
+    adapt_rate : float
+        Forgetting factor of the adaptation (share of the newest innovation).
+    process_noise_bounds : (float, float)
+        Limits of the adapted per-sqrt(hour) noise.
     temperature_noise_c_per_sqrt_h : float
         Additive random walk of the vial temperature (degC per sqrt(hour)).
     param_prior_log_std : float
-        Std of the initial log multipliers (0.3 ~ +-30 %).
+        Std of the initial log multipliers (0.4 ~ +-40 %).
     param_walk_per_sqrt_h : float
         Random walk of the log multipliers per sqrt(hour).
     roughening : float
         Roughening constant K of Gordon et al. (jitter std = K * range * N^(-1/d)).
     initial_spread : float
         Relative spread of the initial moment states.
-    sigma_log_s : float
-        Measurement noise on log s (segmentation, 2D sections).
-    sigma_r : float
-        Measurement noise on r.
+    learning_rate : float
+        Cap on the power-likelihood learning rate eta (1: the per-sample calibration alone).
+    calibrate_learning_rate : bool
+        Use the per-sample Lyddon-Holmes-Walker rate (else eta = learning_rate).
+    defensive : float
+        Share of the proposal drawn from the prior (bootstrap) rather than the guided density.
+    law : LawSettings
+        Measurement laws (size law, noise) and raster.
     sigma_temperature_c : float
         Noise of a vial-temperature reading.
     """
@@ -58,14 +98,19 @@ class FilterSettings:
     n_particles: int = 2000
     ess_fraction: float = 0.5
     scheme: str = "systematic"
-    process_noise_per_sqrt_h: float = 0.03
+    process_noise_per_sqrt_h: tuple = (0.15, 0.15, 0.5, 0.5)
+    adapt: bool = True
+    adapt_rate: float = 0.3
+    process_noise_bounds: tuple = (0.03, 1.5)
     temperature_noise_c_per_sqrt_h: float = 1.0
-    param_prior_log_std: float = 0.35
+    param_prior_log_std: float = 0.4
     param_walk_per_sqrt_h: float = 0.01
     roughening: float = 0.05
     initial_spread: float = 0.02
-    sigma_log_s: float = 0.05
-    sigma_r: float = 0.01
+    learning_rate: float = 1.0
+    calibrate_learning_rate: bool = True
+    defensive: float = 0.1
+    law: LawSettings = field(default_factory=LawSettings)
     sigma_temperature_c: float = 2.0
 
     def __post_init__(self):
@@ -75,6 +120,12 @@ class FilterSettings:
             raise ValueError("ess_fraction must be in (0, 1]")
         if self.scheme not in SCHEMES:
             raise ValueError(f"scheme must be one of {SCHEMES}")
+        if len(self.process_noise_per_sqrt_h) != N_MOMENTS or min(self.process_noise_per_sqrt_h) <= 0:
+            raise ValueError("process_noise_per_sqrt_h: four values > 0")
+        if not 0 < self.learning_rate <= 1:
+            raise ValueError("learning_rate must be in (0, 1]")
+        if not 0 <= self.defensive < 1:
+            raise ValueError("defensive must be in [0, 1)")
 
 
 @dataclass
@@ -89,6 +140,8 @@ class Estimate:
     ess: float
     resampled: bool = False
     degenerate: bool = False
+    eta: tuple = (float("nan"), float("nan"))
+    n_measured: int = 0
 
     def as_dict(self) -> dict[str, float]:
         """Flat dict: t_h, ess, and <name>, <name>_q05, <name>_q95 for every state and parameter."""
@@ -99,21 +152,31 @@ class Estimate:
             d[f"{n}_q95"] = float(self.q95[k])
         return d
 
+    def interval(self, name: str) -> tuple[float, float]:
+        k = self.names.index(name)
+        return float(self.q05[k]), float(self.q95[k])
+
 
 def weighted_quantiles(values: np.ndarray, weights: np.ndarray, qs=(0.05, 0.95)) -> np.ndarray:
     """Quantiles of each column of ``values`` (N, d) under ``weights`` (N,). Returns (len(qs), d)."""
     order = np.argsort(values, axis=0)
+    w = weights / weights.sum()
     out = np.empty((len(qs), values.shape[1]))
     for j in range(values.shape[1]):
         v = values[order[:, j], j]
-        c = np.cumsum(weights[order[:, j]])
-        c /= c[-1]
-        out[:, j] = np.interp(qs, c - 0.5 * weights[order[:, j]] / weights.sum(), v)
+        wj = w[order[:, j]]
+        c = np.cumsum(wj) - 0.5 * wj
+        out[:, j] = np.interp(qs, c, v)
     return out
 
 
+def _logsumexp(a: np.ndarray) -> float:
+    m = float(np.max(a))
+    return m + math.log(float(np.sum(np.exp(a - m))))
+
+
 class ParticleFilter:
-    """Bootstrap particle filter on a moment model.
+    """Particle filter on a moment model with guided, tempered updates.
 
     Parameters
     ----------
@@ -143,17 +206,24 @@ class ParticleFilter:
         p0 = np.asarray(model.p0(), dtype=float)
         self.nx, self.np_ = x0.size, p0.size
         X = np.tile(x0, (N, 1))
-        X[:, :4] *= np.exp(st.initial_spread * rng.standard_normal((N, 4)))
-        self.X = X
+        X[:, :N_MOMENTS] *= np.exp(st.initial_spread * rng.standard_normal((N, N_MOMENTS)))
+        self.X = self._feasible(X)
         self.logP = np.log(p0)[None, :] + st.param_prior_log_std * rng.standard_normal((N, self.np_))
         self.logw = np.full(N, -np.log(N))
         self.t_h = 0.0
+        self.pending_h = 0.0  # hours of process noise not yet applied
+        self.q = np.array(st.process_noise_per_sqrt_h, dtype=float)
         self.state_names = tuple(model.state_names)
         self.param_names = tuple(getattr(model, "param_names", ("bond_mult", "frac_mult")))
         self.n_resampled = 0
         self.n_degenerate = 0
+        self.last_fit = None
 
-    # --- filter steps ------------------------------------------------------------------------
+    # --- basics -----------------------------------------------------------------------------
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.state_names + self.param_names
+
     @property
     def weights(self) -> np.ndarray:
         w = np.exp(self.logw - self.logw.max())
@@ -164,54 +234,160 @@ class ParticleFilter:
         """Parameter multipliers of every particle (N, np)."""
         return np.exp(self.logP)
 
+    @staticmethod
+    def _feasible(X: np.ndarray) -> np.ndarray:
+        """Keep moment sets realisable: positive sizes, r in (0, 1), Beta-feasible r variance."""
+        X[:, 0] = np.clip(X[:, 0], 0.1, 1e5)
+        X[:, 1] = np.clip(X[:, 1], 1e-3 * X[:, 0], 30 * X[:, 0])
+        X[:, 2] = np.clip(X[:, 2], 1e-4, 0.9)
+        X[:, 3] = np.clip(X[:, 3], 1e-4, 0.99 * np.sqrt(X[:, 2] * (1 - X[:, 2])))
+        return X
+
+    # --- prediction -------------------------------------------------------------------------
     def predict(self, u, dt_h: float) -> None:
         """Propagate every particle over ``dt_h`` hours under input ``u = (rpm, milling)``."""
         if dt_h <= 0:
             return
         st, rng = self.settings, self.rng
         X = np.asarray(self.model.step(self.X, np.asarray(u, dtype=float), dt_h, self.P), dtype=float)
-        sq = np.sqrt(dt_h)
-        X[:, :4] *= np.exp(st.process_noise_per_sqrt_h * sq * rng.standard_normal((X.shape[0], 4)))
-        X[:, 4] += st.temperature_noise_c_per_sqrt_h * sq * rng.standard_normal(X.shape[0])
+        bad = ~np.all(np.isfinite(X), axis=1)
+        if np.any(bad):  # a failed model step keeps the particle where it was (and reports nothing)
+            X[bad] = self.X[bad]
         self.X = self._feasible(X)
-        self.logP = self.logP + st.param_walk_per_sqrt_h * sq * rng.standard_normal(self.logP.shape)
+        self.logP = self.logP + st.param_walk_per_sqrt_h * math.sqrt(dt_h) * rng.standard_normal(self.logP.shape)
         self.t_h += dt_h
+        self.pending_h += dt_h
 
-    @staticmethod
-    def _feasible(X: np.ndarray) -> np.ndarray:
-        """Keep moment sets realisable: positive sizes, r in (0, 1), Beta-feasible r variance."""
-        X[:, 0] = np.maximum(X[:, 0], 0.1)
-        X[:, 1] = np.clip(X[:, 1], 1e-3, 10 * X[:, 0])
-        X[:, 2] = np.clip(X[:, 2], 1e-4, 0.99)
-        X[:, 3] = np.clip(X[:, 3], 1e-4, 0.99 * np.sqrt(X[:, 2] * (1 - X[:, 2])))
-        return X
+    def _apply_pending_noise(self) -> None:
+        """Draw the deferred process noise from its prior (no sample to guide it)."""
+        tau = self.pending_h
+        if tau <= 0:
+            return
+        st, rng = self.settings, self.rng
+        N = self.X.shape[0]
+        self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau) * rng.standard_normal((N, N_MOMENTS)))
+        self.X[:, 4] += st.temperature_noise_c_per_sqrt_h * math.sqrt(tau) * rng.standard_normal(N)
+        self.X = self._feasible(self.X)
+        self.pending_h = 0.0
 
+    # --- update -----------------------------------------------------------------------------
     def update(self, s_um=None, r=None, temperature_c: float | None = None) -> Estimate:
-        """Weight particles by a micrograph sample (and/or a temperature reading); resample if needed."""
-        st = self.settings
-        ll = np.zeros(self.X.shape[0])
-        if s_um is not None:
-            stats = SampleStats.from_particles(s_um, r)
-            ll += loglik_sample(stats, self.X[:, 0], self.X[:, 1], self.X[:, 2], self.X[:, 3],
-                                st.sigma_log_s, st.sigma_r)
+        """Weight particles by a micrograph sample and/or a temperature reading; resample if needed.
+
+        Parameters
+        ----------
+        s_um, r : array_like, optional
+            Measured sizes (um, > 0) and aspect ratios ([0, 1)) of one sample.
+        temperature_c : float, optional
+            Vial-temperature reading.
+        """
+        st, rng = self.settings, self.rng
+        N = self.X.shape[0]
+        tau = self.pending_h
+        logw = self.logw.copy()
+        eta = np.array([np.nan, np.nan])
+        n_meas = 0
+
+        # temperature: Gaussian prior walk x Gaussian reading -> exact optimal proposal
+        qT2 = (st.temperature_noise_c_per_sqrt_h**2) * tau
         if temperature_c is not None:
-            ll += -0.5 * ((temperature_c - self.X[:, 4]) / st.sigma_temperature_c) ** 2
+            if not math.isfinite(temperature_c):
+                raise ValueError("temperature_c must be finite")
+            sT2 = st.sigma_temperature_c**2
+            mT = self.X[:, 4]
+            var = qT2 + sT2
+            logw += -0.5 * (temperature_c - mT) ** 2 / var - 0.5 * math.log(2 * math.pi * var)
+            post_var = qT2 * sT2 / var if var > 0 else 0.0
+            post_mean = (mT * sT2 + temperature_c * qT2) / var
+            self.X[:, 4] = post_mean + math.sqrt(post_var) * rng.standard_normal(N)
+        elif qT2 > 0:
+            self.X[:, 4] += math.sqrt(qT2) * rng.standard_normal(N)
+
+        if s_um is not None:
+            raster = Raster.from_particles(s_um, r, st.law)
+            n_meas = raster.n
+            logw_s, eta = self._sample_update(raster, tau)
+            logw += logw_s
+        elif tau > 0:
+            self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau) * rng.standard_normal((N, N_MOMENTS)))
+        self.X = self._feasible(self.X)
+        self.pending_h = 0.0
+
         degenerate = False
-        logw = self.logw + ll
         if not np.any(np.isfinite(logw)):
             degenerate = True  # every particle impossible: keep the prior weights, report it
             self.n_degenerate += 1
             logw = self.logw.copy()
         logw = np.where(np.isfinite(logw), logw, -np.inf)
-        self.logw = logw - (logw.max() + np.log(np.exp(logw - logw.max()).sum()))
+        self.logw = logw - _logsumexp(logw)
         ess = effective_sample_size(self.weights)
         resampled = False
-        if ess < st.ess_fraction * self.X.shape[0]:
+        if ess < st.ess_fraction * N:
             self._resample()
             resampled = True
-        est = self.estimate()
+        est = self._summary()
         est.ess, est.resampled, est.degenerate = ess, resampled, degenerate
+        est.eta, est.n_measured = tuple(float(e) for e in eta), n_meas
         return est
+
+    def _sample_update(self, raster: Raster, tau: float):
+        """Guided proposal of the log moments and the importance log-weights of one sample."""
+        st, rng = self.settings, self.rng
+        N = self.X.shape[0]
+        M = np.log(self.X[:, :N_MOMENTS])  # prior means (noise-free predictions)
+        fit = fit_sample(raster, st.law)
+        self.last_fit = fit
+        eta = fit.eta if st.calibrate_learning_rate else np.ones(2)
+        eta = np.minimum(eta, st.learning_rate)
+        eta_vec = np.repeat(eta, 2)
+        if st.adapt and tau > 0:
+            self._adapt(fit, M, tau, eta_vec)
+        qvar = self.q**2 * tau  # (4,) discrepancy variance
+
+        if tau > 0:
+            # block-diagonal Gaussian proposal; a block without a proper fit falls back to the prior
+            A = np.diag(np.sqrt(eta_vec)) @ fit.info @ np.diag(np.sqrt(eta_vec))  # eta-tempered information
+            for b in range(2):
+                if not fit.ok[b]:
+                    A[2 * b:2 * b + 2, :] = 0.0
+                    A[:, 2 * b:2 * b + 2] = 0.0
+            Qinv = np.diag(1.0 / qvar)
+            S = np.linalg.inv(Qinv + A)
+            S = 0.5 * (S + S.T)
+            L = np.linalg.cholesky(S)
+            mu = (M * (1.0 / qvar)[None, :] + (A @ fit.z)[None, :]) @ S
+            use_prior = rng.random(N) < st.defensive
+            eps = rng.standard_normal((N, N_MOMENTS))
+            Z = np.where(use_prior[:, None], M + eps * np.sqrt(qvar)[None, :], mu + eps @ L.T)
+            log_prior = _mvn_logpdf_diag(Z - M, qvar)
+            log_guided = _mvn_logpdf_chol(Z - mu, L)
+            log_q = np.logaddexp(math.log(st.defensive) + log_prior if st.defensive > 0 else -np.inf,
+                                 math.log1p(-st.defensive) + log_guided)
+            corr = log_prior - log_q
+        else:
+            Z = M
+            corr = np.zeros(N)
+        X = self.X.copy()
+        X[:, :N_MOMENTS] = np.exp(Z)
+        X = self._feasible(X)
+        ls, lr = loglik_raster(raster, X[:, 0], X[:, 1], X[:, 2], X[:, 3], st.law)
+        self.X = X
+        return eta[0] * ls + eta[1] * lr + corr, eta
+
+    def _adapt(self, fit, M: np.ndarray, tau: float, eta_vec: np.ndarray) -> None:
+        """Innovation-based update of the discrepancy noise (one scalar per log moment)."""
+        st = self.settings
+        w = self.weights
+        mbar = w @ M
+        var_m = w @ (M - mbar) ** 2
+        info_diag = np.diag(fit.info) * eta_vec
+        meas_var = np.where(info_diag > 0, 1.0 / np.maximum(info_diag, 1e-12), np.inf)
+        innov2 = (fit.z - mbar) ** 2
+        ok = np.repeat(fit.ok, 2) & np.isfinite(meas_var)
+        q2_new = np.maximum(innov2 - var_m - meas_var, 0.0) / tau
+        lo, hi = st.process_noise_bounds
+        q2 = (1 - st.adapt_rate) * self.q**2 + st.adapt_rate * q2_new
+        self.q = np.where(ok, np.clip(np.sqrt(q2), lo, hi), self.q)
 
     def _resample(self) -> None:
         st, rng = self.settings, self.rng
@@ -224,9 +400,23 @@ class ParticleFilter:
         self.logw = np.full(N, -np.log(N))
         self.n_resampled += 1
 
-    def estimate(self) -> Estimate:
-        """Weighted mean and 90 % interval of every state and parameter."""
+    # --- read-out ---------------------------------------------------------------------------
+    def _summary(self) -> Estimate:
         w = self.weights
         V = np.hstack([self.X, self.P])
         q = weighted_quantiles(V, w)
-        return Estimate(self.t_h, self.state_names + self.param_names, w @ V, q[0], q[1], effective_sample_size(w))
+        return Estimate(self.t_h, self.names, w @ V, q[0], q[1], effective_sample_size(w))
+
+    def estimate(self) -> Estimate:
+        """Weighted mean and 90 % interval of every state and parameter (deferred noise applied)."""
+        self._apply_pending_noise()
+        return self._summary()
+
+
+def _mvn_logpdf_diag(d: np.ndarray, var: np.ndarray) -> np.ndarray:
+    return -0.5 * np.sum(d * d / var[None, :], axis=1) - 0.5 * np.sum(np.log(2 * np.pi * var))
+
+
+def _mvn_logpdf_chol(d: np.ndarray, L: np.ndarray) -> np.ndarray:
+    y = np.linalg.solve(L, d.T)
+    return -0.5 * np.sum(y * y, axis=0) - np.sum(np.log(np.diag(L))) - 0.5 * d.shape[1] * math.log(2 * math.pi)
