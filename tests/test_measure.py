@@ -117,7 +117,7 @@ def test_render_is_seeded_and_ignores_global_rng():
     "s_px, s_tol, r_tol",
     [
         # measured (2 images x 60 particles, seed 7): s 1.9 %, r 0.021 at 10-14 px;
-        # s 0.5 %, r 0.007 at 20-40 px
+        # s 0.4 %, r 0.007 at 20-40 px (docs/measurement.md, 5.1)
         ((10.0, 14.0), 0.03, 0.03),
         ((20.0, 40.0), 0.015, 0.015),
     ],
@@ -179,10 +179,10 @@ def ampis():
 
 
 def test_real_powder_against_hand_outlines(ampis):
-    # Measured (docs/measurement.md): 143 of 191 interior outlines matched (IoU > 0.5) = 0.75,
-    # precision 0.59 (satellites split off, small unlabelled particles); matched particles:
-    # median |s err| 1.0 %, median |r err| 0.021 (hand r median 0.057). The plain global
-    # threshold + distance watershed matches only 0.30-0.42, so 0.65 catches that regression.
+    # Measured (docs/measurement.md, 5.3): 146 of 191 interior outlines matched (IoU > 0.5) =
+    # 0.76, precision 0.58 (satellites split off, small unlabelled particles); matched
+    # particles: median |s err| 1.4 %, median |r err| 0.019 (hand r median 0.059). Otsu, or no
+    # dark-line cut, matches only 0.41-0.49, so 0.65 catches a regression to either.
     c, extra = ampis
     summ = c.summary()
     assert extra["n_outlines"] == 238

@@ -24,7 +24,7 @@ render (``render=True``)
     the particles are drawn as warped ellipses of the same s and (true-perimeter) r into
     synthetic micrographs (:mod:`bmctl.measure.render`: blur, noise, uneven background,
     touching pairs) and measured by the real segmentation path; particles that do not fit
-    in the field of view are lost. Slow (about 0.3 s per 100 particles).
+    in the field of view are lost. Slow (about 2 s per 100 particles).
 
 All randomness comes from the ``rng`` passed in.
 """
