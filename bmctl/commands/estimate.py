@@ -1,0 +1,193 @@
+"""Particle-filter estimates of the powder's moments and rate multipliers from micrograph samples.
+
+``bmctl estimate MODEL.toml --samples DIR_OR_FILES --times T1,T2,...`` reads one particle
+table (CSV ``area_um2,perimeter_um`` or ``s_um,r``; or a micrograph with ``--um-per-px``) per
+sample time, runs the moment model between samples under the card's recipe (or
+``--schedule``/``--rpm``), and writes ``estimate.csv`` (t_h, ESS and the mean and 90 %
+interval of every state and parameter at each sample time) and a figure next to it
+(``<name>.png``). Bad input: one line, exit 2, nothing written. See docs/estimation.md.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from ..errors import InputError
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
+
+
+def _int(name, lo):
+    def parse(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise InputError(f"{name}: not an integer: {text!r}") from None
+        if v < lo:
+            raise InputError(f"{name}: must be >= {lo} (got {v})")
+        return v
+    return parse
+
+
+def _float(name, lo=None, hi=None, strict=False):
+    def parse(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise InputError(f"{name}: not a number: {text!r}") from None
+        if not math.isfinite(v):
+            raise InputError(f"{name}: must be a finite number (got {text})")
+        if lo is not None and (v < lo or (strict and v == lo)):
+            raise InputError(f"{name}: must be {'>' if strict else '>='} {lo:g} (got {text})")
+        if hi is not None and v > hi:
+            raise InputError(f"{name}: must be <= {hi:g} (got {text})")
+        return v
+    return parse
+
+
+def configure(p):
+    p.add_argument("model", metavar="MODEL.toml", help="model card (see models/); its moment model is the filter's")
+    p.add_argument("--samples", nargs="+", required=True, metavar="DIR_OR_FILES",
+                   help="particle tables (.csv) or micrographs (with --um-per-px), one per time; a folder is read sorted by name")
+    p.add_argument("--times", required=True, metavar="T1,T2,...", help="milling time (h) of each sample, comma separated")
+    p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest); default: the card's recipe")
+    p.add_argument("--rpm", type=_float("--rpm", lo=0.0), default=None, help="sun-disc speed of the card's recipe (default: the card's)")
+    p.add_argument("--temperatures", default=None, metavar="T1,T2,...",
+                   help="vial-temperature readings (degC) per sample, comma separated; leave an entry empty for none")
+    p.add_argument("--um-per-px", type=_float("--um-per-px", lo=0.0, strict=True), default=None, metavar="X",
+                   help="pixel size: measure micrographs instead of reading tables")
+    p.add_argument("--out", default="out/estimate/estimate.csv", metavar="FILE.csv", help="estimate table (default out/estimate/estimate.csv)")
+    p.add_argument("--seed", type=_int("--seed", 0), default=0, help="random seed (default 0)")
+    p.add_argument("--particles", type=_int("--particles", 100), default=2000, help="filter particles N (default 2000)")
+    p.add_argument("--size-law", choices=("weibull", "lognormal"), default="weibull",
+                   help="law of s given (s_mean, s_std) (default weibull; see docs/estimation.md)")
+    p.add_argument("--sigma-r", type=_float("--sigma-r", lo=0.005), default=None,
+                   help="r measurement noise (default 0.034, the synthetic micrograph path's)")
+    p.add_argument("--sigma-log-s", type=_float("--sigma-log-s", lo=0.0), default=None,
+                   help="ln s measurement noise (default 0.015)")
+
+
+def _parse_list(flag: str, text: str, allow_empty: bool = False) -> list[float | None]:
+    out: list[float | None] = []
+    for item in text.split(","):
+        item = item.strip()
+        if not item:
+            if allow_empty:
+                out.append(None)
+                continue
+            raise InputError(f"{flag}: empty entry in {text!r}")
+        try:
+            v = float(item)
+        except ValueError:
+            raise InputError(f"{flag}: not a number: {item!r}") from None
+        if not math.isfinite(v):
+            raise InputError(f"{flag}: must be finite numbers (got {item})")
+        out.append(v)
+    return out
+
+
+def _sample_files(paths: list[str], images: bool) -> list[Path]:
+    files: list[Path] = []
+    suffixes = IMAGE_SUFFIXES if images else (".csv",)
+    for p in map(Path, paths):
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in suffixes)
+            if not found:
+                kind = "micrographs (" + ", ".join(IMAGE_SUFFIXES) + ")" if images else "particle tables (.csv)"
+                raise InputError(f"{p}: no {kind} in this folder")
+            files.extend(found)
+        elif not p.exists():
+            raise InputError(f"{p}: no such file or folder")
+        else:
+            files.append(p)
+    return files
+
+
+def _read_sample(path: Path, um_per_px: float | None):
+    from ..measure.tables import read_table
+
+    if path.suffix.lower() == ".csv" or um_per_px is None:
+        if path.suffix.lower() != ".csv":
+            raise InputError(f"{path}: not a particle table (.csv); give --um-per-px to measure micrographs")
+        return read_table(path)
+    from ..measure.segment import measure_image
+
+    t = measure_image(str(path), um_per_px)
+    if len(t) == 0:
+        raise InputError(f"{path}: no particles found in the micrograph (check --um-per-px)")
+    return t
+
+
+def run(args) -> int:
+    from ..config import card_schedule, load_schedule
+    from ..moments.model import make_moment_model
+    from ..estimate.filter import FilterSettings
+    from ..estimate.likelihood import LawSettings
+    from ..estimate.run import Sample, estimate_rows, plot_estimates, run_filter
+    from ..io import write_csv
+
+    model = make_moment_model(args.model)
+    card = model.card
+    times = _parse_list("--times", args.times)
+    if any(t < 0 for t in times):
+        raise InputError(f"--times: must be >= 0 (got {min(times):g})")
+    if any(b < a for a, b in zip(times, times[1:])):
+        raise InputError(f"--times: must be in increasing order (got {args.times})")
+    files = _sample_files(args.samples, images=args.um_per_px is not None)
+    if len(files) != len(times):
+        raise InputError(f"--times: {len(times)} time(s) for {len(files)} sample(s)")
+    temps: list[float | None] = [None] * len(times)
+    if args.temperatures is not None:
+        temps = _parse_list("--temperatures", args.temperatures, allow_empty=True)
+        if len(temps) != len(times):
+            raise InputError(f"--temperatures: {len(temps)} reading(s) for {len(times)} sample(s)")
+    if args.rpm is not None and args.rpm > card.mill.rpm_max:
+        raise InputError(f"--rpm: {args.rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g} ({args.model})")
+    t_end = max(times)
+    if args.schedule is not None:
+        if args.rpm is not None:
+            raise InputError("--schedule: cannot be combined with --rpm")
+        sched = load_schedule(args.schedule)
+        segments = [(s.hours, s.rpm) for s in sched.segment]
+        for h, rpm in segments:
+            if rpm > card.mill.rpm_max:
+                raise InputError(f"{args.schedule}: rpm {rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g}")
+        total = sum(h for h, _ in segments)
+        if total < t_end - 1e-9:
+            raise InputError(f"{args.schedule}: covers {total:g} h, the last sample is at {t_end:g} h")
+    else:
+        segments = card_schedule(card, max(card.process.hours, t_end), args.rpm)
+    out = Path(args.out)
+    if out.is_dir():
+        raise InputError(f"--out: {out} is a folder, expected a .csv file")
+    if out.suffix.lower() != ".csv":
+        raise InputError(f"--out: expected a .csv file name (got {out})")
+    law_kw = {"size_law": args.size_law}
+    if args.sigma_r is not None:
+        law_kw["sigma_r"] = args.sigma_r
+    if args.sigma_log_s is not None:
+        law_kw["sigma_log_s"] = args.sigma_log_s
+    settings = FilterSettings(n_particles=args.particles, law=LawSettings(**law_kw))
+
+    samples = []
+    for f, t, temp in zip(files, times, temps):
+        tab = _read_sample(f, args.um_per_px)
+        samples.append(Sample(t, tab.s_um, tab.r, temp, str(f)))
+
+    pf, estimates = run_filter(model, samples, segments, settings, seed=args.seed)
+    header, rows = estimate_rows(estimates)
+    fig_path = out.with_suffix(".png")
+    write_csv(out, header, rows)
+    plot_estimates(fig_path, estimates, samples, title=f"{card.card.name}: particle filter, N={args.particles}, seed {args.seed}")
+    last = estimates[-1]
+    d = last.as_dict()
+    print(f"{card.card.name}: {len(samples)} samples to t = {t_end:g} h, N = {args.particles}, seed {args.seed}; "
+          f"min ESS {min(e.ess for e in estimates):.0f}, resampled {pf.n_resampled}x")
+    print(f"  at {last.t_h:g} h: s mean {d['s_mean_um']:.1f} um [{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
+          f"r mean {d['r_mean']:.3f} [{d['r_mean_q05']:.3f}, {d['r_mean_q95']:.3f}], "
+          f"bond_mult {d['bond_mult']:.2f} [{d['bond_mult_q05']:.2f}, {d['bond_mult_q95']:.2f}], "
+          f"frac_mult {d['frac_mult']:.2f} [{d['frac_mult_q05']:.2f}, {d['frac_mult_q95']:.2f}]")
+    print(f"  wrote {out}")
+    print(f"  wrote {fig_path}")
+    return 0

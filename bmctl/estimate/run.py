@@ -1,0 +1,130 @@
+"""Run the particle filter over a sequence of samples under a schedule; write the CSV and figure.
+
+Shared by ``bmctl estimate`` and the evidence study (:mod:`bmctl.estimate.study`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .filter import Estimate, FilterSettings, ParticleFilter
+
+
+@dataclass
+class Sample:
+    """One measured sample: particle sizes (um), aspect ratios, optional vial temperature."""
+
+    t_h: float
+    s_um: np.ndarray
+    r: np.ndarray
+    temperature_c: float | None = None
+    source: str = ""
+
+
+def inputs_between(segments: Sequence[tuple[float, float]], t0: float, t1: float) -> list[tuple[float, float, float]]:
+    """The (rpm, milling, hours) pieces of a (hours, rpm) schedule between t0 and t1.
+
+    Time beyond the end of the schedule is a rest (rpm 0). ``milling`` is 1 for rpm > 0.
+    """
+    out = []
+    start = 0.0
+    for h, rpm in segments:
+        a, b = max(t0, start), min(t1, start + h)
+        if b > a + 1e-12:
+            out.append((float(rpm), 1.0 if rpm > 0 else 0.0, b - a))
+        start += h
+    if t1 > max(t0, start) + 1e-12:
+        out.append((0.0, 0.0, t1 - max(t0, start)))
+    return out
+
+
+def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float, float]],
+               settings: FilterSettings | None = None, seed: int = 0, max_step_h: float = 1.0,
+               pf: ParticleFilter | None = None) -> tuple[ParticleFilter, list[Estimate]]:
+    """Filter the samples in time order; returns the filter and one estimate per sample.
+
+    Between samples the filter predicts under the schedule's inputs in pieces of at most
+    ``max_step_h`` hours.
+    """
+    if pf is None:
+        pf = ParticleFilter(model, np.random.default_rng(seed), settings)
+    out = []
+    for smp in samples:
+        for rpm, milling, hours in inputs_between(segments, pf.t_h, smp.t_h):
+            k = max(1, int(np.ceil(hours / max_step_h - 1e-9)))
+            for _ in range(k):
+                pf.predict((rpm, milling), hours / k)
+        pf.t_h = smp.t_h  # no drift from summing pieces
+        out.append(pf.update(smp.s_um, smp.r, smp.temperature_c))
+    return pf, out
+
+
+def estimate_rows(estimates: Sequence[Estimate]) -> tuple[list[str], list[list]]:
+    """CSV header and rows: t_h, n_measured, ess, resampled, eta_size, eta_shape, then mean/q05/q95."""
+    names = estimates[0].names
+    header = ["t_h", "n_measured", "ess", "resampled", "eta_size", "eta_shape"]
+    for n in names:
+        header += [n, f"{n}_q05", f"{n}_q95"]
+    rows = []
+    for e in estimates:
+        row = [float(e.t_h), int(e.n_measured), float(e.ess), int(e.resampled), float(e.eta[0]), float(e.eta[1])]
+        for k in range(len(names)):
+            row += [float(e.mean[k]), float(e.q05[k]), float(e.q95[k])]
+        rows.append(row)
+    return header, rows
+
+
+def plot_estimates(path: str | Path, estimates: Sequence[Estimate], samples: Sequence[Sample] | None = None,
+                   title: str = "", truth: dict | None = None) -> None:
+    """Mean and 90 % band of every state and parameter over time; the raw sample moments as dots."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..io import savefig
+
+    names = estimates[0].names
+    t = np.array([e.t_h for e in estimates])
+    mean = np.array([e.mean for e in estimates])
+    lo = np.array([e.q05 for e in estimates])
+    hi = np.array([e.q95 for e in estimates])
+    raw = {}
+    if samples is not None:
+        raw = {"s_mean_um": [np.mean(s.s_um) for s in samples], "s_std_um": [np.std(s.s_um) for s in samples],
+               "r_mean": [np.mean(s.r) for s in samples], "r_std": [np.std(s.r) for s in samples]}
+        if all(s.temperature_c is not None for s in samples):
+            raw["temperature_c"] = [s.temperature_c for s in samples]
+    ncol = 4
+    nrow = int(np.ceil(len(names) / ncol))
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 2.7 * nrow), squeeze=False)
+    for k, name in enumerate(names):
+        ax = axes.flat[k]
+        ax.fill_between(t, lo[:, k], hi[:, k], color="tab:blue", alpha=0.25, lw=0, label="90 % interval")
+        ax.plot(t, mean[:, k], color="tab:blue", marker="o", ms=3, lw=1.2, label="filter mean")
+        if name in raw:
+            ax.plot(t, raw[name], ls="none", marker="x", color="k", ms=4, label="sample moment")
+        if truth and name in truth:
+            ax.plot(truth.get("t_h", t), truth[name], color="tab:red", lw=1.0, label="truth")
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel("t (h)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+        if k == 0:
+            ax.legend(fontsize=6)
+    ax = axes.flat[len(names)] if len(names) < nrow * ncol else None
+    if ax is not None:
+        ax.plot(t, [e.ess for e in estimates], marker="o", ms=3, color="tab:green")
+        ax.set_title("ESS after update", fontsize=9)
+        ax.set_xlabel("t (h)", fontsize=8)
+        ax.grid(alpha=0.3)
+    for extra in list(axes.flat)[len(names) + 1:]:
+        extra.axis("off")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    savefig(fig, path, dpi=110)
