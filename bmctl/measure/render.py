@@ -176,10 +176,11 @@ def render_micrograph(
         Particles to try to place (those that do not fit are left out).
     shape : (int, int), optional
         Image height and width in px.
-    s_px : (float, float) or array_like, optional
-        Size range in px (log-uniform) or the sizes themselves (length n).
-    r : (float, float) or array_like, optional
-        Aspect-ratio range (uniform) or the values themselves (length n).
+    s_px : tuple (float, float) or array_like, optional
+        A tuple is a size range in px (``n`` sizes drawn log-uniform); a list or array
+        gives the sizes themselves.
+    r : tuple (float, float) or array_like, optional
+        A tuple is an aspect-ratio range (uniform); a list or array gives the values.
     k_range : (int, int), optional
         Lobe counts of the warped ellipses (:func:`bmctl.measure.shapes.shapes_for`).
     shapes : Shapes, optional
@@ -213,9 +214,9 @@ def render_micrograph(
     if shapes is None:
         s_arr = np.asarray(s_px, dtype=float)
         r_arr = np.asarray(r, dtype=float)
-        if s_arr.size == 2 and n != 2:
+        if isinstance(s_px, tuple):
             s_arr = np.exp(rng.uniform(np.log(s_arr[0]), np.log(s_arr[1]), n))
-        if r_arr.size == 2 and n != 2:
+        if isinstance(r, tuple):
             r_arr = rng.uniform(r_arr[0], r_arr[1], n)
         shapes = shapes_for(s_arr, r_arr, rng, k_range=k_range)
     h, w = shape
