@@ -57,8 +57,8 @@ def test_shapes_hit_requested_aspect_and_ellipse_convention():
 
 
 def test_crofton_is_the_least_biased_estimator():
-    # measured (docs/measurement.md): Crofton |bias| <= 0.4 % from 7 px up; pixel -3.8..+4.4 %,
-    # plain contour +5 %, smoothed contour +0.5..+1.6 %
+    # measured (docs/measurement.md): Crofton |bias| <= 0.5 % at 10 and 40 px; pixel -3.9..+3.4 %,
+    # plain contour +5 %, smoothed contour +0.1..+1.5 %
     rows = bias_study(diameters_px=(10, 40), kinds=("disc", "ellipse q=2"), n=12, seed=1)
     bias = {}
     for row in rows:

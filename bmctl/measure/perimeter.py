@@ -14,8 +14,9 @@ offsets and orientations:
     Length of the contour at level 0.5 of the mask smoothed by a Gaussian of
     ``SMOOTH_SIGMA`` px (:func:`perimeter_smooth`).
 
-Crofton is the least biased (|bias| <= 0.4 % from 7 px across up, no drift with size)
-and is the default (:data:`DEFAULT_METHOD`); the others drift from -14 % to +5 %.
+Crofton is the least biased (|bias| <= 1.3 % from 7 px across up, <= 0.2 % from 14 px, no
+drift with size) and is the default (:data:`DEFAULT_METHOD`); the others drift from -14 %
+to +5 %.
 
 Run ``python -m bmctl.measure.validate bias`` for the table in ``docs/measurement.md``.
 """
