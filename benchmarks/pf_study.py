@@ -1,0 +1,181 @@
+"""Particle-filter evidence study: coverage, parameter trajectories, error vs sample size.
+
+Run (full study, ~15-25 min on one busy core):
+
+    python benchmarks/pf_study.py --out out/pf_study
+
+    quick look:  python benchmarks/pf_study.py --seeds 3 --hours 6 --out out/pf_study_quick
+
+Truth: the stochastic PLANT (M = 5000 particles) of the lab card with gamma and delta off
+by 30 % (gamma x1.3, delta x0.7, and the reverse), 12 h of the card's recipe (300 rpm),
+a micrograph sample every hour through ``bmctl.measure.sampler.micrograph_sample``. The
+filter (N = 1000 particles, default settings) runs the moment model of the unmodified card.
+Variants (same plant trajectory and, for equal n, the same samples): Weibull size law with
+n = 50, 100, 300 measured particles per sample, and the log-normal size law at n = 300.
+20 seeds per scenario. See bmctl/estimate/study.py for what 'truth' means.
+
+Writes to --out: summary.md (the tables quoted in docs/estimation.md), runs.npz (every
+estimate and truth), study.png (parameter trajectories, error vs n, coverage).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from bmctl.config import card_schedule, load_card  # noqa: E402
+from bmctl.estimate import study as S  # noqa: E402
+
+
+def summarise(cfg: S.StudyConfig, res: dict, model) -> str:
+    lines = []
+    card = load_card(cfg.card)
+    segs = card_schedule(card, cfg.hours)
+    lines.append(f"# Particle-filter study ({cfg.card}, coefficients: {model.coeffs_source})\n")
+    lines.append(f"{len(cfg.seeds)} seeds per scenario, {cfg.hours:g} h recipe, sample every {cfg.every_h:g} h, "
+                 f"plant M = {cfg.plant_particles}, filter N = {cfg.filter_particles}.\n")
+    lines.append("## Coverage of the true moments by the 90 % intervals (share of run x time pairs)\n")
+    lines.append("| scenario (gamma, delta) | variant | s_mean | s_std | r_mean | r_std | min ESS | median ESS |")
+    lines.append("|---|---|---|---|---|---|---|---|")
+    for sc, runs in res.items():
+        for v in cfg.variants:
+            c = S.coverage(runs, v.label)
+            ess = np.concatenate([r[v.label]["ess"] for r in runs])
+            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | " + " | ".join(f"{x:.2f}" for x in c)
+                         + f" | {ess.min():.0f} | {np.median(ess):.0f} |")
+    lines.append("\n## Error of the filter mean vs measured particles per sample (median |ln(est/true)|, %)\n")
+    lines.append("| scenario | variant | s_mean | s_std | r_mean | r_std | mean 90 % width s_mean (%) | width r_mean (%) |")
+    lines.append("|---|---|---|---|---|---|---|---|")
+    for sc, runs in res.items():
+        for v in cfg.variants:
+            e = S.log_errors(runs, v.label)
+            w = np.concatenate([np.log(r[v.label]["q95"][:, [0, 2]] / r[v.label]["q05"][:, [0, 2]]) for r in runs])
+            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | " + " | ".join(f"{100 * x:.1f}" for x in np.median(e, axis=0))
+                         + f" | {100 * np.mean(w[:, 0]):.1f} | {100 * np.mean(w[:, 1]):.1f} |")
+    lines.append("\n## Multipliers: truth and estimates (mean over seeds of the filter mean [mean 90 % limits])\n")
+    times = res[next(iter(res))][0]["t_h"]
+    show = [k for k, t in enumerate(times) if t in (1, 3, 6, 12) or k == len(times) - 1]
+    show = sorted(set(show))
+    hdr = "| scenario | variant | nominal (bond, frac) | model-optimal (bond, frac) | " + " | ".join(
+        f"t = {times[k]:g} h" for k in show) + " | ln(bond/frac) end (nominal) |"
+    lines.append(hdr)
+    lines.append("|" + "---|" * (5 + len(show)))
+    for sc, runs in res.items():
+        truth_mean = np.mean([r["truth"] for r in runs], axis=0)
+        pt = S.pseudo_true_multipliers(model, truth_mean, segs, times)
+        for v in cfg.variants:
+            if v.n != max(x.n for x in cfg.variants):
+                continue
+            tr = S.param_trajectory(runs, v.label)
+            cells = [f"{tr['mean'][k, 0]:.2f} [{tr['q05'][k, 0]:.2f}, {tr['q95'][k, 0]:.2f}] / "
+                     f"{tr['mean'][k, 1]:.2f} [{tr['q05'][k, 1]:.2f}, {tr['q95'][k, 1]:.2f}]" for k in show]
+            lr = np.log(tr["mean"][-1, 0] / tr["mean"][-1, 1])
+            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | ({sc[0]:g}, {sc[1]:g}) | ({pt[0]:.2f}, {pt[1]:.2f}) | "
+                         + " | ".join(cells) + f" | {lr:+.2f} ({np.log(sc[0] / sc[1]):+.2f}) |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(path: Path, cfg: S.StudyConfig, res: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from bmctl.io import savefig
+
+    scs = list(res)
+    fig, axes = plt.subplots(2, 3, figsize=(13, 7))
+    for i, sc in enumerate(scs[:2]):
+        runs = res[sc]
+        for j, (pname, col) in enumerate((("bond_mult", 0), ("frac_mult", 1))):
+            ax = axes[i, j]
+            for v in cfg.variants:
+                if v.size_law != "weibull":
+                    continue
+                tr = S.param_trajectory(runs, v.label)
+                ax.plot(tr["t_h"], tr["mean"][:, col], marker="o", ms=3, label=v.label)
+                if v.n == max(x.n for x in cfg.variants):
+                    ax.fill_between(tr["t_h"], tr["q05"][:, col], tr["q95"][:, col], alpha=0.15)
+            ax.axhline(sc[col], color="k", ls="--", lw=1, label="nominal truth")
+            ax.axhline(1.0, color="gray", ls=":", lw=1)
+            ax.set_title(f"{pname}, plant gamma x{sc[0]:g}, delta x{sc[1]:g}", fontsize=9)
+            ax.set_xlabel("t (h)")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7)
+    ax = axes[0, 2]
+    ns = sorted({v.n for v in cfg.variants if v.size_law == "weibull"})
+    for m, name in enumerate(S.MOMENTS):
+        med = [np.median(np.concatenate([S.log_errors(res[sc], f"weibull-n{n}")[:, m] for sc in scs])) for n in ns]
+        ax.plot(ns, 100 * np.array(med), marker="o", label=name)
+    ax.set_xscale("log")
+    ax.set_xlabel("measured particles per sample n")
+    ax.set_ylabel("median |ln(est/true)| (%)")
+    ax.set_title("error vs sample size (both scenarios)", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    ax = axes[1, 2]
+    labels = [v.label for v in cfg.variants]
+    cov = np.array([np.mean([S.coverage(res[sc], lab) for sc in scs], axis=0) for lab in labels])
+    x = np.arange(len(S.MOMENTS))
+    for k, lab in enumerate(labels):
+        ax.bar(x + (k - len(labels) / 2 + 0.5) * 0.8 / len(labels), cov[k], width=0.8 / len(labels), label=lab)
+    ax.axhline(0.9, color="k", ls="--", lw=1)
+    ax.axhline(0.8, color="r", ls=":", lw=1)
+    ax.set_xticks(x, S.MOMENTS, fontsize=8)
+    ax.set_ylim(0, 1.05)
+    ax.set_title("coverage of the 90 % intervals", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    savefig(fig, path, dpi=110)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--hours", type=float, default=12.0)
+    ap.add_argument("--plant-particles", type=int, default=5000)
+    ap.add_argument("--filter-particles", type=int, default=1000)
+    ap.add_argument("--card", default="models/alni-1to1-300rpm-lab.toml")
+    ap.add_argument("--out", default="out/pf_study")
+    a = ap.parse_args(argv)
+    cfg = S.StudyConfig(card=a.card, seeds=tuple(range(a.seeds)), hours=a.hours, plant_particles=a.plant_particles,
+                        filter_particles=a.filter_particles)
+    from bmctl.moments.model import make_moment_model
+
+    model = make_moment_model(cfg.card)
+    t0 = time.time()
+
+    def progress(sc, seed):
+        print(f"  scenario {sc} seed {seed} done ({time.time() - t0:.0f} s)", file=sys.stderr, flush=True)
+
+    res = S.run_study(cfg, progress)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    text = summarise(cfg, res, model) + f"\nwall time {time.time() - t0:.0f} s\n"
+    from bmctl.io import savez, write_text
+
+    write_text(out / "summary.md", text)
+    arrays = {}
+    for sc, runs in res.items():
+        key = f"g{sc[0]:g}_d{sc[1]:g}"
+        arrays[f"{key}_truth"] = np.array([r["truth"] for r in runs])
+        for v in cfg.variants:
+            for f in ("mean", "q05", "q95", "ess"):
+                arrays[f"{key}_{v.label}_{f}"] = np.array([r[v.label][f] for r in runs])
+    arrays["t_h"] = res[cfg.scenarios[0]][0]["t_h"]
+    savez(out / "runs.npz", **arrays)
+    figure(out / "study.png", cfg, res)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

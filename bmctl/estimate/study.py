@@ -1,0 +1,171 @@
+"""Evidence for the particle filter: synthetic truth from the stochastic plant, off-card factors.
+
+The truth is the stochastic PLANT (not the moment model) run on a copy of the card whose
+bonding and fracture factors gamma and delta are off by a given ratio (e.g. gamma x1.3,
+delta x0.7). At every sample time a micrograph sample of n particles is drawn from the
+plant's population through the measurement path's sampler
+(:func:`bmctl.measure.sampler.micrograph_sample`, segmentation noise 0.03 on area and
+perimeter), and every filter variant (size law, n) is updated with it; all variants see the
+same plant trajectory. The filter runs the moment model of the UNMODIFIED card.
+
+What "truth" means:
+
+* moments: the plant's population moments (s_mean, s_std, r_mean, r_std) at the sample time;
+* multipliers, two readings, both reported: the nominal ratios (gamma_plant / gamma_card,
+  delta_plant / delta_card) - what the multipliers would be if the moment model were exact -
+  and the model-optimal ("pseudo-true") multipliers: those that make the moment model's
+  trajectory from the card's initial state best match the plant's mean (s_mean, s_std)
+  trajectory (least squares in log, on a grid). With a misspecified model the filter can at
+  best converge to the latter.
+
+Used by ``benchmarks/pf_study.py`` (full study) and ``tests/test_estimate.py`` (a small one).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+
+from ..config import ModelCard, card_schedule, load_card
+from ..plant.plant import Plant
+from ..plant.population import UM
+from .filter import FilterSettings, ParticleFilter
+from .likelihood import LawSettings
+from .run import inputs_between
+
+MOMENTS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One filter configuration of the study: a label, the measured particles n and the size law."""
+
+    n: int
+    size_law: str = "weibull"
+
+    @property
+    def label(self) -> str:
+        return f"{self.size_law}-n{self.n}"
+
+
+@dataclass
+class StudyConfig:
+    """A study: card, off-card factor scenarios, seeds, recipe length, sampling and filter sizes."""
+
+    card: str = "models/alni-1to1-300rpm-lab.toml"
+    scenarios: tuple = ((1.3, 0.7), (0.7, 1.3))
+    seeds: Sequence[int] = tuple(range(20))
+    hours: float = 12.0
+    every_h: float = 1.0
+    plant_particles: int = 5000
+    filter_particles: int = 1000
+    variants: tuple = (Variant(50), Variant(100), Variant(300), Variant(300, "lognormal"))
+    base: FilterSettings = field(default_factory=FilterSettings)
+
+
+def off_card(card: ModelCard, gamma_mult: float, delta_mult: float) -> ModelCard:
+    """A copy of ``card`` with gamma and delta multiplied (the plant's 'true' factors)."""
+    d = card.model_dump()
+    d["stochastic"]["gamma_per_um2"] *= gamma_mult
+    d["stochastic"]["delta_per_um2"] *= delta_mult
+    return type(card).model_validate(d)
+
+
+def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cfg: StudyConfig) -> dict:
+    """One seeded run: plant truth and every variant's estimates at every sample time.
+
+    Returns a dict of arrays: ``t_h`` (K,), ``truth`` (K, 5: the four moments and the
+    temperature), and per variant label ``mean``, ``q05``, ``q95`` (K, 8) and ``ess`` (K,).
+    """
+    from ..measure.sampler import micrograph_sample
+
+    plant = Plant(off_card(card, *scenario), np.random.default_rng([seed, 0]), cfg.plant_particles)
+    segments = card_schedule(card, cfg.hours)
+    times = np.arange(cfg.every_h, cfg.hours + 1e-9, cfg.every_h)
+    filters = {}
+    for k, v in enumerate(cfg.variants):
+        st = replace(cfg.base, n_particles=cfg.filter_particles, law=replace(cfg.base.law, size_law=v.size_law))
+        filters[v] = ParticleFilter(model, np.random.default_rng([seed, 1, k]), st)
+    sample_rng = {n: np.random.default_rng([seed, 2, n]) for n in sorted({v.n for v in cfg.variants})}
+    out = {"t_h": times, "truth": np.zeros((times.size, 5))}
+    for v in cfg.variants:
+        out[v.label] = {"mean": np.zeros((times.size, 8)), "q05": np.zeros((times.size, 8)),
+                        "q95": np.zeros((times.size, 8)), "ess": np.zeros(times.size)}
+    t_prev = 0.0
+    for i, t in enumerate(times):
+        pieces = inputs_between(segments, t_prev, t)
+        for rpm, milling, h in pieces:
+            plant.advance(rpm, h, milling)
+        mo = plant.moments()
+        out["truth"][i] = [mo[m] for m in MOMENTS] + [mo["temperature_c"]]
+        tabs = {n: micrograph_sample(plant.s / UM, plant.r, n, g) for n, g in sample_rng.items()}
+        for v, pf in filters.items():
+            for rpm, milling, h in pieces:
+                pf.predict((rpm, milling), h)
+            e = pf.update(tabs[v.n].s_um, tabs[v.n].r)
+            rec = out[v.label]
+            rec["mean"][i], rec["q05"][i], rec["q95"][i], rec["ess"][i] = e.mean, e.q05, e.q95, e.ess
+        t_prev = t
+    return out
+
+
+def run_study(cfg: StudyConfig, progress=None) -> dict:
+    """All runs of a study: ``{scenario: [run_one(...) for each seed]}``."""
+    from ..moments.model import make_moment_model
+
+    model = make_moment_model(cfg.card)
+    card = load_card(cfg.card)
+    res = {}
+    for sc in cfg.scenarios:
+        res[sc] = []
+        for seed in cfg.seeds:
+            res[sc].append(run_one(model, card, sc, seed, cfg))
+            if progress is not None:
+                progress(sc, seed)
+    return res
+
+
+def coverage(runs: list[dict], label: str) -> np.ndarray:
+    """Share of (run, time) pairs whose 90 % interval holds the true moment, per moment (4,)."""
+    hits = []
+    for r in runs:
+        tr = r["truth"][:, :4]
+        lo, hi = r[label]["q05"][:, :4], r[label]["q95"][:, :4]
+        hits.append((lo <= tr) & (tr <= hi))
+    return np.mean(np.concatenate(hits), axis=0)
+
+
+def log_errors(runs: list[dict], label: str) -> np.ndarray:
+    """|ln(estimate mean / true moment)| for every (run, time) pair, per moment (R*K, 4)."""
+    return np.concatenate([np.abs(np.log(r[label]["mean"][:, :4] / r["truth"][:, :4])) for r in runs])
+
+
+def param_trajectory(runs: list[dict], label: str) -> dict:
+    """Mean over runs of the multiplier estimates (and of their 90 % limits) at each time."""
+    mean = np.mean([r[label]["mean"][:, 6:8] for r in runs], axis=0)
+    q05 = np.mean([r[label]["q05"][:, 6:8] for r in runs], axis=0)
+    q95 = np.mean([r[label]["q95"][:, 6:8] for r in runs], axis=0)
+    return {"t_h": runs[0]["t_h"], "mean": mean, "q05": q05, "q95": q95}
+
+
+def pseudo_true_multipliers(model, truth_mean: np.ndarray, segments, times, grid=None) -> np.ndarray:
+    """Multipliers whose moment-model trajectory best fits the mean true (s_mean, s_std) path.
+
+    Least squares of ln(model / truth) of s_mean and s_std over the sample times, the model
+    run from its initial state under the schedule; minimised on a log grid (0.3 .. 4).
+    """
+    g = np.exp(np.linspace(np.log(0.3), np.log(4.0), 41)) if grid is None else np.asarray(grid)
+    B, F = np.meshgrid(g, g, indexing="ij")
+    P = np.stack([B.ravel(), F.ravel()], axis=1)
+    X = np.repeat(model.x0()[None, :], P.shape[0], axis=0)
+    J = np.zeros(P.shape[0])
+    t_prev = 0.0
+    for i, t in enumerate(times):
+        for rpm, milling, h in inputs_between(segments, t_prev, t):
+            X = model.step(X, np.array([rpm, milling]), h, P)
+        e = np.log(X[:, :2] / truth_mean[i, :2][None, :])
+        J += np.sum(e * e, axis=1)
+        t_prev = t
+    return P[int(np.argmin(J))]
