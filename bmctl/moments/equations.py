@@ -201,7 +201,18 @@ def strength_ratio(B, c: Constants, T, h):
 # --- the particle field -------------------------------------------------------------------------
 
 
-def raw_rates(B, c: Constants, q: dict, m, sd, rm, rho, T, h, w, bm, fm):
+def fragment_tables(B, one_r, gfr):
+    """Per split node x: (r1 + r2, r1^2 + r2^2) of the two fragments (plant events.fractured, smooth clip)."""
+    out = []
+    for x in GL_X:
+        xx = x * (1 - x)
+        r1 = smax(B, 1.0 - math.sqrt(x) / (x / one_r + 2 * math.sqrt(xx) / math.pi), 0.0, 0.01) * gfr
+        r2 = smax(B, 1.0 - math.sqrt(1 - x) / ((1 - x) / one_r + 2 * math.sqrt(xx) / math.pi), 0.0, 0.01) * gfr
+        out.append((r1 + r2, r1 * r1 + r2 * r2))
+    return out
+
+
+def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     """Rates (per hour of milling) of E[s], E[s^2], E[r], E[r^2] at speed w = rpm / rpm_max.
 
     The population is closed as s ~ log-normal(m, sd) (5 Gauss-Hermite nodes) and
@@ -210,93 +221,100 @@ def raw_rates(B, c: Constants, q: dict, m, sd, rm, rho, T, h, w, bm, fm):
     eqn (17) in ln(dU_d / (d_c u_c)); bonding of a pair Pb(si, sj) = sat(gamma si sj/(1-r)^2)
     * logistic law in ln((dU_i + dU_j)/(d_ij u_b)) * (1 - Pf_i)(1 - Pf_j).
     The total s^2 is conserved exactly (eqn 2); N changes by -1 per bond, +1 per fracture.
+    ``q`` maps coefficient names to numbers (or casadi symbols).
     """
     var_ln = B.log(1.0 + (sd / m) ** 2)
     sig_ln = B.sqrt(var_ln)
     ws = smax(B, w, 0.0, RPM_SOFT)
-    rate = c.rate_max_per_h * B.exp(EXP_RATE * B.log(ws))  # impacts per particle per hour
     lw = B.log(ws)
-    ratio = strength_ratio(B, c, T, h)
-    lratio = B.log(ratio)
+    rate = c.rate_max_per_h * B.exp(EXP_RATE * lw)  # impacts per particle per hour
+    lratio = B.log(strength_ratio(B, c, T, h))
     ln_ub = math.log(c.u_J_per_m) + c.n_bond * lratio
     ln_uc = math.log(c.u_J_per_m) - c.n_frac * lratio
-    e_coef = c.e_max_J_per_um2 * B.exp(1.2 * lw)  # J per um^2 of s^2
-    u_mean = c.u_mean_max_J * ws * ws
-    one_r = 1.0 - rm
-    sigma_eff = c.yield_Pa * ratio
-    cb = bm * math.exp(q["bond_log_scale"])
-    cf = fm * math.exp(q["frac_log_scale"])
-    cr = math.exp(q["round_log_scale"])
+    ln_e = math.log(c.e_max_J_per_um2) + 1.2 * lw  # ln(J per um^2 of s^2)
+    ln_u_mean = math.log(c.u_mean_max_J) + 2.0 * lw
+    # r law seen by the kernels: p_b, p_c ~ 1/(1-r) (eqns 15, 20) weight irregular particles up.
+    # Second-order (delta-method) averages over the r law, finite for any realisable state:
+    om = 1.0 - rm
+    v_r = rho * rho * rm * om
+    om2 = om * om
+    Ef = 1.0 / om + v_r / (om2 * om)  # E[1/(1-r)]
+    r_b = (rm * om2 + v_r) / (om2 + v_r)  # E[r/(1-r)] / E[1/(1-r)]: mean r of a reacting particle
+    r2_b = (rm * rm * om2 + v_r) / (om2 + v_r)  # E[r^2/(1-r)] / E[1/(1-r)]
+    one_r = om * (om2 + v_r) / (om2 + 3 * v_r)  # 1 / E_b[1/(1-r)]: perimeter factor of a reacting particle
+    cb = bm * B.exp(q["bond_log_scale"])
+    cf = fm * B.exp(q["frac_log_scale"])
     ab, ob, ac, oc = q["bond_slope"], q["bond_offset"], q["frac_slope"], q["frac_offset"]
-    gbr, gfr = q["bond_r_gain"], q["frac_r_gain"]
+    # rounding per impact: lam(s) = eta 1.5 E[dU_p] / (pi/4 s^3 sigma_eff) = lam1 / s (s in um)
+    ln_lam1 = (math.log(c.equiaxing * 1.5 * c.plastic_share / (math.pi / 4 * UM**3 * c.yield_Pa) + 1e-300)
+               + q["round_log_scale"] + ln_e - lratio)
+    frag = fragment_tables(B, one_r, q["frac_r_gain"])
+    kap = q["round_size_bias"]
 
-    # size nodes
-    s = [m * B.exp(sig_ln * t - 0.5 * var_ln) for t in GH_T]
-    # fracture per node: probability, change of s, r-sum and r^2-sum of the fragments
+    # size nodes (log-normal closure)
+    ln_s = [B.log(m) - 0.5 * var_ln + sig_ln * t for t in GH_T]
+    s = [B.exp(v) for v in ln_s]
     Pf, dsf, drf, dr2f, lam = [], [], [], [], []
-    for sk in s:
-        e_k = e_coef * sk * sk
-        lnL0 = B.log(e_k / (sk * UM))  # ln(dU_d / s): crack length d_c = 2 s sqrt(x(1-x))
+    for k in range(N_S):
+        sk = s[k]
+        # ln(dU_d / (d_c u_c)) with d_c = s at x = 1/2: ln e + ln s - ln UM - ln u_c
+        lnL0 = ln_e + ln_s[k] - math.log(UM) - ln_uc
+        q_k = c.delta_per_um2 * sk * sk * Ef
         pf = ds = dr = dr2 = 0.0
-        q_k = c.delta_per_um2 * sk * sk / one_r
-        for x, wx in zip(GL_X, GL_W):
+        for x, wx, (rsum, r2sum) in zip(GL_X, GL_W, frag):
             xx = x * (1 - x)
-            lnL = lnL0 - math.log(2 * math.sqrt(xx))
-            p = wx * cf * sat(B, q_k * xx) * sigmoid(B, ac * (lnL - ln_uc) + oc)
-            r1 = _fragment_r(B, x, one_r, xx) * gfr
-            r2 = _fragment_r(B, 1 - x, one_r, xx) * gfr
+            p = wx * sat(B, q_k * xx) * sigmoid(B, ac * (lnL0 - math.log(2 * math.sqrt(xx))) + oc)
             pf = pf + p
-            ds = ds + p * (math.sqrt(x) + math.sqrt(1 - x) - 1.0) * sk
-            dr = dr + p * (r1 + r2 - rm)
-            dr2 = dr2 + p * (r1 * r1 + r2 * r2)
-        Pf.append(pf)
-        dsf.append(ds)
-        drf.append(dr)
-        dr2f.append(dr2)
-        # rounding (equiaxing) per impact: r <- r exp(-lam)
-        lam.append(cr * c.equiaxing * 1.5 * c.plastic_share * e_k / (math.pi / 4 * sk**3 * UM**3 * sigma_eff))
+            ds = ds + p * (math.sqrt(x) + math.sqrt(1 - x) - 1.0)
+            dr = dr + p * rsum
+            dr2 = dr2 + p * r2sum
+        Pf.append(cf * pf)
+        dsf.append(cf * ds * sk)
+        drf.append(cf * (dr - pf * r_b))
+        dr2f.append(cf * dr2)
+        lam.append(B.exp(ln_lam1 - ln_s[k] - kap * var_ln))  # at the r-mass-biased size s exp(kap var)
 
     Pb_sum = dsb = drb = dr2b = 0.0
+    u_fac = 3 * math.pi / (c.modulus_Pa * UM**3)
+    sq_u = B.exp(0.5 * ln_u_mean)
     for i in range(N_S):
         for j in range(i, N_S):
             wij = GH_W[i] * GH_W[j] * (1.0 if i == j else 2.0)
             si, sj = s[i], s[j]
             si2, sj2 = si * si, sj * sj
             s_new = B.sqrt(si2 + sj2)
-            d_h = 0.75 * si * sj / (si + sj) * B.sqrt(3 * math.pi * u_mean / (c.modulus_Pa * (si2 * si + sj2 * sj) * UM**3))
+            d_h = 0.75 * si * sj / (si + sj) * sq_u * B.sqrt(u_fac / (si2 * si + sj2 * sj))
             d_um = smin_pos(B, d_h, 0.5 * math.pi * smin_pos(B, si, sj))  # eqn 16, capped
-            lnLb = B.log(e_coef * (si2 + sj2) / (d_um * UM))
-            pb = sat(B, c.gamma_per_um2 * si * sj / (one_r * one_r)) * sigmoid(B, ab * (lnLb - ln_ub) + ob)
-            p = wij * cb * pb * (1 - Pf[i]) * (1 - Pf[j])
-            r_new = smax(B, 1.0 - s_new / ((si + sj) / one_r - 2 * d_um / math.pi), 0.0, 0.01) * gbr
+            lnLb = ln_e + B.log((si2 + sj2) / d_um) - math.log(UM) - ln_ub
+            pb = sat(B, c.gamma_per_um2 * si * sj * Ef * Ef) * sigmoid(B, ab * lnLb + ob)
+            p = wij * pb * (1 - Pf[i]) * (1 - Pf[j])
+            r_new = smax(B, 1.0 - s_new / ((si + sj) / one_r - 2 * d_um / math.pi), 0.0, 0.01) * q["bond_r_gain"]
             Pb_sum = Pb_sum + p
             dsb = dsb + p * (s_new - si - sj)
-            drb = drb + p * (r_new - 2 * rm)
+            drb = drb + p * (r_new - 2 * r_b)
             dr2b = dr2b + p * r_new * r_new
+    Pb_sum = cb * Pb_sum
+    dsb, drb, dr2b = cb * dsb, cb * drb, cb * dr2b
 
     Pf_sum = sum(GH_W[k] * Pf[k] for k in range(N_S))
     g_N = rate * (Pf_sum - 0.5 * Pb_sum)  # d ln N / dt
-    Es = m
     Es2 = m * m + sd * sd
-    rs2 = rho * rho * rm * one_r
-    Er2 = rm * rm + rs2
+    Er2 = rm * rm + v_r
     gv = q["r_var_gain"]
-    round1 = sum(GH_W[k] * (1 - B.exp(-lam[k])) for k in range(N_S))
-    round2 = sum(GH_W[k] * (1 - B.exp(-2 * lam[k])) for k in range(N_S))
-    dEs = rate * (0.5 * q["bond_ds_gain"] * dsb + q["frac_ds_gain"] * sum(GH_W[k] * dsf[k] for k in range(N_S))) - Es * g_N
+    zn = c.round_nodes
+    round1 = sum(GH_W[k] * (1 - B.exp(-lam[k] * z)) for k in range(N_S) for z in zn) / len(zn)
+    round2 = sum(GH_W[k] * (1 - B.exp(-2 * lam[k] * z)) for k in range(N_S) for z in zn) / len(zn)
+    round2 = round2 * B.exp(q["round_var_log_scale"])
+    dsf_sum = sum(GH_W[k] * dsf[k] for k in range(N_S))
+    dEs = rate * (0.5 * q["bond_ds_gain"] * dsb + q["frac_ds_gain"] * dsf_sum) - m * g_N
     dEs2 = -Es2 * g_N
-    dEr = rate * (0.5 * drb + sum(GH_W[k] * drf[k] for k in range(N_S)) - round1 * rm) - rm * g_N
-    src2 = 0.5 * (dr2b - Pb_sum * 2 * Er2) + sum(GH_W[k] * (dr2f[k] - Pf[k] * Er2) for k in range(N_S))
-    # the variance source beyond what the mean-field r^2 of new particles gives (identified gain)
-    src2 = gv * src2 + (1 - gv) * (2 * rm * (0.5 * drb + sum(GH_W[k] * drf[k] for k in range(N_S))))
+    src1 = 0.5 * drb + sum(GH_W[k] * drf[k] for k in range(N_S))
+    dEr = rate * (src1 - round1 * rm) - rm * g_N
+    src2 = 0.5 * (dr2b - Pb_sum * 2 * r2_b) + sum(GH_W[k] * (dr2f[k] - Pf[k] * r2_b) for k in range(N_S))
+    # r_var_gain blends the mean-field r^2 source with a pure shift of the r law (2 rm src1)
+    src2 = gv * src2 + (1 - gv) * 2 * rm * src1
     dEr2 = rate * (src2 - round2 * Er2) - Er2 * g_N
     return dEs, dEs2, dEr, dEr2
-
-
-def _fragment_r(B, x, one_r, xx):
-    """Aspect ratio of the fragment with area share x (plant events.fractured, smooth clip at 0)."""
-    r = 1.0 - math.sqrt(x) / (x / one_r + 2 * math.sqrt(xx) / math.pi)
-    return smax(B, r, 0.0, 0.01)
 
 
 def y_rates(B, c, q, y, T, h, w, bm, fm):
@@ -370,12 +388,15 @@ def rkc_coefficients(stages: int, damping: float = 2.0 / 13.0) -> dict:
     return {"s": s, "mu": mu, "nu": nu, "mut": mut, "gamt": gamt, "c": c, "beta": beta}
 
 
-def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int):
+def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int, rates=None):
     """Advance over ``dt_h`` hours: mill ``milling * dt_h`` at rpm, then rest (as Plant.advance).
 
     Milling phase: ``n_sub`` substeps of RKC2 with ``stages`` stages in y coordinates,
     T and h exact (closed form) at every stage time. Rest: particles unchanged, T and h exact.
+    ``rates(y, T, h, w, bm, fm)`` defaults to :func:`y_rates` (a compiled casadi version of it
+    makes symbolic construction fast).
     """
+    rates = rates or (lambda y, T, h, w, bm, fm: y_rates(B, c, q, y, T, h, w, bm, fm))
     w = us[0] / c.rpm_max
     duty = us[1]
     bm, fm = ps[0], ps[1]
@@ -387,7 +408,7 @@ def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int):
 
     def F(zz, t):
         Tt, ht = thermal_exact(B, c, T0, h0, w, t)
-        return y_rates(B, c, q, zz, Tt, ht, w, bm, fm)
+        return rates(zz, Tt, ht, w, bm, fm)
 
     t = 0.0
     for _ in range(n_sub):

@@ -25,7 +25,7 @@ from .physics import Constants, constants, derived_threshold_laws
 STATE_NAMES = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening")
 INPUT_NAMES = ("rpm", "milling")
 PARAM_NAMES = ("bond_mult", "frac_mult")
-MAX_SUBSTEP_H = 0.125  # RKC substep of the milling phase (accuracy of the slow modes)
+MAX_SUBSTEP_H = 0.0625  # RKC substep of the milling phase (accuracy of the fast modes at top speed)
 STIFFNESS_PER_IMPACT = 2.0  # bound on |eigenvalue| of the z field per impact (measured ~1.4)
 
 
@@ -169,12 +169,32 @@ class MomentModel:
             x = ca.SX.sym("x", 6)
             u = ca.SX.sym("u", 2)
             p = ca.SX.sym("p", 2)
-            B = eq.CA()
-            out = eq.step(B, self.const, self.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
-                          float(dt_h), *self._integration(float(dt_h)))
+            out = eq.step(eq.CA(), self.const, self.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
+                          float(dt_h), *self._integration(float(dt_h)), rates=self._casadi_rates())
             self._ca_steps[key] = ca.Function("moment_step", [x, u, p], [ca.vertcat(*out)],
                                               ["x", "u", "p"], ["x_next"])
         return self._ca_steps[key]
+
+    def _casadi_rates(self, q=None):
+        """The particle field dy/dt as a casadi Function, wrapped to take and return lists."""
+        import casadi as ca
+
+        if q is None and "rates" in self._ca_steps:
+            R = self._ca_steps["rates"]
+        else:
+            y = ca.SX.sym("y", 4)
+            a = ca.SX.sym("a", 5)  # T, h, w, bm, fm
+            qq = self.coeffs if q is None else q
+            out = eq.y_rates(eq.CA(), self.const, qq, [y[i] for i in range(4)], a[0], a[1], a[2], a[3], a[4])
+            R = ca.Function("moment_rates", [y, a], [ca.vertcat(*out)])
+            if q is None:
+                self._ca_steps["rates"] = R
+
+        def rates(yl, T, h, w, bm, fm):
+            v = R(ca.vertcat(*yl), ca.vertcat(T, h, w, bm, fm))
+            return [v[i] for i in range(4)]
+
+        return rates
 
     def casadi_rhs(self):
         """casadi.Function ``f(x, u, p) -> dx/dt`` (per hour)."""

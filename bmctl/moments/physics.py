@@ -26,6 +26,7 @@ UM = 1e-6
 EXP_POWER = 3.0
 EXP_RATE = 1.8
 EXP_TRAPPED = 0.8
+N_ROUND = 4  # equal-probability nodes of the random plastic energy of one impact (rounding law)
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,9 @@ class Constants:
         E[cos^2(2 psi)(1 - xi^2)] / E[dissipated share]: the plastic part of the dissipated energy.
     equiaxing : float
         eta_eq of the rounding law (after eqn 13).
+    round_nodes : tuple of float
+        Conditional means of the plastic energy of one impact relative to its mean, over
+        N_ROUND equal-probability bins: E[1 - exp(-lam Z)] = mean_k (1 - exp(-lam z_k)).
     ambient_C, heat_capacity_J_per_K, cooling_time_h : float
         Vial thermal model.
     softening_max, softening_scale_K, hardening_max : float
@@ -92,6 +96,7 @@ class Constants:
     s0_mean_um: float
     s0_std_um: float
     r0_mean: float
+    round_nodes: tuple = (1.0,)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -118,9 +123,15 @@ def impact_factors(alpha: float, beta: float, n: int = 400_000, seed: int = 1234
     ex2 = (beta + 1) * (beta + 2) / ((beta + 3) * (beta + 4))
     plastic = 0.5 * (1 - ex2)
     u_mean = float(u_in.mean())
+    plastic_z = u_in / u_mean * np.cos(2 * psi) ** 2 * (1 - ev.sample_xi(rng, beta, n) ** 2)
+    plastic_z /= plastic_z.mean()
+    qs = np.quantile(plastic_z, np.linspace(0, 1, N_ROUND + 1))
+    idx = np.clip(np.searchsorted(qs, plastic_z, side="right") - 1, 0, N_ROUND - 1)
+    round_nodes = tuple(float(plastic_z[idx == k].mean()) for k in range(N_ROUND))
     zb = np.log(np.sqrt(u_in / u_mean) * (share[0] + share[1]) / (2 * share_mean))
     zc = np.log(u_in / u_mean * share[0] / share_mean)
-    return {"u_mean": u_mean, "share": share_mean, "plastic": plastic, "zb": zb, "zc": zc}
+    return {"u_mean": u_mean, "share": share_mean, "plastic": plastic, "zb": zb, "zc": zc,
+            "round_nodes": round_nodes}
 
 
 def logistic_law(logz: np.ndarray, sharpness: float) -> tuple[float, float]:
@@ -188,6 +199,7 @@ def constants(card: ModelCard) -> Constants:
         s0_mean_um=float(card.initial.s_mean_um),
         s0_std_um=float(card.initial.s_std_um),
         r0_mean=float(card.initial.r_mean),
+        round_nodes=f["round_nodes"],
     )
 
 

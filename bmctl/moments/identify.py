@@ -1,0 +1,300 @@
+"""Identification of the moment model from plant experiments, and its validation.
+
+1. :func:`design` lays out plant experiments on a 0.5-h grid: constant speeds across the
+   mill's range, interrupted milling (duty < 1), speed steps and rests, branches from
+   states reached under another schedule (run, snapshot, branch), and random
+   piecewise-constant schedules; :func:`validation_design` draws held-out random schedules
+   from an independent stream.
+2. :func:`run_experiments` runs each on an ensemble of seeded plants and keeps the
+   ensemble mean (and spread) of the moments after every interval.
+3. :func:`fit` fits the free coefficients (coeffs.SPEC) by least squares on the
+   simulation error of the whole trajectories, range-normalised; exact derivatives come
+   from casadi (the same equations, with the coefficients as symbols).
+4. :func:`nrmse_table` compares predictions and ensemble means on held-out schedules.
+
+NRMSE of a moment on one schedule = RMSE(model - plant mean over the recorded times) /
+(max - min of the plant-mean trajectory of that moment over the schedule, floored at
+10 % of its mean); the table reports the mean over schedules (and the worst).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..config import ModelCard
+from . import coeffs as cf
+from .model import MomentModel
+
+DT_H = 0.5  # interval of the experiments (h)
+HOURS = 12.0
+MOMENTS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening")
+FIT_IDX = (0, 1, 2, 3)
+
+
+@dataclass
+class Spec:
+    """One experiment: an optional prefix schedule (run, then branch) and the recorded inputs.
+
+    ``prefix`` and ``inputs`` are lists of (rpm, milling) per DT_H interval; the record
+    starts after the prefix.
+    """
+
+    name: str
+    inputs: list[tuple[float, float]]
+    prefix: list[tuple[float, float]] = field(default_factory=list)
+
+
+@dataclass
+class Experiment:
+    """A run of the plant ensemble: inputs, ensemble-mean states and spread after every interval."""
+
+    name: str
+    U: np.ndarray  # (K, 2)
+    Y: np.ndarray  # (K + 1, 6) ensemble mean, x0 first
+    S: np.ndarray  # (K + 1, 6) ensemble std across seeds
+    dt_h: float = DT_H
+
+    @property
+    def x0(self) -> np.ndarray:
+        return self.Y[0]
+
+
+def _grid(segments: Sequence[tuple[float, float, float]]) -> list[tuple[float, float]]:
+    """(hours, rpm, milling) segments -> per-interval (rpm, milling) on the DT_H grid."""
+    out = []
+    for hours, rpm, duty in segments:
+        n = int(round(hours / DT_H))
+        out += [(float(rpm), float(duty))] * n
+    return out
+
+
+def random_schedule(rng: np.random.Generator, rpm_max: float, hours: float = HOURS, rest_p: float = 0.2,
+                    lo_frac: float = 1 / 6) -> list[tuple[float, float]]:
+    """Random piecewise-constant rpm on the DT_H grid: segments of 1-3 h, uniform rpm, some rests."""
+    segs, t = [], 0.0
+    while t < hours - 1e-9:
+        h = min(float(rng.choice([1.0, 1.5, 2.0, 2.5, 3.0])), hours - t)
+        if rng.random() < rest_p and t > 0:
+            segs.append((h, 0.0, 1.0))
+        else:
+            segs.append((h, round(float(rng.uniform(lo_frac, 1.0)) * rpm_max / 10) * 10, 1.0))
+        t += h
+    return _grid(segs)
+
+
+def design(card: ModelCard, seed: int = 0, quick: bool = False) -> list[Spec]:
+    """Training experiments for ``card`` (speeds as fractions of the mill's rpm_max)."""
+    R = card.mill.rpm_max
+    r = lambda f: round(f * R / 10) * 10  # noqa: E731
+    specs = [Spec(f"const-{r(f):g}", _grid([(HOURS, r(f), 1.0)])) for f in ((1 / 6, 1 / 3, 1 / 2, 2 / 3, 5 / 6, 1.0)
+                                                                            if not quick else (1 / 4, 1 / 2, 3 / 4, 1.0))]
+    specs += [
+        Spec(f"duty-{r(2 / 3):g}-0.75", _grid([(HOURS, r(2 / 3), 0.75)])),
+        Spec(f"duty-{r(1.0):g}-0.5", _grid([(HOURS, r(1.0), 0.5)])),
+        Spec(f"step-{r(1 / 3):g}-{r(5 / 6):g}", _grid([(6, r(1 / 3), 1.0), (6, r(5 / 6), 1.0)])),
+        Spec(f"step-{r(5 / 6):g}-{r(1 / 4):g}", _grid([(6, r(5 / 6), 1.0), (6, r(1 / 4), 1.0)])),
+        Spec(f"rest-{r(1 / 2):g}-{r(3 / 4):g}", _grid([(2, r(1 / 2), 1.0), (2, 0.0, 1.0), (8, r(3 / 4), 1.0)])),
+        Spec(f"branch-{r(1 / 2):g}-4h-{r(1 / 4):g}", _grid([(8, r(1 / 4), 1.0)]), _grid([(4, r(1 / 2), 1.0)])),
+        Spec(f"branch-{r(1.0):g}-3h-{r(1 / 3):g}", _grid([(9, r(1 / 3), 1.0)]), _grid([(3, r(1.0), 1.0)])),
+    ]
+    if not quick:
+        specs += [
+            Spec(f"duty-{r(1 / 2):g}-0.5", _grid([(HOURS, r(1 / 2), 0.5)])),
+            Spec(f"branch-{r(1 / 2):g}-4h-{r(1.0):g}", _grid([(8, r(1.0), 1.0)]), _grid([(4, r(1 / 2), 1.0)])),
+            Spec(f"branch-{r(1 / 6):g}-6h-{r(2 / 3):g}", _grid([(6, r(2 / 3), 1.0)]), _grid([(6, r(1 / 6), 1.0)])),
+        ]
+    rng = np.random.default_rng([seed, 1])
+    for k in range(2 if quick else 4):
+        specs.append(Spec(f"random-train-{k}", random_schedule(rng, R)))
+    return specs
+
+
+def validation_design(card: ModelCard, seed: int = 0, n: int = 6) -> list[Spec]:
+    """Held-out random schedules (an independent stream from the training design)."""
+    rng = np.random.default_rng([seed, 2])
+    return [Spec(f"random-valid-{k}", random_schedule(rng, card.mill.rpm_max)) for k in range(n)]
+
+
+def _plant_states(plant) -> np.ndarray:
+    m = plant.moments()
+    return np.array([m[k] for k in MOMENTS])
+
+
+def run_experiments(card: ModelCard, specs: Sequence[Spec], seeds: Sequence[int], particles: int,
+                    progress: Callable[[str], None] | None = None) -> list[Experiment]:
+    """Run every spec on plants seeded with ``seeds`` (prefixes shared: run once, snapshot, branch)."""
+    from ..plant import make_plant
+
+    runs: dict[str, list[np.ndarray]] = {s.name: [] for s in specs}
+    for sd in seeds:
+        prefixes: dict[tuple, dict] = {}
+        for spec in specs:
+            key = tuple(spec.prefix)
+            if key not in prefixes:
+                plant = make_plant(card, seed=int(sd), particles=particles)
+                for rpm, duty in spec.prefix:
+                    plant.advance(rpm, DT_H, duty)
+                prefixes[key] = plant.snapshot()
+            plant = make_plant(card, seed=int(sd), particles=particles)
+            plant.restore(prefixes[key])
+            traj = [_plant_states(plant)]
+            for rpm, duty in spec.inputs:
+                plant.advance(rpm, DT_H, duty)
+                traj.append(_plant_states(plant))
+            runs[spec.name].append(np.array(traj))
+            if progress is not None:
+                progress(f"seed {sd}: {spec.name}")
+    out = []
+    for spec in specs:
+        A = np.stack(runs[spec.name])
+        out.append(Experiment(spec.name, np.array(spec.inputs, dtype=float), A.mean(0),
+                              A.std(0, ddof=1) if A.shape[0] > 1 else np.zeros_like(A[0])))
+    return out
+
+
+# --- fitting -------------------------------------------------------------------------------------
+
+
+def scales(experiments: Sequence[Experiment]) -> np.ndarray:
+    """Residual scale per moment: the range over all training data (floored at 10 % of the mean)."""
+    Y = np.concatenate([e.Y for e in experiments])
+    rng = Y.max(0) - Y.min(0)
+    return np.maximum(rng, 0.1 * np.abs(Y.mean(0)) + 1e-12)
+
+
+class _Sym:
+    """casadi simulator of all experiments with the free coefficients as symbols."""
+
+    def __init__(self, model: MomentModel, experiments: Sequence[Experiment], free: Sequence[str], fixed: dict):
+        import casadi as ca
+
+        from . import equations as eq
+
+        self.free = list(free)
+        th = ca.SX.sym("theta", len(self.free))
+        q = dict(fixed)
+        for i, k in enumerate(self.free):
+            q[k] = th[i]
+        y = ca.SX.sym("y", 4)
+        a = ca.SX.sym("a", 5)
+        R = ca.Function("rates_q", [y, a, th],
+                        [ca.vertcat(*eq.y_rates(eq.CA(), model.const, q, [y[i] for i in range(4)], *[a[i] for i in range(5)]))])
+
+        def rates(yl, T, h, w, bm, fm):
+            v = R(ca.vertcat(*yl), ca.vertcat(T, h, w, bm, fm), th)
+            return [v[i] for i in range(4)]
+
+        x = ca.SX.sym("x", 6)
+        u = ca.SX.sym("u", 2)
+        p = ca.SX.sym("p", 2)
+        dt = experiments[0].dt_h
+        n, s = model._integration(dt)
+        out = eq.step(eq.CA(), model.const, q, [x[i] for i in range(6)], [u[0], u[1]], [p[0], p[1]], dt, n, s,
+                      rates=rates)
+        F = ca.Function("step_q", [x, u, p, th], [ca.vertcat(*out)])
+        thM = ca.MX.sym("theta", len(self.free))
+        res = []
+        self.scale = None
+        for e in experiments:
+            K = e.U.shape[0]
+            sim = F.mapaccum("sim", K, [0], [0])
+            X = sim(e.x0, e.U.T, np.ones(2), ca.repmat(thM, 1, K))
+            res.append(X)
+        self.sims = ca.Function("sims", [thM], res)
+        self.jac = None
+        self._thM = thM
+        self._res = res
+
+    def residual_function(self, experiments, sc, weights):
+        import casadi as ca
+
+        parts = []
+        for X, e in zip(self._res, experiments):
+            for j in FIT_IDX:
+                parts.append(((X[j, :] - e.Y[1:, j][None, :]) / sc[j] * weights[j]).T)
+        r = ca.vertcat(*parts)
+        f = ca.Function("r", [self._thM], [r])
+        J = ca.Function("J", [self._thM], [ca.jacobian(r, self._thM)])
+        return f, J
+
+
+#: coefficients fitted by default (the rest keep their defaults)
+FREE = ("bond_log_scale", "bond_slope", "bond_offset", "frac_log_scale", "frac_slope", "frac_offset",
+        "round_log_scale", "round_size_bias", "round_var_log_scale", "bond_ds_gain", "frac_ds_gain", "bond_r_gain", "frac_r_gain", "r_var_gain")
+
+
+@dataclass
+class FitResult:
+    coeffs: dict
+    cost0: float
+    cost: float
+    nfev: int
+    seconds: float
+    message: str
+
+
+def fit(model: MomentModel, experiments: Sequence[Experiment], free: Sequence[str] = FREE,
+        weights: Sequence[float] = (1.0, 1.0, 1.0, 1.0), max_nfev: int = 40,
+        log: Callable[[str], None] | None = None) -> FitResult:
+    """Least-squares fit of ``free`` coefficients on range-normalised simulation errors."""
+    from scipy.optimize import least_squares
+
+    t0 = time.time()
+    fixed = {k: v for k, v in model.coeffs.items() if k not in free}
+    sym = _Sym(model, experiments, free, fixed)
+    sc = scales(experiments)
+    w = np.ones(6)
+    w[list(FIT_IDX)] = weights
+    f, J = sym.residual_function(experiments, sc, w)
+    th0 = np.array([model.coeffs[k] for k in free])
+    lo = np.array([cf.SPEC[k][1] for k in free])
+    hi = np.array([cf.SPEC[k][2] for k in free])
+    th0 = np.clip(th0, lo + 1e-9, hi - 1e-9)
+    count = [0]
+
+    def fun(th):
+        count[0] += 1
+        v = np.array(f(th)).ravel()
+        return np.where(np.isfinite(v), v, 1e3)
+
+    def jac(th):
+        Jv = np.array(J(th))
+        return np.where(np.isfinite(Jv), Jv, 0.0)
+
+    r0 = fun(th0)
+    cost0 = 0.5 * float(r0 @ r0)
+    if log:
+        log(f"fit: {len(free)} coefficients, {r0.size} residuals, initial cost {cost0:.4g}")
+    sol = least_squares(fun, th0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev,
+                        ftol=1e-6, xtol=1e-8)
+    out = dict(model.coeffs)
+    out.update({k: float(v) for k, v in zip(free, sol.x)})
+    if log:
+        log(f"fit: cost {cost0:.4g} -> {sol.cost:.4g} in {sol.nfev} evaluations ({time.time() - t0:.1f} s)")
+    return FitResult(out, cost0, float(sol.cost), int(sol.nfev), time.time() - t0, str(sol.message))
+
+
+# --- validation ----------------------------------------------------------------------------------
+
+
+def predict(model: MomentModel, e: Experiment) -> np.ndarray:
+    """Moment-model trajectory from the experiment's initial (ensemble-mean) state."""
+    return model.simulate(e.x0, e.U, e.dt_h)
+
+
+def nrmse(pred: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Per-moment NRMSE: RMSE / (range of the plant-mean trajectory, floored at 10 % of its mean)."""
+    rmse = np.sqrt(np.mean((pred[1:] - Y[1:]) ** 2, axis=0))
+    span = np.maximum(Y.max(0) - Y.min(0), 0.1 * np.abs(Y.mean(0)) + 1e-12)
+    return rmse / span
+
+
+def nrmse_table(model: MomentModel, experiments: Sequence[Experiment]) -> dict:
+    """{'rows': per-experiment NRMSE (K x 6), 'mean': mean over experiments, 'max': worst}."""
+    rows = np.array([nrmse(predict(model, e), e.Y) for e in experiments])
+    return {"names": [e.name for e in experiments], "rows": rows, "mean": rows.mean(0), "max": rows.max(0)}
