@@ -114,9 +114,9 @@ GL_W = tuple(float(0.5 * v) for v in _WL)
 
 # limits of the realisable projection
 S_FLOOR_UM = 0.1
-CV_FLOOR = 1e-3
-R_LO, R_HI, R_EPS = 1e-4, 0.99, 1e-4
-RHO_LO, RHO_HI, RHO_EPS = 1e-3, 0.98, 1e-3
+CV_FLOOR = 1e-4
+R_LO, R_HI, R_EPS = 1e-4, 0.99, 1e-5
+RHO_LO, RHO_HI, RHO_EPS = 1e-3, 0.98, 1e-4
 RPM_SOFT = 1e-3  # rpm/rpm_max below which the speed is softened (rates ~ 0 there)
 
 
@@ -126,11 +126,11 @@ RPM_SOFT = 1e-3  # rpm/rpm_max below which the speed is softened (rates ~ 0 ther
 def project(B, xs):
     """Smoothly project (s_mean, s_std, r_mean, r_std) onto realisable moment sets.
 
-    Returns (m, sd, rm, rho): s_mean >= 0.1 um, s_std > 0 (cv >= 1e-3),
+    Returns (m, sd, rm, rho): s_mean >= 0.1 um, s_std > 0 (cv >= 1e-4),
     r_mean in [1e-4, 0.99], rho = r_std / sqrt(rm (1 - rm)) in [1e-3, 0.98].
     Identity (to < 1e-6 relative) on realisable sets away from these limits.
     """
-    m = smax(B, xs[0], S_FLOOR_UM, S_FLOOR_UM)
+    m = smax(B, xs[0], S_FLOOR_UM, 1e-3)
     sd = B.sqrt(xs[1] * xs[1] + (CV_FLOOR * m) ** 2)
     rm = smax(B, smin(B, xs[2], R_HI, R_EPS), R_LO, R_EPS)
     rs = B.sqrt(xs[3] * xs[3] + 1e-12)

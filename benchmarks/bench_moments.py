@@ -1,0 +1,74 @@
+"""Speed of the moment model: a 12 h prediction, the casadi step and its Jacobian.
+
+Run:  python benchmarks/bench_moments.py [MODEL.toml]
+
+Prints a table of median wall times (ms). Targets: one 12 h prediction <= 5 ms.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bmctl.moments import make_moment_model  # noqa: E402
+
+
+def timeit(fn, repeat: int = 20, warmup: int = 2) -> float:
+    """Median wall time of ``fn()`` in ms."""
+    for _ in range(warmup):
+        fn()
+    ts = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return 1e3 * float(np.median(ts))
+
+
+def main(argv=None) -> int:
+    import casadi as ca
+
+    argv = sys.argv[1:] if argv is None else argv
+    card = argv[0] if argv else str(ROOT / "models" / "alni-1to1-300rpm-lab.toml")
+    t0 = time.perf_counter()
+    model = make_moment_model(card)
+    t_build = 1e3 * (time.perf_counter() - t0)
+    x0 = model.x0()
+    rows = [("build model (card, derived laws)", t_build, "once")]
+
+    for dt in (1.0, 0.5):
+        K = int(round(12 / dt))
+        U = np.tile([300.0, 1.0], (K, 1))
+        t0 = time.perf_counter()
+        model.simulate(x0, U, dt)
+        rows.append((f"first 12 h prediction, dt {dt:g} h (builds casadi)", 1e3 * (time.perf_counter() - t0), "once"))
+        rows.append((f"12 h prediction, dt {dt:g} h ({K} steps)", timeit(lambda: model.simulate(x0, U, dt)), "<= 5 ms"))
+
+    F = model.casadi_step(0.5)
+    u, p = np.array([300.0, 1.0]), model.p0()
+    rows.append(("casadi step F(x, u, p), dt 0.5 h", timeit(lambda: F(x0, u, p), 50), ""))
+    x, us, ps = ca.SX.sym("x", 6), ca.SX.sym("u", 2), ca.SX.sym("p", 2)
+    t0 = time.perf_counter()
+    J = ca.Function("J", [x, us, ps], [ca.jacobian(F(x, us, ps), ca.vertcat(x, us, ps))])
+    rows.append(("build Jacobian dF/d(x, u, p)", 1e3 * (time.perf_counter() - t0), "once"))
+    rows.append(("casadi Jacobian dF/d(x, u, p), dt 0.5 h", timeit(lambda: J(x0, u, p), 50), ""))
+    xs = np.tile(x0, (1000, 1))
+    rows.append(("numpy step, batch of 1000 states, dt 0.5 h", timeit(lambda: model.step(xs, u, 0.5), 5, 1), ""))
+    rows.append(("numpy step, one state, dt 0.5 h", timeit(lambda: model.step(x0, u, 0.5), 10), ""))
+
+    w = max(len(r[0]) for r in rows)
+    print(f"moment model benchmark: {model.card.card.name} ({model.coeffs_source})")
+    print(f"{'case':<{w}}  {'ms':>9}  target")
+    for name, ms, target in rows:
+        print(f"{name:<{w}}  {ms:9.3f}  {target}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
