@@ -9,8 +9,12 @@ rest with copies of random particles, or removes random particles.
 
 Events are processed in vectorised batches: in a step dt a Poisson number of impacts,
 each on a pair of distinct particles (the impacted particle i and its bonding partner
-j, eqn 15), drawn without replacement so that no particle takes part in two events of
-one batch.
+j, eqn 15) drawn independently, as one impact at a time would draw them. Each impact
+also draws the slot v that a bond's copy or a fracture's extra fragment will use. A
+batch processes, at once, the impacts that come first in the queue for all of their
+slots i, j, v; the others wait for the next batch. Every slot thus sees its impacts in
+their drawn order, and a new particle takes over its slot's later impacts
+(docs/verification.md).
 """
 
 from __future__ import annotations
@@ -105,6 +109,7 @@ class Plant:
         self.temperature_C = card.thermal.ambient_C
         self.hardening = 0.0
         self.counts = EventCounts()
+        self._queue = (np.empty(0, dtype=np.int64),) * 3  # impacts (i, j, v) waiting for a later batch
         st = card.stochastic
         self._gamma = st.gamma_per_um2 * 1e12  # 1/um^2 -> 1/m^2 (eqn 15)
         self._delta = st.delta_per_um2 * 1e12  # (eqn 20)
@@ -219,57 +224,84 @@ class Plant:
             if rate > 0:
                 dt = min(dt, sim.batch_fraction / rate)
             if rate > 0:
-                n_pairs = min(int(self.rng.poisson(rate * self.M * dt / 2.0)), self.M // 2)
-                if n_pairs:
-                    self._impacts(kin, n_pairs)
+                self._impacts(kin, int(self.rng.poisson(rate * self.M * dt / 2.0)))
             self.temperature_C = thermal.step_temperature(self.temperature_C, power, dt, th)
             self.hardening = thermal.step_hardening(self.hardening, power, self.powder_kg, dt, th)
             self.t_s += dt
             done += dt
             if progress is not None:
                 progress(dt / 3600.0)
+        self._impacts(kin, 0, flush=True)  # impacts still queued belong to this interval
 
-    def _impacts(self, kin: Kinematics, n: int) -> None:
-        """One batch of ``n`` impacts on disjoint particle pairs (i, j); the physics is ``self.kernels``."""
-        idx = self.rng.choice(self.M, size=2 * n, replace=False)
-        i, j = idx[:n], idx[n:]
+    def _impacts(self, kin: Kinematics, n: int, flush: bool = False) -> None:
+        """Queue ``n`` new impacts and process the queue's first round (every round with ``flush``).
+
+        An impact is a pair (i, j) of distinct particles drawn uniformly and independently of
+        the other impacts, and a slot v != j drawn uniformly for its rebalancing (the clone
+        source if i and j bond, the victim of an extra fragment if one breaks). A round is
+        the impacts that come first in the queue for each of their slots i, j and v: they
+        share no slot, so they run at once, and every slot sees its impacts in queue order.
+        The physics of an impact is ``self.kernels``.
+        """
+        M, rng = self.M, self.rng
+        i = rng.integers(0, M, size=n)
+        j = (i + rng.integers(1, M, size=n)) % M  # uniform over the others
+        v = (j + rng.integers(1, M, size=n)) % M  # rebalancing slot, never the freed slot j
+        qi, qj, qv = self._queue
+        if qi.size:
+            i, j, v = np.concatenate([qi, i]), np.concatenate([qj, j]), np.concatenate([qv, v])
+        while i.size:
+            ready = _first_round(i, j, v, M)
+            self._impact_round(kin, i[ready], j[ready], v[ready])
+            i, j, v = i[~ready], j[~ready], v[~ready]
+            if not flush:
+                break
+        self._queue = (i, j, v)
+
+    def _impact_round(self, kin: Kinematics, i: np.ndarray, j: np.ndarray, v: np.ndarray) -> None:
+        """Impacts on pairs (i, j) that share no slot (rebalancing slots v included)."""
         out = self.kernels.collide(self, kin, self.s[i], self.r[i], self.s[j], self.r[j], self.rng)
         bond, frac = out.bond, out.frac
 
         # write back: survivors of shape change, bonded into slot i, fragment 1 in place
+        idx = np.concatenate([i, j])
         self.r[idx] = out.r
         self.s[i[bond]] = out.s_bond
         self.r[i[bond]] = out.r_bond
         fidx = idx[frac]
         self.s[fidx] = out.s1
         self.r[fidx] = out.r1
-        self._rebalance(j[bond], out.s2, out.r2)
-        self.counts.impacts += n
+        self._rebalance(j[bond], out.s2, out.r2, v[bond], np.concatenate([v, v])[frac])
+        self.counts.impacts += i.size
         self.counts.bonds += int(bond.sum())
         self.counts.fractures += int(frac.sum())
 
-    def _rebalance(self, free: np.ndarray, s_new: np.ndarray, r_new: np.ndarray) -> None:
-        """Constant-number step: fill freed slots with new fragments; clone or drop at random."""
-        rng = self.rng
+    def _rebalance(self, free: np.ndarray, s_new: np.ndarray, r_new: np.ndarray,
+                   src: np.ndarray, dst: np.ndarray) -> None:
+        """Constant-number step: freed slots take new fragments, then copies; extra fragments replace.
+
+        ``free``: slots freed by bonds, with ``src`` their clone sources; ``s_new``, ``r_new``:
+        the fragments that need a slot, with ``dst`` their victim slots. A slot left free
+        takes a copy of the particle in its source slot; a fragment left over replaces the
+        particle in its victim slot (both drawn uniformly with the impact). The two parts of
+        one pair that both broke share a victim slot; the second draws another.
+        """
         k = min(free.size, s_new.size)
         self.s[free[:k]] = s_new[:k]
         self.r[free[:k]] = r_new[:k]
-        if free.size > k:  # more bonds than fractures: copy random occupied particles into free slots
-            holes = free[k:]
-            occupied = np.ones(self.M, dtype=bool)
-            occupied[holes] = False
-            pool = np.flatnonzero(occupied)
-            src = pool[rng.integers(0, pool.size, size=holes.size)]
+        if free.size > k:  # more bonds than fractures: copy the clone sources into the free slots
+            holes, src = free[k:], src[k:]
             self.s[holes] = self.s[src]
             self.r[holes] = self.r[src]
-        elif s_new.size > k:  # more fractures: the extra fragments replace random members of M + extra
-            extra_s, extra_r = s_new[k:], r_new[k:]
-            e = extra_s.size
-            victims = rng.choice(self.M + e, size=e, replace=False)
-            in_pop = victims[victims < self.M]
-            survivors = np.setdiff1d(np.arange(e), victims[victims >= self.M] - self.M, assume_unique=True)
-            self.s[in_pop] = extra_s[survivors]
-            self.r[in_pop] = extra_r[survivors]
+        elif s_new.size > k:  # more fractures: the extra fragments replace the particles in their victim slots
+            dst = dst[k:].copy()
+            _, first = np.unique(dst, return_index=True)
+            twice = np.ones(dst.size, dtype=bool)
+            twice[first] = False
+            if twice.any():
+                dst[twice] = self.rng.integers(0, self.M, size=int(twice.sum()))
+            self.s[dst] = s_new[k:]
+            self.r[dst] = r_new[k:]
 
     # --- observation -----------------------------------------------------------------------
     def moments(self) -> dict:
@@ -316,6 +348,19 @@ class Plant:
         self.total_area = float(snap["total_area"])
         self.counts = EventCounts(*snap["counts"])
         self.rng.bit_generator.state = snap["rng"]
+
+
+def _first_round(i: np.ndarray, j: np.ndarray, v: np.ndarray, M: int) -> np.ndarray:
+    """Mask of the queued impacts k that come first in the queue for each of i[k], j[k], v[k].
+
+    The selected impacts share no slot; every impact left out shares a slot with an
+    earlier one, so running rounds of first impacts keeps each slot's impacts in order.
+    """
+    k = np.arange(i.size)
+    first = np.full(M, i.size, dtype=np.int64)
+    for slots in (v, j, i):
+        np.minimum.at(first, slots, k)
+    return (first[i] == k) & (first[j] == k) & (first[v] == k)
 
 
 def _check_input(rpm: float, hours: float, milling: float, rpm_max: float) -> None:
