@@ -98,7 +98,7 @@ class FilterSettings:
     n_particles: int = 2000
     ess_fraction: float = 0.5
     scheme: str = "systematic"
-    process_noise_per_sqrt_h: tuple = (0.15, 0.15, 0.5, 0.5)
+    process_noise_per_sqrt_h: tuple = (0.15, 0.15, 0.8, 0.8)
     adapt: bool = True
     adapt_rate: float = 0.3
     process_noise_bounds: tuple = (0.03, 1.5)
@@ -337,8 +337,7 @@ class ParticleFilter:
         M = np.log(self.X[:, :N_MOMENTS])  # prior means (noise-free predictions)
         fit = fit_sample(raster, st.law)
         self.last_fit = fit
-        eta = fit.eta if st.calibrate_learning_rate else np.ones(2)
-        eta = np.minimum(eta, st.learning_rate)
+        eta = learning_rates(fit, st)
         eta_vec = np.repeat(eta, 2)
         if st.adapt and tau > 0:
             self._adapt(fit, M, tau, eta_vec)
@@ -380,8 +379,11 @@ class ParticleFilter:
         w = self.weights
         mbar = w @ M
         var_m = w @ (M - mbar) ** 2
-        info_diag = np.diag(fit.info) * eta_vec
-        meas_var = np.where(info_diag > 0, 1.0 / np.maximum(info_diag, 1e-12), np.inf)
+        meas_var = np.full(N_MOMENTS, np.inf)
+        for b in range(2):
+            sl = slice(2 * b, 2 * b + 2)
+            if fit.ok[b] and eta_vec[2 * b] > 0:
+                meas_var[sl] = np.diag(np.linalg.inv(eta_vec[2 * b] * fit.info[sl, sl]))
         innov2 = (fit.z - mbar) ** 2
         ok = np.repeat(fit.ok, 2) & np.isfinite(meas_var)
         q2_new = np.maximum(innov2 - var_m - meas_var, 0.0) / tau
@@ -411,6 +413,27 @@ class ParticleFilter:
         """Weighted mean and 90 % interval of every state and parameter (deferred noise applied)."""
         self._apply_pending_noise()
         return self._summary()
+
+
+def learning_rates(fit, st: FilterSettings) -> np.ndarray:
+    """Power-likelihood learning rate of the size and shape blocks of one sample.
+
+    eta = eta_LHW * min_k v_k / (v_k + tau_k^2): the Lyddon-Holmes-Walker calibration
+    ``fit.eta`` (capped by ``st.learning_rate``), reduced so that the tempered variance of
+    every log moment k of the block, v_k / eta, is at least its sampling variance v_k (from
+    the calibrated information) plus the law-misfit floor tau_k^2. Small samples keep
+    eta ~ eta_LHW; as n grows the sample's information is capped at ~1 / tau^2.
+    """
+    base = np.minimum(fit.eta if st.calibrate_learning_rate else np.ones(2), st.learning_rate)
+    tau2 = st.law.misfit_floor**2
+    out = base.copy()
+    for b in range(2):
+        if not fit.ok[b] or base[b] <= 0:
+            continue
+        sl = slice(2 * b, 2 * b + 2)
+        v = np.diag(np.linalg.inv(base[b] * fit.info[sl, sl]))
+        out[b] = base[b] * float(np.min(v / (v + tau2[sl])))
+    return out
 
 
 def _mvn_logpdf_diag(d: np.ndarray, var: np.ndarray) -> np.ndarray:

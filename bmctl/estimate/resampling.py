@@ -5,7 +5,8 @@ wrapper here seeds that state from the caller's ``numpy.random.Generator`` for t
 the call and restores it afterwards, so a run's seed fixes its output and no other code's
 global stream is disturbed.
 
-Every scheme: ``resample(weights, rng) -> indices`` (int array of len(weights)).
+Every scheme: ``resample(weights, rng) -> indices`` (int array of len(weights)). The residual
+scheme is filterpy's algorithm with a bug fixed (see :func:`_residual_resample`).
 """
 
 from __future__ import annotations
@@ -15,10 +16,31 @@ import contextlib
 import numpy as np
 from filterpy import monte_carlo as mc
 
+def _residual_resample(weights: np.ndarray) -> np.ndarray:
+    """Residual resampling (Liu & Chen 1998), filterpy's algorithm with its residual fixed.
+
+    filterpy 1.4.5 ``residual_resample`` takes the residual as ``w - floor(N w)`` instead of
+    ``N w - floor(N w)``, which makes the residual draw non-monotone and biased (tests catch
+    it: resampled counts no longer follow the weights). Same draws from numpy's global state.
+    """
+    w = np.asarray(weights, dtype=float)
+    N = w.size
+    copies = np.floor(N * w).astype(np.int64)
+    idx = np.repeat(np.arange(N), copies)
+    k = idx.size
+    if k >= N:
+        return idx[:N]
+    residual = N * w - copies
+    cumulative_sum = np.cumsum(residual / residual.sum())
+    cumulative_sum[-1] = 1.0
+    rest = np.searchsorted(cumulative_sum, np.random.random(N - k))
+    return np.concatenate([idx, rest])
+
+
 _SCHEMES = {
     "systematic": mc.systematic_resample,
     "stratified": mc.stratified_resample,
-    "residual": mc.residual_resample,
+    "residual": _residual_resample,
     "multinomial": mc.multinomial_resample,
 }
 

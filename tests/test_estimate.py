@@ -1,0 +1,271 @@
+"""Estimator: likelihood vs scipy.stats, seeded resampling, filter health and coverage, `bmctl estimate`."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+from bmctl.cli import main
+from bmctl.estimate import likelihood as L
+from bmctl.estimate.filter import FilterSettings, ParticleFilter
+from bmctl.estimate.resampling import SCHEMES, effective_sample_size, resample
+from bmctl.estimate import study as S
+
+from .conftest import card_path
+
+LAB = str(card_path("alni-1to1-300rpm-lab"))
+
+
+@pytest.fixture(scope="module")
+def model():
+    from bmctl.moments.model import make_moment_model
+
+    return make_moment_model(LAB)
+
+
+# --- likelihood ------------------------------------------------------------------------------
+def _states(rng, k=5):
+    m = rng.uniform(10, 80, k)
+    return m, m * rng.uniform(0.2, 0.9, k), rng.uniform(0.02, 0.3, k), rng.uniform(0.02, 0.15, k)
+
+
+def test_continuous_loglik_matches_scipy():
+    rng = np.random.default_rng(0)
+    s = rng.lognormal(3.5, 0.5, 200)
+    r = rng.beta(0.8, 6.0, 200)
+    stats_ = L.SampleStats.from_particles(s, r)
+    ms, ss, mr, sr = _states(rng)
+    got_s = L.loglik_size(stats_, ms, ss, 0.0)
+    got_r = L.loglik_aspect(stats_, mr, sr, 0.0)
+    rc = np.clip(r, L.R_FLOOR, 1 - L.R_FLOOR)
+    for k in range(ms.size):
+        mu, sig = L.lognormal_params(ms[k], ss[k])
+        ref_s = stats.lognorm(s=sig, scale=np.exp(mu)).logpdf(s).sum()
+        a, b = L.beta_params(mr[k], sr[k])
+        ref_r = stats.beta(a, b).logpdf(rc).sum()
+        assert got_s[k] == pytest.approx(ref_s, rel=1e-10)
+        assert got_r[k] == pytest.approx(ref_r, rel=1e-9)
+        # the laws have the state's moments
+        assert stats.lognorm(s=sig, scale=np.exp(mu)).mean() == pytest.approx(ms[k], rel=1e-12)
+        assert stats.beta(a, b).std() == pytest.approx(sr[k], rel=1e-9)
+    # measurement noise widens the log-variance exactly
+    mu, sig = L.lognormal_params(ms[0], ss[0])
+    ref = stats.norm(mu, np.hypot(sig, 0.1)).logpdf(np.log(s)).sum() - np.log(s).sum()
+    assert L.loglik_size(stats_, ms[:1], ss[:1], 0.1)[0] == pytest.approx(ref, rel=1e-10)
+
+
+@pytest.mark.parametrize("size_law", ["lognormal", "weibull"])
+def test_raster_size_cells_match_scipy_cdf(size_law):
+    rng = np.random.default_rng(1)
+    s = rng.lognormal(3.5, 0.6, 300)
+    law = L.LawSettings(size_law=size_law, sigma_log_s=0.0)
+    R = L.Raster.from_particles(s, np.zeros_like(s), law)
+    assert R.s_counts.sum() == 300 and R.r_zero == 300
+    ms, ss, _, _ = _states(rng)
+    got = L.size_cell_logp(R, ms, ss, law)
+    e = np.exp(R.s_edges())
+    for k in range(ms.size):
+        if size_law == "lognormal":
+            mu, sig = L.lognormal_params(ms[k], ss[k])
+            dist = stats.lognorm(s=sig, scale=np.exp(mu))
+        else:
+            kk, lnlam = L.weibull_params(ms[k], ss[k])
+            dist = stats.weibull_min(kk, scale=np.exp(lnlam))
+            # the tabulated shape gives the state's moments (table interpolation: 1e-4)
+            assert dist.mean() == pytest.approx(ms[k], rel=1e-4) and dist.std() == pytest.approx(ss[k], rel=1e-3)
+        ref = np.log(np.maximum(np.diff(dist.cdf(e)), 1e-300))
+        ok = ref > -30  # deep-tail cells: scipy's cdf differences lose all digits there
+        np.testing.assert_allclose(got[k][ok], ref[ok], rtol=1e-6, atol=1e-8)
+
+
+def test_raster_shape_cells_match_noisy_beta_integral():
+    """P(cell) = int Beta(r) [Phi((hi-r)/s) - Phi((lo-r)/s)] dr, and P(r_meas = 0) = int Beta(r) Phi(-r/s) dr.
+
+    The raster puts the Beta mass of 0.01-wide true-r cells at their midpoints (exact mass and
+    mean for the 4 cells near 0, where a < 1 makes the density singular); with noise 0.034
+    (3.4 cells) that is good to 0.4 % of each cell probability, 1.9 % in the extreme a = 0.1
+    case (checked against quad at 2.5 %, for cells holding >= 1e-3 of the mass).
+    """
+    law = L.LawSettings()
+    r = np.concatenate([[0.0], (np.arange(60) + 0.5) * 0.01])  # the atom and every cell up to 0.6
+    R = L.Raster.from_particles(np.full(r.size, 30.0), r, law)
+    for mean, std in ((0.01, 0.03), (0.05, 0.08), (0.15, 0.12), (0.3, 0.15)):
+        a, b = L.beta_params(mean, std)
+        got = np.exp(L.shape_cell_logp(R, np.array([mean]), np.array([std]), law)[0])
+        sig = law.sigma_r
+        beta = stats.beta(a, b)
+        p0 = integrate.quad(lambda x: beta.pdf(x) * stats.norm.cdf(-x / sig), 0, 1, limit=200, points=[1e-6, 1e-3])[0]
+        refs = [p0]
+        for j in R.r_cells:
+            lo, hi = j * 0.01, (j + 1) * 0.01
+            f = lambda x: beta.pdf(x) * (stats.norm.cdf((hi - x) / sig) - stats.norm.cdf((lo - x) / sig))  # noqa: E731
+            refs.append(integrate.quad(f, 0, 1, limit=200, points=[1e-6, 1e-3, lo, hi])[0])
+        refs = np.array(refs)
+        big = refs > 1e-3
+        np.testing.assert_allclose(got[big], refs[big], rtol=0.025)
+        assert got.sum() == pytest.approx(refs.sum(), abs=5e-3)
+
+
+def test_fit_sample_recovers_a_well_specified_sample():
+    """Data drawn from the filter's own laws: the fit is within 4 standard errors and eta ~ 1."""
+    rng = np.random.default_rng(3)
+    law = L.LawSettings(size_law="weibull")
+    truth = np.array([40.0, 20.0, 0.12, 0.10])
+    kk, lnlam = L.weibull_params(truth[0], truth[1])
+    n = 2000
+    s = np.exp(lnlam) * rng.weibull(kk, n) * np.exp(law.sigma_log_s * rng.standard_normal(n))
+    a, b = L.beta_params(truth[2], truth[3])
+    r = np.clip(rng.beta(a, b, n) + law.sigma_r * rng.standard_normal(n), 0.0, 0.999)
+    fit = L.fit_sample(L.Raster.from_particles(s, r, law), law)
+    assert fit.ok.all()
+    se = 1 / np.sqrt(np.diag(fit.info))
+    assert np.all(np.abs(fit.z - np.log(truth)) < 4 * se), (np.exp(fit.z), se)
+    assert np.all(fit.eta > 0.8)
+
+
+def test_loglik_raster_is_finite_for_impossible_states():
+    law = L.LawSettings()
+    R = L.Raster.from_particles([10.0, 500.0], [0.0, 0.9], law)
+    ls, lr = L.loglik_raster(R, np.array([1e4, 0.2]), np.array([1.0, 0.01]), np.array([0.9, 1e-4]),
+                             np.array([1e-4, 1e-4]), law)
+    assert np.all(np.isfinite(ls)) and np.all(np.isfinite(lr))
+
+
+# --- resampling ------------------------------------------------------------------------------
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_resampling_reproducible_and_leaves_global_state(scheme):
+    w = np.random.default_rng(5).random(500)
+    w /= w.sum()
+    np.random.seed(1234)
+    before = np.random.get_state()
+    a = resample(w, np.random.default_rng(9), scheme)
+    b = resample(w, np.random.default_rng(9), scheme)
+    c = resample(w, np.random.default_rng(10), scheme)
+    after = np.random.get_state()
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    assert before[0] == after[0] and np.array_equal(before[1], after[1]) and before[2:] == after[2:]
+    assert a.min() >= 0 and a.max() < w.size and a.size == w.size
+    # frequencies follow the weights (all schemes are unbiased)
+    counts = np.bincount(np.concatenate([resample(w, np.random.default_rng(k), scheme) for k in range(40)]),
+                         minlength=w.size)
+    assert np.corrcoef(counts, w)[0, 1] > 0.9
+    assert effective_sample_size(np.full(10, 0.1)) == pytest.approx(10.0)
+
+
+# --- filter ----------------------------------------------------------------------------------
+def test_filter_short_run_is_healthy_and_covers_truth(model):
+    """Plant truth (lab card, M = 2000), 4 hourly samples of 300 particles, N = 500 filter particles."""
+    from bmctl.config import load_card
+
+    card = load_card(LAB)
+    cfg = S.StudyConfig(card=LAB, hours=4.0, plant_particles=2000, filter_particles=500,
+                        variants=(S.Variant(300),))
+    run = S.run_one(model, card, (1.0, 1.0), 11, cfg)
+    rec = run["weibull-n300"]
+    for k in ("mean", "q05", "q95", "ess"):
+        assert np.all(np.isfinite(rec[k]))
+    assert np.all((rec["ess"] > 0.05 * 500) & (rec["ess"] <= 500 + 1e-6))  # no collapse
+    lo, hi, tr = rec["q05"][-1, :4], rec["q95"][-1, :4], run["truth"][-1, :4]
+    covered = (lo <= tr) & (tr <= hi)
+    assert covered[0] and covered[2], (lo, hi, tr)  # s_mean and r_mean at the end
+    assert covered.sum() >= 3
+    assert np.all(np.abs(np.log(rec["mean"][-1, :4] / tr)) < 0.25)
+
+
+def test_filter_update_guards(model):
+    pf = ParticleFilter(model, np.random.default_rng(0), FilterSettings(n_particles=200))
+    pf.predict((300.0, 1.0), 1.0)
+    est = pf.update(np.full(20, 1e4), np.full(20, 0.95))  # a sample no state can explain
+    assert np.all(np.isfinite(pf.weights)) and np.all(np.isfinite(est.mean)) and est.ess >= 1
+    est = pf.update(temperature_c=60.0)  # a temperature reading alone
+    assert np.isfinite(est.ess)
+    pf.predict((0.0, 0.0), 0.5)
+    est = pf.estimate()  # read without an update: deferred noise applied, still finite
+    assert np.all(np.isfinite(est.mean)) and pf.pending_h == 0.0
+
+
+def test_small_coverage_study(model):
+    """3 seeds x 2 off-card scenarios x 6 hourly samples (n = 300): 36 (run, time) pairs per moment.
+
+    Nominal 90 % intervals; pairs within a run are correlated, so the binomial sd (0.05) is
+    an underestimate. The threshold 0.65 fails a systematic miss (the log-normal law's s_std
+    coverage is < 0.1 here) while passing sampling noise.
+    """
+    cfg = S.StudyConfig(card=LAB, seeds=(0, 1, 2), hours=6.0, plant_particles=2000, filter_particles=500,
+                        variants=(S.Variant(300),))
+    res = S.run_study(cfg)
+    cov = np.mean([S.coverage(runs, "weibull-n300") for runs in res.values()], axis=0)
+    assert np.all(cov >= 0.65), cov
+
+
+# --- CLI -------------------------------------------------------------------------------------
+def _write_samples(folder, n_samples=2, n=200, seed=0):
+    from bmctl.measure.tables import ParticleTable, write_table
+    from bmctl.plant import make_plant
+    from bmctl.plant.population import UM
+
+    folder.mkdir(parents=True, exist_ok=True)
+    plant = make_plant(LAB, seed=seed, particles=1000)
+    rng = np.random.default_rng(seed)
+    paths = []
+    for k in range(n_samples):
+        plant.advance(300.0, 1.0)
+        idx = rng.integers(0, plant.M, n)
+        p = folder / f"t{k + 1:02d}.csv"
+        write_table(p, ParticleTable.from_size_aspect(plant.s[idx] / UM, plant.r[idx]))
+        paths.append(p)
+    return paths
+
+
+def test_cli_estimate_writes_csv_and_figure(tmp_path, capsys):
+    _write_samples(tmp_path / "samples")
+    out = tmp_path / "res" / "estimate.csv"
+    rc = main(["estimate", LAB, "--samples", str(tmp_path / "samples"), "--times", "1,2", "--particles", "200",
+               "--out", str(out), "--temperatures", "60,"])
+    _, err = capsys.readouterr()
+    assert rc == 0, err
+    rows = list(csv.DictReader(out.read_text().splitlines()))
+    assert [float(r["t_h"]) for r in rows] == [1.0, 2.0]
+    for name in ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening", "bond_mult", "frac_mult"):
+        for r in rows:
+            assert float(r[f"{name}_q05"]) <= float(r[name]) <= float(r[f"{name}_q95"])
+    assert all(0 < float(r["ess"]) <= 200 for r in rows)
+    assert (tmp_path / "res" / "estimate.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def _bad_table(tmp_path, text, name="bad.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return str(p)
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "header-only", "nan", "count", "negative", "unknown-flag",
+                                  "not-a-number", "decreasing", "empty-dir", "bad-schedule", "rpm"])
+def test_cli_estimate_bad_input(tmp_path, capsys, case):
+    good = [str(p) for p in _write_samples(tmp_path / "ok")]
+    out = tmp_path / "o" / "estimate.csv"
+    args = {
+        "missing": ["--samples", str(tmp_path / "nope.csv"), "--times", "1"],
+        "empty": ["--samples", _bad_table(tmp_path, ""), "--times", "1"],
+        "header-only": ["--samples", _bad_table(tmp_path, "s_um,r\n"), "--times", "1"],
+        "nan": ["--samples", _bad_table(tmp_path, "s_um,r\n10,0.1\nnan,0.2\n"), "--times", "1"],
+        "count": ["--samples", *good, "--times", "1"],
+        "negative": ["--samples", good[0], "--times=-1"],
+        "unknown-flag": ["--samples", good[0], "--times", "1", "--bogus"],
+        "not-a-number": ["--samples", good[0], "--times", "one"],
+        "decreasing": ["--samples", *good, "--times", "2,1"],
+        "empty-dir": ["--samples", str((tmp_path / "void").resolve()), "--times", "1"],
+        "bad-schedule": ["--samples", *good, "--times", "1,2", "--schedule", _bad_table(tmp_path, "[[segment]]\nhours = 1\nrpm = 300\n", "s.toml")],
+        "rpm": ["--samples", good[0], "--times", "1", "--rpm", "9000"],
+    }[case]
+    if case == "empty-dir":
+        (tmp_path / "void").mkdir()
+    rc = main(["estimate", LAB, *args, "--out", str(out), "--particles", "100"])
+    _, err = capsys.readouterr()
+    assert rc == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("bmctl: error: "), err
+    assert not out.exists() and not out.with_suffix(".png").exists()
