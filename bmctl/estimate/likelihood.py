@@ -264,7 +264,9 @@ def size_cell_logp(raster: Raster, s_mean, s_std, law: LawSettings) -> np.ndarra
         mu, sig = lognormal_params(s_mean, s_std)
         sig = np.sqrt(sig**2 + law.sigma_log_s**2)
         z = (e - mu) / sig
-        p = _interval_prob(z[:, :-1], z[:, 1:])
+        t = special.ndtr(-np.abs(z))  # one pass: Phi(z) = t (z < 0), 1 - t (z >= 0); no upper-tail cancellation
+        lo, hi, tlo, thi = z[:, :-1], z[:, 1:], t[:, :-1], t[:, 1:]
+        p = np.where(lo >= 0, tlo - thi, np.where(hi <= 0, thi - tlo, 1.0 - thi - tlo))
     else:
         k, lnlam = weibull_params(s_mean, s_std)
         beta = 1.0 / k  # ln s is Gumbel-min with scale 1/k; noise widens it (variance-matched)
@@ -294,7 +296,7 @@ def _r_kernel(raster: Raster, law: LawSettings) -> tuple[np.ndarray, np.ndarray]
         pdf = lambda z: np.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)  # noqa: E731
         dK[:, 0] = -pdf(mid[:k0] / sig) / sig
         dK[:, 1:] = (pdf(zlo[:k0]) - pdf(zhi[:k0])) / sig
-        last = int(min(nr, raster.r_cells.max(initial=0) + 1 + np.ceil(8 * sig / dr)))
+        last = int(min(nr, raster.r_cells.max(initial=0) + 1 + np.ceil(6 * sig / dr)))  # kernel < 1e-9 beyond
         raster._cache[key] = (K[:max(last, k0)], dK)
     return raster._cache[key]
 
@@ -303,9 +305,10 @@ EXACT_R_CELLS = 4  # fine r cells near 0 with exact Beta mass and mean (the dens
 
 
 @lru_cache(maxsize=8)
-def _r_grid(dr: float):
+def _r_grid(dr: float) -> np.ndarray:
+    """Rows ln(mid), ln(1 - mid), 1 over the midpoint cells (3, nr - EXACT_R_CELLS)."""
     mid = (np.arange(EXACT_R_CELLS, int(round(1 / dr))) + 0.5) * dr
-    return np.log(mid)[None, :], np.log1p(-mid)[None, :]
+    return np.stack([np.log(mid), np.log1p(-mid), np.ones_like(mid)])
 
 
 def true_r_masses(r_mean, r_std, dr: float, rows: int | None = None, offsets: bool = False):
@@ -317,24 +320,27 @@ def true_r_masses(r_mean, r_std, dr: float, rows: int | None = None, offsets: bo
     cell minus its midpoint (N, EXACT_R_CELLS), from E[r; r < x] = a / (a + b) I_x(a + 1, b).
     """
     a, b = beta_params(r_mean, r_std)
+    N = a.shape[0]
     nr = int(round(1 / dr))
     k0 = EXACT_R_CELLS
     edges = dr * np.arange(1, k0 + 1)[None, :]
     cdf = special.betainc(a[:, None], b[:, None], edges)
-    a2, b2 = a[:, None], b[:, None]
-    log_mid, log_1m_mid = _r_grid(dr)
-    logd = (a2 - 1) * log_mid + (b2 - 1) * log_1m_mid - special.betaln(a2, b2)
-    d = np.exp(np.maximum(logd, -700.0))
-    scale = (1 - cdf[:, -1]) / np.maximum(d.sum(axis=1), 1e-300)
-    out = np.empty((a.shape[0], nr))
+    out = np.empty((N, nr))
+    # log density at the midpoints in one pass: [a - 1, b - 1, -ln B(a, b)] @ [ln m; ln(1 - m); 1]
+    coef = np.stack([a - 1, b - 1, -special.betaln(a, b)], axis=1)
+    d = out[:, k0:]
+    np.matmul(coef, _r_grid(dr), out=d)
+    np.exp(d, out=d)
+    d *= ((1 - cdf[:, -1]) / np.maximum(d.sum(axis=1), 1e-300))[:, None]
     out[:, 0] = cdf[:, 0]
     out[:, 1:k0] = np.diff(cdf, axis=1)
-    out[:, k0:] = d * scale[:, None]
-    out = out if rows is None else out[:, :rows]
+    if rows is not None:
+        out = out[:, :rows]
     if not offsets:
         return out
+    a2, b2 = a[:, None], b[:, None]
     m1 = (a2 / (a2 + b2)) * special.betainc(a2 + 1, b2, edges)  # E[r; r < edge]
-    dm1 = np.diff(np.concatenate([np.zeros((a.shape[0], 1)), m1], axis=1), axis=1)
+    dm1 = np.diff(m1, axis=1, prepend=0.0)
     mass = out[:, :k0]
     mid = (np.arange(k0) + 0.5) * dr
     cell_mean = np.where(mass > 1e-12, dm1 / np.maximum(mass, 1e-300), mid[None, :])
@@ -435,32 +441,38 @@ def fit_sample(raster: Raster, law: LawSettings | None = None, iters: int = 12, 
 
     step_scale = np.ones(2)
     d = evaluate(z)
+    done = np.zeros(2, dtype=bool)
     for _ in range(iters):
         znew = z.copy()
         for b, (i, j) in enumerate(blocks):
+            if done[b]:
+                continue
             _, g, H, _ = d[b]
             negH = -H
             if np.all(np.linalg.eigvalsh(negH) > 1e-9):
                 step = np.linalg.solve(negH, g)
+                if float(g @ step) < 1e-4:  # Newton decrement: within 1e-4 of the maximum
+                    done[b] = True
+                    continue
             else:
                 step = 0.05 * g / max(np.linalg.norm(g), 1e-12)
             nrm = np.linalg.norm(step)
             if nrm > 0.5:
                 step *= 0.5 / nrm
             znew[[i, j]] = z[[i, j]] + step_scale[b] * step
+        if done.all():
+            break
         znew = _z_feasible(znew)
         dn = evaluate(znew)
-        moved = False
         for b, (i, j) in enumerate(blocks):
-            if dn[b][0] >= d[b][0] - 1e-9:
+            if done[b]:
+                continue
+            if dn[b][0] >= d[b][0] - 1e-9:  # accept: the block's value did not drop
                 z[[i, j]] = znew[[i, j]]
-                moved = moved or np.max(np.abs(znew[[i, j]] - z[[i, j]])) > 0
+                d[b] = dn[b]
                 step_scale[b] = min(1.0, step_scale[b] * 2)
             else:
                 step_scale[b] *= 0.5
-        d = evaluate(z)
-        if all(np.linalg.norm(d[b][1]) < 1e-3 * max(raster.n, 1) ** 0.5 for b in range(2)):
-            break
     info = np.zeros((4, 4))
     eta = np.ones(2)
     ok = np.zeros(2, dtype=bool)
