@@ -99,6 +99,7 @@ class Partition(Strict):
     coated_fraction: Frac = 0.2  # share of the powder coating ball/vial surfaces (Maurice & Courtney)
     strain_efficiency: NonNeg = 0.01  # share of plastic heat (8) that does shape-changing work in (11)
     equiaxing_efficiency: NonNeg = 0.0  # share of plastic heat that rounds irregular particles (after 13)
+    equiaxing_hardening: NonNeg = 0.0  # a: rounding efficiency scales as max(0, 1 - a h) with hardening h (after 13)
     threshold_sharpness: Pos = 8.0  # k*u in the logistic (17)
     max_strain: Pos = 0.5  # |eps| cap per impact in (11)
 

@@ -119,16 +119,21 @@ def aspect_change(r, eps):
     return (1 - r) * np.sqrt(np.clip(1 - (1 - r) ** 2, 0, 1)) * eps
 
 
-def equiaxing(r, dU_p, s, sigma, efficiency):
+def equiaxing(r, dU_p, s, sigma, efficiency, hardening=0.0, hardening_decay=0.0):
     """Rounding of irregular particles by plastic work: r <- r exp(-eta_eq (3/2) dU_p / (A s sigma)).
 
     Not in the paper: Benjamin & Volin's (1974) equiaxed-particle stage of mechanical
     alloying, in which repeated impacts flatten the protrusions that welding and fracture
     leave; hardened material (higher sigma) rounds more slowly.
     ``efficiency`` = 0 switches it off (docs/model.md, after eqn 13).
+
+    Work-hardened, embrittled material has used up its ductility: its protrusions crack off
+    instead of flowing flat. The efficiency therefore decays with the hardening state h,
+    eta_eq (1 - a h)^+ with a = ``hardening_decay`` (0, the default, keeps eta_eq constant).
     """
     area = np.pi / 4 * s**2
-    return r * np.exp(-efficiency * 1.5 * dU_p / (area * s * sigma))
+    eta = efficiency * max(0.0, 1.0 - hardening_decay * hardening)
+    return r * np.exp(-eta * 1.5 * dU_p / (area * s * sigma))
 
 
 # --- bonding and fracture ---------------------------------------------------------------------

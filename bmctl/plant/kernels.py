@@ -112,7 +112,8 @@ class PaperKernels:
         r2 = np.concatenate([ri, rj])
         eps = ev.plastic_strain(dUp, s2, sigma_eff, part.strain_efficiency, psi2, r2, part.max_strain)  # (11), (14)
         r2 = np.clip(r2 + ev.aspect_change(r2, eps), 0.0, ev.R_MAX)  # (13)
-        r2 = ev.equiaxing(r2, dUp, s2, sigma_eff, part.equiaxing_efficiency)  # after (13)
+        r2 = ev.equiaxing(r2, dUp, s2, sigma_eff, part.equiaxing_efficiency,  # after (13)
+                          plant.hardening, part.equiaxing_hardening)
         ri, rj = r2[:n], r2[n:]
 
         # fracture under the impact load first: (20), (17)

@@ -1,0 +1,76 @@
+"""Design an open-loop rpm/rest schedule that reaches a moment target (the MPC problem over a whole batch)."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+from ..errors import InputError
+
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULT_CONTROLLER = "controllers/mpc-default.toml"
+
+
+def _hours(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise InputError(f"--hours: not a number: {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise InputError(f"--hours: must be a finite number > 0 (got {text})")
+    return v
+
+
+def configure(p):
+    p.add_argument("model", metavar="MODEL.toml", help="model card (see models/)")
+    p.add_argument("--target", required=True, metavar="K=V,...",
+                   help="target moments at the batch end, e.g. s_mean_um=25,r_mean=0.05 "
+                        "(keys: s_mean_um, s_std_um, r_mean, r_std)")
+    p.add_argument("--hours", type=_hours, default=None, help="batch length in h (default: the card's)")
+    p.add_argument("--controller", default=None, metavar="FILE.toml",
+                   help=f"MPC controller file (default {DEFAULT_CONTROLLER})")
+    p.add_argument("--out", default="out/design", metavar="DIR", help="output folder (default out/design)")
+
+
+def _controller_path(arg) -> Path:
+    if arg is not None:
+        return Path(arg)
+    local = Path(DEFAULT_CONTROLLER)
+    return local if local.exists() else ROOT / DEFAULT_CONTROLLER
+
+
+def run(args) -> int:
+    from ..control.config import MPCConfig, load_controller, parse_target
+    from ..control.design import design_schedule, write_design
+    from ..moments.model import make_moment_model
+
+    # all input checks first: nothing is written on bad input
+    target = parse_target(args.target)
+    path = _controller_path(args.controller)
+    cfg = load_controller(path)
+    if not isinstance(cfg, MPCConfig):
+        raise InputError(f"{path}: kind: design needs an mpc controller (got {cfg.kind!r})")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out: {out} exists and is not a folder")
+    model = make_moment_model(args.model)
+    hours = args.hours if args.hours is not None else float(model.card.process.hours)
+
+    d = design_schedule(model, target, hours, cfg)
+    st = d.plan.status
+    if st.fallback != "none":
+        print(f"bmctl design: no schedule: {st.reason}", file=sys.stderr)
+        return 1
+    paths = write_design(d, out)
+    last = d.X[-1]
+    got = ", ".join(f"{k} {last[['s_mean_um', 's_std_um', 'r_mean', 'r_std'].index(k)]:.4g} (target {v:g})"
+                    for k, v in target.items())
+    print(f"{d.card_name}: {hours:g} h, {len(d.segments)} segments, {d.milling_h:.2f} h milling, "
+          f"{d.energy_kWh:.3f} kWh; predicted {got}; peak T {d.t_peak_c.max():.1f} C "
+          f"(ceiling {d.ceiling_c:g} C); {st.solver_status}, {st.iterations} it, {st.solve_ms / 1e3:.1f} s")
+    if st.slack_max_c > 0.05:
+        print(f"  warning: temperature ceiling exceeded by up to {st.slack_max_c:.2f} C (slack)")
+    for p_ in paths:
+        print(f"  wrote {p_}")
+    return 0

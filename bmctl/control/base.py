@@ -1,0 +1,327 @@
+"""What every controller shares: the :class:`Plan` it returns, the :class:`Status` record,
+time-varying references, the applied-input rounding and the vial-temperature peak.
+
+The controller interface (stable; used by ``bmctl trial`` and ``bmctl whatif``)::
+
+    ctrl = make_controller("controllers/mpc-default.toml", model)
+    ctrl.set_target({"s_mean_um": 25.0})          # optional: overrides the file's target
+    plan = ctrl.plan(x_est, t_h, p=None, u_prev=None)
+    rpm, milling = plan.u_apply                   # apply for ctrl.interval_h hours:
+                                                  # mill milling*interval_h at rpm, then rest
+
+``x_est`` is the moment-model state (6,), ``t_h`` the batch time (h) at the start of the
+interval, ``p`` the (bond_mult, frac_mult) estimate (default (1, 1)), ``u_prev`` the
+(rpm, milling) applied over the previous interval (None at the batch start).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..moments import equations as eq
+from .config import TARGET_KEYS, ReferencePoint, Target
+
+#: returned by Status.fallback
+FALLBACKS = ("none", "shifted", "rest")
+
+
+def applied_input(u, interval_h: float, round_minutes: bool = True, binary: bool = False) -> np.ndarray:
+    """The input actually applied for one interval: (rpm, milling) with whole minutes of milling.
+
+    The milling time ``milling * interval_h`` is rounded to the nearest whole minute (a
+    mill timer counts minutes); ``binary`` first rounds milling to 0 or 1. An interval with
+    no milling left is a rest and reported as rpm 0.
+
+    >>> applied_input((300.0, 0.337), 0.5)   # 10.11 min -> 10 min of 30
+    array([300.        ,   0.33333333])
+    """
+    rpm, m = float(u[0]), float(np.clip(u[1], 0.0, 1.0))
+    if binary:
+        m = 1.0 if m >= 0.5 else 0.0
+    if round_minutes:
+        minutes = interval_h * 60.0
+        whole = round(m * minutes)
+        m = whole / minutes if minutes > 0 else 0.0
+        m = min(m, 1.0)
+    if m <= 0.0:
+        return np.array([0.0, 0.0])
+    return np.array([rpm, m])
+
+
+def applied_input_guarded(model, x0, u, interval_h: float, ceiling_c: float, round_minutes: bool = True,
+                          binary: bool = False) -> np.ndarray:
+    """:func:`applied_input`, but rounding the milling time down when rounding up would push the
+    peak vial temperature over ``ceiling_c`` (and above the unrounded plan's peak)."""
+    a = applied_input(u, interval_h, round_minutes, binary)
+    if not round_minutes or a[1] <= float(u[1]) + 1e-12:
+        return a
+    T_a = float(peak_temperature(model, x0[4], x0[5], a[0], a[1], interval_h))
+    T_u = float(peak_temperature(model, x0[4], x0[5], float(u[0]), float(u[1]), interval_h))
+    if T_a > ceiling_c and T_a > T_u + 1e-9:
+        minutes = interval_h * 60.0
+        m = math.floor(a[1] * minutes - 1 + 1e-9) / minutes
+        return np.array([a[0], m]) if m > 0 else np.array([0.0, 0.0])
+    return a
+
+
+def peak_temperature(model, T0, h0, rpm, milling, dt_h, xp=np):
+    """Vial temperature at the end of the milling phase of an interval (its maximum when heating).
+
+    Same closed form as the model's step (mill ``milling * dt_h`` at rpm, then rest).
+    Works with numpy arrays or casadi expressions (``xp=casadi``).
+    """
+    B = eq.NP if xp is np else eq.CA()
+    c = model.const
+    T1, _ = eq.thermal_exact(B, c, T0, h0, rpm / c.rpm_max, milling * dt_h)
+    return T1
+
+
+def max_milling_for_ceiling(model, T0: float, rpm: float, dt_h: float, ceiling_c: float) -> float:
+    """Largest milling fraction in [0, 1] whose peak temperature stays <= the ceiling (closed form)."""
+    c = model.const
+    w = rpm / c.rpm_max
+    T_ss = c.ambient_C + c.power_max_W * w**3 * c.cooling_time_h * 3600.0 / c.heat_capacity_J_per_K
+    if T_ss <= ceiling_c:
+        return 1.0
+    if T0 >= ceiling_c:
+        return 0.0
+    # T(t) = T_ss + (T0 - T_ss) exp(-t / tau) <= ceiling  <=>  t <= tau ln((T_ss - T0) / (T_ss - ceiling))
+    t = c.cooling_time_h * math.log((T_ss - T0) / (T_ss - ceiling_c))
+    return float(np.clip(t / dt_h, 0.0, 1.0))
+
+
+@dataclass
+class Status:
+    """Why a plan is what it is (logged by the trial)."""
+
+    controller: str
+    solver_status: str = "n/a"
+    success: bool = True
+    iterations: int = 0
+    solve_ms: float = 0.0
+    fallback: str = "none"  # "none" | "shifted" | "rest"
+    reason: str = ""
+    slack_max_c: float = 0.0  # largest temperature slack of the solution (degC over the ceiling)
+    t_peak_max_c: float = float("nan")  # largest predicted peak temperature of the returned plan
+    t_ceiling_c: float = float("nan")
+    cost: float = float("nan")
+    binary_loss: float | None = None  # binary on/off: cost(rounded) - cost(continuous)
+
+    @property
+    def violation(self) -> bool:
+        """The returned plan is predicted to exceed the temperature ceiling (by > 0.05 degC)."""
+        return bool(np.isfinite(self.t_peak_max_c) and self.t_peak_max_c > self.t_ceiling_c + 0.05)
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d["violation"] = self.violation
+        return d
+
+    def line(self) -> str:
+        """One log line."""
+        s = (f"{self.controller}: {self.solver_status}, {self.iterations} it, {self.solve_ms:.0f} ms"
+             f", fallback {self.fallback}")
+        if self.reason:
+            s += f" ({self.reason})"
+        if self.slack_max_c > 1e-3:
+            s += f", T slack {self.slack_max_c:.2f} C"
+        if self.binary_loss is not None:
+            s += f", binary loss {self.binary_loss:.3g}"
+        return s
+
+
+@dataclass
+class Plan:
+    """A controller's answer at one decision time.
+
+    Attributes
+    ----------
+    t_h : float
+        Batch time of the decision (start of the first interval).
+    interval_h : float
+        Interval length.
+    u : ndarray, (N, 2)
+        Planned (rpm, milling) per interval, as solved (continuous milling).
+    x : ndarray, (N + 1, 6)
+        Predicted moment-model states at the interval ends, ``x[0]`` = x_est.
+    t_peak_c : ndarray, (N,)
+        Predicted peak vial temperature per interval.
+    u_apply : ndarray, (2,)
+        The input to apply now: ``u[0]`` with whole minutes of milling (rpm 0 = rest).
+    status : Status
+    """
+
+    t_h: float
+    interval_h: float
+    u: np.ndarray
+    x: np.ndarray
+    t_peak_c: np.ndarray
+    u_apply: np.ndarray
+    status: Status
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def rpm(self) -> float:
+        return float(self.u_apply[0])
+
+    @property
+    def milling(self) -> float:
+        return float(self.u_apply[1])
+
+    @property
+    def times_h(self) -> np.ndarray:
+        return self.t_h + self.interval_h * np.arange(self.u.shape[0] + 1)
+
+    def applied(self, round_minutes: bool = True, binary: bool = False) -> np.ndarray:
+        """All planned intervals as applied inputs (N, 2) (see :func:`applied_input`)."""
+        return np.array([applied_input(u, self.interval_h, round_minutes, binary) for u in self.u]).reshape(-1, 2)
+
+    def segments(self, round_minutes: bool = True) -> list[tuple[float, float]]:
+        """The plan as a schedule: (hours, rpm) segments, rpm 0 = rest, equal neighbours merged."""
+        return schedule_segments(self.applied(round_minutes), self.interval_h)
+
+
+def schedule_segments(U: np.ndarray, interval_h: float, rpm_decimals: int = 0) -> list[tuple[float, float]]:
+    """(hours, rpm) segments of applied inputs per interval: mill, then rest; neighbours merged."""
+    segs: list[list[float]] = []
+
+    def add(hours, rpm):
+        if hours <= 1e-12:
+            return
+        if segs and abs(segs[-1][1] - rpm) < 1e-9:
+            segs[-1][0] += hours
+        else:
+            segs.append([hours, rpm])
+
+    for rpm, m in np.asarray(U, dtype=float).reshape(-1, 2):
+        r = round(float(rpm), rpm_decimals) if rpm_decimals is not None else float(rpm)
+        if m <= 0 or r <= 0:
+            add(interval_h, 0.0)
+        else:
+            add(m * interval_h, r)
+            add((1 - m) * interval_h, 0.0)
+    return [(h, r) for h, r in segs]
+
+
+class Reference:
+    """A piecewise-constant, time-varying target on a subset of the moments.
+
+    ``points`` are (from_h, {moment: value}); before the first point nothing is targeted
+    (a constant target is one point at 0). :meth:`at` gives the target at a batch time.
+    """
+
+    def __init__(self, points: Sequence[tuple[float, Mapping[str, float]]] = ()):
+        pts = sorted(((float(t), dict(d)) for t, d in points), key=lambda p: p[0])
+        for t, d in pts:
+            for k, v in d.items():
+                if k not in TARGET_KEYS:
+                    raise InputError(f"target: unknown moment {k!r} (one of {', '.join(TARGET_KEYS)})")
+                if not math.isfinite(float(v)):
+                    raise InputError(f"target: {k}: must be a finite number (got {v})")
+        self.points = pts
+
+    @classmethod
+    def make(cls, target) -> "Reference":
+        """From a Reference, a dict (constant), a Target, a list of (from_h, dict), or a callable."""
+        if isinstance(target, Reference):
+            return target
+        if target is None:
+            return cls()
+        if isinstance(target, Target):
+            return cls([(0.0, target.as_dict())])
+        if isinstance(target, Mapping):
+            return cls([(0.0, {k: float(v) for k, v in target.items()})])
+        if callable(target):
+            return _CallableReference(target)
+        return cls(list(target))
+
+    @classmethod
+    def from_config(cls, cfg) -> "Reference":
+        pts = []
+        if cfg.target.as_dict():
+            pts.append((0.0, cfg.target.as_dict()))
+        for r in cfg.reference:
+            pts.append((r.from_h, r.as_dict()))
+        return cls(pts)
+
+    def at(self, t_h: float) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for t, d in self.points:
+            if t <= t_h + 1e-9:
+                out = d
+            else:
+                break
+        return dict(out)
+
+    def keys(self) -> list[str]:
+        ks: list[str] = []
+        for _, d in self.points:
+            ks += [k for k in d if k not in ks]
+        return [k for k in TARGET_KEYS if k in ks]
+
+    def __bool__(self) -> bool:
+        return any(d for _, d in self.points)
+
+
+class _CallableReference(Reference):
+    def __init__(self, fn: Callable[[float], Mapping[str, float]]):
+        self.fn = fn
+        self.points = []
+
+    def at(self, t_h: float) -> dict[str, float]:
+        d = {k: float(v) for k, v in dict(self.fn(t_h) or {}).items()}
+        for k in d:
+            if k not in TARGET_KEYS:
+                raise InputError(f"target: unknown moment {k!r} (one of {', '.join(TARGET_KEYS)})")
+        return d
+
+    def keys(self) -> list[str]:
+        return list(TARGET_KEYS)
+
+    def __bool__(self) -> bool:
+        return True
+
+
+def check_x(x_est) -> np.ndarray:
+    x = np.asarray(x_est, dtype=float).reshape(-1)
+    if x.shape != (6,) or not np.all(np.isfinite(x)):
+        raise InputError(f"x_est: expected 6 finite numbers (got {np.asarray(x_est).tolist()!r})")
+    return x
+
+
+def check_p(model, p) -> np.ndarray:
+    pp = model.p0() if p is None else np.asarray(p, dtype=float).reshape(-1)
+    if pp.shape != (2,) or not np.all(np.isfinite(pp)) or np.any(pp <= 0):
+        raise InputError(f"p: expected 2 finite positive numbers (got {np.asarray(p).tolist()!r})")
+    return pp
+
+
+def check_u_prev(u_prev) -> np.ndarray | None:
+    if u_prev is None:
+        return None
+    u = np.asarray(u_prev, dtype=float).reshape(-1)
+    if u.shape != (2,) or not np.all(np.isfinite(u)):
+        raise InputError(f"u_prev: expected (rpm, milling) (got {np.asarray(u_prev).tolist()!r})")
+    return u
+
+
+def rpm_window(bounds, rpm_max_model: float, u_prev) -> tuple[float, float, float]:
+    """(lo, hi, rpm_hi) for the first interval's rpm: bounds and the rate limit from ``u_prev``.
+
+    A rest (rpm 0 or milling 0) carries no setpoint: the next interval may start anywhere in bounds.
+    """
+    lo = bounds.rpm_min
+    hi = min(bounds.rpm_max, rpm_max_model)
+    lo = min(lo, hi)
+    if u_prev is not None and bounds.rpm_step_max is not None and u_prev[0] > 0 and u_prev[1] > 0:
+        r = float(u_prev[0])
+        lo2, hi2 = max(lo, r - bounds.rpm_step_max), min(hi, r + bounds.rpm_step_max)
+        if lo2 > hi2:  # previous rpm outside the bounds: move toward them as fast as allowed
+            lo2 = hi2 = float(np.clip(r, lo, hi))
+        lo, hi = lo2, hi2
+    return lo, hi, min(bounds.rpm_max, rpm_max_model)

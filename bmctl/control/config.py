@@ -1,0 +1,227 @@
+"""Controller configurations (TOML under ``controllers/``): pydantic schemas and the loader.
+
+Every controller file names its ``kind``:
+
+* ``"mpc"``    -- :class:`MPCConfig`, nonlinear MPC on the moment model (bmctl/control/mpc.py)
+* ``"lqr"``    -- :class:`LQRConfig`, gain-scheduled LQR with integral action (baselines.py)
+* ``"recipe"`` -- :class:`RecipeConfig`, the paper's open-loop schedules (baselines.py)
+
+Errors are one line naming the file and the field, e.g.
+``controllers/x.toml: weights.terminal: Input should be greater than or equal to 0 (got -1)``.
+See docs/control.md for the meaning of every field.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import Field, model_validator
+
+from ..config import Finite, Frac, NonNeg, Pos, Strict, read_toml, validate
+from ..errors import InputError
+
+#: moments a target may name (state components 0..3 of the moment model)
+TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
+
+
+class Target(Strict):
+    """A target on any subset of the four micrograph moments (absent = not controlled)."""
+
+    s_mean_um: Pos | None = None
+    s_std_um: Pos | None = None
+    r_mean: Annotated[float, Field(gt=0, lt=1)] | None = None
+    r_std: Annotated[float, Field(gt=0, lt=0.5)] | None = None
+
+    def as_dict(self) -> dict[str, float]:
+        return {k: float(v) for k, v in self.model_dump().items() if k in TARGET_KEYS and v is not None}
+
+
+class ReferencePoint(Target):
+    """A time-varying reference: this target applies from ``from_h`` (batch time) on."""
+
+    from_h: NonNeg
+
+
+class Bounds(Strict):
+    """Input bounds and the rpm rate limit."""
+
+    rpm_min: NonNeg = 100.0
+    rpm_max: Pos = 500.0  # the mill's rpm_max (model card) caps it further
+    milling_min: Frac = 0.0
+    milling_max: Frac = 1.0
+    #: largest change of the rpm setpoint between consecutive intervals (rpm); none = unlimited
+    rpm_step_max: Pos | None = 100.0
+
+    @model_validator(mode="after")
+    def _order(self):
+        if self.rpm_min > self.rpm_max:
+            raise ValueError(f"rpm_min ({self.rpm_min:g}) must be <= rpm_max ({self.rpm_max:g})")
+        if self.milling_min > self.milling_max:
+            raise ValueError(f"milling_min ({self.milling_min:g}) must be <= milling_max ({self.milling_max:g})")
+        return self
+
+
+class Temperature(Strict):
+    """Vial-temperature ceiling: hard, with a heavily penalised slack so the problem stays feasible."""
+
+    ceiling_c: Finite = 80.0
+    slack_weight: NonNeg = 1e3  # per degC of violation, summed over intervals (exact L1 penalty)
+    slack_weight_quad: NonNeg = 10.0  # per degC^2
+    slack_max_c: NonNeg | None = None  # cap on the slack (0 = a truly hard constraint; may be infeasible)
+
+
+class Weights(Strict):
+    """Objective weights. Target errors are relative: (y - ref) / max(|ref|, floor)."""
+
+    stage: NonNeg = 1.0  # per hour, on the target error at every interval end up to the batch end
+    terminal: NonNeg = 20.0  # on the target error at the batch end (or the horizon end)
+    s_mean_um: NonNeg = 1.0
+    s_std_um: NonNeg = 1.0
+    r_mean: NonNeg = 1.0
+    r_std: NonNeg = 1.0
+    energy_per_kWh: NonNeg = 0.5  # dissipated energy: P_max (rpm/rpm_max)^3 * milling * hours
+    time_per_h: NonNeg = 0.005  # per hour spent milling (machine time)
+    rpm_move: NonNeg = 0.05  # per ((rpm_k - rpm_k-1) / rpm_max)^2, also from the last applied rpm
+
+
+class Solver(Strict):
+    """IPOPT options (casadi.nlpsol)."""
+
+    max_iter: Annotated[int, Field(ge=0)] = 100
+    tol: Pos = 1e-5
+    acceptable_tol: Pos = 1e-3
+    acceptable_iter: Annotated[int, Field(ge=1)] = 3  # consecutive acceptable iterates to stop early
+    print_level: Annotated[int, Field(ge=0, le=12)] = 0
+    #: Hessian of the Lagrangian: "gauss-newton" (cost and temperature curvature; the dynamics'
+    #: curvature is dropped, cheap), "exact" (costly: ~3x a Jacobian per interval), or "limited-memory"
+    hessian: Literal["gauss-newton", "exact", "limited-memory"] = "gauss-newton"
+    #: Hessian of cold solves (first call, after reset(), `bmctl design`): far from the solution the
+    #: Gauss-Newton steps cycle; the exact Hessian converges in ~30-40 iterations
+    cold_hessian: Literal["gauss-newton", "exact", "limited-memory"] = "exact"
+    warm_start: bool = True  # start from the shifted previous plan and its multipliers
+    max_wall_s: Pos | None = None  # IPOPT max_wall_time
+    #: Gauss-Newton only: proximal term on the scaled inputs in the approximate Hessian (shapes the
+    #: steps, not the solution); without it the reduced Hessian is singular and IPOPT cycles
+    gn_regularization: NonNeg = 0.1
+
+
+class OnOff(Strict):
+    """How on/off milling is handled (docs/control.md)."""
+
+    #: "fraction": the milling fraction is continuous (applied rounded to whole minutes);
+    #: "binary": after solving, milling is rounded to {0, 1} per interval (the loss is reported)
+    mode: Literal["fraction", "binary"] = "fraction"
+    resolve: bool = True  # binary: re-optimise rpm with the rounded milling pattern fixed
+    round_minutes: bool = True  # applied milling time is a whole number of minutes
+
+
+class _Common(Strict):
+    name: str = ""
+    description: str = ""
+    interval_h: Pos = 0.5  # control interval (the controller is called once per interval)
+    batch_hours: Pos | None = None  # batch length; default: the model card's process.hours
+    target: Target = Target()
+    reference: list[ReferencePoint] = []
+
+
+class MPCConfig(_Common):
+    """Nonlinear MPC on the moment model (multiple shooting, IPOPT)."""
+
+    kind: Literal["mpc"]
+    horizon: Annotated[int, Field(ge=1, le=200)] = 8
+    bounds: Bounds = Bounds()
+    temperature: Temperature = Temperature()
+    weights: Weights = Weights()
+    solver: Solver = Solver()
+    onoff: OnOff = OnOff()
+
+
+class LQRTuning(Strict):
+    """Velocity-form LQR on rpm with integral action on one moment (re-linearised every interval)."""
+
+    track: Literal["s_mean_um", "s_std_um", "r_mean", "r_std"] | None = None  # default: first target key
+    q_error: Pos = 1.0  # on the integrated relative error of the tracked moment
+    q_dx: NonNeg = 1e-3  # on the state increments (scaled)
+    r_du: Pos = 1.0  # on the rpm increments (rpm / rpm_max)
+    milling: Frac = 1.0  # nominal milling fraction (the temperature guard may lower it)
+    rpm_start: Pos = 300.0  # rpm of the first interval when no previous input is known
+
+
+class LQRConfig(_Common):
+    kind: Literal["lqr"]
+    bounds: Bounds = Bounds()
+    temperature: Temperature = Temperature()  # only ceiling_c is used (the guard)
+    lqr: LQRTuning = LQRTuning()
+    round_minutes: bool = True
+
+
+class RecipeConfig(_Common):
+    """An open-loop recipe: rpm, continuous or ``mill_min`` on / ``rest_min`` off cycles."""
+
+    kind: Literal["recipe"]
+    interval_h: Pos | None = None  # default: one mill/rest cycle, or 0.5 h when continuous
+    rpm: Pos
+    mill_min: Pos | None = None
+    rest_min: Pos | None = None
+    round_minutes: bool = True
+
+    @model_validator(mode="after")
+    def _cycle(self):
+        if (self.mill_min is None) != (self.rest_min is None):
+            raise ValueError("mill_min and rest_min go together (both or neither)")
+        return self
+
+
+ControllerConfig = Union[MPCConfig, LQRConfig, RecipeConfig]
+KINDS: dict[str, type] = {"mpc": MPCConfig, "lqr": LQRConfig, "recipe": RecipeConfig}
+
+
+def validate_controller(data: dict[str, Any], source: str) -> ControllerConfig:
+    """Validate a controller table (dispatch on ``kind``); errors are one-line InputError."""
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: expected a table")
+    kind = data.get("kind")
+    if kind is None:
+        raise InputError(f"{source}: kind: required field is missing (one of {', '.join(KINDS)})")
+    if kind not in KINDS:
+        raise InputError(f"{source}: kind: unknown controller kind {kind!r} (one of {', '.join(KINDS)})")
+    cfg = validate(KINDS[kind], data, source)
+    for i, r in enumerate(cfg.reference):
+        if not r.as_dict():
+            raise InputError(f"{source}: reference[{i}]: names no moment (one of {', '.join(TARGET_KEYS)})")
+    times = [r.from_h for r in cfg.reference]
+    if times != sorted(times):
+        raise InputError(f"{source}: reference: from_h must be increasing")
+    return cfg
+
+
+def load_controller(path: str | Path) -> ControllerConfig:
+    """Read and validate a controller TOML (``controllers/*.toml``)."""
+    return validate_controller(read_toml(path), str(path))
+
+
+def parse_target(text: str, source: str = "--target") -> dict[str, float]:
+    """Parse ``"s_mean_um=25,r_mean=0.05"`` into a validated target dict."""
+    out: dict[str, float] = {}
+    items = [t.strip() for t in str(text).split(",") if t.strip()]
+    if not items:
+        raise InputError(f"{source}: empty target (expected e.g. s_mean_um=25,r_mean=0.05)")
+    for item in items:
+        if "=" not in item:
+            raise InputError(f"{source}: expected key=value, got {item!r}")
+        k, v = (s.strip() for s in item.split("=", 1))
+        if k not in TARGET_KEYS:
+            raise InputError(f"{source}: unknown moment {k!r} (one of {', '.join(TARGET_KEYS)})")
+        if k in out:
+            raise InputError(f"{source}: {k} given twice")
+        try:
+            val = float(v)
+        except ValueError:
+            raise InputError(f"{source}: {k}: not a number: {v!r}") from None
+        if not math.isfinite(val):
+            raise InputError(f"{source}: {k}: must be a finite number (got {v})")
+        out[k] = val
+    validate(Target, out, source)
+    return out

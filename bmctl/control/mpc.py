@@ -1,0 +1,382 @@
+"""Nonlinear MPC on the moment model: multiple shooting, IPOPT (casadi.nlpsol).
+
+Decisions per control interval k = 0..N-1 (length ``interval_h``):
+
+* ``w_k = rpm_k / rpm_max(model)`` -- the rpm setpoint,
+* ``m_k`` in [milling_min, milling_max] -- the share of the interval spent milling (the rest
+  of the interval is a rest; the applied share is rounded to whole minutes),
+* ``z_k`` -- the scaled state at the end of interval k (multiple shooting),
+* ``s_k >= 0`` -- the temperature slack (degC).
+
+Constraints: ``x_{k+1} = F(x_k, u_k, p)`` (the model's step, ``MomentModel.casadi_step``);
+``|rpm_k - rpm_{k-1}| <= rpm_step_max`` (and from the last applied rpm, as bounds on rpm_0);
+``T_peak,k - s_k <= ceiling`` where T_peak,k is the vial temperature at the end of the
+milling phase of interval k (closed form); inputs within bounds; no milling after the
+batch end. Cost: relative target errors (stage + terminal), energy, milling time, rpm moves
+and the slack (L1 + quadratic). docs/control.md has the details and the numbers.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from .base import (Plan, Reference, Status, applied_input_guarded, check_p, check_u_prev, check_x,
+                   max_milling_for_ceiling, peak_temperature, rpm_window)
+from .config import TARGET_KEYS, MPCConfig
+
+#: IPOPT outcomes whose iterate is used; anything else triggers the fallback
+ACCEPTED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+#: state scaling of the shooting variables (s_mean, s_std um; r_mean, r_std; T degC; h)
+X_SCALE = np.array([50.0, 30.0, 0.1, 0.1, 100.0, 1.0])
+#: floors of the relative-error scales (|ref| below them is treated as the floor)
+ERR_FLOOR = {"s_mean_um": 1.0, "s_std_um": 1.0, "r_mean": 0.005, "r_std": 0.005}
+
+
+@dataclass
+class _Solution:
+    t_h: float
+    W: np.ndarray
+    M: np.ndarray
+    lam_x: np.ndarray
+    lam_g: np.ndarray
+
+
+class MPCController:
+    """Receding-horizon MPC on the moment model. Build with :func:`bmctl.control.make_controller`.
+
+    Parameters
+    ----------
+    cfg : MPCConfig
+    model : MomentModel
+    reference : dict, Reference, list or callable, optional
+        Target (overrides the config's ``target``/``reference``); see :meth:`set_target`.
+    """
+
+    kind = "mpc"
+
+    def __init__(self, cfg: MPCConfig, model, reference=None):
+        self.cfg = cfg
+        self.model = model
+        self.interval_h = float(cfg.interval_h)
+        self.N = int(cfg.horizon)
+        self.t_end_h = float(cfg.batch_hours if cfg.batch_hours is not None else model.card.process.hours)
+        self.reference = Reference.from_config(cfg) if reference is None else Reference.make(reference)
+        self.rpm_scale = float(model.const.rpm_max)  # w = rpm / rpm_scale inside the NLP
+        self.rpm_hi = min(cfg.bounds.rpm_max, model.rpm_max)
+        self.rpm_lo = min(cfg.bounds.rpm_min, self.rpm_hi)
+        self._solvers: dict[str, object] = {}
+        self._prev: _Solution | None = None
+        self._nlp = None
+
+    # --- public ------------------------------------------------------------------------------
+    def set_target(self, target, t_end_h: float | None = None) -> None:
+        """Set the target: a dict {moment: value} (constant), a list of (from_h, dict)
+        (piecewise constant, time-varying), a callable t_h -> dict, or a Reference.
+        ``t_end_h`` moves the batch end (the terminal cost and the last milling interval)."""
+        self.reference = Reference.make(target)
+        if t_end_h is not None:
+            if not (math.isfinite(t_end_h) and t_end_h > 0):
+                raise InputError(f"t_end_h: must be a finite number > 0 (got {t_end_h})")
+            self.t_end_h = float(t_end_h)
+
+    def reset(self) -> None:
+        """Forget the previous plan (no warm start, no shifted fallback)."""
+        self._prev = None
+
+    def plan(self, x_est, t_h: float, p=None, u_prev=None) -> Plan:
+        """Solve the MPC problem from ``x_est`` at batch time ``t_h``; see :mod:`bmctl.control.base`."""
+        x0 = check_x(x_est)
+        pp = check_p(self.model, p)
+        up = check_u_prev(u_prev)
+        t = float(t_h)
+        if not math.isfinite(t) or t < 0:
+            raise InputError(f"t_h: must be a finite number >= 0 (got {t_h})")
+        if t >= self.t_end_h - 1e-9:
+            return self._fixed_plan(x0, t, pp, np.zeros((1, 2)), Status(
+                "mpc", "batch_done", True, reason="batch finished: rest", t_ceiling_c=self.cfg.temperature.ceiling_c))
+        data = self._problem_data(x0, t, pp, up)
+        warm = self._can_warm(t)
+        self._solver(warm)  # built on first use (seconds), outside the timed solve
+        t0 = time.perf_counter()
+        res = self._solve(data, warm=warm)
+        ms = (time.perf_counter() - t0) * 1e3
+        if not res["ok"]:
+            return self._fallback(x0, t, pp, up, data, res, ms)
+        W, M = res["W"], res["M"]
+        status = Status("mpc", res["status"], True, res["iter"], ms, cost=res["f"],
+                        slack_max_c=float(np.max(res["S"], initial=0.0)),
+                        t_ceiling_c=self.cfg.temperature.ceiling_c)
+        self._prev = _Solution(t, W, M, res["lam_x"], res["lam_g"])
+        binary = self.cfg.onoff.mode == "binary"
+        if binary:
+            W, M, extra_ms, loss, note = self._binary(data, res)
+            status.solve_ms += extra_ms
+            status.binary_loss = loss
+            if note:
+                status.reason = note
+        U = np.column_stack([W * self.rpm_scale, M])
+        X = self.model.simulate(x0, U, self.interval_h, pp) if binary else self._states(x0, res["Z"])
+        return self._make_plan(x0, t, U, X, status)
+
+    # --- problem data ------------------------------------------------------------------------
+    def _problem_data(self, x0, t, pp, up) -> dict:
+        cfg, N, dt = self.cfg, self.N, self.interval_h
+        tk = t + dt * np.arange(N)
+        frac = np.clip((self.t_end_h - tk) / dt, 0.0, 1.0)
+        frac[frac < 1e-9] = 0.0
+        m_ub = np.minimum(cfg.bounds.milling_max, frac)
+        m_lb = np.minimum(cfg.bounds.milling_min, m_ub)
+        k_end = int(min(N, math.ceil((self.t_end_h - t) / dt - 1e-9)))
+        ref = np.zeros((4, N))
+        q = np.zeros((4, N))
+        wts = cfg.weights
+        for k in range(N):
+            if k + 1 > k_end:
+                break
+            tt = min(tk[k] + dt, self.t_end_h)
+            d = self.reference.at(tt)
+            for i, key in enumerate(TARGET_KEYS):
+                if key in d:
+                    sc = max(abs(d[key]), ERR_FLOOR[key])
+                    ref[i, k] = d[key]
+                    q[i, k] += wts.stage * dt * getattr(wts, key) / sc**2
+            if k + 1 == k_end:
+                for i, key in enumerate(TARGET_KEYS):
+                    if key in d:
+                        sc = max(abs(d[key]), ERR_FLOOR[key])
+                        q[i, k] += wts.terminal * getattr(wts, key) / sc**2
+        lo, hi, _ = rpm_window(cfg.bounds, self.model.rpm_max, up)
+        has_prev = up is not None and up[0] > 0 and up[1] > 0
+        P = np.concatenate([x0, pp, ref.T.ravel(), q.T.ravel(),
+                            [up[0] / self.rpm_scale if has_prev else 0.0, 1.0 if has_prev else 0.0]])
+        sc = self.rpm_scale
+        w_lb = np.full(N, self.rpm_lo / sc)
+        w_ub = np.full(N, self.rpm_hi / sc)
+        w_lb[0], w_ub[0] = lo / sc, hi / sc
+        smax = np.inf if cfg.temperature.slack_max_c is None else cfg.temperature.slack_max_c
+        lbx = np.concatenate([w_lb, m_lb, np.full(6 * N, -np.inf), np.zeros(N)])
+        ubx = np.concatenate([w_ub, m_ub, np.full(6 * N, np.inf), np.full(N, smax)])
+        step = np.inf if cfg.bounds.rpm_step_max is None else cfg.bounds.rpm_step_max / sc
+        lbg = np.concatenate([np.zeros(6 * N), np.full(N - 1, -step), np.full(N, -np.inf)])
+        ubg = np.concatenate([np.zeros(6 * N), np.full(N - 1, step), np.full(N, cfg.temperature.ceiling_c)])
+        return {"x0": x0, "p": pp, "up": up, "t": t, "P": P, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg,
+                "w_lo": lo, "w_hi": hi, "m_ub": m_ub, "m_lb": m_lb, "k_end": k_end}
+
+    # --- NLP ---------------------------------------------------------------------------------
+    def _build(self):
+        import casadi as ca
+
+        from ..moments import equations as eq
+
+        cfg, N, dt, m = self.cfg, self.N, self.interval_h, self.model
+        c = m.const
+        F = m.casadi_step(dt)
+        W = ca.MX.sym("w", N)
+        M = ca.MX.sym("m", N)
+        Z = ca.MX.sym("z", 6, N)
+        S = ca.MX.sym("s", N)
+        P = ca.MX.sym("P", 6 + 2 + 8 * N + 2)
+        x0, pp = P[0:6], P[6:8]
+        ref = ca.reshape(P[8:8 + 4 * N], 4, N)
+        q = ca.reshape(P[8 + 4 * N:8 + 8 * N], 4, N)
+        w_prev, has_prev = P[8 + 8 * N], P[9 + 8 * N]
+        D = ca.DM(X_SCALE)
+        X = ca.repmat(D, 1, N) * Z
+        Xprev = ca.horzcat(x0, X[:, :-1])
+        U = ca.vertcat(W.T * self.rpm_scale, M.T)
+        Xn = F.map(N)(Xprev, U, ca.repmat(pp, 1, N))
+        defect = (Xn - X) / ca.repmat(D, 1, N)
+        Tpk, _ = eq.thermal_exact(eq.CA(), c, Xprev[4, :], Xprev[5, :], W.T, M.T * dt)
+        E = X[0:4, :] - ref
+        wt = cfg.weights
+        J_track = ca.sum1(ca.sum2(q * E * E))
+        J_energy = wt.energy_per_kWh * c.power_max_W / 1000.0 * dt * ca.sum1(W * W * W * M)
+        J_time = wt.time_per_h * dt * ca.sum1(M)
+        J_move = wt.rpm_move * (has_prev * (W[0] - w_prev) ** 2 + ca.sumsqr(ca.diff(W)))
+        J_slack = cfg.temperature.slack_weight * ca.sum1(S) + cfg.temperature.slack_weight_quad * ca.sumsqr(S)
+        J = J_track + J_energy + J_time + J_move + J_slack
+        gT = Tpk.T - S
+        g = ca.vertcat(ca.vec(defect), ca.diff(W), gT)
+        V = ca.vertcat(W, M, ca.vec(Z), S)
+        self._nlp = {"x": V, "p": P, "f": J, "g": g}
+        self._J = ca.Function("J", [V, P], [J])
+        self._Tpk = ca.Function("Tpk", [V, P], [Tpk])
+        self._nv, self._ng = V.shape[0], g.shape[0]
+        if "gauss-newton" in (cfg.solver.hessian, cfg.solver.cold_hessian):
+            lf = ca.MX.sym("lam_f")
+            lg = ca.MX.sym("lam_g", g.shape[0])
+            H = ca.hessian(lf * J + ca.dot(lg[g.shape[0] - N:], gT), V)[0]
+            reg = np.zeros(V.shape[0])
+            reg[:2 * N] = cfg.solver.gn_regularization
+            H = H + lf * ca.diag(ca.DM(reg))
+            self._hess = ca.Function("nlp_hess_l", {"x": V, "p": P, "lam_f": lf, "lam_g": lg,
+                                                    "triu_hess_gamma_x_x": ca.triu(H)},
+                                     ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
+        else:
+            self._hess = None
+
+    def _solver(self, warm: bool):
+        import casadi as ca
+
+        s = self.cfg.solver
+        hessian = s.hessian if warm else s.cold_hessian
+        key = ("warm" if warm else "cold", hessian)
+        if key not in self._solvers:
+            if self._nlp is None:
+                self._build()
+            opts = {"print_time": False, "calc_lam_p": False, "error_on_fail": False,
+                    "ipopt.print_level": s.print_level, "ipopt.sb": "yes", "ipopt.max_iter": s.max_iter,
+                    "ipopt.tol": s.tol, "ipopt.acceptable_tol": s.acceptable_tol, "ipopt.acceptable_iter": s.acceptable_iter}
+            if s.max_wall_s is not None:
+                opts["ipopt.max_wall_time"] = s.max_wall_s
+            if hessian == "limited-memory":
+                opts["ipopt.hessian_approximation"] = "limited-memory"
+            elif hessian == "gauss-newton":
+                opts["hess_lag"] = self._hess
+            if warm:
+                opts.update({"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-6,
+                             "ipopt.warm_start_slack_bound_push": 1e-6, "ipopt.warm_start_mult_bound_push": 1e-6,
+                             "ipopt.mu_init": 1e-4})
+            self._solvers[key] = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp, opts)
+        return self._solvers[key]
+
+    def _can_warm(self, t: float) -> bool:
+        if not self.cfg.solver.warm_start or self._prev is None:
+            return False
+        s = (t - self._prev.t_h) / self.interval_h
+        return -1e-6 <= s < self.N - 1e-6 and abs(s - round(s)) < 1e-6
+
+    def _guess(self, data: dict, warm: bool, W=None, M=None):
+        """Initial decision vector (dynamically consistent: states simulated) and multipliers."""
+        N = self.N
+        lam_x = np.zeros(self._nv)
+        lam_g = np.zeros(self._ng)
+        if W is None and warm:
+            s = int(round((data["t"] - self._prev.t_h) / self.interval_h))
+            W = _shift(self._prev.W, s)
+            M = _shift(self._prev.M, s)
+            lam_x = np.concatenate([_shift(self._prev.lam_x[:N], s), _shift(self._prev.lam_x[N:2 * N], s),
+                                    _shift(self._prev.lam_x[2 * N:8 * N], s, 6),
+                                    _shift(self._prev.lam_x[8 * N:], s)])
+            lam_g = np.concatenate([_shift(self._prev.lam_g[:6 * N], s, 6),
+                                    _shift(self._prev.lam_g[6 * N:7 * N - 1], s),
+                                    _shift(self._prev.lam_g[7 * N - 1:], s)])
+        elif W is None:
+            up = data["up"]
+            r0 = up[0] if up is not None and up[0] > 0 else self.model.card.process.rpm
+            W = np.full(N, r0 / self.rpm_scale)
+            M = np.full(N, 1.0)
+        W = np.clip(W, data["lbx"][:N], data["ubx"][:N]).copy()
+        if self.cfg.bounds.rpm_step_max is not None:  # make the guess rate-feasible
+            st = self.cfg.bounds.rpm_step_max / self.rpm_scale
+            for k in range(1, N):
+                W[k] = np.clip(W[k], W[k - 1] - st, W[k - 1] + st)
+            W = np.clip(W, data["lbx"][:N], data["ubx"][:N])
+        M = np.clip(M, data["lbx"][N:2 * N], data["ubx"][N:2 * N])
+        U = np.column_stack([W * self.rpm_scale, M])
+        X = self.model.simulate(data["x0"], U, self.interval_h, data["p"])
+        Tpk = peak_temperature(self.model, X[:-1, 4], X[:-1, 5], U[:, 0], U[:, 1], self.interval_h)
+        S = np.clip(Tpk - self.cfg.temperature.ceiling_c, 0.0, data["ubx"][8 * N:])
+        V = np.concatenate([W, M, (X[1:] / X_SCALE).ravel(), S])
+        return V, lam_x, lam_g
+
+    def _solve(self, data: dict, warm: bool, W=None, M=None, lbx=None, ubx=None) -> dict:
+        solver = self._solver(warm)
+        V0, lam_x, lam_g = self._guess(data, warm and W is None, W, M)
+        kw = dict(x0=V0, p=data["P"], lbx=data["lbx"] if lbx is None else lbx, ubx=data["ubx"] if ubx is None else ubx,
+                  lbg=data["lbg"], ubg=data["ubg"])
+        if warm:
+            kw.update(lam_x0=lam_x, lam_g0=lam_g)
+        sol = solver(**kw)
+        st = solver.stats()
+        V = np.asarray(sol["x"], dtype=float).ravel()
+        N = self.N
+        status = str(st.get("return_status", "unknown"))
+        ok = status in ACCEPTED and np.all(np.isfinite(V))
+        return {"ok": bool(ok), "status": status, "iter": int(st.get("iter_count", 0)), "V": V,
+                "f": float(sol["f"]), "W": V[:N].copy(), "M": V[N:2 * N].copy(),
+                "Z": V[2 * N:8 * N].reshape(N, 6), "S": V[8 * N:].copy(),
+                "lam_x": np.asarray(sol["lam_x"], dtype=float).ravel(),
+                "lam_g": np.asarray(sol["lam_g"], dtype=float).ravel()}
+
+    # --- on/off --------------------------------------------------------------------------------
+    def _binary(self, data: dict, res: dict):
+        """Round milling to {0, 1}; optionally re-solve rpm with that pattern fixed. Returns
+        (W, M, extra solve ms, loss = cost(binary) - cost(continuous), note)."""
+        N = self.N
+        Mb = np.where(res["M"] >= 0.5, 1.0, 0.0)
+        Mb = np.minimum(Mb, np.where(data["m_ub"] >= 0.5, 1.0, 0.0))
+        if np.allclose(Mb, res["M"], atol=1e-6):
+            return res["W"], Mb, 0.0, 0.0, ""
+        t0 = time.perf_counter()
+        if self.cfg.onoff.resolve:
+            lbx, ubx = data["lbx"].copy(), data["ubx"].copy()
+            lbx[N:2 * N] = Mb
+            ubx[N:2 * N] = Mb
+            r2 = self._solve(data, warm=False, W=res["W"], M=Mb, lbx=lbx, ubx=ubx)
+            ms = (time.perf_counter() - t0) * 1e3
+            if r2["ok"]:
+                return r2["W"], Mb, ms, r2["f"] - res["f"], ""
+            note = f"binary re-solve failed ({r2['status']}): rounded only"
+        else:
+            ms, note = 0.0, ""
+        V, _, _ = self._guess(data, False, res["W"], Mb)  # rounded plan, simulated; slack = violation
+        f = float(self._J(V, data["P"]))
+        return res["W"], Mb, ms, f - res["f"], note
+
+    # --- fallback and plans --------------------------------------------------------------------
+    def _fallback(self, x0, t, pp, up, data, res, ms) -> Plan:
+        N = self.N
+        why = f"solver: {res['status']} after {res['iter']} it"
+        status = Status("mpc", res["status"], False, res["iter"], ms, t_ceiling_c=self.cfg.temperature.ceiling_c)
+        prev = self._prev
+        s = None if prev is None else (t - prev.t_h) / self.interval_h
+        if prev is not None and -1e-6 <= s < len(prev.W) - 1e-6:
+            k = int(round(s))
+            W = np.concatenate([prev.W[k:], np.full(k, prev.W[-1])])
+            M = np.concatenate([prev.M[k:], np.zeros(k)])
+            W = np.clip(W, data["lbx"][:N], data["ubx"][:N])
+            M = np.clip(M, data["lbx"][N:2 * N], data["ubx"][N:2 * N])
+            # temperature guard on the interval applied now
+            M[0] = min(M[0], max_milling_for_ceiling(self.model, x0[4], W[0] * self.rpm_scale, self.interval_h,
+                                                     self.cfg.temperature.ceiling_c))
+            status.fallback, status.reason = "shifted", why + "; applying the shifted previous plan"
+            U = np.column_stack([W * self.rpm_scale, M])
+        else:
+            status.fallback, status.reason = "rest", why + "; no previous plan: rest"
+            U = np.zeros((N, 2))
+        X = self.model.simulate(x0, U, self.interval_h, pp)
+        return self._make_plan(x0, t, U, X, status)
+
+    def _fixed_plan(self, x0, t, pp, U, status) -> Plan:
+        X = self.model.simulate(x0, U, self.interval_h, pp)
+        return self._make_plan(x0, t, U, X, status)
+
+    def _states(self, x0, Z) -> np.ndarray:
+        return np.vstack([x0[None, :], Z * X_SCALE])
+
+    def _make_plan(self, x0, t, U, X, status: Status) -> Plan:
+        dt = self.interval_h
+        Tpk = peak_temperature(self.model, X[:-1, 4], X[:-1, 5], U[:, 0], U[:, 1], dt)
+        status.t_peak_max_c = float(np.max(Tpk))
+        on = self.cfg.onoff
+        u_apply = applied_input_guarded(self.model, x0, U[0], dt, self.cfg.temperature.ceiling_c, on.round_minutes,
+                                        on.mode == "binary")
+        return Plan(t, dt, U, X, np.asarray(Tpk, dtype=float), u_apply, status)
+
+
+def _shift(v: np.ndarray, s: int, block: int = 1) -> np.ndarray:
+    """Drop the first ``s`` blocks of ``block`` entries and repeat the last block to keep the length."""
+    v = np.asarray(v, dtype=float)
+    n = len(v) // block
+    if n <= 1:
+        return v.copy()
+    s = min(max(int(s), 0), n - 1)
+    if s == 0:
+        return v.copy()
+    return np.concatenate([v[s * block:], np.tile(v[-block:], s)])
