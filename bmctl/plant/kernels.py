@@ -18,6 +18,7 @@ its own), used by :mod:`bmctl.verify` to check the machinery (docs/verification.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable, Protocol
 
@@ -73,27 +74,71 @@ class Kernels(Protocol):
         """Outcome of impacts on the disjoint pairs (i, j); every draw from ``rng``."""
 
 
+def dissipation_coefficients(alpha: float, beta: float) -> tuple[float, float]:
+    """(a, b) with E[dissipated share | psi] = a sin^2(2 psi) + b cos^2(2 psi).  (7)-(9)
+
+    a = 1 - E[zeta^2], zeta ~ Beta(2, alpha + 1); b = 1 - E[xi^2], xi ~ Beta(beta + 1, 2).
+    """
+    ez2 = 2 * 3 / ((alpha + 3) * (alpha + 4))
+    ex2 = (beta + 1) * (beta + 2) / ((beta + 3) * (beta + 4))
+    return 1.0 - ez2, 1.0 - ex2
+
+
+def sample_impact_angles(rng: np.random.Generator, a: float, b: float, n: int) -> np.ndarray:
+    """Incidence angles psi of the impacts the loop runs: density ~ 1 / (a sin^2 2psi + b cos^2 2psi).
+
+    A collision draws one psi uniformly in (-pi/2, pi/2) (Sec. 3.2) and runs impacts until
+    Delta U is spent, about Delta U / (U_in c(psi)) of them with c(psi) = a sin^2 2psi +
+    b cos^2 2psi: an impact's psi is the collision's psi weighted by 1 / c(psi). Exact
+    transform of one uniform draw phi ~ U(-pi, pi): 2 psi = atan2(sqrt(b) sin phi, sqrt(a) cos phi).
+    """
+    phi = rng.uniform(-np.pi, np.pi, size=n)
+    return 0.5 * np.arctan2(math.sqrt(b) * np.sin(phi), math.sqrt(a) * np.cos(phi))
+
+
 class PaperKernels:
     """The paper's impact physics, eqns (5)-(20) with the energy partition of docs/model.md.
 
     Each impact processes its pair (i, j): energies (5), (6); friction and plastic heat
     (7)-(10); shape change (11)-(14) and rounding; fracture (20) of either particle first,
-    then bonding (15)-(18) of the pair if neither broke.
+    then bonding (15)-(18) of the pair if neither broke. The impacts' U_in and psi are those
+    of the loop "until Delta U is spent" (Sec. 3.2): a collision runs about
+    (Delta U / U_in) / c(psi) impacts, so U_in is drawn with weight Delta U / U_in (5) and psi
+    with weight 1 / c(psi) (:func:`sample_impact_angles`).
     """
 
     def rate(self, plant: "Plant", kin: Kinematics) -> float:
-        """Impacts per particle per second: f * trapped share * E[(U_in-U_out)/U_in] / E[dissipated share]."""
+        """Impacts per particle per second: f F_t E[(U_in - U_out)/U_in] E[1/c(psi)], E[1/c] = 1/sqrt(a b)."""
         if kin.frequency == 0:
             return 0.0
-        return kin.frequency * kin.trapped_fraction * MEAN_LOSS_RATIO / plant._dissipated_share
+        a, b = dissipation_coefficients(plant.card.stochastic.alpha, plant.card.stochastic.beta)
+        return kin.frequency * kin.trapped_fraction * MEAN_LOSS_RATIO / math.sqrt(a * b)
+
+    def sample_psi(self, plant: "Plant", rng: np.random.Generator, n: int) -> np.ndarray:
+        """The incidence angles of ``n`` impacts (:func:`sample_impact_angles` with the card's alpha, beta)."""
+        return sample_impact_angles(rng, *dissipation_coefficients(plant.card.stochastic.alpha,
+                                                                   plant.card.stochastic.beta), n)
 
     def collide(self, plant: "Plant", kin: Kinematics, si: np.ndarray, ri: np.ndarray,
                 sj: np.ndarray, rj: np.ndarray, rng: np.random.Generator) -> Outcome:
+        n = si.size
+        u_in, _u_out = ev.sample_impact_energies(rng, kin.energy_scale, n)  # (5)
+        psi = self.sample_psi(plant, rng, n)
+        return self.impact(plant, kin, si, ri, sj, rj, u_in, psi, rng)[0]
+
+    def impact(self, plant: "Plant", kin: Kinematics, si: np.ndarray, ri: np.ndarray, sj: np.ndarray,
+               rj: np.ndarray, u_in: np.ndarray, psi: np.ndarray,
+               rng: np.random.Generator) -> tuple[Outcome, np.ndarray]:
+        """Impacts with given incident energies U_in and angles psi on pairs (i, j), eqns (6)-(20).
+
+        ``plant`` supplies the state: ``card``, ``total_area``, ``temperature_C``, ``hardening``,
+        ``effective_yield_stress()`` and the factors ``_gamma``, ``_delta``. Returns the
+        outcome and the heat each pair dissipated, Delta U_d,i + Delta U_d,j (10), which the
+        one-collision-at-a-time reference (:mod:`bmctl.plant.reference`) spends from Delta U.
+        """
         card = plant.card
         st, mat, part = card.stochastic, card.material, card.partition
         n = si.size
-        u_in, _u_out = ev.sample_impact_energies(rng, kin.energy_scale, n)  # (5)
-        psi = rng.uniform(-np.pi / 2, np.pi / 2, size=n)
         trapped_area = kin.trapped_fraction * plant.total_area  # (6): u_in = U_in / A_trapped
         e_i = u_in * np.minimum(si**2 / trapped_area, 1.0)  # a particle gets at most the whole impact
         e_j = u_in * np.minimum(sj**2 / trapped_area, 1.0)
@@ -129,7 +174,7 @@ class PaperKernels:
         pu = ev.threshold_probability((dUd[:n] + dUd[n:]) / d, u_bond, part.threshold_sharpness)
         bond = (rng.random(n) < ev.bond_probability(si, ri, sj, rj, plant._gamma) * pu) & ~(frac[:n] | frac[n:])
         sb, rb = ev.bonded(si[bond], ri[bond], sj[bond], rj[bond], d[bond])
-        return Outcome(r2, frac, s1, r1, s2b, r2b, bond, sb, rb)
+        return Outcome(r2, frac, s1, r1, s2b, r2b, bond, sb, rb), dUd[:n] + dUd[n:]
 
 
 # --- verification kernels (area coordinate x = s^2) ------------------------------------------
@@ -193,7 +238,8 @@ class PopulationKernels:
             r1, r2b = r2[frac], r2[frac]
         bond = np.zeros(n, dtype=bool)
         if self.bond is not None:
-            p = _checked(self.bond(si**2, sj**2, plant.represented_particles), "bond")
+            n_rep = plant.total_area * plant.M / float(np.square(plant.s).sum())  # w M, without BLAS threads
+            p = _checked(self.bond(si**2, sj**2, n_rep), "bond")
             bond = (rng.random(n) < p) & ~(frac[:n] | frac[n:])
         sb = np.sqrt(si[bond] ** 2 + sj[bond] ** 2)
         rb = np.zeros(sb.size)

@@ -132,7 +132,11 @@ class Plant:
         return self.weight * self.M
 
     def hit_rate(self, kin: Kinematics) -> float:
-        """Impacts per particle per second: f * trapped share * E[(U_in-U_out)/U_in] / E[dissipated share]."""
+        """Impacts per particle per second, the kernels' rate.
+
+        For the paper's kernels f * trapped share * E[(U_in-U_out)/U_in] * E[1/c(psi)], with
+        c(psi) the mean dissipated share at incidence psi (:class:`bmctl.plant.kernels.PaperKernels`).
+        """
         return self.kernels.rate(self, kin)
 
     def effective_yield_stress(self) -> float:
