@@ -29,6 +29,8 @@ SPEC: dict[str, tuple[float | None, float, float, str]] = {
     "round_log_scale": (0.0, -4.0, 4.0, "ln multiplier on the equiaxing (rounding) rate"),
     "round_size_bias": (0.0, -2.0, 6.0, "size bias of the rounding: lam taken at s exp(k sigma_ln^2)"),
     "round_var_log_scale": (0.0, -3.0, 3.0, "ln multiplier on the rounding of E[r^2] relative to E[r]"),
+    "round_rpm_slope": (0.0, -6.0, 6.0, "empirical: ln rounding rate changes by this per unit rpm/rpm_max"),
+    "round_var_rpm_slope": (0.0, -6.0, 6.0, "empirical: ln rounding of E[r^2] changes by this per unit rpm/rpm_max"),
     "bond_ds_gain": (1.0, 0.2, 3.0, "multiplier on the change of sum(s) per bond"),
     "frac_ds_gain": (1.0, 0.2, 3.0, "multiplier on the change of sum(s) per fracture"),
     "bond_r_gain": (1.0, 0.2, 3.0, "multiplier on the aspect ratio of a bonded particle (eqn 18)"),

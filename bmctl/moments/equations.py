@@ -247,7 +247,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     ab, ob, ac, oc = q["bond_slope"], q["bond_offset"], q["frac_slope"], q["frac_offset"]
     # rounding per impact: lam(s) = eta 1.5 E[dU_p] / (pi/4 s^3 sigma_eff) = lam1 / s (s in um)
     ln_lam1 = (math.log(c.equiaxing * 1.5 * c.plastic_share / (math.pi / 4 * UM**3 * c.yield_Pa) + 1e-300)
-               + q["round_log_scale"] + ln_e - lratio)
+               + q["round_log_scale"] + q["round_rpm_slope"] * (ws - 0.5) + ln_e - lratio)
     frag = fragment_tables(B, one_r, q["frac_r_gain"])
     kap = q["round_size_bias"]
 
@@ -302,9 +302,9 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     Er2 = rm * rm + v_r
     gv = q["r_var_gain"]
     zn = c.round_nodes
-    round1 = sum(GH_W[k] * (1 - B.exp(-lam[k] * z)) for k in range(N_S) for z in zn) / len(zn)
-    round2 = sum(GH_W[k] * (1 - B.exp(-2 * lam[k] * z)) for k in range(N_S) for z in zn) / len(zn)
-    round2 = round2 * B.exp(q["round_var_log_scale"])
+    round1 = sum(GH_W[k] * wz * (1 - B.exp(-lam[k] * z)) for k in range(N_S) for wz, z in zn)
+    round2 = sum(GH_W[k] * wz * (1 - B.exp(-2 * lam[k] * z)) for k in range(N_S) for wz, z in zn)
+    round2 = round2 * B.exp(q["round_var_log_scale"] + q["round_var_rpm_slope"] * (ws - 0.5))
     dsf_sum = sum(GH_W[k] * dsf[k] for k in range(N_S))
     dEs = rate * (0.5 * q["bond_ds_gain"] * dsb + q["frac_ds_gain"] * dsf_sum) - m * g_N
     dEs2 = -Es2 * g_N

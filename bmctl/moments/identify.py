@@ -225,7 +225,8 @@ class _Sym:
 
 #: coefficients fitted by default (the rest keep their defaults)
 FREE = ("bond_log_scale", "bond_slope", "bond_offset", "frac_log_scale", "frac_slope", "frac_offset",
-        "round_log_scale", "round_size_bias", "round_var_log_scale", "bond_ds_gain", "frac_ds_gain", "bond_r_gain", "frac_r_gain", "r_var_gain")
+        "round_log_scale", "round_size_bias", "round_var_log_scale", "round_rpm_slope",
+        "round_var_rpm_slope", "bond_ds_gain", "frac_ds_gain", "bond_r_gain", "frac_r_gain", "r_var_gain")
 
 
 @dataclass
@@ -239,7 +240,7 @@ class FitResult:
 
 
 def fit(model: MomentModel, experiments: Sequence[Experiment], free: Sequence[str] = FREE,
-        weights: Sequence[float] = (1.0, 1.0, 1.0, 1.0), max_nfev: int = 40,
+        weights: Sequence[float] = (1.0, 1.0, 1.0, 1.0), max_nfev: int = 50,
         log: Callable[[str], None] | None = None) -> FitResult:
     """Least-squares fit of ``free`` coefficients on range-normalised simulation errors."""
     from scipy.optimize import least_squares

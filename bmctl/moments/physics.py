@@ -26,7 +26,9 @@ UM = 1e-6
 EXP_POWER = 3.0
 EXP_RATE = 1.8
 EXP_TRAPPED = 0.8
-N_ROUND = 4  # equal-probability nodes of the random plastic energy of one impact (rounding law)
+#: probability bins of the random plastic energy of one impact (rounding law), finer in the lower
+#: tail that dominates E[exp(-lam Z)] when lam is large
+ROUND_BINS = (0.0, 0.02, 0.06, 0.15, 0.3, 0.5, 0.75, 1.0)
 
 
 @dataclass(frozen=True)
@@ -54,9 +56,9 @@ class Constants:
         E[cos^2(2 psi)(1 - xi^2)] / E[dissipated share]: the plastic part of the dissipated energy.
     equiaxing : float
         eta_eq of the rounding law (after eqn 13).
-    round_nodes : tuple of float
-        Conditional means of the plastic energy of one impact relative to its mean, over
-        N_ROUND equal-probability bins: E[1 - exp(-lam Z)] = mean_k (1 - exp(-lam z_k)).
+    round_nodes : tuple of (weight, z)
+        Probabilities and conditional means of the plastic energy Z of one impact relative
+        to its mean, over ROUND_BINS: E[1 - exp(-lam Z)] ~ sum_k w_k (1 - exp(-lam z_k)).
     ambient_C, heat_capacity_J_per_K, cooling_time_h : float
         Vial thermal model.
     softening_max, softening_scale_K, hardening_max : float
@@ -96,7 +98,7 @@ class Constants:
     s0_mean_um: float
     s0_std_um: float
     r0_mean: float
-    round_nodes: tuple = (1.0,)
+    round_nodes: tuple = ((1.0, 1.0),)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -125,9 +127,9 @@ def impact_factors(alpha: float, beta: float, n: int = 400_000, seed: int = 1234
     u_mean = float(u_in.mean())
     plastic_z = u_in / u_mean * np.cos(2 * psi) ** 2 * (1 - ev.sample_xi(rng, beta, n) ** 2)
     plastic_z /= plastic_z.mean()
-    qs = np.quantile(plastic_z, np.linspace(0, 1, N_ROUND + 1))
-    idx = np.clip(np.searchsorted(qs, plastic_z, side="right") - 1, 0, N_ROUND - 1)
-    round_nodes = tuple(float(plastic_z[idx == k].mean()) for k in range(N_ROUND))
+    qs = np.quantile(plastic_z, ROUND_BINS)
+    idx = np.clip(np.searchsorted(qs, plastic_z, side="right") - 1, 0, len(ROUND_BINS) - 2)
+    round_nodes = tuple((float(np.mean(idx == k)), float(plastic_z[idx == k].mean())) for k in range(len(ROUND_BINS) - 1))
     zb = np.log(np.sqrt(u_in / u_mean) * (share[0] + share[1]) / (2 * share_mean))
     zc = np.log(u_in / u_mean * share[0] / share_mean)
     return {"u_mean": u_mean, "share": share_mean, "plastic": plastic, "zb": zb, "zc": zc,
