@@ -1,0 +1,691 @@
+"""Verification of the plant's population Monte Carlo engine (issue 6, docs/verification.md).
+
+Three groups of checks, each a small pure function of a seed and a sample size:
+
+* analytic cases (:data:`CASES`): the plant's event machinery (pair batches, constant-number
+  rebalancing, weights) runs simple kernels (:mod:`bmctl.plant.kernels`) with known solutions
+  in the area coordinate x = s^2: constant-kernel Smoluchowski agglomeration, Ziff-McGrady
+  linear breakage (monodisperse and exponential start) and bonding by eqn (15) against the
+  discrete Smoluchowski equation solved to convergence;
+* the batched plant against the one-collision-at-a-time reference (:mod:`bmctl.plant.reference`)
+  on the model cards (:func:`compare_reference`);
+* bookkeeping in long runs (:func:`bookkeeping`): area conservation in every event, the
+  represented number against the event counts, s > 0 and 0 <= r < 1.
+
+Errors are relative errors of the represented number N and of the first two moments of x
+(the first, E[x] = X / N, is N's error with the sign flipped), and the Kolmogorov distance
+between the simulated and the exact distribution of x. The expected Monte Carlo error is
+that of M independent draws from the exact distribution. A bias is tested across seeds
+and sample sizes (a z-score of the seed means), the M^-1/2 trend by the slope of
+log(rms error) over log M.
+
+References
+----------
+Smith, M., Matsoukas, T. (1998). Constant-number Monte Carlo simulation of population
+balances. Chem. Eng. Sci. 53, 1777-1786.
+
+Ziff, R. M., McGrady, E. D. (1985). The kinetics of cluster fragmentation and
+depolymerisation. J. Phys. A 18, 3027-3037.  (linear breakage, uniform daughters)
+
+Aldous, D. J. (1999). Deterministic and stochastic models for coalescence (aggregation
+and coagulation). Bernoulli 5, 3-48.  (constant kernel, exponential self-similar solution)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+from scipy import integrate, stats
+
+from .config import ModelCard
+from .plant import events as ev
+from .plant.kernels import (PopulationKernels, constant_agglomeration, dissipation_coefficients,
+                            linear_breakage, paper_bonding)
+from .plant.plant import Plant, default_card
+
+X0 = (40e-6) ** 2  # m^2: area coordinate of a 40 um particle, the unit of x
+N0 = 1e7  # represented number of particles at t = 0 (any value: the kernels scale with it)
+TIME_SCALE_S = 100.0  # seconds per unit of each case's dimensionless time
+GAMMA_15 = 1.82e-4 * 1e12  # 1/m^2: eqn (15) factor, the paper's printed value (Sec. 4.1), um^-2 -> m^-2
+Z_BIAS = 4.0  # |z| above this flags a bias (about 0.2 % false alarms over a case's ~30 tests)
+SLOPE_RANGE = (-0.8, -0.2)  # accepted slope of log(rms error) against log M (ideal -0.5)
+
+
+# --- exact solutions ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Exact:
+    """The exact population at one time, per particle, in the area coordinate x (m^2).
+
+    Attributes
+    ----------
+    n_ratio : float
+        N(t) / N(0).
+    m1, m2, m4 : float
+        E[x], E[x^2], E[x^4] (E[x^4] gives the sampling error of E[x^2]).
+    cdf : callable
+        F(x) = P(X <= x); ``cdf(x, left=True)`` is P(X < x).
+    ppf : callable
+        Quantile function (for i.i.d. reference samples).
+    support : ndarray or None
+        The support of a lattice distribution k x0, k = 1..K (None: continuous).
+    atoms : tuple of float
+        Points carrying a share of the number (a continuous distribution's atoms).
+    """
+
+    n_ratio: float
+    m1: float
+    m2: float
+    m4: float
+    cdf: Callable[..., np.ndarray]
+    ppf: Callable[[np.ndarray], np.ndarray]
+    support: np.ndarray | None = None
+    atoms: tuple[float, ...] = ()
+
+    def snap(self, x: np.ndarray) -> np.ndarray:
+        """Sample values moved onto the lattice or atoms they stand for (s^2 rounds in the last digit)."""
+        x = np.asarray(x, dtype=float)
+        if self.support is not None:
+            return np.rint(x / self.support[0]) * self.support[0]
+        for a in self.atoms:
+            x = np.where(np.abs(x / a - 1.0) < 1e-9, a, x)
+        return x
+
+
+def exponential_state(n_ratio: float, mean: float) -> Exact:
+    """An exponential distribution of x with the given mean (self-similar solutions)."""
+    def cdf(x, left=False):
+        return -np.expm1(-np.maximum(np.asarray(x, dtype=float), 0.0) / mean)
+
+    return Exact(n_ratio, mean, 2 * mean**2, 24 * mean**4, cdf, lambda q: -mean * np.log1p(-np.asarray(q)))
+
+
+def smoluchowski_constant(tau: float, x_mean0: float = X0) -> Exact:
+    """Constant kernel K from an exponential start, tau = K N0 t.
+
+    N(t) = N0 / (1 + tau/2) and n(x, t) = N^2 / X exp(-x N / X) with X the total area
+    (Smoluchowski 1917; Aldous 1999, Sec. 2.2).
+    """
+    n = 1.0 / (1.0 + tau / 2.0)
+    return exponential_state(n, x_mean0 / n)
+
+
+def ziff_mcgrady_exponential(tau: float, x_mean0: float = X0) -> Exact:
+    """Binary breakage with S(x) = k x and uniform daughters from an exponential start, tau = k E[x](0) t.
+
+    dN/dt = k X exactly, and the exponential shape is kept: n(x, t) = N^2 / X exp(-x N / X)
+    with N = N0 (1 + tau) (Ziff & McGrady 1985; substitution into the breakage equation).
+    """
+    n = 1.0 + tau
+    return exponential_state(n, x_mean0 / n)
+
+
+def ziff_mcgrady_monodisperse(tau: float, x0: float = X0) -> Exact:
+    """Binary breakage with S(x) = k x and uniform daughters from n(x, 0) = N0 delta(x - x0), tau = k x0 t.
+
+    With u = x / x0 (Ziff & McGrady 1985, eqn 19 with a linear rate):
+    n(u, t) / N0 = exp(-tau) delta(u - 1) + exp(-tau u) (2 tau + tau^2 (1 - u)), 0 < u < 1,
+    so N / N0 = 1 + tau and the unbroken particles are a share exp(-tau) / (1 + tau).
+    """
+    n = 1.0 + tau
+    atom = math.exp(-tau)
+
+    def g(u):
+        return np.exp(-tau * u) * (2 * tau + tau**2 * (1 - u))
+
+    def moment(m):
+        return x0**m * (integrate.quad(lambda u: u**m * g(u), 0.0, 1.0, epsabs=0, epsrel=1e-12)[0] + atom) / n
+
+    def cdf(x, left=False):
+        u = np.asarray(x, dtype=float) / x0
+        uc = np.clip(u, 0.0, 1.0)
+        cont = ((1 + tau) - np.exp(-tau * uc) * (1 + tau - tau * uc)) / n  # integral of g from 0 to u, over N
+        past_atom = (u > 1.0) if left else (u >= 1.0)
+        return np.where(past_atom, 1.0, cont)
+
+    grid = np.linspace(0.0, 1.0, 20001)
+    cgrid = cdf(grid * x0, left=True)
+
+    def ppf(q):
+        q = np.asarray(q, dtype=float)
+        return np.where(q >= cgrid[-1], x0, np.interp(q, cgrid, grid) * x0)
+
+    return Exact(n, moment(1), moment(2), moment(4), cdf, ppf, atoms=(x0,))
+
+
+def discrete_state(c: np.ndarray, x0: float = X0) -> Exact:
+    """An Exact from number fractions c_k of k-mers (k = 1..K) with N / N0 = sum(c)."""
+    n = float(c.sum())
+    f = c / n
+    k = np.arange(1, c.size + 1, dtype=float)
+    cum = np.cumsum(f)
+
+    def cdf(x, left=False):
+        kk = np.asarray(x, dtype=float) / x0
+        idx = (np.ceil(kk - 1e-6) - 1) if left else np.floor(kk + 1e-6)  # number of k-values <= (or <) x
+        idx = np.clip(idx.astype(int), 0, c.size)
+        return np.concatenate([[0.0], cum])[idx]
+
+    def ppf(q):
+        return x0 * (np.searchsorted(cum, np.asarray(q) * cum[-1], side="left") + 1.0)
+
+    return Exact(n, x0 * float(f @ k), x0**2 * float(f @ k**2), x0**4 * float(f @ k**4), cdf, ppf, support=k * x0)
+
+
+def smoluchowski_discrete(p: np.ndarray, taus: Sequence[float], rtol: float = 1e-10) -> tuple[np.ndarray, float]:
+    """Number fractions c_k(tau) of k-mers (k = 1..K) under bonding probability p[k-1, l-1] per processed pair.
+
+    Pairs are processed at rate rho per particle (rho N / 2 pairs per unit time, uniform
+    over pairs), tau = rho t, so the kernel is K_kl = rho p_kl / N and
+    dc_k/dtau = (1/nu) [1/2 sum_{i+j=k} p_ij c_i c_j - c_k sum_j p_kj c_j], nu = sum_k c_k,
+    from c_1(0) = 1. Sizes above K are dropped (the returned truncation loss is the lost mass).
+
+    Returns
+    -------
+    c : ndarray, shape (len(taus), K)
+    lost : float
+        Largest share of the mass beyond K at the requested times.
+    """
+    K = p.shape[0]
+    # p = 1 - q with q non-zero only in a small corner (clipped kernels): gain and loss by convolution
+    corner = int(np.max(np.nonzero((1.0 - p).any(axis=1))[0]) + 1) if (p < 1).any() else 0
+    q = 1.0 - p[:corner, :corner]
+    qk = np.add.outer(np.arange(corner), np.arange(corner)) + 1  # 0-based indices a, b: size a+b+2, index a+b+1
+
+    def rhs(_t, c):
+        nu = c.sum()
+        gain = np.zeros(K)
+        conv = np.convolve(c, c)[: K - 1]  # index m: sizes summing to m + 2
+        gain[1:] = 0.5 * conv
+        if corner:
+            cc = c[:corner]
+            qc = q * np.outer(cc, cc)
+            gain -= 0.5 * np.bincount(qk.ravel(), qc.ravel(), minlength=K + corner)[:K]
+        loss = c * nu
+        if corner:
+            loss[:corner] -= c[:corner] * (q @ c[:corner])
+        return (gain - loss) / nu
+
+    c0 = np.zeros(K)
+    c0[0] = 1.0
+    sol = integrate.solve_ivp(rhs, (0.0, max(taus)), c0, t_eval=list(taus), method="RK45", rtol=rtol, atol=1e-14)
+    c = sol.y.T
+    k = np.arange(1, K + 1)
+    lost = float(np.max(1.0 - c @ k))
+    return c, lost
+
+
+def kernel15_matrix(K: int, x0: float = X0, gamma: float = GAMMA_15) -> np.ndarray:
+    """p_b of eqn (15) for round k- and l-mers (s^2 = k x0, r = 0): min(gamma s_k s_l, 1)."""
+    s = np.sqrt(np.arange(1, K + 1) * x0)
+    return ev.bond_probability(s[:, None], 0.0, s[None, :], 0.0, gamma)  # (15)
+
+
+# --- cases ---------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Case:
+    """An analytic verification case: initial sample, kernels and the exact solution.
+
+    Times are in units of ``TIME_SCALE_S``; ``exact(tau)`` is the solution at those times.
+    """
+
+    name: str
+    title: str
+    times: tuple[float, ...]
+    initial: Callable[[np.random.Generator, int], np.ndarray]
+    kernels: Callable[[np.ndarray], PopulationKernels]
+    exact: Callable[[float], Exact]
+    x_mean0: float = X0
+
+
+def _exponential_start(rng: np.random.Generator, M: int) -> np.ndarray:
+    return rng.exponential(X0, size=M)
+
+
+def _monodisperse_start(rng: np.random.Generator, M: int) -> np.ndarray:
+    return np.full(M, X0)
+
+
+def _kernel15_exact() -> Callable[[float], Exact]:
+    taus = (2.0, 4.0, 7.0)
+    cache: dict[float, Exact] = {}
+
+    def exact(tau: float) -> Exact:
+        if not cache:
+            c, lost = smoluchowski_discrete(kernel15_matrix(600), taus)
+            if lost > 1e-9:
+                raise RuntimeError(f"discrete Smoluchowski reference truncated: {lost:.2e} of the mass lost")
+            cache.update({t: discrete_state(ci) for t, ci in zip(taus, c)})
+        return cache[tau]
+
+    return exact
+
+
+def agglomeration_constant(headroom: float = 4.0) -> Case:
+    """Constant kernel, exponential start; per processed pair p = K N / rho with rho = headroom K N0.
+
+    The bond probability follows the represented number N, which the batch reads at its
+    start: a larger ``headroom`` (smaller batches in time) makes that lag smaller.
+    """
+    K = 1.0 / (N0 * TIME_SCALE_S)
+    return Case(
+        "agglomeration-constant", "Smoluchowski, constant kernel, exponential start",
+        (1.0, 3.0, 9.0), _exponential_start,
+        lambda x: constant_agglomeration(K, N0, headroom),
+        smoluchowski_constant,
+    )
+
+
+def breakage_monodisperse() -> Case:
+    """Linear selection rate S(x) = k x, uniform binary daughters, all particles at x0 (p = 1 at x0)."""
+    k = 1.0 / (X0 * TIME_SCALE_S)
+    return Case(
+        "breakage-linear-mono", "Ziff-McGrady, S = k x, uniform daughters, monodisperse start",
+        (0.5, 1.5, 4.0), _monodisperse_start,
+        lambda x: linear_breakage(k, X0),
+        ziff_mcgrady_monodisperse,
+    )
+
+
+def breakage_exponential() -> Case:
+    """Linear selection rate, uniform daughters, exponential start (rho = k max x)."""
+    k = 1.0 / (X0 * TIME_SCALE_S)
+    return Case(
+        "breakage-linear-exp", "Ziff-McGrady, S = k x, uniform daughters, exponential start",
+        (0.5, 2.0, 8.0), _exponential_start,
+        lambda x: linear_breakage(k, float(x.max())),
+        ziff_mcgrady_exponential,
+    )
+
+
+def agglomeration_kernel15() -> Case:
+    """Bonding by eqn (15) alone (r = 0, p_u = 1), monodisperse start, against the discrete Smoluchowski equation."""
+    return Case(
+        "agglomeration-kernel15", "eqn (15) bonding, monodisperse start, vs discrete Smoluchowski ODE",
+        (2.0, 4.0, 7.0), _monodisperse_start,
+        lambda x: paper_bonding(GAMMA_15, 1.0 / TIME_SCALE_S),
+        _kernel15_exact(),
+    )
+
+
+CASES: dict[str, Callable[[], Case]] = {
+    "agglomeration-constant": agglomeration_constant,
+    "breakage-linear-mono": breakage_monodisperse,
+    "breakage-linear-exp": breakage_exponential,
+    "agglomeration-kernel15": agglomeration_kernel15,
+}
+
+
+# --- running a case ------------------------------------------------------------------------------
+
+def population_plant(card: ModelCard, rng: np.random.Generator, x: np.ndarray, X: float,
+                     kernels: PopulationKernels) -> Plant:
+    """A plant whose M particles have areas ``x`` (r = 0) and represent total area ``X``, running ``kernels``."""
+    plant = Plant(card, rng, particles=x.size, kernels=kernels)
+    plant.s = np.sqrt(x)
+    plant.r = np.zeros(x.size)
+    plant.total_area = float(X)
+    return plant
+
+
+def ks_distance(x: np.ndarray, ex: Exact) -> float:
+    """Kolmogorov distance sup |F_M(x) - F(x)| of a sample ``x`` (already snapped) from the exact F.
+
+    Continuous F (atoms allowed): right and left limits at the sample values; lattice F:
+    every lattice point.
+    """
+    xs = np.sort(x)
+    M = xs.size
+    if ex.support is not None:
+        grid = ex.support
+        return float(np.max(np.abs(np.searchsorted(xs, grid, side="right") / M - ex.cdf(grid))))
+    hi = np.searchsorted(xs, xs, side="right") / M  # F_M(x)
+    lo = np.searchsorted(xs, xs, side="left") / M  # F_M(x-)
+    return float(max(np.max(np.abs(hi - ex.cdf(xs))), np.max(np.abs(lo - ex.cdf(xs, left=True)))))
+
+
+QUANTILES = np.linspace(0.1, 0.9, 9)
+
+
+def cdf_grid(ex: Exact) -> np.ndarray:
+    """Points where the exact CDF is compared: its deciles (support points for lattices)."""
+    return ex.ppf(QUANTILES)
+
+
+@dataclass
+class Run:
+    """Errors of one run (one seed, one M) at each of a case's times."""
+
+    err_n: np.ndarray
+    err_m2: np.ndarray
+    ks: np.ndarray
+    cdf_err: np.ndarray  # (times, quantile points): F_M - F
+    final_x: np.ndarray
+
+
+def run_case(case: Case, M: int, seed: int, card: ModelCard | None = None) -> Run:
+    """Run one case with M particles from one seed; errors at each of its times."""
+    card = card or default_card()
+    rng = np.random.default_rng(seed)
+    x = case.initial(rng, M)
+    X = N0 * case.x_mean0
+    plant = population_plant(card, rng, x, X, case.kernels(x))
+    rpm = card.process.rpm if card.process.rpm > 0 else card.mill.rpm_max / 2
+    err_n, err_m2, ks, cdf_err = [], [], [], []
+    for tau in case.times:
+        plant.advance(rpm, (tau * TIME_SCALE_S - plant.t_s) / 3600.0)
+        ex = case.exact(tau)
+        xs = ex.snap(plant.s**2)
+        err_n.append(plant.represented_particles / N0 / ex.n_ratio - 1.0)
+        err_m2.append(float(np.mean(xs**2)) / ex.m2 - 1.0)
+        ks.append(ks_distance(xs, ex))
+        g = cdf_grid(ex)
+        cdf_err.append(np.searchsorted(np.sort(xs), g, side="right") / M - ex.cdf(g))
+    return Run(np.array(err_n), np.array(err_m2), np.array(ks), np.array(cdf_err), xs)
+
+
+def iid_errors(ex: Exact, M: int, rng: np.random.Generator, reps: int = 64) -> dict[str, float]:
+    """Expected Monte Carlo errors of M independent draws from the exact distribution.
+
+    ``n`` and ``m2``: standard deviations of the relative errors of N = X / mean(x) and of
+    mean(x^2) (delta method); ``ks``: mean Kolmogorov distance (simulated, ``reps`` samples).
+    """
+    cv = math.sqrt(max(ex.m2 - ex.m1**2, 0.0)) / ex.m1
+    cv2 = math.sqrt(max(ex.m4 - ex.m2**2, 0.0)) / ex.m2
+    ks = np.mean([ks_distance(ex.snap(ex.ppf(rng.random(M))), ex) for _ in range(reps)])
+    return {"n": cv / math.sqrt(M), "m2": cv2 / math.sqrt(M), "ks": float(ks)}
+
+
+@dataclass
+class CaseResult:
+    """All runs of a case over sample sizes and seeds, with the tests' verdicts."""
+
+    case: Case
+    sizes: tuple[int, ...]
+    seeds: tuple[int, ...]
+    runs: dict[int, list[Run]]
+    expected: dict[int, dict[str, float]]  # per M: rms over times of the i.i.d. errors
+    rms: dict[int, dict[str, float]] = field(default_factory=dict)
+    bias_z: dict[str, float] = field(default_factory=dict)
+    slopes: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def max_z(self) -> float:
+        return max(abs(z) for z in self.bias_z.values())
+
+    @property
+    def passed(self) -> bool:
+        lo, hi = SLOPE_RANGE
+        return self.max_z < Z_BIAS and all(lo <= s <= hi for s in self.slopes.values())
+
+
+def _pooled_z(values: dict[int, np.ndarray]) -> float:
+    """z-score of the mean error pooled over sample sizes, weights ~ M (inverse variance of a mean ~ 1/M)."""
+    w = {M: float(M) for M in values}
+    tot = sum(w.values())
+    mean = sum(w[M] * v.mean() for M, v in values.items()) / tot
+    var = sum(w[M] ** 2 * v.var(ddof=1) / v.size for M, v in values.items()) / tot**2
+    return float(mean / math.sqrt(var)) if var > 0 else (0.0 if mean == 0 else math.inf)
+
+
+def evaluate(case: Case, sizes: Sequence[int], seeds: Sequence[int], card: ModelCard | None = None,
+             progress: Callable[[str], None] | None = None) -> CaseResult:
+    """Run ``case`` for every M in ``sizes`` and seed in ``seeds``; bias z-scores and M^-1/2 slopes.
+
+    Bias: for N, E[x^2] and the CDF at the exact deciles, at each time, the seed means pooled
+    over M must lie within ``Z_BIAS`` standard errors of 0. Trend: the slope of
+    log(rms error over seeds and times) against log M, for N, E[x^2] and the Kolmogorov
+    distance, must lie in ``SLOPE_RANGE``.
+    """
+    card = card or default_card()
+    runs = {}
+    expected = {}
+    rng = np.random.default_rng(12345)
+    for M in sizes:
+        if progress:
+            progress(f"{case.name}: M={M}")
+        runs[M] = [run_case(case, M, seed, card) for seed in seeds]
+        errs = [iid_errors(case.exact(t), M, rng) for t in case.times]
+        expected[M] = {k: float(np.sqrt(np.mean([e[k] ** 2 for e in errs]))) for k in ("n", "m2", "ks")}
+    res = CaseResult(case, tuple(sizes), tuple(seeds), runs, expected)
+    for M, rs in runs.items():
+        res.rms[M] = {
+            "n": float(np.sqrt(np.mean([r.err_n**2 for r in rs]))),
+            "m2": float(np.sqrt(np.mean([r.err_m2**2 for r in rs]))),
+            "ks": float(np.sqrt(np.mean([r.ks**2 for r in rs]))),
+        }
+    for ti, tau in enumerate(case.times):
+        res.bias_z[f"n@{tau:g}"] = _pooled_z({M: np.array([r.err_n[ti] for r in rs]) for M, rs in runs.items()})
+        res.bias_z[f"m2@{tau:g}"] = _pooled_z({M: np.array([r.err_m2[ti] for r in rs]) for M, rs in runs.items()})
+        for qi, q in enumerate(QUANTILES):
+            res.bias_z[f"F{q:.1f}@{tau:g}"] = _pooled_z(
+                {M: np.array([r.cdf_err[ti, qi] for r in rs]) for M, rs in runs.items()})
+    if len(sizes) >= 2:
+        lm = np.log(np.array(sizes, dtype=float))
+        for key in ("n", "m2", "ks"):
+            res.slopes[key] = float(np.polyfit(lm, np.log([res.rms[M][key] for M in sizes]), 1)[0])
+    return res
+
+
+# --- the loop "until Delta U is spent" against the plant's impact sampler ----------------------
+
+@dataclass
+class Energetics:
+    """Impacts of the literal loop (Sec. 3.2-3.3) against the plant's sampler, on a frozen sample.
+
+    ``rate_*``: processings per particle per second; ``plastic_*``: mean plastic share
+    cos^2(2 psi) of an impact; ``u_in_*``: mean U_in of an impact (J); each with its standard
+    error over the loop's collisions (the plant's values are exact or from a large sample).
+    ``rate_wald`` counts each collision's impacts without its overshoot, K - (S_K - Delta U) / mu
+    (S_K: heat of its K impacts, mu: mean heat of an impact at its U_in and psi); by Wald's
+    identity its mean is E[Delta U / mu], the plant's expected count. ``overshoot`` is the
+    mean of (S_K - Delta U) / mu, the impacts a collision runs past its budget.
+    """
+
+    rate_loop: float
+    rate_loop_se: float
+    rate_wald: float
+    rate_wald_se: float
+    overshoot: float
+    rate_plant: float
+    plastic_loop: float
+    plastic_loop_se: float
+    plastic_plant: float
+    u_in_loop: float
+    u_in_loop_se: float
+    u_in_plant: float
+    steps_per_collision: float
+
+    def z(self) -> dict[str, float]:
+        """z-scores of loop minus plant."""
+        return {
+            "rate": (self.rate_wald - self.rate_plant) / self.rate_wald_se,
+            "plastic": (self.plastic_loop - self.plastic_plant) / self.plastic_loop_se,
+            "u_in": (self.u_in_loop - self.u_in_plant) / self.u_in_loop_se,
+        }
+
+
+def _ratio_se(num: np.ndarray, den: np.ndarray) -> tuple[float, float]:
+    """Ratio of sums and its delta-method standard error over independent units."""
+    r = num.sum() / den.sum()
+    n = num.size
+    resid = num - r * den
+    return float(r), float(math.sqrt(n / (n - 1) * np.sum(resid**2)) / den.sum())
+
+
+def energetics(card: ModelCard, rpm: float, collisions: int, seed: int, particles: int = 4000) -> Energetics:
+    """Count the impacts of ``collisions`` collisions of the literal loop on a frozen initial sample.
+
+    Each collision draws U_in > U_out from (5) (unweighted) and one psi; impacts on pairs
+    picked uniformly, with zeta and xi per particle, dissipate e (sin^2 2psi (1 - zeta^2)
+    + cos^2 2psi (1 - xi^2)) each (7), (8), e = U_in min(s^2 / (F_t X), 1) (6), until
+    Delta U = U_in - U_out is spent (10). The population does not change (events are left
+    out), so what is compared is the loop's stopping rule against the plant's hit rate
+    and its weighting of U_in and psi.
+    """
+    from .plant.kinematics import kinematics
+
+    rng = np.random.default_rng(seed)
+    plant = Plant(card, rng, particles)
+    kin = kinematics(card, rpm)
+    st = card.stochastic
+    x = plant.s**2
+    N = plant.represented_particles
+    e_share = np.minimum(x / (kin.trapped_fraction * plant.total_area), 1.0)
+    ca, cb = dissipation_coefficients(st.alpha, st.beta)
+    steps = np.empty(collisions)
+    over = np.empty(collisions)
+    plastic = np.empty(collisions)
+    u_in_all = np.empty(collisions)
+    for c in range(collisions):
+        u_in, u_out = ev.sample_impact_energies(rng, kin.energy_scale, 1, weighted=False)  # (5)
+        psi = rng.uniform(-np.pi / 2, np.pi / 2)
+        budget = float(u_in[0] - u_out[0])
+        k, spent = 0, 0.0
+        while spent < budget:
+            block = 64 + 2 * k
+            e = u_in[0] * e_share[rng.integers(0, x.size, size=(block, 2))]
+            zeta = ev.sample_zeta(rng, st.alpha, (block, 2))  # (9)
+            xi = ev.sample_xi(rng, st.beta, (block, 2))
+            dud = (ev.friction_heat(e, psi, zeta) + ev.plastic_heat(e, psi, xi)).sum(axis=1)  # (7), (8), (10)
+            cum = spent + np.cumsum(dud)
+            done = np.flatnonzero(cum >= budget)
+            if done.size:
+                k += int(done[0]) + 1
+                spent = float(cum[done[0]])
+                break
+            k += block
+            spent = float(cum[-1])
+        mu = 2 * u_in[0] * e_share.mean() * (ca * math.sin(2 * psi) ** 2 + cb * math.cos(2 * psi) ** 2)
+        steps[c] = k
+        over[c] = (spent - budget) / mu
+        plastic[c] = math.cos(2 * psi) ** 2
+        u_in_all[c] = u_in[0]
+    ones = np.ones(collisions)
+    f_over_n = kin.frequency / N
+    rate, rate_se = _ratio_se(2 * steps * f_over_n, ones)
+    wald, wald_se = _ratio_se(2 * (steps - over) * f_over_n, ones)
+    pl, pl_se = _ratio_se(steps * plastic, steps)
+    ui, ui_se = _ratio_se(steps * u_in_all, steps)
+    # the plant's sampler: its hit rate, and a large sample of its impacts
+    big = 400_000
+    u_p, _ = ev.sample_impact_energies(rng, kin.energy_scale, big)
+    psi_p = plant.kernels.sample_psi(plant, rng, big)
+    return Energetics(rate, rate_se, wald, wald_se, float(over.mean()), plant.hit_rate(kin), pl, pl_se, float(np.mean(np.cos(2 * psi_p) ** 2)),
+                      ui, ui_se, float(u_p.mean()), float(steps.mean()))
+
+
+# --- the batched plant against the one-collision-at-a-time reference ----------------------------
+
+REFERENCE_MOMENTS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "n_ratio")
+
+
+@dataclass
+class ReferenceComparison:
+    """Final states of the plant and the reference over seeds, with the tests' verdicts.
+
+    ``z``: Welch z-scores of the seed means (plant minus reference) of ``REFERENCE_MOMENTS``
+    (n_ratio = N(t) / N(0)); ``ks_s``, ``ks_r``: two-sample Kolmogorov distance of the pooled
+    final s and r, with p-values from the effective sample sizes (pooled size over the design
+    effect of the runs, see :func:`design_effect`).
+    """
+
+    card: str
+    hours: float
+    particles: int
+    seeds: tuple[int, ...]
+    plant: dict[str, np.ndarray]
+    reference: dict[str, np.ndarray]
+    plant_s: list[np.ndarray]
+    plant_r: list[np.ndarray]
+    ref_s: list[np.ndarray]
+    ref_r: list[np.ndarray]
+    z: dict[str, float] = field(default_factory=dict)
+    ks: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool:
+        return all(abs(v) < Z_BIAS for v in self.z.values()) and all(p > KS_ALPHA for _, p in self.ks.values())
+
+
+KS_ALPHA = 1e-3  # a two-sample KS p-value below this fails
+
+
+def design_effect(samples: Sequence[np.ndarray], grid: np.ndarray) -> float:
+    """Variance of a run's empirical CDF over the binomial variance, largest over ``grid`` (>= 1).
+
+    Particles of one run are not independent (common history, resampling copies); pooling
+    runs counts each particle as 1/deff of an independent draw.
+    """
+    F = np.array([np.searchsorted(np.sort(x), grid, side="right") / x.size for x in samples])
+    m = np.mean([x.size for x in samples])
+    Fbar = F.mean(axis=0)
+    binom = Fbar * (1 - Fbar)
+    ok = binom > 1e-3
+    if not ok.any() or len(samples) < 2:
+        return 1.0
+    return float(max(1.0, np.max(F[:, ok].var(axis=0, ddof=1) * m / binom[ok])))
+
+
+def ks_clustered(a: Sequence[np.ndarray], b: Sequence[np.ndarray]) -> tuple[float, float]:
+    """Two-sample Kolmogorov distance of pooled runs and its p-value with effective sample sizes."""
+    pa, pb = np.concatenate(a), np.concatenate(b)
+    d = float(stats.ks_2samp(pa, pb).statistic)
+    grid = np.quantile(np.concatenate([pa, pb]), np.linspace(0.05, 0.95, 19))
+    na = pa.size / design_effect(a, grid)
+    nb = pb.size / design_effect(b, grid)
+    return d, float(stats.kstwobign.sf(d * math.sqrt(na * nb / (na + nb))))
+
+
+def _final_moments(s: np.ndarray, r: np.ndarray, n_ratio: float) -> list[float]:
+    from .plant.population import moments as pop_moments
+
+    m = pop_moments(s, r)
+    return [m["s_mean_um"], m["s_std_um"], m["r_mean"], m["r_std"], n_ratio]
+
+
+def compare_reference(card: ModelCard, hours: float, particles: int, seeds: Sequence[int],
+                      budget_scale: float = 1.0, progress: Callable[[str], None] | None = None) -> ReferenceComparison:
+    """Run the plant and the reference from the same card for ``hours`` of the card's recipe, over seeds.
+
+    Each seed gives both an independent run (different streams). Moments of the final s (um),
+    r and N(t)/N(0) are compared by Welch z-scores of their seed means; the pooled final s
+    and r by two-sample KS tests that allow for the runs' clustering.
+    """
+    from .config import card_schedule
+    from .plant.reference import ReferencePlant
+
+    segments = card_schedule(card, hours)
+    P, R = [], []
+    ps, pr, rs, rr = [], [], [], []
+    for seed in seeds:
+        if progress:
+            progress(f"{card.card.name}: seed {seed}")
+        plant = Plant(card, np.random.default_rng([seed, 1]), particles)
+        n0 = plant.represented_particles
+        ref = ReferencePlant(card, np.random.default_rng([seed, 2]), particles, budget_scale)
+        m0 = ref.represented_particles
+        for h, rpm in segments:
+            plant.advance(rpm, h)
+            ref.advance(rpm, h)
+        s_ref, r_ref = ref.arrays()
+        P.append(_final_moments(plant.s, plant.r, plant.represented_particles / n0))
+        R.append(_final_moments(s_ref, r_ref, ref.represented_particles / m0))
+        ps.append(plant.s / 1e-6)
+        pr.append(plant.r.copy())
+        rs.append(s_ref / 1e-6)
+        rr.append(r_ref)
+    P, R = np.array(P), np.array(R)
+    res = ReferenceComparison(card.card.name, hours, particles, tuple(seeds),
+                              dict(zip(REFERENCE_MOMENTS, P.T)), dict(zip(REFERENCE_MOMENTS, R.T)), ps, pr, rs, rr)
+    for k in REFERENCE_MOMENTS:
+        a, b = res.plant[k], res.reference[k]
+        se = math.sqrt(a.var(ddof=1) / a.size + b.var(ddof=1) / b.size)
+        res.z[k] = float((a.mean() - b.mean()) / se) if se > 0 else 0.0
+    res.ks["s"] = ks_clustered(ps, rs)
+    res.ks["r"] = ks_clustered(pr, rr)
+    return res
