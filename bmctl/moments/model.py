@@ -186,7 +186,7 @@ class MomentModel:
             a = ca.SX.sym("a", 5)  # T, h, w, bm, fm
             qq = self.coeffs if q is None else q
             out = eq.y_rates(eq.CA(), self.const, qq, [y[i] for i in range(4)], a[0], a[1], a[2], a[3], a[4])
-            R = ca.Function("moment_rates", [y, a], [ca.vertcat(*out)])
+            R = ca.Function("moment_rates", [y, a], [ca.vertcat(*out)], {"cse": True})
             if q is None:
                 self._ca_steps["rates"] = R
 
@@ -206,14 +206,7 @@ class MomentModel:
     def _casadi_sim(self, dt_h: float, K: int):
         key = (round(dt_h, 12), K)
         if key not in self._ca_sims:
-            import casadi as ca
-
-            F = self.casadi_step(dt_h)
-            x = ca.SX.sym("x", 6)
-            u = ca.SX.sym("u", 2)
-            p = ca.SX.sym("p", 2)
-            G = ca.Function("g", [x, u, p], [F(x, u, p)])
-            self._ca_sims[key] = G.mapaccum("sim", K, [0], [0])
+            self._ca_sims[key] = self.casadi_step(dt_h).mapaccum("sim", K, [0], [0])
             if len(self._ca_sims) > 16:
                 self._ca_sims.pop(next(iter(self._ca_sims)))
         return self._ca_sims[key]
