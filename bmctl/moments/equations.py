@@ -247,7 +247,8 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     ab, ob, ac, oc = q["bond_slope"], q["bond_offset"], q["frac_slope"], q["frac_offset"]
     # rounding per impact: lam(s) = eta 1.5 E[dU_p] / (pi/4 s^3 sigma_eff) = lam1 / s (s in um)
     ln_lam1 = (math.log(c.equiaxing * 1.5 * c.plastic_share / (math.pi / 4 * UM**3 * c.yield_Pa) + 1e-300)
-               + q["round_log_scale"] + q["round_rpm_slope"] * (ws - 0.5) + ln_e - lratio)
+               + q["round_log_scale"] + q["round_rpm_slope"] * (ws - 0.5) + ln_e - lratio
+               + B.log(smax(B, 1.0 - c.equiaxing_hardening * h, 0.0, 0.02)))  # eta_eq (1 - a h)^+
     frag = fragment_tables(B, one_r, q["frac_r_gain"])
     kap = q["round_size_bias"]
 

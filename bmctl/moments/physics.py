@@ -54,8 +54,8 @@ class Constants:
         Contact and fracture factors of eqns (15) and (20).
     plastic_share : float
         E[cos^2(2 psi)(1 - xi^2)] / E[dissipated share]: the plastic part of the dissipated energy.
-    equiaxing : float
-        eta_eq of the rounding law (after eqn 13).
+    equiaxing, equiaxing_hardening : float
+        eta_eq and a of the rounding law (after eqn 13): efficiency eta_eq (1 - a h)^+.
     round_nodes : tuple of (weight, z)
         Probabilities and conditional means of the plastic energy Z of one impact relative
         to its mean, over ROUND_BINS: E[1 - exp(-lam Z)] ~ sum_k w_k (1 - exp(-lam z_k)).
@@ -85,6 +85,7 @@ class Constants:
     delta_per_um2: float
     plastic_share: float
     equiaxing: float
+    equiaxing_hardening: float
     ambient_C: float
     heat_capacity_J_per_K: float
     cooling_time_h: float
@@ -104,6 +105,15 @@ class Constants:
         return asdict(self)
 
 
+def _impact_angles(rng, alpha: float, beta: float, n: int) -> np.ndarray:
+    """The plant's impact angles (kernels.sample_impact_angles when present, else uniform)."""
+    try:
+        from ..plant.kernels import dissipation_coefficients, sample_impact_angles
+    except ImportError:  # pragma: no cover - older plant
+        return rng.uniform(-np.pi / 2, np.pi / 2, n)
+    return sample_impact_angles(rng, *dissipation_coefficients(alpha, beta), n)
+
+
 @lru_cache(maxsize=8)
 def impact_factors(alpha: float, beta: float, n: int = 400_000, seed: int = 12345) -> dict:
     """Scale-free averages of one impact's random factors (seeded Monte Carlo, cached).
@@ -115,15 +125,15 @@ def impact_factors(alpha: float, beta: float, n: int = 400_000, seed: int = 1234
     """
     rng = np.random.default_rng(seed)
     u_in, _ = ev.sample_impact_energies(rng, 1.0, n)
-    psi = rng.uniform(-np.pi / 2, np.pi / 2, n)
+    psi = _impact_angles(rng, alpha, beta, n)
     share = []
     for _ in range(2):
         z = ev.sample_zeta(rng, alpha, n)
         x = ev.sample_xi(rng, beta, n)
         share.append(np.sin(2 * psi) ** 2 * (1 - z**2) + np.cos(2 * psi) ** 2 * (1 - x**2))
-    share_mean = ev.mean_dissipated_share(alpha, beta)
+    share_mean = float(share[0].mean())
     ex2 = (beta + 1) * (beta + 2) / ((beta + 3) * (beta + 4))
-    plastic = 0.5 * (1 - ex2)
+    plastic = float(np.mean(np.cos(2 * psi) ** 2)) * (1 - ex2)
     u_mean = float(u_in.mean())
     plastic_z = u_in / u_mean * np.cos(2 * psi) ** 2 * (1 - ev.sample_xi(rng, beta, n) ** 2)
     plastic_z /= plastic_z.mean()
@@ -155,6 +165,13 @@ def logistic_law(logz: np.ndarray, sharpness: float) -> tuple[float, float]:
     return float(sol.x[0]), float(sol.x[1])
 
 
+def plant_hit_rate(card: ModelCard, kin) -> float:
+    """Impacts per particle per second of the plant's own kernels at ``kin`` (asks a 2-particle plant)."""
+    from ..plant import make_plant
+
+    return float(make_plant(card, seed=0, particles=2).hit_rate(kin))
+
+
 def initial_area_m2(card: ModelCard) -> float:
     """Represented total s^2 (eqn 2) of the card's powder, from the Gaussian initial law's moments."""
     init, mat, mill = card.initial, card.material, card.mill
@@ -170,7 +187,7 @@ def constants(card: ModelCard) -> Constants:
     mill, mat, st, th, part = card.mill, card.material, card.stochastic, card.thermal, card.partition
     kin = kinematics(card, mill.rpm_max)
     f = impact_factors(float(st.alpha), float(st.beta))
-    rate = kin.frequency * kin.trapped_fraction * MEAN_LOSS_RATIO / f["share"]  # 1/s, as Plant.hit_rate
+    rate = plant_hit_rate(card, kin)  # 1/s
     area = initial_area_m2(card)
     u_mean = f["u_mean"] * kin.energy_scale
     e_max = f["share"] * u_mean / (kin.trapped_fraction * area) * UM**2  # J per um^2 of s^2
@@ -188,6 +205,7 @@ def constants(card: ModelCard) -> Constants:
         delta_per_um2=float(st.delta_per_um2),
         plastic_share=float(f["plastic"] / f["share"]),
         equiaxing=float(part.equiaxing_efficiency),
+        equiaxing_hardening=float(getattr(part, "equiaxing_hardening", 0.0)),
         ambient_C=float(th.ambient_C),
         heat_capacity_J_per_K=float(th.heat_capacity_J_per_K),
         cooling_time_h=float(th.cooling_time_s / 3600.0),
