@@ -81,6 +81,15 @@ def peak_temperature(model, T0, h0, rpm, milling, dt_h, xp=np):
     return T1
 
 
+def interval_peaks(model, X, U, dt_h: float) -> np.ndarray:
+    """Highest vial temperature within each interval of a trajectory: max(T at its start, T at the
+    end of its milling phase) (T is monotone within the milling phase and within the rest)."""
+    X = np.asarray(X, dtype=float)
+    U = np.asarray(U, dtype=float).reshape(-1, 2)
+    T1 = np.asarray(peak_temperature(model, X[:-1, 4], X[:-1, 5], U[:, 0], U[:, 1], dt_h), dtype=float)
+    return np.maximum(X[:-1, 4], T1)
+
+
 def max_milling_for_ceiling(model, T0: float, rpm: float, dt_h: float, ceiling_c: float) -> float:
     """Largest milling fraction in [0, 1] whose peak temperature stays <= the ceiling (closed form)."""
     c = model.const

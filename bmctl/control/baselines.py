@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from .base import (Plan, Reference, Status, applied_input, applied_input_guarded, check_p, check_u_prev, check_x,
-                   max_milling_for_ceiling, peak_temperature, rpm_window)
+                   interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
 from .config import TARGET_KEYS, LQRConfig, RecipeConfig
 from .mpc import ERR_FLOOR, X_SCALE
 
@@ -46,7 +46,7 @@ class _Base:
         dt = self.interval_h
         U = np.atleast_2d(np.asarray(U, dtype=float))
         X = self.model.simulate(x0, U, dt, pp)
-        Tpk = np.asarray(peak_temperature(self.model, X[:-1, 4], X[:-1, 5], U[:, 0], U[:, 1], dt), dtype=float)
+        Tpk = interval_peaks(self.model, X, U, dt)
         status.t_peak_max_c = float(np.max(Tpk))
         if ceiling is None:
             ua = applied_input(U[0], dt, round_minutes)

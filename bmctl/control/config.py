@@ -101,6 +101,10 @@ class Solver(Strict):
     #: Gauss-Newton steps cycle; the exact Hessian converges in ~30-40 iterations
     cold_hessian: Literal["gauss-newton", "exact", "limited-memory"] = "exact"
     warm_start: bool = True  # start from the shifted previous plan and its multipliers
+    retry_exact: bool = True  # a failed warm solve is retried once with the exact Hessian before falling back
+    #: with retry_exact: iteration cap of the warm Gauss-Newton attempt (it converges in a few iterations
+    #: when the target is reachable -- small residuals -- and cycles when it is not)
+    gn_max_iter: Annotated[int, Field(ge=1)] = 12
     max_wall_s: Pos | None = None  # IPOPT max_wall_time
     #: Gauss-Newton only: proximal term on the scaled inputs in the approximate Hessian (shapes the
     #: steps, not the solution); without it the reduced Hessian is singular and IPOPT cycles

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io import csv_text, write_text
-from .base import Plan, applied_input_guarded, peak_temperature, schedule_segments
+from .base import Plan, applied_input_guarded, interval_peaks, schedule_segments
 from .config import TARGET_KEYS, MPCConfig
 
 #: the design is one cold solve over the whole batch (exact Hessian): at least this many iterations
@@ -99,7 +99,7 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None) -
         U[k] = a
         X.append(model.simulate(X[-1], a[None, :], dt, pp)[-1])
     X = np.array(X)
-    Tpk = np.asarray(peak_temperature(model, X[:-1, 4], X[:-1, 5], U[:, 0], U[:, 1], dt), dtype=float)
+    Tpk = interval_peaks(model, X, U, dt)
     segs = _trim(schedule_segments(U, dt), hours)
     c = model.const
     energy = float(np.sum(c.power_max_W * (U[:, 0] / c.rpm_max) ** 3 * U[:, 1] * dt) / 1000.0)

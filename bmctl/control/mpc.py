@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 from .base import (Plan, Reference, Status, applied_input_guarded, check_p, check_u_prev, check_x,
-                   max_milling_for_ceiling, peak_temperature, rpm_window)
+                   interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
 from .config import TARGET_KEYS, MPCConfig
 
 #: IPOPT outcomes whose iterate is used; anything else triggers the fallback
@@ -71,6 +71,7 @@ class MPCController:
         self.rpm_lo = min(cfg.bounds.rpm_min, self.rpm_hi)
         self._solvers: dict[str, object] = {}
         self._prev: _Solution | None = None
+        self._sticky_exact = False
         self._nlp = None
 
     # --- public ------------------------------------------------------------------------------
@@ -85,8 +86,9 @@ class MPCController:
             self.t_end_h = float(t_end_h)
 
     def reset(self) -> None:
-        """Forget the previous plan (no warm start, no shifted fallback)."""
+        """Forget the previous plan (no warm start, no shifted fallback); Gauss-Newton is tried again."""
         self._prev = None
+        self._sticky_exact = False
 
     def plan(self, x_est, t_h: float, p=None, u_prev=None) -> Plan:
         """Solve the MPC problem from ``x_est`` at batch time ``t_h``; see :mod:`bmctl.control.base`."""
@@ -101,16 +103,30 @@ class MPCController:
                 "mpc", "batch_done", True, reason="batch finished: rest", t_ceiling_c=self.cfg.temperature.ceiling_c))
         data = self._problem_data(x0, t, pp, up)
         warm = self._can_warm(t)
-        self._solver(warm)  # built on first use (seconds), outside the timed solve
+        s = self.cfg.solver
+        hessian = "exact" if warm and self._sticky_exact else None
+        self._solver(warm, hessian)  # built on first use (seconds), outside the timed solve
         t0 = time.perf_counter()
-        res = self._solve(data, warm=warm)
+        res = self._solve(data, warm=warm, hessian=hessian)
         ms = (time.perf_counter() - t0) * 1e3
+        if not res["ok"] and warm and hessian is None and s.retry_exact and s.hessian != "exact" and s.max_iter > 0:
+            self._sticky_exact = True  # Gauss-Newton failed (large residuals): exact Hessian from now on
+            self._solver(True, "exact")
+            t1 = time.perf_counter()
+            first = res
+            res = self._solve(data, warm=True, hessian="exact")
+            res["iter"] += first["iter"]
+            res["retried"] = first["status"]
+            ms += (time.perf_counter() - t1) * 1e3
         if not res["ok"]:
             return self._fallback(x0, t, pp, up, data, res, ms)
         W, M = res["W"], res["M"]
         status = Status("mpc", res["status"], True, res["iter"], ms, cost=res["f"],
                         slack_max_c=float(np.max(res["S"], initial=0.0)),
                         t_ceiling_c=self.cfg.temperature.ceiling_c)
+        if "retried" in res:
+            status.reason = (f"warm {self.cfg.solver.hessian} solve: {res['retried']}; retried with the exact Hessian"
+                             " (kept until reset)")
         self._prev = _Solution(t, W, M, res["lam_x"], res["lam_g"])
         binary = self.cfg.onoff.mode == "binary"
         if binary:
@@ -207,7 +223,7 @@ class MPCController:
         self._J = ca.Function("J", [V, P], [J])
         self._Tpk = ca.Function("Tpk", [V, P], [Tpk])
         self._nv, self._ng = V.shape[0], g.shape[0]
-        if "gauss-newton" in (cfg.solver.hessian, cfg.solver.cold_hessian):
+        if True:  # the Gauss-Newton Hessian (cheap to build; used when configured)
             lf = ca.MX.sym("lam_f")
             lg = ca.MX.sym("lam_g", g.shape[0])
             H = ca.hessian(lf * J + ca.dot(lg[g.shape[0] - N:], gT), V)[0]
@@ -220,17 +236,21 @@ class MPCController:
         else:
             self._hess = None
 
-    def _solver(self, warm: bool):
+    def _solver(self, warm: bool, hessian: str | None = None):
         import casadi as ca
 
         s = self.cfg.solver
-        hessian = s.hessian if warm else s.cold_hessian
+        if hessian is None:
+            hessian = s.hessian if warm else s.cold_hessian
         key = ("warm" if warm else "cold", hessian)
         if key not in self._solvers:
             if self._nlp is None:
                 self._build()
+            max_iter = s.max_iter
+            if warm and hessian == "gauss-newton" and s.retry_exact:
+                max_iter = min(max_iter, s.gn_max_iter)
             opts = {"print_time": False, "calc_lam_p": False, "error_on_fail": False,
-                    "ipopt.print_level": s.print_level, "ipopt.sb": "yes", "ipopt.max_iter": s.max_iter,
+                    "ipopt.print_level": s.print_level, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
                     "ipopt.tol": s.tol, "ipopt.acceptable_tol": s.acceptable_tol, "ipopt.acceptable_iter": s.acceptable_iter}
             if s.max_wall_s is not None:
                 opts["ipopt.max_wall_time"] = s.max_wall_s
@@ -285,8 +305,8 @@ class MPCController:
         V = np.concatenate([W, M, (X[1:] / X_SCALE).ravel(), S])
         return V, lam_x, lam_g
 
-    def _solve(self, data: dict, warm: bool, W=None, M=None, lbx=None, ubx=None) -> dict:
-        solver = self._solver(warm)
+    def _solve(self, data: dict, warm: bool, W=None, M=None, lbx=None, ubx=None, hessian=None) -> dict:
+        solver = self._solver(warm, hessian)
         V0, lam_x, lam_g = self._guess(data, warm and W is None, W, M)
         kw = dict(x0=V0, p=data["P"], lbx=data["lbx"] if lbx is None else lbx, ubx=data["ubx"] if ubx is None else ubx,
                   lbg=data["lbg"], ubg=data["ubg"])
@@ -362,7 +382,7 @@ class MPCController:
 
     def _make_plan(self, x0, t, U, X, status: Status) -> Plan:
         dt = self.interval_h
-        Tpk = peak_temperature(self.model, X[:-1, 4], X[:-1, 5], U[:, 0], U[:, 1], dt)
+        Tpk = interval_peaks(self.model, X, U, dt)
         status.t_peak_max_c = float(np.max(Tpk))
         on = self.cfg.onoff
         u_apply = applied_input_guarded(self.model, x0, U[0], dt, self.cfg.temperature.ceiling_c, on.round_minutes,
