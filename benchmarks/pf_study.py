@@ -112,6 +112,8 @@ def figure(path: Path, cfg: S.StudyConfig, res: dict) -> None:
             ax.legend(fontsize=7)
     ax = axes[0, 2]
     ns = sorted({v.n for v in cfg.variants if v.size_law == "weibull"})
+    labels_all = {v.label for v in cfg.variants}
+    ns = [n for n in ns if f"weibull-n{n}" in labels_all]
     for m, name in enumerate(S.MOMENTS):
         med = [np.median(np.concatenate([S.log_errors(res[sc], f"weibull-n{n}")[:, m] for sc in scs])) for n in ns]
         ax.plot(ns, 100 * np.array(med), marker="o", label=name)
@@ -145,9 +147,13 @@ def main(argv=None) -> int:
     ap.add_argument("--filter-particles", type=int, default=1000)
     ap.add_argument("--card", default="models/alni-1to1-300rpm-lab.toml")
     ap.add_argument("--out", default="out/pf_study")
+    ap.add_argument("--ablation", action="store_true",
+                    help="compare the bootstrap/untempered, guided/untempered and default filters (n = 300)")
     a = ap.parse_args(argv)
     cfg = S.StudyConfig(card=a.card, seeds=tuple(range(a.seeds)), hours=a.hours, plant_particles=a.plant_particles,
                         filter_particles=a.filter_particles)
+    if a.ablation:
+        cfg.variants = S.ABLATION
     from bmctl.moments.model import make_moment_model
 
     model = make_moment_model(cfg.card)

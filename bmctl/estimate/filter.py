@@ -71,8 +71,10 @@ class FilterSettings:
         Adapt the process noise from the innovations (sample fit minus prediction).
     adapt_rate : float
         Forgetting factor of the adaptation (share of the newest innovation).
-    process_noise_bounds : (float, float)
-        Limits of the adapted per-sqrt(hour) noise.
+    process_noise_floor : tuple of 4 floats
+        Lower limits of the adapted per-sqrt(hour) noise of each log moment.
+    process_noise_max : float
+        Upper limit of the adapted per-sqrt(hour) noise.
     temperature_noise_c_per_sqrt_h : float
         Additive random walk of the vial temperature (degC per sqrt(hour)).
     param_prior_log_std : float
@@ -89,6 +91,9 @@ class FilterSettings:
         Use the per-sample Lyddon-Holmes-Walker rate (else eta = learning_rate).
     defensive : float
         Share of the proposal drawn from the prior (bootstrap) rather than the guided density.
+    proposal : {"guided", "bootstrap"}
+        "bootstrap" draws the process noise from its prior only (the plain bootstrap filter,
+        kept for comparison: it collapses when n is large, docs/estimation.md).
     law : LawSettings
         Measurement laws (size law, noise) and raster.
     sigma_temperature_c : float
@@ -101,7 +106,8 @@ class FilterSettings:
     process_noise_per_sqrt_h: tuple = (0.15, 0.15, 0.8, 0.8)
     adapt: bool = True
     adapt_rate: float = 0.3
-    process_noise_bounds: tuple = (0.03, 1.5)
+    process_noise_floor: tuple = (0.05, 0.08, 0.2, 0.2)
+    process_noise_max: float = 1.5
     temperature_noise_c_per_sqrt_h: float = 1.0
     param_prior_log_std: float = 0.4
     param_walk_per_sqrt_h: float = 0.01
@@ -110,6 +116,7 @@ class FilterSettings:
     learning_rate: float = 1.0
     calibrate_learning_rate: bool = True
     defensive: float = 0.1
+    proposal: str = "guided"
     law: LawSettings = field(default_factory=LawSettings)
     sigma_temperature_c: float = 2.0
 
@@ -126,6 +133,8 @@ class FilterSettings:
             raise ValueError("learning_rate must be in (0, 1]")
         if not 0 <= self.defensive < 1:
             raise ValueError("defensive must be in [0, 1)")
+        if self.proposal not in ("guided", "bootstrap"):
+            raise ValueError("proposal must be 'guided' or 'bootstrap'")
 
 
 @dataclass
@@ -343,7 +352,10 @@ class ParticleFilter:
             self._adapt(fit, M, tau, eta_vec)
         qvar = self.q**2 * tau  # (4,) discrepancy variance
 
-        if tau > 0:
+        if tau > 0 and st.proposal == "bootstrap":
+            Z = M + rng.standard_normal((N, N_MOMENTS)) * np.sqrt(qvar)[None, :]
+            corr = np.zeros(N)
+        elif tau > 0:
             # block-diagonal Gaussian proposal; a block without a proper fit falls back to the prior
             A = np.diag(np.sqrt(eta_vec)) @ fit.info @ np.diag(np.sqrt(eta_vec))  # eta-tempered information
             for b in range(2):
@@ -387,9 +399,9 @@ class ParticleFilter:
         innov2 = (fit.z - mbar) ** 2
         ok = np.repeat(fit.ok, 2) & np.isfinite(meas_var)
         q2_new = np.maximum(innov2 - var_m - meas_var, 0.0) / tau
-        lo, hi = st.process_noise_bounds
         q2 = (1 - st.adapt_rate) * self.q**2 + st.adapt_rate * q2_new
-        self.q = np.where(ok, np.clip(np.sqrt(q2), lo, hi), self.q)
+        q = np.clip(np.sqrt(q2), np.asarray(st.process_noise_floor, dtype=float), st.process_noise_max)
+        self.q = np.where(ok, q, self.q)
 
     def _resample(self) -> None:
         st, rng = self.settings, self.rng

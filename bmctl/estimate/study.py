@@ -40,14 +40,36 @@ MOMENTS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
 
 @dataclass(frozen=True)
 class Variant:
-    """One filter configuration of the study: a label, the measured particles n and the size law."""
+    """One filter configuration of the study: measured particles n, size law, optional overrides.
+
+    ``settings`` and ``law`` are ``(name, value)`` pairs replacing FilterSettings and
+    LawSettings fields (ablations); ``tag`` names them in the label.
+    """
 
     n: int
     size_law: str = "weibull"
+    tag: str = ""
+    settings: tuple = ()
+    law: tuple = ()
 
     @property
     def label(self) -> str:
-        return f"{self.size_law}-n{self.n}"
+        return f"{self.size_law}-n{self.n}" + (f"-{self.tag}" if self.tag else "")
+
+    def filter_settings(self, base: FilterSettings, n_particles: int) -> FilterSettings:
+        law = replace(base.law, size_law=self.size_law, **dict(self.law))
+        return replace(base, n_particles=n_particles, law=law, **dict(self.settings))
+
+
+#: the ablations of docs/estimation.md: the plain bootstrap filter with the untempered likelihood
+#: (what collapsed), the guided proposal alone, and the default (guided + tempered)
+UNTEMPERED = (("calibrate_learning_rate", False), ("learning_rate", 1.0))
+NO_MISFIT = (("misfit", (0.0, 0.0, 0.0, 0.0)),)
+ABLATION = (
+    Variant(300, tag="bootstrap-untempered", settings=UNTEMPERED + (("proposal", "bootstrap"),), law=NO_MISFIT),
+    Variant(300, tag="guided-untempered", settings=UNTEMPERED, law=NO_MISFIT),
+    Variant(300),
+)
 
 
 @dataclass
@@ -86,7 +108,7 @@ def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cf
     times = np.arange(cfg.every_h, cfg.hours + 1e-9, cfg.every_h)
     filters = {}
     for k, v in enumerate(cfg.variants):
-        st = replace(cfg.base, n_particles=cfg.filter_particles, law=replace(cfg.base.law, size_law=v.size_law))
+        st = v.filter_settings(cfg.base, cfg.filter_particles)
         filters[v] = ParticleFilter(model, np.random.default_rng([seed, 1, k]), st)
     sample_rng = {n: np.random.default_rng([seed, 2, n]) for n in sorted({v.n for v in cfg.variants})}
     out = {"t_h": times, "truth": np.zeros((times.size, 5))}
