@@ -35,13 +35,41 @@ from bmctl.config import card_schedule, load_card  # noqa: E402
 from bmctl.estimate import study as S  # noqa: E402
 
 
+def _sha(path: str) -> str:
+    import hashlib
+
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12]
+    except OSError:
+        return "(built-in defaults)"
+
+
+def cfg_rpm(cfg: S.StudyConfig) -> float:
+    return float(load_card(cfg.card).process.rpm)
+
+
 def summarise(cfg: S.StudyConfig, res: dict, model) -> str:
     lines = []
     card = load_card(cfg.card)
     segs = card_schedule(card, cfg.hours)
     lines.append(f"# Particle-filter study ({cfg.card}, coefficients: {model.coeffs_source})\n")
     lines.append(f"{len(cfg.seeds)} seeds per scenario, {cfg.hours:g} h recipe, sample every {cfg.every_h:g} h, "
-                 f"plant M = {cfg.plant_particles}, filter N = {cfg.filter_particles}.\n")
+                 f"plant M = {cfg.plant_particles}, filter N = {cfg.filter_particles}; coefficient file sha256 "
+                 f"{_sha(model.coeffs_source)}.\n")
+    lines.append("## The moment model's one-step error from the true moments (RMS ln(model/plant) over the sample times)\n")
+    lines.append("| scenario | multipliers | s_mean | s_std | r_mean | r_std |")
+    lines.append("|---|---|---|---|---|---|")
+    for sc, runs in res.items():
+        tm = np.mean([r["truth"] for r in runs], axis=0)
+        x = np.repeat(model.x0()[None, :], tm.shape[0], axis=0)
+        x[:, :4] = tm[:, :4]
+        x[:, 4] = tm[:, 4]
+        prev = np.vstack([model.x0()[None, :], x[:-1]])
+        for p in ((1.0, 1.0), sc):
+            pred = model.step(prev, np.array([cfg_rpm(cfg), 1.0]), cfg.every_h, np.array(p))
+            rms = np.sqrt(np.mean(np.log(pred[:, :4] / tm[:, :4]) ** 2, axis=0))
+            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | ({p[0]:g}, {p[1]:g}) | " + " | ".join(f"{v:.3f}" for v in rms) + " |")
+    lines.append("")
     lines.append("## Coverage of the true moments by the 90 % intervals (share of run x time pairs)\n")
     lines.append("| scenario (gamma, delta) | variant | s_mean | s_std | r_mean | r_std | min ESS | median ESS |")
     lines.append("|---|---|---|---|---|---|---|---|")
