@@ -1,8 +1,17 @@
-"""State and parameter estimation from micrograph samples: likelihood, resampling, particle filter."""
+"""State and parameter estimation from micrograph samples: likelihood, resampling, particle filter.
 
-from .filter import Estimate, FilterSettings, ParticleFilter
-from .likelihood import SampleStats, loglik_sample
+See docs/estimation.md. The filter (:class:`ParticleFilter`) runs the moment model between
+samples and weighs its particles by the likelihood of each measured sample
+(:func:`loglik_raster`) under the laws the state implies, with the misspecification handled
+explicitly (measurement-noise model, calibrated learning rate with a law-misfit floor,
+adaptive model-discrepancy noise, guided proposal).
+"""
+
+from .filter import Estimate, FilterSettings, ParticleFilter, learning_rates
+from .likelihood import LawSettings, Raster, SampleFit, SampleStats, fit_sample, loglik_raster, loglik_sample
 from .resampling import effective_sample_size, resample
+from .run import Sample, run_filter
 
-__all__ = ["ParticleFilter", "FilterSettings", "Estimate", "SampleStats", "loglik_sample", "resample",
-           "effective_sample_size"]
+__all__ = ["ParticleFilter", "FilterSettings", "Estimate", "learning_rates", "LawSettings", "Raster", "SampleFit",
+           "SampleStats", "fit_sample", "loglik_raster", "loglik_sample", "resample", "effective_sample_size",
+           "Sample", "run_filter"]
