@@ -112,7 +112,8 @@ class Status:
     solver_status: str = "n/a"
     success: bool = True
     iterations: int = 0
-    solve_ms: float = 0.0
+    solve_ms: float = 0.0  # wall time of the NLP solve(s)
+    solve_cpu_ms: float = 0.0  # CPU time of this process over the same span (less sensitive to a busy machine)
     fallback: str = "none"  # "none" | "shifted" | "rest"
     reason: str = ""
     slack_max_c: float = 0.0  # largest temperature slack of the solution (degC over the ceiling)

@@ -106,7 +106,7 @@ class MPCController:
         s = self.cfg.solver
         hessian = "exact" if warm and self._sticky_exact else None
         self._solver(warm, hessian)  # built on first use (seconds), outside the timed solve
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         res = self._solve(data, warm=warm, hessian=hessian)
         ms = (time.perf_counter() - t0) * 1e3
         if not res["ok"] and warm and hessian is None and s.retry_exact and s.hessian != "exact" and s.max_iter > 0:
@@ -118,12 +118,16 @@ class MPCController:
             res["iter"] += first["iter"]
             res["retried"] = first["status"]
             ms += (time.perf_counter() - t1) * 1e3
+        cpu_ms = (time.process_time() - c0) * 1e3
         if not res["ok"]:
-            return self._fallback(x0, t, pp, up, data, res, ms)
+            plan = self._fallback(x0, t, pp, up, data, res, ms)
+            plan.status.solve_cpu_ms = cpu_ms
+            return plan
         W, M = res["W"], res["M"]
         status = Status("mpc", res["status"], True, res["iter"], ms, cost=res["f"],
                         slack_max_c=float(np.max(res["S"], initial=0.0)),
                         t_ceiling_c=self.cfg.temperature.ceiling_c)
+        status.solve_cpu_ms = cpu_ms
         if "retried" in res:
             status.reason = (f"warm {self.cfg.solver.hessian} solve: {res['retried']}; retried with the exact Hessian"
                              " (kept until reset)")

@@ -1,0 +1,139 @@
+"""MPC solve time: median over a short closed loop on the moment model (target <= 100 ms).
+
+Run:  python benchmarks/bench_control.py [--controller controllers/mpc-default.toml] [--hours 4]
+                                        [--card alni-1to1-300rpm-lab] [--scenario all]
+      python benchmarks/bench_control.py --compare s_mean_um=30,r_mean=0.05   (all controllers, 12 h)
+
+For each scenario the MPC drives the moment model itself (no plant noise) toward a target
+taken from the model's own trajectory under a known schedule (reachable), or from a hotter
+schedule under the ceiling (not fully reachable: large residuals, harder for the solver).
+Prints per scenario: the cold first solve (exact Hessian; solver construction excluded),
+the median wall and CPU time of the warm solves (CPU time is less sensitive to a busy machine),
+the 90th percentile / max of the wall times, the iteration counts and the
+number of fallbacks, and the final relative target errors. Single-threaded (one core).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from bmctl.control import make_controller  # noqa: E402
+from bmctl.control.config import load_controller  # noqa: E402
+from bmctl.moments.model import make_moment_model  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: name -> (schedule rpm, milling, ceiling C): the target is the model state after --hours of it
+SCENARIOS = {
+    "reachable-350rpm": (350.0, 0.8, 80.0),
+    "reachable-250rpm": (250.0, 1.0, 80.0),
+    "ceiling-bound-400rpm": (400.0, 1.0, 60.0),
+}
+
+
+def run(model, cfg_path: str, scenario: str, hours: float):
+    rpm, mill, ceiling = SCENARIOS[scenario]
+    cfg = load_controller(cfg_path)
+    dt = cfg.interval_h
+    K = int(round(hours / dt))
+    Xs = model.simulate(model.x0(), [[rpm, mill]] * K, dt)
+    target = {"s_mean_um": float(Xs[-1, 0]), "r_mean": float(Xs[-1, 2])}
+    cfg = cfg.model_copy(update={"batch_hours": hours,
+                                 "temperature": cfg.temperature.model_copy(update={"ceiling_c": ceiling})})
+    ctrl = make_controller(cfg, model, target)
+    x, u = model.x0(), None
+    ms, cpu, its, fb, retried = [], [], [], 0, 0
+    cold = None
+    for k in range(K):
+        plan = ctrl.plan(x, k * dt, None, u)
+        st = plan.status
+        if k == 0:
+            cold = (st.solve_ms, st.iterations)
+        else:
+            ms.append(st.solve_ms)
+            cpu.append(st.solve_cpu_ms)
+            its.append(st.iterations)
+        fb += st.fallback != "none"
+        retried += "retried" in st.reason
+        u = plan.u_apply
+        x = model.step(x, u, dt)
+    err = {k: x[["s_mean_um", "s_std_um", "r_mean", "r_std"].index(k)] / v - 1 for k, v in target.items()}
+    return cold, np.array(ms), np.array(cpu), np.array(its), fb, retried, err
+
+
+COMPARE = ["mpc-default", "mpc-fast", "lqr-baseline", "recipe-300rpm-continuous", "recipe-400rpm-30-10"]
+
+
+def compare(model, target: dict) -> None:
+    """Every shipped controller in closed loop on the moment model over the card's batch."""
+    from bmctl.control.base import interval_peaks
+
+    c = model.const
+    tg = ", ".join(f"{k} = {v:g}" for k, v in target.items())
+    print(f"closed loop on the moment model, target {tg}")
+    print(f"{'controller':26s} {'s_mean':>7s} {'r_mean':>7s} {'s_std':>6s} {'mill h':>7s} {'kWh':>6s} "
+          f"{'peak T':>7s} {'median ms':>9s} {'fallbacks':>9s}")
+    for name in COMPARE:
+        ctrl = make_controller(os.path.join(ROOT, "controllers", f"{name}.toml"), model, target)
+        dt = ctrl.interval_h
+        x, u, t, X, U, ms, fb = model.x0(), None, 0.0, [model.x0()], [], [], 0
+        while t < ctrl.t_end_h - 1e-9:
+            plan = ctrl.plan(x, t, None, u)
+            u = plan.u_apply
+            U.append(u)
+            ms.append(plan.status.solve_ms)
+            fb += plan.status.fallback != "none"
+            x = model.step(x, u, dt)
+            X.append(x)
+            t += dt
+        X, U = np.array(X), np.array(U)
+        energy = np.sum(c.power_max_W * (U[:, 0] / c.rpm_max) ** 3 * U[:, 1] * dt) / 1000
+        print(f"{name:26s} {x[0]:7.2f} {x[2]:7.4f} {x[1]:6.2f} {U[:, 1].sum() * dt:7.2f} {energy:6.3f} "
+              f"{interval_peaks(model, X, U, dt).max():7.1f} {np.median(ms[1:] or ms):9.0f} {fb:9d}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--controller", default=os.path.join(ROOT, "controllers", "mpc-default.toml"))
+    ap.add_argument("--card", default="alni-1to1-300rpm-lab")
+    ap.add_argument("--hours", type=float, default=4.0)
+    ap.add_argument("--scenario", default="all", choices=["all", *SCENARIOS])
+    ap.add_argument("--compare", default=None, metavar="K=V,...",
+                    help="instead: run every shipped controller over the batch toward this target")
+    a = ap.parse_args()
+    model = make_moment_model(os.path.join(ROOT, "models", f"{a.card}.toml"))
+    if a.compare:
+        from bmctl.control import parse_target
+
+        compare(model, parse_target(a.compare))
+        return
+    cfg = load_controller(a.controller)
+    print(f"{os.path.basename(a.controller)}: horizon {cfg.horizon} x {cfg.interval_h:g} h, "
+          f"warm Hessian {cfg.solver.hessian} (exact retry {cfg.solver.retry_exact}), {a.hours:g} h closed loop; "
+          f"load average {os.getloadavg()[0]:.1f}")
+    print(f"{'scenario':22s} {'cold ms':>8s} {'it':>4s} {'median ms':>10s} {'cpu ms':>7s} {'p90 ms':>8s} {'max ms':>8s} "
+          f"{'median it':>9s} {'fallbacks':>9s} {'exact retries':>13s}  final relative errors")
+    all_ms, all_cpu = [], []
+    names = list(SCENARIOS) if a.scenario == "all" else [a.scenario]
+    t0 = time.perf_counter()
+    for name in names:
+        cold, ms, cpu, its, fb, rt, err = run(model, a.controller, name, a.hours)
+        all_ms += list(ms)
+        all_cpu += list(cpu)
+        errs = ", ".join(f"{k} {v:+.1%}" for k, v in err.items())
+        print(f"{name:22s} {cold[0]:8.0f} {cold[1]:4d} {np.median(ms):10.0f} {np.median(cpu):7.0f} "
+              f"{np.percentile(ms, 90):8.0f} "
+              f"{ms.max():8.0f} {np.median(its):9.0f} {fb:9d} {rt:13d}  {errs}")
+    print(f"all warm solves: median {np.median(all_ms):.0f} ms wall, {np.median(all_cpu):.0f} ms CPU "
+          f"(target <= 100 ms), n = {len(all_ms)}; "
+          f"wall {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
