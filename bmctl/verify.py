@@ -16,8 +16,8 @@ Errors are relative errors of the represented number N and of the first two mome
 (the first, E[x] = X / N, is N's error with the sign flipped), and the Kolmogorov distance
 between the simulated and the exact distribution of x. The expected Monte Carlo error is
 that of M independent draws from the exact distribution. A bias is tested across seeds
-and sample sizes (a z-score of the seed means), the M^-1/2 trend by the slope of
-log(rms error) over log M.
+and sample sizes (t statistics of the seed means with Welch df, Bonferroni over a case's
+quantities), the M^-1/2 trend by the slope of log(rms error) over log M.
 
 References
 ----------

@@ -9,7 +9,6 @@ import math
 
 import numpy as np
 import pytest
-from scipy import stats
 
 from bmctl import verify as V
 from bmctl.cli import main

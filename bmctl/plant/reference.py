@@ -26,7 +26,7 @@ by the loop's own stopping rule, and no constant-number rebalancing.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -35,7 +35,7 @@ from . import events as ev
 from . import thermal
 from .kernels import PaperKernels
 from .kinematics import Kinematics, kinematics
-from .population import UM, initial_sample, moments
+from .population import initial_sample, moments
 
 
 @dataclass
@@ -191,4 +191,4 @@ class ReferencePlant:
         return m
 
 
-__all__ = ["ReferencePlant", "ReferenceCounts", "UM"]
+__all__ = ["ReferencePlant", "ReferenceCounts"]
