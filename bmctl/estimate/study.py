@@ -98,8 +98,9 @@ def off_card(card: ModelCard, gamma_mult: float, delta_mult: float) -> ModelCard
 def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cfg: StudyConfig) -> dict:
     """One seeded run: plant truth and every variant's estimates at every sample time.
 
-    Returns a dict of arrays: ``t_h`` (K,), ``truth`` (K, 5: the four moments and the
-    temperature), and per variant label ``mean``, ``q05``, ``q95`` (K, 8) and ``ess`` (K,).
+    Returns a dict of arrays: ``t_h`` (K,), ``truth`` (K, 6: the four moments, the
+    temperature and the hardening), and per variant label ``mean``, ``q05``, ``q95`` (K, 8)
+    and ``ess`` (K,).
     """
     from ..measure.sampler import micrograph_sample
 
@@ -111,7 +112,7 @@ def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cf
         st = v.filter_settings(cfg.base, cfg.filter_particles)
         filters[v] = ParticleFilter(model, np.random.default_rng([seed, 1, k]), st)
     sample_rng = {n: np.random.default_rng([seed, 2, n]) for n in sorted({v.n for v in cfg.variants})}
-    out = {"t_h": times, "truth": np.zeros((times.size, 5))}
+    out = {"t_h": times, "truth": np.zeros((times.size, 6))}
     for v in cfg.variants:
         out[v.label] = {"mean": np.zeros((times.size, 8)), "q05": np.zeros((times.size, 8)),
                         "q95": np.zeros((times.size, 8)), "ess": np.zeros(times.size)}
@@ -121,7 +122,7 @@ def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cf
         for rpm, milling, h in pieces:
             plant.advance(rpm, h, milling)
         mo = plant.moments()
-        out["truth"][i] = [mo[m] for m in MOMENTS] + [mo["temperature_c"]]
+        out["truth"][i] = [mo[m] for m in MOMENTS] + [mo["temperature_c"], mo["hardening"]]
         tabs = {n: micrograph_sample(plant.s / UM, plant.r, n, g) for n, g in sample_rng.items()}
         for v, pf in filters.items():
             for rpm, milling, h in pieces:
@@ -195,3 +196,34 @@ def pseudo_true_multipliers(model, truth_mean: np.ndarray, segments, times, grid
         t_prev = t
     J += ridge * np.sum(np.log(P) ** 2, axis=1)
     return P[int(np.argmin(J))]
+
+
+def law_misfit(card_path: str, scenarios=((1.0, 1.0), (1.3, 0.7), (0.7, 1.3)), times=(1, 3, 6, 9, 12),
+               particles: int = 20000, measured: int = 20000, seed: int = 0) -> list[dict]:
+    """Pseudo-true moments of each size law: the maximum of the filter's own (rastered) likelihood
+    for a very large micrograph sample of the plant, against the plant's true moments.
+
+    Returns one dict per (scenario, time): ``truth`` (4,) and, per size law, the fitted moments
+    (4,). Their relative differences are the law-misfit floors of
+    :data:`bmctl.estimate.likelihood.LAW_MISFIT`.
+    """
+    from ..measure.sampler import micrograph_sample
+    from .likelihood import SIZE_LAWS, LawSettings, Raster, fit_sample
+
+    card = load_card(card_path)
+    out = []
+    for sc in scenarios:
+        plant = Plant(off_card(card, *sc), np.random.default_rng([seed, 3]), particles)
+        rng = np.random.default_rng([seed, 4])
+        t_prev = 0.0
+        for t in times:
+            plant.advance(card.process.rpm, t - t_prev)
+            t_prev = t
+            mo = plant.moments()
+            tab = micrograph_sample(plant.s / UM, plant.r, measured, rng)
+            row = {"scenario": sc, "t_h": t, "truth": np.array([mo[m] for m in MOMENTS])}
+            for law_name in SIZE_LAWS:
+                law = LawSettings(size_law=law_name)
+                row[law_name] = np.exp(fit_sample(Raster.from_particles(tab.s_um, tab.r, law), law).z)
+            out.append(row)
+    return out
