@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 from pydantic import Field, model_validator
 
@@ -43,9 +43,7 @@ class EstimatorSpec(Strict):
 
 
 class ControllerSpec(Strict):
-    kind: Literal["mpc", "lqr", "recipe"] = "mpc"
-    config: str | None = None  # controllers/*.toml (mpc, lqr)
-    schedule: str | None = None  # recipe: a schedule TOML ([[segment]] hours, rpm)
+    config: str  # controllers/*.toml; its `kind` (mpc, lqr, recipe) picks the controller
 
 
 class Scenario(Strict):
@@ -54,25 +52,18 @@ class Scenario(Strict):
     scenario: ScenarioInfo
     model: str  # the controller's and estimator's model card
     hours: Pos = 12.0
-    interval_h: Pos = 0.5
-    temperature_max_c: Pos | None = None  # ceiling counted as violations (default: the controller's)
+    temperature_max_c: Pos | None = None  # vial ceiling: overrides the controller's, counts violations
     target: dict[str, Annotated[float, Field(gt=0)]] = {}
     plant: PlantSpec = PlantSpec()
     sampling: SamplingSpec = SamplingSpec()
     estimator: EstimatorSpec = EstimatorSpec()
-    controller: ControllerSpec = ControllerSpec()
+    controller: ControllerSpec
 
     @model_validator(mode="after")
     def _check(self):
         for k in self.target:
             if k not in TARGET_KEYS:
                 raise ValueError(f"target.{k}: unknown target; choose from {', '.join(TARGET_KEYS)}")
-        if self.controller.kind == "recipe" and self.controller.schedule is None:
-            raise ValueError("controller.schedule: a recipe controller needs a schedule file")
-        if self.controller.kind != "recipe" and not self.target:
-            raise ValueError("target: a feedback controller needs at least one target")
-        if self.interval_h > self.hours:
-            raise ValueError("interval_h: longer than the trial")
         return self
 
 
@@ -90,10 +81,15 @@ def load_scenario(path: str | Path) -> Scenario:
     """Load and validate a scenario TOML; referenced files must exist."""
     sc = load(Scenario, path)
     base = Path(path).resolve().parent
-    for ref in (sc.model, sc.plant.model, sc.controller.config, sc.controller.schedule):
+    for ref in (sc.model, sc.plant.model, sc.controller.config):
         if ref is not None:
             try:
                 resolve(ref, base)
             except InputError as exc:
                 raise InputError(f"{path}: {exc}") from None
+    from .control.config import load_controller
+
+    cfg = load_controller(resolve(sc.controller.config, base))
+    if cfg.kind != "recipe" and not sc.target:
+        raise InputError(f"{path}: target: a feedback controller ({cfg.kind}) needs at least one target")
     return sc

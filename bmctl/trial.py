@@ -64,24 +64,35 @@ def _plant_card(sc: Scenario, base: Path) -> ModelCard:
     return card
 
 
+def _model_and_controller(sc: Scenario, base: Path):
+    """The moment model and the controller of a scenario (no random state: rebuilt on resume)."""
+    from .control import make_controller
+    from .control.config import load_controller, validate_controller
+    from .moments.model import make_moment_model
+
+    model = make_moment_model(resolve(sc.model, base))
+    cfg_path = resolve(sc.controller.config, base)
+    cfg = load_controller(cfg_path)
+    if sc.temperature_max_c is not None and hasattr(cfg, "temperature"):
+        d = cfg.model_dump()
+        d["temperature"]["ceiling_c"] = sc.temperature_max_c
+        cfg = validate_controller(d, str(cfg_path))
+    controller = make_controller(cfg, model)
+    if sc.target and hasattr(controller, "set_target"):
+        controller.set_target(dict(sc.target), t_end_h=sc.hours)
+    return model, controller
+
+
 def build(sc: Scenario, base: Path, seed: int) -> TrialState:
     """Fresh trial state from a scenario and a seed (one SeedSequence spawns every generator)."""
-    from .control import make_controller
     from .estimate import FilterSettings, ParticleFilter
-    from .moments.model import make_moment_model
     from .plant.plant import Plant
 
     ss = np.random.SeedSequence(seed)
     g_plant, g_pf, g_sample = (np.random.default_rng(s) for s in ss.spawn(3))
-    model_path = resolve(sc.model, base)
-    model = make_moment_model(model_path)
+    model, controller = _model_and_controller(sc, base)
     plant = Plant(_plant_card(sc, base), g_plant, sc.plant.particles)
     pf = ParticleFilter(model, g_pf, FilterSettings(n_particles=sc.estimator.particles))
-    ctrl_cfg = resolve(sc.controller.config, base) if sc.controller.config else None
-    sched = load_schedule(resolve(sc.controller.schedule, base)) if sc.controller.schedule else None
-    controller = make_controller(
-        ctrl_cfg, model, kind=sc.controller.kind, target=dict(sc.target), schedule=sched, horizon_h=sc.hours
-    )
     return TrialState(k=0, plant=plant, pf=pf, controller=controller, sample_rng=g_sample, u_prev=None,
                       est=pf.estimate().as_dict(), next_sample_h=sc.sampling.every_h,
                       stats={"solver_failures": 0, "fallbacks": 0, "energy_J": 0.0, "max_T": plant.temperature_C,
@@ -108,20 +119,22 @@ def step(sc: Scenario, state: TrialState, ceiling: float | None) -> list:
     """Advance the trial by one control interval; returns the trajectory row."""
     from .plant.kinematics import kinematics
 
-    t_h = state.k * sc.interval_h
-    dt = min(sc.interval_h, sc.hours - t_h)
+    interval = state.controller.interval_h
+    t_h = state.k * interval
+    dt = min(interval, sc.hours - t_h)
     x, p = _x_est(state.est)
     t0 = time.perf_counter()
     plan = state.controller.plan(x, t_h, p=p, u_prev=state.u_prev)
-    solve_ms = getattr(plan, "solve_ms", None)
-    if solve_ms is None:
-        solve_ms = (time.perf_counter() - t0) * 1e3
-    rpm, milling = (float(v) for v in plan.u)
-    status = str(getattr(plan, "status", "ok"))
-    fallback = bool(getattr(plan, "fallback", False))
+    st = plan.status
+    solve_ms = st.solve_ms if st.solve_ms else (time.perf_counter() - t0) * 1e3
+    rpm, milling = (float(v) for v in plan.u_apply)
+    status = st.solver_status
+    fallback = st.fallback != "none"
     state.stats["solve_ms"].append(solve_ms)
     state.stats["fallbacks"] += int(fallback)
-    state.stats["solver_failures"] += int(bool(getattr(plan, "failed", False)))
+    state.stats["solver_failures"] += int(not st.success)
+    if fallback or not st.success:
+        state.stats.setdefault("log", []).append(f"t={t_h:g} h: {st.line()}")
 
     plant = state.plant
     card = plant.card
@@ -167,16 +180,59 @@ def _append_row(path: Path, row: list) -> None:
         os.fsync(fh.fileno())
 
 
+def _picklable(value) -> bool:
+    if _has_casadi(value):
+        return False
+    try:
+        pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
+        return True
+    except Exception:  # casadi objects, compiled solvers: rebuilt on resume
+        return False
+
+
+def _has_casadi(value) -> bool:
+    if type(value).__module__.startswith("casadi"):
+        return True
+    if isinstance(value, dict):
+        return any(_has_casadi(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return any(_has_casadi(v) for v in value)
+    return False
+
+
 def _save_checkpoint(path: Path, state: TrialState) -> None:
-    with io.atomic_path(path, suffix=".pkl") as tmp:
-        with open(tmp, "wb") as fh:
-            pickle.dump(state, fh, protocol=pickle.HIGHEST_PROTOCOL)
+    """Pickle the trial state; the controller and the moment model travel as their plain data only.
+
+    Compiled casadi functions and solvers are deterministic functions of the scenario, so they
+    are rebuilt on resume; the controller's warm-start data (previous plan, multipliers, ...)
+    is kept.
+    """
+    ctrl, model = state.controller, state.pf.model
+    ctrl_data = {k: v for k, v in vars(ctrl).items() if k != "model" and _picklable(v)}
+    state.controller, state.pf.model = None, None
+    try:
+        with io.atomic_path(path, suffix=".pkl") as tmp:
+            with open(tmp, "wb") as fh:
+                pickle.dump({"state": state, "controller": ctrl_data}, fh, protocol=pickle.HIGHEST_PROTOCOL)
+    finally:
+        state.controller, state.pf.model = ctrl, model
+
+
+def _load_checkpoint(path: Path, sc: Scenario, base: Path) -> TrialState:
+    with open(path, "rb") as fh:
+        data = pickle.load(fh)
+    state: TrialState = data["state"]
+    model, controller = _model_and_controller(sc, base)
+    vars(controller).update(data["controller"])
+    state.controller, state.pf.model = controller, model
+    return state
 
 
 def _ceiling(sc: Scenario, state: TrialState) -> float | None:
     if sc.temperature_max_c is not None:
         return sc.temperature_max_c
-    return getattr(state.controller, "temperature_max_c", None)
+    temp = getattr(getattr(state.controller, "cfg", None), "temperature", None)
+    return None if temp is None else float(temp.ceiling_c)
 
 
 def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume: bool = False,
@@ -202,12 +258,10 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
     base = Path(scenario_path).resolve().parent
     out = Path(out)
     traj, ckpt = out / "trajectory.csv", out / "checkpoint.pkl"
-    K = int(math.ceil(sc.hours / sc.interval_h - 1e-9))
     if resume:
         if not ckpt.exists():
             raise InputError(f"--resume: {ckpt} not found")
-        with open(ckpt, "rb") as fh:
-            state = pickle.load(fh)
+        state = _load_checkpoint(ckpt, sc, base)
         meta = json.loads((out / "trial.json").read_text())
         if meta.get("seed") != seed or meta.get("scenario") != str(Path(scenario_path).resolve()):
             raise InputError(f"--resume: {out} holds a trial of {meta.get('scenario')} with seed {meta.get('seed')}")
@@ -222,6 +276,7 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
         io.write_text(traj, ",".join(trajectory_header()) + "\n")
         _save_checkpoint(ckpt, state)
     ceiling = _ceiling(sc, state)
+    K = int(math.ceil(sc.hours / state.controller.interval_h - 1e-9))
     done_now = 0
     while state.k < K:
         if max_steps is not None and done_now >= max_steps:
@@ -254,11 +309,12 @@ def summarise(sc: Scenario, state: TrialState, ceiling: float | None) -> dict:
         "temperature_ceiling_c": ceiling,
         "temperature_violations": st["violations"],
         "energy_kj": st["energy_J"] / 1e3,
-        "batch_h": state.k * sc.interval_h if state.k * sc.interval_h <= sc.hours else sc.hours,
+        "batch_h": min(state.k * state.controller.interval_h, sc.hours),
         "solver_failures": st["solver_failures"],
         "fallbacks": st["fallbacks"],
         "median_solve_ms": float(np.median(solve)),
         "steps": state.k,
+        "solver_log": st.get("log", []),
     }
 
 
@@ -284,7 +340,8 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
     ax.step(t, data["rpm"], where="pre", color="C2")
     ax.set_ylabel("rpm"), ax.set_xlabel("t (h)"), ax.set_title("rpm (bars: rest share)"), ax.grid(alpha=0.3)
     ax2 = ax.twinx()
-    ax2.bar(t - sc.interval_h / 2, 1 - data["milling"], width=sc.interval_h * 0.9, color="C7", alpha=0.4)
+    width = float(np.diff(t).min()) if t.size > 1 else 0.5
+    ax2.bar(t - width / 2, 1 - data["milling"], width=width * 0.9, color="C7", alpha=0.4)
     ax2.set_ylim(0, 1), ax2.set_ylabel("rest fraction")
     ax = axes[1][1]
     ax.plot(t, data["true_temperature_c"], "C3-", label="plant")

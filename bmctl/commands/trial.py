@@ -39,9 +39,11 @@ def run(args) -> int:
     if not args.no_progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=int(round(sc.hours / sc.interval_h)), unit="step", desc=sc.scenario.name, leave=False,
-                   file=sys.stderr)
-        progress = lambda k, K: bar.update(k - bar.n)  # noqa: E731
+        bar = tqdm(total=None, unit="step", desc=sc.scenario.name, leave=False, file=sys.stderr)
+
+        def progress(k, K):
+            bar.total = K
+            bar.update(k - bar.n)
     try:
         summary = run_trial(args.scenario, out, seed=args.seed, resume=args.resume is not None, progress=progress)
     finally:
