@@ -117,7 +117,8 @@ def main() -> None:
     print(f"{os.path.basename(a.controller)}: horizon {cfg.horizon} x {cfg.interval_h:g} h, "
           f"warm Hessian {cfg.solver.hessian} (exact retry {cfg.solver.retry_exact}), {a.hours:g} h closed loop; "
           f"load average {os.getloadavg()[0]:.1f}")
-    print(f"{'scenario':22s} {'cold ms':>8s} {'it':>4s} {'median ms':>10s} {'cpu ms':>7s} {'p90 ms':>8s} {'max ms':>8s} "
+    print(f"{'scenario':22s} {'cold ms':>8s} {'it':>4s} {'median ms':>10s} {'cpu ms':>7s} {'p90 ms':>8s} "
+          f"{'max ms':>8s} "
           f"{'median it':>9s} {'fallbacks':>9s} {'exact retries':>13s}  final relative errors")
     all_ms, all_cpu = [], []
     names = list(SCENARIOS) if a.scenario == "all" else [a.scenario]

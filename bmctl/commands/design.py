@@ -66,7 +66,8 @@ def run(args) -> int:
     last = d.X[-1]
     got = ", ".join(f"{k} {last[['s_mean_um', 's_std_um', 'r_mean', 'r_std'].index(k)]:.4g} (target {v:g})"
                     for k, v in target.items())
-    print(f"{d.card_name}: {hours:g} h, {len(d.segments)} segment{'s' if len(d.segments) != 1 else ''}, {d.milling_h:.2f} h milling, "
+    n = len(d.segments)
+    print(f"{d.card_name}: {hours:g} h, {n} segment{'s' if n != 1 else ''}, {d.milling_h:.2f} h milling, "
           f"{d.energy_kWh:.3f} kWh; predicted {got}; peak T {d.t_peak_c.max():.1f} C "
           f"(ceiling {d.ceiling_c:g} C); {st.solver_status}, {st.iterations} it, {st.solve_ms / 1e3:.1f} s")
     if st.slack_max_c > 0.05:

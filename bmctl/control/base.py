@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..moments import equations as eq
-from .config import TARGET_KEYS, ReferencePoint, Target
+from .config import TARGET_KEYS, Target
 
 #: returned by Status.fallback
 FALLBACKS = ("none", "shifted", "rest")

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from .base import (Plan, Reference, Status, applied_input, applied_input_guarded, check_p, check_u_prev, check_x,
-                   interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
+                   interval_peaks, max_milling_for_ceiling, rpm_window)
 from .config import TARGET_KEYS, LQRConfig, RecipeConfig
 from .mpc import ERR_FLOOR, X_SCALE
 
@@ -165,8 +165,8 @@ class LQRController(_Base):
         cfg, dt = self.cfg, self.interval_h
         ceiling = cfg.temperature.ceiling_c
         if t >= self.t_end_h - 1e-9:
-            return self._plan(x0, t, pp, np.zeros((1, 2)), Status("lqr", "batch_done", True, reason="batch finished: rest",
-                                                                  t_ceiling_c=ceiling), cfg.round_minutes)
+            done = Status("lqr", "batch_done", True, reason="batch finished: rest", t_ceiling_c=ceiling)
+            return self._plan(x0, t, pp, np.zeros((1, 2)), done, cfg.round_minutes)
         t0 = time.perf_counter()
         if up is not None and up[0] > 0 and up[1] > 0:
             rpm_prev = float(up[0])

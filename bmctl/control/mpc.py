@@ -225,20 +225,18 @@ class MPCController:
         V = ca.vertcat(W, M, ca.vec(Z), S)
         self._nlp = {"x": V, "p": P, "f": J, "g": g}
         self._J = ca.Function("J", [V, P], [J])
-        self._Tpk = ca.Function("Tpk", [V, P], [Tpk])
         self._nv, self._ng = V.shape[0], g.shape[0]
-        if True:  # the Gauss-Newton Hessian (cheap to build; used when configured)
-            lf = ca.MX.sym("lam_f")
-            lg = ca.MX.sym("lam_g", g.shape[0])
-            H = ca.hessian(lf * J + ca.dot(lg[g.shape[0] - N:], gT), V)[0]
-            reg = np.zeros(V.shape[0])
-            reg[:2 * N] = cfg.solver.gn_regularization
-            H = H + lf * ca.diag(ca.DM(reg))
-            self._hess = ca.Function("nlp_hess_l", {"x": V, "p": P, "lam_f": lf, "lam_g": lg,
-                                                    "triu_hess_gamma_x_x": ca.triu(H)},
-                                     ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
-        else:
-            self._hess = None
+        # Gauss-Newton Hessian of the Lagrangian: the cost's and the temperature rows' curvature, the
+        # dynamics' curvature dropped, plus a proximal term on the scaled inputs (cheap to build)
+        lf = ca.MX.sym("lam_f")
+        lg = ca.MX.sym("lam_g", g.shape[0])
+        H = ca.hessian(lf * J + ca.dot(lg[g.shape[0] - N:], gT), V)[0]
+        reg = np.zeros(V.shape[0])
+        reg[:2 * N] = cfg.solver.gn_regularization
+        H = H + lf * ca.diag(ca.DM(reg))
+        self._hess = ca.Function("nlp_hess_l", {"x": V, "p": P, "lam_f": lf, "lam_g": lg,
+                                                "triu_hess_gamma_x_x": ca.triu(H)},
+                                 ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
 
     def _solver(self, warm: bool, hessian: str | None = None):
         import casadi as ca
@@ -255,7 +253,8 @@ class MPCController:
                 max_iter = min(max_iter, s.gn_max_iter)
             opts = {"print_time": False, "calc_lam_p": False, "error_on_fail": False,
                     "ipopt.print_level": s.print_level, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
-                    "ipopt.tol": s.tol, "ipopt.acceptable_tol": s.acceptable_tol, "ipopt.acceptable_iter": s.acceptable_iter}
+                    "ipopt.tol": s.tol, "ipopt.acceptable_tol": s.acceptable_tol,
+                    "ipopt.acceptable_iter": s.acceptable_iter}
             if s.max_wall_s is not None:
                 opts["ipopt.max_wall_time"] = s.max_wall_s
             if hessian == "limited-memory":
