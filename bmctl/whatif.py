@@ -37,7 +37,29 @@ class WhatIfResult:
 
 def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[float, float]], seeds: int,
                           particles: int, base_seed: int = 0, every_h: float = 0.25) -> WhatIfResult:
-    """Run ``segments`` on ``seeds`` plants (seeds base_seed .. base_seed + seeds - 1)."""
+    """Run ``segments`` on ``seeds`` plants (seeds base_seed .. base_seed + seeds - 1).
+
+    Parameters
+    ----------
+    card : ModelCard
+        The plant's model card.
+    name : str
+        Label of the schedule.
+    segments : sequence of (hours, rpm)
+        The schedule; rpm 0 is a rest.
+    seeds : int
+        Ensemble size.
+    particles : int
+        Simulated particles per plant.
+    base_seed : int, optional
+        First seed.
+    every_h : float, optional
+        Recording interval (h).
+
+    Returns
+    -------
+    WhatIfResult
+    """
     hours = sum(h for h, _ in segments)
     traj = {k: [] for k in KEYS}
     fs, fr, peaks = [], [], []

@@ -37,6 +37,24 @@ def applied_input(u, interval_h: float, round_minutes: bool = True, binary: bool
     mill timer counts minutes); ``binary`` first rounds milling to 0 or 1. An interval with
     no milling left is a rest and reported as rpm 0.
 
+    Parameters
+    ----------
+    u : sequence of 2 floats
+        Planned (rpm, milling) for the interval.
+    interval_h : float
+        Interval length (h).
+    round_minutes : bool, optional
+        Round the milling time to whole minutes.
+    binary : bool, optional
+        Round milling to 0 or 1 first (on/off mode).
+
+    Returns
+    -------
+    ndarray, (2,)
+        Applied (rpm, milling).
+
+    Examples
+    --------
     >>> applied_input((300.0, 0.337), 0.5)   # 10.11 min -> 10 min of 30
     array([300.        ,   0.33333333])
     """
@@ -74,6 +92,19 @@ def peak_temperature(model, T0, h0, rpm, milling, dt_h, xp=np):
 
     Same closed form as the model's step (mill ``milling * dt_h`` at rpm, then rest).
     Works with numpy arrays or casadi expressions (``xp=casadi``).
+
+    Parameters
+    ----------
+    model : MomentModel
+        Supplies the card's thermal constants.
+    T0, h0 : float or array or casadi expression
+        Vial temperature (degC) and hardening at the interval start.
+    rpm, milling : float or array or casadi expression
+        Input over the interval.
+    dt_h : float
+        Interval length (h).
+    xp : module, optional
+        ``numpy`` (default) or ``casadi``.
     """
     B = eq.NP if xp is np else eq.CA()
     c = model.const
@@ -106,7 +137,33 @@ def max_milling_for_ceiling(model, T0: float, rpm: float, dt_h: float, ceiling_c
 
 @dataclass
 class Status:
-    """Why a plan is what it is (logged by the trial)."""
+    """Why a plan is what it is (logged by the trial).
+
+    Attributes
+    ----------
+    controller : str
+        Which controller answered (mpc, lqr, recipe).
+    solver_status : str
+        IPOPT's return status, or batch_done, dlqr, open-loop.
+    success : bool
+        The solver succeeded (or no solver was needed).
+    iterations : int
+        Solver iterations.
+    solve_ms, solve_cpu_ms : float
+        Wall and CPU time of the solve(s).
+    fallback : str
+        none, shifted (previous plan) or rest.
+    reason : str
+        Why (solver failure, retries, temperature guard, binary rounding).
+    slack_max_c : float
+        Largest temperature slack of the solution (degC over the ceiling).
+    t_peak_max_c, t_ceiling_c : float
+        Largest predicted peak temperature of the plan, and the ceiling.
+    cost : float
+        Objective value.
+    binary_loss : float or None
+        Binary on/off mode: cost(rounded) - cost(continuous).
+    """
 
     controller: str
     solver_status: str = "n/a"
@@ -164,6 +221,8 @@ class Plan:
     u_apply : ndarray, (2,)
         The input to apply now: ``u[0]`` with whole minutes of milling (rpm 0 = rest).
     status : Status
+    extra : dict
+        Controller-specific details (e.g. the LQR gain).
     """
 
     t_h: float
@@ -197,7 +256,17 @@ class Plan:
 
 
 def schedule_segments(U: np.ndarray, interval_h: float, rpm_decimals: int = 0) -> list[tuple[float, float]]:
-    """(hours, rpm) segments of applied inputs per interval: mill, then rest; neighbours merged."""
+    """(hours, rpm) segments of applied inputs per interval: mill, then rest; neighbours merged.
+
+    Parameters
+    ----------
+    U : array_like, (N, 2)
+        Applied (rpm, milling) per interval.
+    interval_h : float
+        Interval length (h).
+    rpm_decimals : int, optional
+        Rounding of the rpm values in the segments.
+    """
     segs: list[list[float]] = []
 
     def add(hours, rpm):
@@ -223,6 +292,11 @@ class Reference:
 
     ``points`` are (from_h, {moment: value}); before the first point nothing is targeted
     (a constant target is one point at 0). :meth:`at` gives the target at a batch time.
+
+    Parameters
+    ----------
+    points : sequence of (float, mapping)
+        (from_h, {moment: value}) pairs; moments from s_mean_um, s_std_um, r_mean, r_std.
     """
 
     def __init__(self, points: Sequence[tuple[float, Mapping[str, float]]] = ()):

@@ -183,7 +183,15 @@ KINDS: dict[str, type] = {"mpc": MPCConfig, "lqr": LQRConfig, "recipe": RecipeCo
 
 
 def validate_controller(data: dict[str, Any], source: str) -> ControllerConfig:
-    """Validate a controller table (dispatch on ``kind``); errors are one-line InputError."""
+    """Validate a controller table (dispatch on ``kind``); errors are one-line InputError.
+
+    Parameters
+    ----------
+    data : dict
+        The parsed TOML table.
+    source : str
+        File name used in error messages.
+    """
     if not isinstance(data, dict):
         raise InputError(f"{source}: expected a table")
     kind = data.get("kind")
@@ -202,12 +210,26 @@ def validate_controller(data: dict[str, Any], source: str) -> ControllerConfig:
 
 
 def load_controller(path: str | Path) -> ControllerConfig:
-    """Read and validate a controller TOML (``controllers/*.toml``)."""
+    """Read and validate a controller TOML (``controllers/*.toml``).
+
+    Parameters
+    ----------
+    path : path-like
+        The TOML file.
+    """
     return validate_controller(read_toml(path), str(path))
 
 
 def parse_target(text: str, source: str = "--target") -> dict[str, float]:
-    """Parse ``"s_mean_um=25,r_mean=0.05"`` into a validated target dict."""
+    """Parse ``"s_mean_um=25,r_mean=0.05"`` into a validated target dict.
+
+    Parameters
+    ----------
+    text : str
+        Comma-separated ``moment=value`` pairs.
+    source : str, optional
+        Flag or file named in error messages.
+    """
     out: dict[str, float] = {}
     items = [t.strip() for t in str(text).split(",") if t.strip()]
     if not items:

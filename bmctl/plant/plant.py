@@ -56,7 +56,21 @@ class EventCounts:
 
 @dataclass
 class Record:
-    """One recorded time of a run."""
+    """One recorded time of a run.
+
+    Attributes
+    ----------
+    t_h : float
+        Time (h).
+    moments : dict
+        Output of :meth:`Plant.moments`.
+    temperature_c : float
+        Vial temperature.
+    bonds, fractures : int
+        Events in the simulated sample since the previous record.
+    p : ndarray or None
+        Raster p(s, r) when kept.
+    """
 
     t_h: float
     moments: dict
@@ -321,7 +335,18 @@ class Plant:
     def sample(self, n: int, rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Draw ``n`` particles as a micrograph sees them (number-weighted, without replacement).
 
-        Returns ``(s_um, r)``. Uses the plant's generator unless ``rng`` is given.
+        Parameters
+        ----------
+        n : int
+            Number of particles (with replacement if n > M).
+        rng : numpy.random.Generator, optional
+            Generator to draw with (default: the plant's own).
+
+        Returns
+        -------
+        s_um, r : ndarray
+            Sizes (um) and aspect ratios. For segmentation noise and resolution limits use
+            :func:`bmctl.measure.sampler.micrograph_sample` on the population.
         """
         if n < 1:
             raise InputError(f"sample: n must be >= 1 (got {n})")
