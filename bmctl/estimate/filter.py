@@ -139,7 +139,27 @@ class FilterSettings:
 
 @dataclass
 class Estimate:
-    """Weighted summary of the filter at one time."""
+    """Weighted summary of the filter at one time.
+
+    Attributes
+    ----------
+    t_h : float
+        Time (h).
+    names : tuple of str
+        State then parameter names (the columns of mean, q05, q95).
+    mean, q05, q95 : ndarray
+        Weighted mean and 5 % / 95 % quantiles of every state and parameter.
+    ess : float
+        Effective sample size after the update (before any resampling).
+    resampled : bool
+        Whether the update resampled.
+    degenerate : bool
+        Whether every particle was impossible (prior weights kept).
+    eta : tuple of 2 floats
+        Learning rates of the size and shape blocks (NaN without a sample).
+    n_measured : int
+        Measured particles in the sample (0 without one).
+    """
 
     t_h: float
     names: tuple[str, ...]
@@ -254,7 +274,15 @@ class ParticleFilter:
 
     # --- prediction -------------------------------------------------------------------------
     def predict(self, u, dt_h: float) -> None:
-        """Propagate every particle over ``dt_h`` hours under input ``u = (rpm, milling)``."""
+        """Propagate every particle over ``dt_h`` hours under input ``u = (rpm, milling)``.
+
+        Parameters
+        ----------
+        u : array_like, (2,)
+            (rpm, milling): sun-disc speed and the share of the interval spent milling.
+        dt_h : float
+            Interval (h); <= 0 does nothing.
+        """
         if dt_h <= 0:
             return
         st, rng = self.settings, self.rng
@@ -429,6 +457,20 @@ class ParticleFilter:
 
 def learning_rates(fit, st: FilterSettings) -> np.ndarray:
     """Power-likelihood learning rate of the size and shape blocks of one sample.
+
+    Parameters
+    ----------
+    fit : SampleFit
+        The sample's own fit (information, calibrated rates).
+    st : FilterSettings
+        Cap ``learning_rate``, ``calibrate_learning_rate`` and the law's misfit floor.
+
+    Returns
+    -------
+    ndarray, (2,)
+
+    Notes
+    -----
 
     eta = eta_LHW * min_k v_k / (v_k + tau_k^2): the Lyddon-Holmes-Walker calibration
     ``fit.eta`` (capped by ``st.learning_rate``), reduced so that the tempered variance of

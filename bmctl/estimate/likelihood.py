@@ -3,10 +3,11 @@
 A state gives the number-weighted size and aspect-ratio laws of the powder:
 
 size s (um)
-    log-normal with the state's mean and std (the issue's law; ``size_law="lognormal"``), or
-    Weibull with the same mean and std (``size_law="weibull"``, an option: see
-    docs/estimation.md for why). Measurement noise: multiplicative, ``ln s_meas = ln s + e``,
-    ``e ~ N(0, sigma_log_s^2)`` (exact for the log-normal, variance-matched for the Weibull).
+    Weibull with the state's mean and std (``size_law="weibull"``, the default), or
+    log-normal with them (``size_law="lognormal"``, the issue's law: its s_std misfits the
+    plant's populations by 20-43 %, docs/estimation.md). Measurement noise: multiplicative,
+    ``ln s_meas = ln s + e``, ``e ~ N(0, sigma_log_s^2)`` (exact for the log-normal,
+    variance-matched for the Weibull).
 aspect ratio r
     Beta on (0, 1) with the state's mean and std, measured through additive noise and the
     isoperimetric floor of the measurement path: ``r_meas = max(0, r + e)``,
@@ -94,7 +95,17 @@ def weibull_params(mean, std):
 # --- continuous form (sufficient statistics) -------------------------------------------------
 @dataclass(frozen=True)
 class SampleStats:
-    """Sufficient statistics of a measured sample (s in um, r dimensionless)."""
+    """Sufficient statistics of a measured sample (s in um, r dimensionless).
+
+    Attributes
+    ----------
+    n : int
+        Measured particles.
+    sum_log_s, sum_log_s2 : float
+        Sums of ln s and (ln s)^2.
+    sum_log_r, sum_log_1mr : float
+        Sums of ln r and ln(1 - r), r clipped to [R_FLOOR, 1 - R_FLOOR].
+    """
 
     n: int
     sum_log_s: float
@@ -131,7 +142,24 @@ def loglik_aspect(stats: SampleStats, r_mean, r_std, sigma_r: float = 0.0):
 
 def loglik_sample(stats: SampleStats, s_mean_um, s_std_um, r_mean, r_std, sigma_log_s: float = 0.05,
                   sigma_r: float = 0.01):
-    """Joint continuous log-likelihood (size and shape independent given the state)."""
+    """Joint continuous log-likelihood (log-normal s, Beta r; independent given the state).
+
+    Parameters
+    ----------
+    stats : SampleStats
+        The measured sample.
+    s_mean_um, s_std_um, r_mean, r_std : array_like
+        Moments of each state (broadcast).
+    sigma_log_s : float, optional
+        Size-measurement noise (std of ln s), added to the log-variance.
+    sigma_r : float, optional
+        r-measurement noise, added to the r variance (moment-matched).
+
+    Returns
+    -------
+    ndarray
+        Log-likelihood per state.
+    """
     return loglik_size(stats, s_mean_um, s_std_um, sigma_log_s) + loglik_aspect(stats, r_mean, r_std, sigma_r)
 
 
@@ -142,7 +170,7 @@ class LawSettings:
 
     Attributes
     ----------
-    size_law : {"lognormal", "weibull"}
+    size_law : {"weibull", "lognormal"}
         Law of s given (s_mean, s_std).
     sigma_log_s : float
         Std of the multiplicative size-measurement noise (ln s). The synthetic micrograph
@@ -193,6 +221,8 @@ class Raster:
     ----------
     n : int
         Measured particles.
+    ds_log, dr : float
+        Raster cell widths in ln s and in r.
     s_k0 : int
         Index of the first size cell (cell k covers ln s in [k ds, (k+1) ds)).
     s_counts : ndarray
@@ -214,7 +244,7 @@ class Raster:
     r_cells: np.ndarray
     r_counts: np.ndarray
     moments: tuple
-    _cache: dict = field(default_factory=dict, compare=False, repr=False)
+    _cache: dict = field(default_factory=dict, init=False, compare=False, repr=False)
 
     @classmethod
     def from_particles(cls, s_um, r, law: LawSettings | None = None) -> "Raster":
@@ -364,7 +394,22 @@ def shape_cell_logp(raster: Raster, r_mean, r_std, law: LawSettings) -> np.ndarr
 
 
 def loglik_raster(raster: Raster, s_mean, s_std, r_mean, r_std, law: LawSettings | None = None):
-    """(size, shape) log-likelihoods of a rastered sample for every state (two arrays (N,))."""
+    """Log-likelihood of a rastered sample under the laws of every state, size and shape apart.
+
+    Parameters
+    ----------
+    raster : Raster
+        The measured sample.
+    s_mean, s_std, r_mean, r_std : array_like, (N,)
+        Moments of each state.
+    law : LawSettings, optional
+        Laws, noise and raster (default ``LawSettings()``).
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        Size and shape log-likelihoods, each (N,); their sum is the sample's.
+    """
     law = law or LawSettings()
     ls = size_cell_logp(raster, np.atleast_1d(s_mean), np.atleast_1d(s_std), law) @ raster.s_counts
     lr_cells = shape_cell_logp(raster, np.atleast_1d(r_mean), np.atleast_1d(r_std), law)
@@ -421,9 +466,25 @@ def _z_feasible(z: np.ndarray) -> np.ndarray:
 
 
 def fit_sample(raster: Raster, law: LawSettings | None = None, iters: int = 12, h: float = 0.01) -> SampleFit:
-    """Damped Newton on each block from the sample's own moments; information and learning rates.
+    """Maximum of a sample's own likelihood, its observed information and learning rates.
 
-    Every likelihood evaluation is one batched call over the 7-point stencil of both blocks.
+    Damped Newton on each block (size, shape) from the sample's moments; every likelihood
+    evaluation is one batched call over the 7-point finite-difference stencil of both blocks.
+
+    Parameters
+    ----------
+    raster : Raster
+        The measured sample.
+    law : LawSettings, optional
+        Laws, noise and raster.
+    iters : int, optional
+        Newton iterations at most.
+    h : float, optional
+        Finite-difference step in ln(moment).
+
+    Returns
+    -------
+    SampleFit
     """
     law = law or LawSettings()
     m = raster.moments

@@ -89,7 +89,13 @@ def resample(weights: np.ndarray, rng: np.random.Generator, scheme: str = "syste
 
 
 def effective_sample_size(weights: np.ndarray) -> float:
-    """ESS = 1 / sum(w^2) of normalised weights."""
+    """ESS = 1 / sum(w^2) of normalised weights.
+
+    Parameters
+    ----------
+    weights : ndarray
+        Normalised weights (sum 1).
+    """
     return float(1.0 / np.sum(np.square(weights)))
 
 

@@ -16,7 +16,19 @@ from .filter import Estimate, FilterSettings, ParticleFilter
 
 @dataclass
 class Sample:
-    """One measured sample: particle sizes (um), aspect ratios, optional vial temperature."""
+    """One measured sample: particle sizes (um), aspect ratios, optional vial temperature.
+
+    Attributes
+    ----------
+    t_h : float
+        Milling time of the sample (h).
+    s_um, r : ndarray
+        Measured sizes (um) and aspect ratios.
+    temperature_c : float, optional
+        Vial-temperature reading.
+    source : str
+        Where the sample came from (file name), for messages.
+    """
 
     t_h: float
     s_um: np.ndarray
@@ -49,6 +61,26 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
 
     Between samples the filter predicts under the schedule's inputs in pieces of at most
     ``max_step_h`` hours.
+
+    Parameters
+    ----------
+    model : MomentModel
+        The filter's model.
+    samples : sequence of Sample
+        In increasing time.
+    segments : sequence of (hours, rpm)
+        The schedule from t = 0 (rpm 0: rest; beyond its end: rest).
+    settings : FilterSettings, optional
+    seed : int, optional
+        Seed of the filter's generator (ignored when ``pf`` is given).
+    max_step_h : float, optional
+        Longest single predict step.
+    pf : ParticleFilter, optional
+        Continue this filter instead of starting a new one.
+
+    Returns
+    -------
+    (ParticleFilter, list of Estimate)
     """
     if pf is None:
         pf = ParticleFilter(model, np.random.default_rng(seed), settings)
