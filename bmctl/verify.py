@@ -87,7 +87,13 @@ class Exact:
     atoms: tuple[float, ...] = ()
 
     def snap(self, x: np.ndarray) -> np.ndarray:
-        """Sample values moved onto the lattice or atoms they stand for (s^2 rounds in the last digit)."""
+        """Sample values moved onto the lattice or atoms they stand for (s^2 rounds in the last digit).
+
+        Parameters
+        ----------
+        x : ndarray
+            Sample of x (m^2).
+        """
         x = np.asarray(x, dtype=float)
         if self.support is not None:
             return np.rint(x / self.support[0]) * self.support[0]
@@ -97,7 +103,15 @@ class Exact:
 
 
 def exponential_state(n_ratio: float, mean: float) -> Exact:
-    """An exponential distribution of x with the given mean (self-similar solutions)."""
+    """An exponential distribution of x (self-similar solutions).
+
+    Parameters
+    ----------
+    n_ratio : float
+        N(t) / N(0).
+    mean : float
+        E[x] (m^2).
+    """
     def cdf(x, left=False):
         return -np.expm1(-np.maximum(np.asarray(x, dtype=float), 0.0) / mean)
 
@@ -109,6 +123,13 @@ def smoluchowski_constant(tau: float, x_mean0: float = X0) -> Exact:
 
     N(t) = N0 / (1 + tau/2) and n(x, t) = N^2 / X exp(-x N / X) with X the total area
     (Smoluchowski 1917; Aldous 1999, Sec. 2.2).
+
+    Parameters
+    ----------
+    tau : float
+        Dimensionless time K N0 t.
+    x_mean0 : float, optional
+        E[x] at t = 0 (m^2).
     """
     n = 1.0 / (1.0 + tau / 2.0)
     return exponential_state(n, x_mean0 / n)
@@ -119,6 +140,13 @@ def ziff_mcgrady_exponential(tau: float, x_mean0: float = X0) -> Exact:
 
     dN/dt = k X exactly, and the exponential shape is kept: n(x, t) = N^2 / X exp(-x N / X)
     with N = N0 (1 + tau) (Ziff & McGrady 1985; substitution into the breakage equation).
+
+    Parameters
+    ----------
+    tau : float
+        Dimensionless time k E[x](0) t.
+    x_mean0 : float, optional
+        E[x] at t = 0 (m^2).
     """
     n = 1.0 + tau
     return exponential_state(n, x_mean0 / n)
@@ -130,6 +158,13 @@ def ziff_mcgrady_monodisperse(tau: float, x0: float = X0) -> Exact:
     With u = x / x0 (Ziff & McGrady 1985, eqn 19 with a linear rate):
     n(u, t) / N0 = exp(-tau) delta(u - 1) + exp(-tau u) (2 tau + tau^2 (1 - u)), 0 < u < 1,
     so N / N0 = 1 + tau and the unbroken particles are a share exp(-tau) / (1 + tau).
+
+    Parameters
+    ----------
+    tau : float
+        Dimensionless time k x0 t.
+    x0 : float, optional
+        The initial x (m^2).
     """
     n = 1.0 + tau
     atom = math.exp(-tau)
@@ -158,7 +193,15 @@ def ziff_mcgrady_monodisperse(tau: float, x0: float = X0) -> Exact:
 
 
 def discrete_state(c: np.ndarray, x0: float = X0) -> Exact:
-    """An Exact from number fractions c_k of k-mers (k = 1..K) with N / N0 = sum(c)."""
+    """An Exact from number fractions c_k of k-mers (k = 1..K) with N / N0 = sum(c).
+
+    Parameters
+    ----------
+    c : ndarray
+        c_k = n_k / N0.
+    x0 : float, optional
+        x of a monomer (m^2).
+    """
     n = float(c.sum())
     f = c / n
     k = np.arange(1, c.size + 1, dtype=float)
@@ -183,6 +226,16 @@ def smoluchowski_discrete(p: np.ndarray, taus: Sequence[float], rtol: float = 1e
     over pairs), tau = rho t, so the kernel is K_kl = rho p_kl / N and
     dc_k/dtau = (1/nu) [1/2 sum_{i+j=k} p_ij c_i c_j - c_k sum_j p_kj c_j], nu = sum_k c_k,
     from c_1(0) = 1. Sizes above K are dropped (the returned truncation loss is the lost mass).
+
+    Parameters
+    ----------
+    p : ndarray, shape (K, K)
+        Bond probability of a processed pair of a k-mer and an l-mer; 1 - p may be non-zero
+        only for small k, l (a corner), as for clipped kernels.
+    taus : sequence of float
+        Output times (tau = rho t).
+    rtol : float, optional
+        Relative tolerance of the RK45 integration.
 
     Returns
     -------
@@ -220,7 +273,17 @@ def smoluchowski_discrete(p: np.ndarray, taus: Sequence[float], rtol: float = 1e
 
 
 def kernel15_matrix(K: int, x0: float = X0, gamma: float = GAMMA_15) -> np.ndarray:
-    """p_b of eqn (15) for round k- and l-mers (s^2 = k x0, r = 0): min(gamma s_k s_l, 1)."""
+    """p_b of eqn (15) for round k- and l-mers (s^2 = k x0, r = 0): min(gamma s_k s_l, 1).
+
+    Parameters
+    ----------
+    K : int
+        Largest size.
+    x0 : float, optional
+        x of a monomer (m^2).
+    gamma : float, optional
+        Factor of (15), 1/m^2.
+    """
     s = np.sqrt(np.arange(1, K + 1) * x0)
     return ev.bond_probability(s[:, None], 0.0, s[None, :], 0.0, gamma)  # (15)
 
@@ -325,7 +388,21 @@ CASES: dict[str, Callable[[], Case]] = {
 
 def population_plant(card: ModelCard, rng: np.random.Generator, x: np.ndarray, X: float,
                      kernels: PopulationKernels) -> Plant:
-    """A plant whose M particles have areas ``x`` (r = 0) and represent total area ``X``, running ``kernels``."""
+    """A plant whose M particles have areas ``x`` (r = 0) and represent total area ``X``, running ``kernels``.
+
+    Parameters
+    ----------
+    card : ModelCard
+        Supplies the simulation settings (batch fraction, step).
+    rng : numpy.random.Generator
+        The plant's generator.
+    x : ndarray
+        Initial x = s^2 (m^2) of the M particles.
+    X : float
+        Represented total area (m^2).
+    kernels : PopulationKernels
+        The verification kernels.
+    """
     plant = Plant(card, rng, particles=x.size, kernels=kernels)
     plant.s = np.sqrt(x)
     plant.r = np.zeros(x.size)
@@ -338,6 +415,13 @@ def ks_distance(x: np.ndarray, ex: Exact) -> float:
 
     Continuous F (atoms allowed): right and left limits at the sample values; lattice F:
     every lattice point.
+
+    Parameters
+    ----------
+    x : ndarray
+        The sample.
+    ex : Exact
+        The exact distribution.
     """
     xs = np.sort(x)
     M = xs.size
@@ -369,7 +453,19 @@ class Run:
 
 
 def run_case(case: Case, M: int, seed: int, card: ModelCard | None = None) -> Run:
-    """Run one case with M particles from one seed; errors at each of its times."""
+    """Run one case with M particles from one seed; errors at each of its times.
+
+    Parameters
+    ----------
+    case : Case
+        The case.
+    M : int
+        Simulated particles.
+    seed : int
+        Seed of the run's generator.
+    card : ModelCard, optional
+        Simulation settings (default: the lab card).
+    """
     card = card or default_card()
     rng = np.random.default_rng(seed)
     x = case.initial(rng, M)
@@ -395,6 +491,17 @@ def iid_errors(ex: Exact, M: int, rng: np.random.Generator, reps: int = 64) -> d
 
     ``n`` and ``m2``: standard deviations of the relative errors of N = X / mean(x) and of
     mean(x^2) (delta method); ``ks``: mean Kolmogorov distance (simulated, ``reps`` samples).
+
+    Parameters
+    ----------
+    ex : Exact
+        The exact distribution.
+    M : int
+        Sample size.
+    rng : numpy.random.Generator
+        Source of the simulated samples.
+    reps : int, optional
+        Samples for the mean Kolmogorov distance.
     """
     cv = math.sqrt(max(ex.m2 - ex.m1**2, 0.0)) / ex.m1
     cv2 = math.sqrt(max(ex.m4 - ex.m2**2, 0.0)) / ex.m2
@@ -432,7 +539,15 @@ class CaseResult:
 
 
 def family_p(z: dict[str, float], df: dict[str, float]) -> float:
-    """Bonferroni-adjusted two-sided p-value of the most significant of several t statistics."""
+    """Bonferroni-adjusted two-sided p-value of the most significant of several t statistics.
+
+    Parameters
+    ----------
+    z : dict
+        t statistics by name.
+    df : dict
+        Their degrees of freedom.
+    """
     p = min(2.0 * float(stats.t.sf(abs(z[k]), df[k])) for k in z)
     return min(1.0, p * len(z))
 
@@ -463,6 +578,19 @@ def evaluate(case: Case, sizes: Sequence[int], seeds: Sequence[int], card: Model
     adjusted, must have p > ``BIAS_ALPHA``). Trend: the slope of
     log(rms error over seeds and times) against log M, for N, E[x^2] and the Kolmogorov
     distance, must lie in ``SLOPE_RANGE``.
+
+    Parameters
+    ----------
+    case : Case
+        The case.
+    sizes : sequence of int
+        Sample sizes M.
+    seeds : sequence of int
+        Seeds (the same for every M).
+    card : ModelCard, optional
+        Simulation settings (default: the lab card).
+    progress : callable, optional
+        Called with a line per sample size.
     """
     card = card or default_card()
     runs = {}
@@ -550,6 +678,19 @@ def energetics(card: ModelCard, rpm: float, collisions: int, seed: int, particle
     Delta U = U_in - U_out is spent (10). The population does not change (events are left
     out), so what is compared is the loop's stopping rule against the plant's hit rate
     and its weighting of U_in and psi.
+
+    Parameters
+    ----------
+    card : ModelCard
+        The model card.
+    rpm : float
+        Sun-disc speed.
+    collisions : int
+        Collisions of the loop.
+    seed : int
+        Seed of the sample and the draws.
+    particles : int, optional
+        Size of the frozen sample.
     """
     from .plant.kinematics import kinematics
 
@@ -650,6 +791,13 @@ def design_effect(samples: Sequence[np.ndarray], grid: np.ndarray) -> float:
 
     Particles of one run are not independent (common history, resampling copies); pooling
     runs counts each particle as 1/deff of an independent draw.
+
+    Parameters
+    ----------
+    samples : sequence of ndarray
+        One sample per run.
+    grid : ndarray
+        Points where the CDFs are compared.
     """
     F = np.array([np.searchsorted(np.sort(x), grid, side="right") / x.size for x in samples])
     m = np.mean([x.size for x in samples])
@@ -662,7 +810,13 @@ def design_effect(samples: Sequence[np.ndarray], grid: np.ndarray) -> float:
 
 
 def ks_clustered(a: Sequence[np.ndarray], b: Sequence[np.ndarray]) -> tuple[float, float]:
-    """Two-sample Kolmogorov distance of pooled runs and its p-value with effective sample sizes."""
+    """Two-sample Kolmogorov distance of pooled runs and its p-value with effective sample sizes.
+
+    Parameters
+    ----------
+    a, b : sequence of ndarray
+        The runs of each group.
+    """
     pa, pb = np.concatenate(a), np.concatenate(b)
     d = float(stats.ks_2samp(pa, pb).statistic)
     grid = np.quantile(np.concatenate([pa, pb]), np.linspace(0.05, 0.95, 19))
@@ -685,6 +839,21 @@ def compare_reference(card: ModelCard, hours: float, particles: int, seeds: Sequ
     Each seed gives both an independent run (different streams). Moments of the final s (um),
     r and N(t)/N(0) are compared by Welch z-scores of their seed means; the pooled final s
     and r by two-sample KS tests that allow for the runs' clustering.
+
+    Parameters
+    ----------
+    card : ModelCard
+        The model card (its recipe, :func:`bmctl.config.card_schedule`).
+    hours : float
+        Length of the runs (h).
+    particles : int
+        Simulated particles of both (the reference's initial sample).
+    seeds : sequence of int
+        Seeds.
+    budget_scale : float, optional
+        The reference's ``budget_scale``.
+    progress : callable, optional
+        Called with a line per seed.
     """
     from .config import card_schedule
     from .plant.reference import ReferencePlant
@@ -791,7 +960,15 @@ LONG_SCHEDULE = ((12.0, None), (2.0, 0.0), (12.0, "max"), (4.0, 0.0), (18.0, "mi
 
 
 def long_schedule(card: ModelCard, scale: float = 1.0) -> list[tuple[float, float]]:
-    """48 h (times ``scale``): the card's rpm, a rest, rpm_max, a rest, the mid speed."""
+    """48 h (times ``scale``): the card's rpm, a rest, rpm_max, a rest, the mid speed.
+
+    Parameters
+    ----------
+    card : ModelCard
+        Supplies the rpm and rpm_max.
+    scale : float, optional
+        Factor on every segment's length.
+    """
     out = []
     for h, rpm in LONG_SCHEDULE:
         speed = card.process.rpm if rpm is None else card.mill.rpm_max if rpm == "max" else \
@@ -801,7 +978,19 @@ def long_schedule(card: ModelCard, scale: float = 1.0) -> list[tuple[float, floa
 
 
 def bookkeeping(card: ModelCard, particles: int, seed: int, scale: float = 1.0) -> Bookkeeping:
-    """Run :func:`long_schedule` on an :class:`AuditedPlant`; conservation, balance and invariants."""
+    """Run :func:`long_schedule` on an :class:`AuditedPlant`; conservation, balance and invariants.
+
+    Parameters
+    ----------
+    card : ModelCard
+        The model card.
+    particles : int
+        Simulated particles.
+    seed : int
+        Seed of the plant.
+    scale : float, optional
+        Factor on the schedule's length.
+    """
     from .plant.kinematics import kinematics
 
     plant = AuditedPlant(card, np.random.default_rng(seed), particles)
@@ -866,7 +1055,19 @@ class Report:
 
 def run_all(settings: Settings, seed: int, cards: Sequence[ModelCard],
             progress: Callable[[str], None] | None = None) -> Report:
-    """Every check with ``settings``; seeds start at ``seed``."""
+    """Every check with ``settings``.
+
+    Parameters
+    ----------
+    settings : Settings
+        Sizes of the runs (:data:`QUICK`, :data:`FULL`).
+    seed : int
+        First seed.
+    cards : sequence of ModelCard
+        Cards for the loop, reference and bookkeeping checks.
+    progress : callable, optional
+        Called with progress lines.
+    """
     seeds = tuple(range(seed, seed + settings.seeds))
     analytic = [evaluate(make(), settings.sizes, seeds, progress=progress) for make in CASES.values()]
     energ, ref, book = {}, [], []
@@ -891,7 +1092,13 @@ def _ok(flag: bool) -> str:
 
 
 def rows(report: Report) -> list[tuple]:
-    """The verification table: one row per quantity (``HEADER``); ``info`` rows are not tests."""
+    """The verification table: one row per quantity (``HEADER``); ``info`` rows are not tests.
+
+    Parameters
+    ----------
+    report : Report
+        What :func:`run_all` produced.
+    """
     out = []
     names = {"n": "N rel. error (rms)", "m2": "E[x^2] rel. error (rms)", "ks": "Kolmogorov distance (rms)"}
     for res in report.analytic:
@@ -943,7 +1150,13 @@ def rows(report: Report) -> list[tuple]:
 
 
 def format_table(table: Sequence[tuple]) -> str:
-    """Plain-text table with aligned columns."""
+    """Plain-text table with aligned columns.
+
+    Parameters
+    ----------
+    table : sequence of tuple
+        Rows of :func:`rows`.
+    """
     cells = [HEADER] + [tuple(str(c) for c in row) for row in table]
     widths = [max(len(r[k]) for r in cells) for k in range(len(HEADER))]
     lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in cells]
@@ -990,7 +1203,15 @@ def _pdf_panel(ax, res: CaseResult) -> None:
 
 
 def analytic_figure(report: Report, path) -> None:
-    """Exact and simulated distributions of every analytic case (one panel per case)."""
+    """Exact and simulated distributions of every analytic case (one panel per case).
+
+    Parameters
+    ----------
+    report : Report
+        What :func:`run_all` produced.
+    path : path-like
+        PNG file (written atomically).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -1008,7 +1229,15 @@ def analytic_figure(report: Report, path) -> None:
 
 
 def reference_figure(report: Report, path) -> None:
-    """Final s and r distributions of the plant and the reference, pooled over seeds, per card."""
+    """Final s and r distributions of the plant and the reference, pooled over seeds, per card.
+
+    Parameters
+    ----------
+    report : Report
+        What :func:`run_all` produced.
+    path : path-like
+        PNG file (written atomically).
+    """
     import matplotlib
 
     matplotlib.use("Agg")

@@ -67,17 +67,42 @@ class Kernels(Protocol):
     """What the plant's event machinery needs from the physics of an impact."""
 
     def rate(self, plant: "Plant", kin: Kinematics) -> float:
-        """Processings per particle per second at kinematics ``kin`` (0: no impacts)."""
+        """Processings per particle per second (0: no impacts).
+
+        Parameters
+        ----------
+        plant : Plant
+            The plant (its card and state).
+        kin : Kinematics
+            Collision quantities at the current rpm.
+        """
 
     def collide(self, plant: "Plant", kin: Kinematics, s_i: np.ndarray, r_i: np.ndarray,
                 s_j: np.ndarray, r_j: np.ndarray, rng: np.random.Generator) -> Outcome:
-        """Outcome of impacts on the disjoint pairs (i, j); every draw from ``rng``."""
+        """Outcome of impacts on pairs (i, j) that share no particle.
+
+        Parameters
+        ----------
+        plant : Plant
+            The plant (card, temperature, hardening, total area, represented number).
+        kin : Kinematics
+            Collision quantities at the current rpm.
+        s_i, r_i, s_j, r_j : ndarray
+            Sizes (m) and aspect ratios of the pairs' particles.
+        rng : numpy.random.Generator
+            Source of every draw.
+        """
 
 
 def dissipation_coefficients(alpha: float, beta: float) -> tuple[float, float]:
     """(a, b) with E[dissipated share | psi] = a sin^2(2 psi) + b cos^2(2 psi).  (7)-(9)
 
     a = 1 - E[zeta^2], zeta ~ Beta(2, alpha + 1); b = 1 - E[xi^2], xi ~ Beta(beta + 1, 2).
+
+    Parameters
+    ----------
+    alpha, beta : float
+        The exponents of (9).
     """
     ez2 = 2 * 3 / ((alpha + 3) * (alpha + 4))
     ex2 = (beta + 1) * (beta + 2) / ((beta + 3) * (beta + 4))
@@ -91,6 +116,15 @@ def sample_impact_angles(rng: np.random.Generator, a: float, b: float, n: int) -
     Delta U is spent, about Delta U / (U_in c(psi)) of them with c(psi) = a sin^2 2psi +
     b cos^2 2psi: an impact's psi is the collision's psi weighted by 1 / c(psi). Exact
     transform of one uniform draw phi ~ U(-pi, pi): 2 psi = atan2(sqrt(b) sin phi, sqrt(a) cos phi).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of the n uniform draws.
+    a, b : float
+        :func:`dissipation_coefficients`.
+    n : int
+        Number of angles.
     """
     phi = rng.uniform(-np.pi, np.pi, size=n)
     return 0.5 * np.arctan2(math.sqrt(b) * np.sin(phi), math.sqrt(a) * np.cos(phi))
@@ -108,14 +142,32 @@ class PaperKernels:
     """
 
     def rate(self, plant: "Plant", kin: Kinematics) -> float:
-        """Impacts per particle per second: f F_t E[(U_in - U_out)/U_in] E[1/c(psi)], E[1/c] = 1/sqrt(a b)."""
+        """Impacts per particle per second: f F_t E[(U_in - U_out)/U_in] E[1/c(psi)], E[1/c] = 1/sqrt(a b).
+
+        Parameters
+        ----------
+        plant : Plant
+            Supplies the card's alpha, beta.
+        kin : Kinematics
+            Frequency f and trapped share F_t at the current rpm.
+        """
         if kin.frequency == 0:
             return 0.0
         a, b = dissipation_coefficients(plant.card.stochastic.alpha, plant.card.stochastic.beta)
         return kin.frequency * kin.trapped_fraction * MEAN_LOSS_RATIO / math.sqrt(a * b)
 
     def sample_psi(self, plant: "Plant", rng: np.random.Generator, n: int) -> np.ndarray:
-        """The incidence angles of ``n`` impacts (:func:`sample_impact_angles` with the card's alpha, beta)."""
+        """The incidence angles of ``n`` impacts (:func:`sample_impact_angles` with the card's alpha, beta).
+
+        Parameters
+        ----------
+        plant : Plant
+            Supplies the card.
+        rng : numpy.random.Generator
+            Source of the draws.
+        n : int
+            Number of impacts.
+        """
         return sample_impact_angles(rng, *dissipation_coefficients(plant.card.stochastic.alpha,
                                                                    plant.card.stochastic.beta), n)
 
@@ -135,6 +187,19 @@ class PaperKernels:
         ``effective_yield_stress()`` and the factors ``_gamma``, ``_delta``. Returns the
         outcome and the heat each pair dissipated, Delta U_d,i + Delta U_d,j (10), which the
         one-collision-at-a-time reference (:mod:`bmctl.plant.reference`) spends from Delta U.
+
+        Parameters
+        ----------
+        plant : Plant or ReferencePlant
+            The state (see above).
+        kin : Kinematics
+            Collision quantities (trapped share).
+        si, ri, sj, rj : ndarray
+            Sizes (m) and aspect ratios of the pairs.
+        u_in, psi : ndarray
+            Incident energy (J) and incidence angle of each impact.
+        rng : numpy.random.Generator
+            Source of zeta, xi and the event draws.
         """
         card = plant.card
         st, mat, part = card.stochastic, card.material, card.partition
@@ -185,7 +250,15 @@ Split = Callable[[np.random.Generator, int], np.ndarray]
 
 
 def uniform_split(rng: np.random.Generator, n: int) -> np.ndarray:
-    """Area fraction u ~ U(0, 1) of the first part: binary breakage, daughter density b(x|y) = 2/y."""
+    """Area fraction u ~ U(0, 1) of the first part: binary breakage, daughter density b(x|y) = 2/y.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Source of the draws.
+    n : int
+        Number of fractions.
+    """
     return rng.random(n)
 
 
@@ -257,6 +330,15 @@ def constant_agglomeration(K: float, N0: float, headroom: float = 1.0) -> Popula
     """Constant Smoluchowski kernel K (per pair of real particles per second, unit volume).
 
     rho = headroom * K * N0 and p = K N / rho <= 1 while N <= headroom * N0.
+
+    Parameters
+    ----------
+    K : float
+        Kernel, per pair of real particles per second.
+    N0 : float
+        Represented number at the start.
+    headroom : float, optional
+        rho in units of K N0 (> 1 leaves room for the sampled N(0) and shortens the batches).
     """
     rho = headroom * K * N0
     return PopulationKernels(rate_per_s=rho, bond=lambda xi, xj, N: np.full(xi.shape, K * N / rho))
@@ -266,6 +348,15 @@ def linear_breakage(k: float, x_max: float, headroom: float = 1.0) -> Population
     """Binary breakage with selection rate S(x) = k x and uniform daughters (Ziff & McGrady 1985).
 
     rho = headroom * k * x_max, p = k x / rho <= 1 for x <= headroom * x_max.
+
+    Parameters
+    ----------
+    k : float
+        Rate constant, 1/(m^2 s).
+    x_max : float
+        Largest x (m^2) the population will hold.
+    headroom : float, optional
+        rho in units of k x_max.
     """
     rho = headroom * k * x_max
     return PopulationKernels(rate_per_s=rho, fracture=lambda x: k * x / rho)
@@ -275,6 +366,13 @@ def paper_bonding(gamma_per_m2: float, rate_per_s: float) -> PopulationKernels:
     """Bonding by eqn (15) alone, p_b = gamma s_i s_j (r = 0, p_u = 1), at ``rate_per_s`` processings.
 
     The agglomeration kernel is K(x_i, x_j) = rho min(gamma sqrt(x_i x_j), 1) / N.
+
+    Parameters
+    ----------
+    gamma_per_m2 : float
+        The factor gamma of (15), 1/m^2.
+    rate_per_s : float
+        Processings per particle per second, rho.
     """
     return PopulationKernels(
         rate_per_s=rate_per_s,

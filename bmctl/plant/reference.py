@@ -40,7 +40,13 @@ from .population import initial_sample, moments
 
 @dataclass
 class ReferenceCounts:
-    """Collisions, impacts (pair steps) and events of a reference run."""
+    """Counters of a reference run.
+
+    Attributes
+    ----------
+    collisions, impacts, bonds, fractures : int
+        Collisions, impacts (pair steps) and events so far.
+    """
 
     collisions: int = 0
     impacts: int = 0
@@ -116,7 +122,15 @@ class ReferencePlant:
 
     # --- dynamics ------------------------------------------------------------------------------
     def advance(self, rpm: float, hours: float) -> None:
-        """Mill at ``rpm`` (0: rest) for ``hours``, collision by collision."""
+        """Mill at ``rpm`` for ``hours``, collision by collision.
+
+        Parameters
+        ----------
+        rpm : float
+            Sun-disc speed; 0 is a rest (temperature and hardening only).
+        hours : float
+            Length of the interval (h).
+        """
         kin = kinematics(self.card, rpm)
         end = self.t_s + hours * 3600.0
         if kin.frequency == 0:
@@ -140,7 +154,15 @@ class ReferencePlant:
     def collision(self, kin: Kinematics) -> int:
         """One collision: U_in > U_out from (5) and psi, then impacts until Delta U is spent.
 
-        Returns the number of pair steps it took.
+        Parameters
+        ----------
+        kin : Kinematics
+            Collision quantities at the current rpm.
+
+        Returns
+        -------
+        int
+            The number of pair steps it took.
         """
         rng = self.rng
         u_in, u_out = ev.sample_impact_energies(rng, kin.energy_scale, 1, weighted=False)  # (5)
@@ -154,7 +176,15 @@ class ReferencePlant:
         return steps
 
     def step(self, kin: Kinematics, u_in: np.ndarray, psi: np.ndarray) -> float:
-        """One impact on particles i, j picked by p; returns the heat they dissipated (10)."""
+        """One impact on particles i, j picked by p; returns the heat they dissipated (10).
+
+        Parameters
+        ----------
+        kin : Kinematics
+            Collision quantities at the current rpm.
+        u_in, psi : ndarray, shape (1,)
+            The collision's incident energy (J) and incidence angle.
+        """
         rng, s, r = self.rng, self.s, self.r
         n = len(s)
         i = int(rng.integers(n))
