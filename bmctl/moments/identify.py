@@ -272,7 +272,7 @@ def fit(model: MomentModel, experiments: Sequence[Experiment], free: Sequence[st
     if log:
         log(f"fit: {len(free)} coefficients, {r0.size} residuals, initial cost {cost0:.4g}")
     sol = least_squares(fun, th0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev,
-                        ftol=1e-6, xtol=1e-8)
+                        ftol=1e-8, xtol=1e-10)
     out = dict(model.coeffs)
     out.update({k: float(v) for k, v in zip(free, sol.x)})
     if log:
