@@ -144,14 +144,21 @@ def test_loglik_is_vectorised_and_prefers_the_true_state(model):
 def test_short_case_follows_plant_ensemble(model):
     """2 h at the card's 300 rpm from the card's powder, against 4 seeded plants (M = 2000).
 
-    Tolerance per moment = 3 standard errors of the ensemble mean (sampling) plus the
-    model's own error allowance: 15 % of the trajectory's range for the size moments and
-    30 % for the shape moments -- about 3x the held-out NRMSE that identification reports
-    for this card (docs/moments.md), since the short case is the fast first-hours transient.
+    Tolerance per moment and time = 3 standard errors of the ensemble mean (the plant's own
+    spread) plus the model error that identification documents for this card: 3 x its worst
+    held-out NRMSE (``[validation] max`` of models/<card>.moments.toml; a pointwise error is
+    up to ~3x an RMSE) times the trajectory's range. Nothing here is tuned to this case; the
+    first-hours growth transient is the model's weakest region (docs/moments.md, Sec. 6).
     """
+    import tomllib
+
     from bmctl.plant import make_plant
 
     names = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
+    path = coeffs_path(LAB)
+    if not path.exists():
+        pytest.skip("no identified coefficients for the lab card (run bmctl identify)")
+    worst = tomllib.loads(path.read_text())["validation"]["max"]
     runs = []
     for seed in range(4):
         plant = make_plant(LAB, seed=seed, particles=2000)
@@ -164,9 +171,9 @@ def test_short_case_follows_plant_ensemble(model):
     Y = np.array(runs)  # seeds x times x moments
     mean, se = Y.mean(0), Y.std(0, ddof=1) / math.sqrt(Y.shape[0])
     pred = model.simulate(model.x0(), np.tile([300.0, 1.0], (4, 1)), 0.5)[1:, :5]
-    span = np.maximum(np.ptp(np.vstack([model.x0()[:5], mean]), axis=0), 1e-9)
-    allowance = np.array([0.15, 0.15, 0.30, 0.30, 1e-6]) * span
-    tol = 3 * se + allowance
+    span = np.ptp(np.vstack([model.x0()[:5], mean]), axis=0)
+    allowance = 3 * np.array([worst[k] for k in names[:4]] + [0.0]) * span
+    tol = 3 * se + allowance + 1e-9
     assert np.all(np.abs(pred - mean) <= tol), (pred, mean, tol)
     # temperature follows the same closed form as the plant: exact
     np.testing.assert_allclose(pred[:, 4], mean[:, 4], rtol=1e-9)
