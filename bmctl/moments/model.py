@@ -316,7 +316,13 @@ def _derived(card_json: str) -> dict:
 
 
 def default_coeffs(card: ModelCard) -> dict[str, float]:
-    """Built-in coefficients: unit multipliers and the derived threshold laws of the card."""
+    """Built-in coefficients: unit multipliers and the derived threshold laws of the card.
+
+    Parameters
+    ----------
+    card : ModelCard
+        The model card the threshold laws are derived from.
+    """
     return cf.defaults(_derived(card.model_dump_json()))
 
 
