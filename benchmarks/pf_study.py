@@ -1,8 +1,10 @@
 """Particle-filter evidence study: coverage, parameter trajectories, error vs sample size.
 
-Run (full study, ~15-25 min on one busy core):
+Run (full study, ~7 min on one busy core; the tables of docs/estimation.md):
 
-    python benchmarks/pf_study.py --out out/pf_study
+    python benchmarks/pf_study.py --out out/pf_study                      # summary.md, runs.npz, study.png
+    python benchmarks/pf_study.py --laws --out out/pf_study               # laws.md (law-misfit table)
+    python benchmarks/pf_study.py --ablation --seeds 10 --out out/pf_ablation
 
     quick look:  python benchmarks/pf_study.py --seeds 3 --hours 6 --out out/pf_study_quick
 
