@@ -7,7 +7,7 @@ from typing import Annotated
 
 from pydantic import Field, model_validator
 
-from .config import Frac, NonNeg, Pos, Strict, load
+from .config import NonNeg, Pos, Strict, load
 from .errors import InputError
 
 TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")

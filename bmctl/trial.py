@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from . import io
-from .config import ModelCard, load_card, load_schedule
+from .config import ModelCard, load_card
 from .errors import InputError
 from .scenario import TARGET_KEYS, Scenario, load_scenario, resolve
 

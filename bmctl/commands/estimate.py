@@ -14,36 +14,13 @@ import math
 from pathlib import Path
 
 from ..errors import InputError
+from ._args import float_arg, int_arg
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 
 
-def _int(name, lo):
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise InputError(f"{name}: not an integer: {text!r}") from None
-        if v < lo:
-            raise InputError(f"{name}: must be >= {lo} (got {v})")
-        return v
-    return parse
 
 
-def _float(name, lo=None, hi=None, strict=False):
-    def parse(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise InputError(f"{name}: not a number: {text!r}") from None
-        if not math.isfinite(v):
-            raise InputError(f"{name}: must be a finite number (got {text})")
-        if lo is not None and (v < lo or (strict and v == lo)):
-            raise InputError(f"{name}: must be {'>' if strict else '>='} {lo:g} (got {text})")
-        if hi is not None and v > hi:
-            raise InputError(f"{name}: must be <= {hi:g} (got {text})")
-        return v
-    return parse
 
 
 def configure(p):
@@ -52,19 +29,19 @@ def configure(p):
                    help="particle tables (.csv) or micrographs (with --um-per-px), one per time; a folder is read sorted by name")
     p.add_argument("--times", required=True, metavar="T1,T2,...", help="milling time (h) of each sample, comma separated")
     p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest); default: the card's recipe")
-    p.add_argument("--rpm", type=_float("--rpm", lo=0.0), default=None, help="sun-disc speed of the card's recipe (default: the card's)")
+    p.add_argument("--rpm", type=float_arg("--rpm", lo=0.0), default=None, help="sun-disc speed of the card's recipe (default: the card's)")
     p.add_argument("--temperatures", default=None, metavar="T1,T2,...",
                    help="vial-temperature readings (degC) per sample, comma separated; leave an entry empty for none")
-    p.add_argument("--um-per-px", type=_float("--um-per-px", lo=0.0, strict=True), default=None, metavar="X",
+    p.add_argument("--um-per-px", type=float_arg("--um-per-px", lo=0.0, strict=True), default=None, metavar="X",
                    help="pixel size: measure micrographs instead of reading tables")
     p.add_argument("--out", default="out/estimate/estimate.csv", metavar="FILE.csv", help="estimate table (default out/estimate/estimate.csv)")
-    p.add_argument("--seed", type=_int("--seed", 0), default=0, help="random seed (default 0)")
-    p.add_argument("--particles", type=_int("--particles", 100), default=2000, help="filter particles N (default 2000)")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
+    p.add_argument("--particles", type=int_arg("--particles", 100), default=2000, help="filter particles N (default 2000)")
     p.add_argument("--size-law", choices=("weibull", "lognormal"), default="weibull",
                    help="law of s given (s_mean, s_std) (default weibull; see docs/estimation.md)")
-    p.add_argument("--sigma-r", type=_float("--sigma-r", lo=0.005), default=None,
+    p.add_argument("--sigma-r", type=float_arg("--sigma-r", lo=0.005), default=None,
                    help="r measurement noise (default 0.034, the synthetic micrograph path's)")
-    p.add_argument("--sigma-log-s", type=_float("--sigma-log-s", lo=0.0), default=None,
+    p.add_argument("--sigma-log-s", type=float_arg("--sigma-log-s", lo=0.0), default=None,
                    help="ln s measurement noise (default 0.015)")
 
 

@@ -16,27 +16,17 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from ..errors import InputError
+from ._args import int_arg
 
 
-def _int(name, lo, hi=None):
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise InputError(f"{name}: not an integer: {text!r}") from None
-        if v < lo or (hi is not None and v > hi):
-            rng = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
-            raise InputError(f"{name}: must be {rng} (got {v})")
-        return v
-    return parse
 
 
 def configure(p):
     p.add_argument("model", metavar="MODEL.toml", help="model card (see models/)")
-    p.add_argument("--seed", type=_int("--seed", 0), default=0, help="seed of the plant ensemble and the design (default 0)")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the plant ensemble and the design (default 0)")
     p.add_argument("--out", default=None, metavar="FILE",
                    help="coefficient file (default: models/<card-name>.moments.toml next to the card)")
-    p.add_argument("--particles", type=_int("--particles", 200, 1_000_000), default=None,
+    p.add_argument("--particles", type=int_arg("--particles", 200, 1_000_000), default=None,
                    help="simulated particles per plant (default 4000; --quick 2000)")
     p.add_argument("--quick", action="store_true", help="fewer experiments, one training seed (about 4x faster)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")

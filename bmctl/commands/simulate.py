@@ -2,46 +2,25 @@
 
 from __future__ import annotations
 
-import math
-import sys
 from pathlib import Path
 
 from ..config import card_schedule, load_card, load_schedule
 from ..errors import InputError
+from ._args import float_arg, int_arg
 
 
-def _nonneg_float(name):
-    def parse(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise InputError(f"{name}: not a number: {text!r}") from None
-        if not math.isfinite(v) or v < 0:
-            raise InputError(f"{name}: must be a finite number >= 0 (got {text})")
-        return v
-    return parse
 
 
-def _int(name, lo):
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise InputError(f"{name}: not an integer: {text!r}") from None
-        if v < lo:
-            raise InputError(f"{name}: must be >= {lo} (got {v})")
-        return v
-    return parse
 
 
 def configure(p):
     p.add_argument("model", metavar="MODEL.toml", help="model card (see models/)")
-    p.add_argument("--hours", type=_nonneg_float("--hours"), default=None, help="milling time (default: the card's)")
-    p.add_argument("--seed", type=_int("--seed", 0), default=0, help="random seed (default 0)")
-    p.add_argument("--particles", type=_int("--particles", 100), default=None, help="simulated particles M")
-    p.add_argument("--rpm", type=_nonneg_float("--rpm"), default=None, help="sun-disc speed (default: the card's)")
+    p.add_argument("--hours", type=float_arg("--hours", lo=0.0), default=None, help="milling time (default: the card's)")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
+    p.add_argument("--particles", type=int_arg("--particles", 100), default=None, help="simulated particles M")
+    p.add_argument("--rpm", type=float_arg("--rpm", lo=0.0), default=None, help="sun-disc speed (default: the card's)")
     p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest)")
-    p.add_argument("--every", type=_nonneg_float("--every"), default=None, help="recording interval in h (default 1)")
+    p.add_argument("--every", type=float_arg("--every", lo=0.0), default=None, help="recording interval in h (default 1)")
     p.add_argument("--out", default="out/simulate", metavar="DIR", help="output folder (default out/simulate)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

@@ -6,21 +6,14 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ._args import int_arg
 
 
-def _seed(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise InputError(f"--seed: not an integer: {text!r}") from None
-    if v < 0:
-        raise InputError(f"--seed: must be >= 0 (got {v})")
-    return v
 
 
 def configure(p):
     p.add_argument("scenario", metavar="SCENARIO.toml", help="trial definition (see scenarios/trial-*.toml)")
-    p.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
     p.add_argument("--out", default=None, metavar="DIR", help="output folder (default out/trial-<name>-seed<N>)")
     p.add_argument("--resume", default=None, metavar="DIR", help="carry on an interrupted trial in DIR")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -35,13 +28,13 @@ def run(args) -> int:
         raise InputError("--resume: give the trial folder once (--resume DIR), not with a different --out")
     out = Path(args.resume or args.out or f"out/trial-{sc.scenario.name}-seed{args.seed}")
     bar = None
-    progress = None
     if not args.no_progress:
         from tqdm import tqdm
 
         bar = tqdm(total=None, unit="step", desc=sc.scenario.name, leave=False, file=sys.stderr)
 
-        def progress(k, K):
+    def progress(k, K):
+        if bar is not None:
             bar.total = K
             bar.update(k - bar.n)
     try:

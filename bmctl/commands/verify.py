@@ -14,25 +14,18 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
+from ._args import int_arg
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 
 
-def _seed(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise InputError(f"--seed: not an integer: {text!r}") from None
-    if v < 0:
-        raise InputError(f"--seed: must be >= 0 (got {v})")
-    return v
 
 
 def configure(p):
     p.add_argument("--quick", action="store_true",
                    help="smaller runs: M up to 8000, fewer seeds, 12 h bookkeeping (about 20 s instead of 3 min)")
     p.add_argument("--out", default="out/verify", metavar="DIR", help="output folder (default out/verify)")
-    p.add_argument("--seed", type=_seed, default=0, help="first seed (default 0)")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="first seed (default 0)")
     p.add_argument("--models", nargs="+", default=None, metavar="MODEL.toml",
                    help="model cards for the reference and bookkeeping checks (default: the cards in models/)")
     p.add_argument("--no-progress", action="store_true", help="no progress lines on stderr")

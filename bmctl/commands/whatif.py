@@ -5,27 +5,18 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
+from ._args import int_arg
 
 
-def _pos_int(name, lo, hi):
-    def parse(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise InputError(f"{name}: not an integer: {text!r}") from None
-        if not lo <= v <= hi:
-            raise InputError(f"{name}: must be in [{lo}, {hi}] (got {v})")
-        return v
-    return parse
 
 
 def configure(p):
     p.add_argument("model", metavar="MODEL.toml", help="model card")
     p.add_argument("schedules", metavar="SCHEDULE.toml", nargs="+", help="[[segment]] hours, rpm (rpm 0 = rest)")
-    p.add_argument("--seeds", type=_pos_int("--seeds", 1, 1000), default=5, help="ensemble size (default 5)")
-    p.add_argument("--particles", type=_pos_int("--particles", 100, 10**7), default=5000,
+    p.add_argument("--seeds", type=int_arg("--seeds", 1, 1000), default=5, help="ensemble size (default 5)")
+    p.add_argument("--particles", type=int_arg("--particles", 100, 10**7), default=5000,
                    help="simulated particles per plant (default 5000)")
-    p.add_argument("--seed", type=_pos_int("--seed", 0, 2**31), default=0, help="first seed (default 0)")
+    p.add_argument("--seed", type=int_arg("--seed", 0, 2**31), default=0, help="first seed (default 0)")
     p.add_argument("--out", default="out/whatif", metavar="DIR", help="output folder (default out/whatif)")
 
 

@@ -208,7 +208,7 @@ def law_misfit(card_path: str, scenarios=((1.0, 1.0), (1.3, 0.7), (0.7, 1.3)), t
     :data:`bmctl.estimate.likelihood.LAW_MISFIT`.
     """
     from ..measure.sampler import micrograph_sample
-    from .likelihood import SIZE_LAWS, LawSettings, Raster, fit_sample
+    from .likelihood import SIZE_LAWS, Raster, fit_sample
 
     card = load_card(card_path)
     out = []

@@ -19,7 +19,6 @@ NRMSE of a moment on one schedule = RMSE(model - plant mean over the recorded ti
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Sequence

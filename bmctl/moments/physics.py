@@ -19,7 +19,7 @@ import numpy as np
 
 from ..config import ModelCard
 from ..plant import events as ev
-from ..plant.kinematics import MEAN_LOSS_RATIO, kinematics
+from ..plant.kinematics import kinematics
 
 UM = 1e-6
 #: exponents of the exact rpm power laws (Burgio et al. 1991, Maurice & Courtney 1990)

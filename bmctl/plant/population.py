@@ -7,7 +7,6 @@ fractions are plain sample fractions.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
