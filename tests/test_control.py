@@ -93,6 +93,23 @@ def test_mpc_bounds_rate_limits_and_minutes(reach):
         assert p.x.shape == (p.u.shape[0] + 1, 6) and p.t_peak_c.shape == (p.u.shape[0],)
 
 
+def test_expanded_warm_solver_gives_the_same_plans(model):
+    # expand = "warm" only changes how casadi evaluates the NLP (SX instead of MX), not the problem
+    Xs = model.simulate(model.x0(), [[350.0, 0.8]] * 3, DT)
+    target = {"s_mean_um": float(Xs[-1, 0])}
+    runs = []
+    for expand in ("none", "warm"):
+        cfg = mpc_cfg(horizon=3, batch_hours=1.5, solver={"hessian": "limited-memory", "expand": expand})
+        ctrl = make_controller(cfg, model, target)
+        runs.append(closed_loop(model, ctrl, 1.5))
+        kinds = {k: s.oracle().is_a("SXFunction") for k, s in ctrl._solvers.items()}
+        assert kinds == {("cold", "exact"): False, ("warm", "limited-memory"): expand == "warm"}
+    (xa, pa, Ua, _), (xb, pb, Ub, _) = runs
+    assert all(p.status.fallback == "none" for p in pa + pb)
+    assert np.allclose(Ua, Ub, rtol=0.02, atol=1.0 / 60)  # applied rpm within 2 %, milling within a minute
+    assert xb[0] == pytest.approx(xa[0], rel=0.005)
+
+
 def test_mpc_rate_limit_from_last_applied_rpm(model):
     Xs = model.simulate(model.x0(), [[480.0, 1.0]] * 2, DT)
     ctrl = make_controller(mpc_cfg(horizon=2, batch_hours=1.0, temperature={"ceiling_c": 200.0}), model,

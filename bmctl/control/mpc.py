@@ -255,6 +255,8 @@ class MPCController:
                     "ipopt.print_level": s.print_level, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
                     "ipopt.tol": s.tol, "ipopt.acceptable_tol": s.acceptable_tol,
                     "ipopt.acceptable_iter": s.acceptable_iter}
+            if s.expand == "all" or (s.expand == "warm" and warm and hessian != "exact"):
+                opts["expand"] = True
             if s.max_wall_s is not None:
                 opts["ipopt.max_wall_time"] = s.max_wall_s
             if hessian == "limited-memory":
