@@ -371,6 +371,13 @@ class _CallableReference(Reference):
         return True
 
 
+def batch_end_h(t_end_h) -> float:
+    """A validated batch end (h) for ``set_target(..., t_end_h)``: finite and > 0."""
+    if not (math.isfinite(t_end_h) and t_end_h > 0):
+        raise InputError(f"t_end_h: must be a finite number > 0 (got {t_end_h})")
+    return float(t_end_h)
+
+
 def check_x(x_est) -> np.ndarray:
     x = np.asarray(x_est, dtype=float).reshape(-1)
     if x.shape != (6,) or not np.all(np.isfinite(x)):

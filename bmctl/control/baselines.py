@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from ..errors import InputError
-from .base import (Plan, Reference, Status, applied_input, applied_input_guarded, check_p, check_u_prev, check_x,
+from .base import (Plan, Reference, Status, batch_end_h, applied_input, applied_input_guarded, check_p, check_u_prev, check_x,
                    interval_peaks, max_milling_for_ceiling, rpm_window)
 from .config import TARGET_KEYS, LQRConfig, RecipeConfig
 from .mpc import ERR_FLOOR, X_SCALE
@@ -35,9 +35,7 @@ class _Base:
         """As :meth:`bmctl.control.mpc.MPCController.set_target`."""
         self.reference = Reference.make(target)
         if t_end_h is not None:
-            if not (math.isfinite(t_end_h) and t_end_h > 0):
-                raise InputError(f"t_end_h: must be a finite number > 0 (got {t_end_h})")
-            self.t_end_h = float(t_end_h)
+            self.t_end_h = batch_end_h(t_end_h)
 
     def reset(self) -> None:
         pass

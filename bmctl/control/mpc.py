@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from .base import (Plan, Reference, Status, applied_input_guarded, check_p, check_u_prev, check_x,
+from .base import (Plan, Reference, Status, batch_end_h, applied_input_guarded, check_p, check_u_prev, check_x,
                    interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
 from .config import TARGET_KEYS, MPCConfig
 
@@ -81,9 +81,7 @@ class MPCController:
         ``t_end_h`` moves the batch end (the terminal cost and the last milling interval)."""
         self.reference = Reference.make(target)
         if t_end_h is not None:
-            if not (math.isfinite(t_end_h) and t_end_h > 0):
-                raise InputError(f"t_end_h: must be a finite number > 0 (got {t_end_h})")
-            self.t_end_h = float(t_end_h)
+            self.t_end_h = batch_end_h(t_end_h)
 
     def reset(self) -> None:
         """Forget the previous plan (no warm start, no shifted fallback); Gauss-Newton is tried again."""
