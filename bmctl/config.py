@@ -268,3 +268,12 @@ def card_schedule(card: ModelCard, hours: float | None = None, rpm: float | None
             segs.append((r, 0.0))
             t += r
     return segs
+
+
+def with_factors(card: ModelCard, gamma_mult: float, delta_mult: float) -> ModelCard:
+    """A copy of ``card`` with its contact factor gamma and parting factor delta multiplied
+    (eqns 15, 20): a plant whose bonding/fracture propensities are off the card."""
+    d = card.model_dump()
+    d["stochastic"]["gamma_per_um2"] *= gamma_mult
+    d["stochastic"]["delta_per_um2"] *= delta_mult
+    return type(card).model_validate(d)

@@ -179,6 +179,30 @@ def test_short_case_follows_plant_ensemble(model):
     np.testing.assert_allclose(pred[:, 4], mean[:, 4], rtol=1e-9)
 
 
+def test_sensitivity_fit_recovers_known_elasticities(model):
+    """Stage 2 of identify on data made by the moment model itself with known elasticities
+    (how the rates respond to the plant's gamma and delta factors p): the fit, started from
+    the defaults (1, 0, 0, 1), must find them again."""
+    from bmctl.moments import identify as ident
+    from bmctl.moments.model import MomentModel
+
+    truth = {"bond_gamma_exp": 0.6, "bond_delta_exp": -0.8, "frac_gamma_exp": 0.3, "frac_delta_exp": 0.5}
+    m_true = MomentModel(model.card, {**model.coeffs, **truth}, "truth")
+    m_start = MomentModel(model.card, {**model.coeffs, "bond_gamma_exp": 1.0, "bond_delta_exp": 0.0,
+                                       "frac_gamma_exp": 0.0, "frac_delta_exp": 1.0}, "start")
+    U = np.array([[300.0, 1.0]] * 8 + [[450.0, 0.7]] * 8)
+    exps = []
+    for p in [(1.3, 0.7), (0.7, 1.3), (1.3, 1.0), (1.0, 0.7)]:
+        Y = m_true.simulate(m_true.x0(), U, ident.DT_H, p=np.array(p))
+        exps.append(ident.Experiment(f"p{p}", U, Y, np.zeros_like(Y), p=np.array(p)))
+    res = ident.fit(m_start, exps, free=ident.SENSITIVITY)
+    for k, v in truth.items():
+        assert res.coeffs[k] == pytest.approx(v, abs=0.02), (k, res.coeffs[k])
+    # at p = (1, 1) the elasticities do nothing
+    x1 = MomentModel(model.card, res.coeffs, "fit").simulate(model.x0(), U, ident.DT_H)
+    np.testing.assert_allclose(x1, m_start.simulate(model.x0(), U, ident.DT_H), rtol=1e-12)
+
+
 # --- linear analysis ---------------------------------------------------------------------------
 
 
@@ -262,3 +286,15 @@ def test_identify_out_is_a_folder(tmp_path, capsys):
     assert main(["identify", str(LAB), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--out" in err[0]
+
+
+def test_coefficient_file_text_is_valid_toml_with_any_key():
+    import tomllib
+
+    from bmctl.moments.coeffs import toml_text
+
+    text = toml_text({"bond_log_scale": 0.1}, {"validation": {"n": 2, "sensitivity": {"recipe-g1.3-d0.7, s_mean_um": 0.1,
+                                                                                      'odd "key"': 2.0}}})
+    data = tomllib.loads(text)
+    assert data["coefficients"]["bond_log_scale"] == 0.1
+    assert data["validation"]["sensitivity"] == {"recipe-g1.3-d0.7, s_mean_um": 0.1, 'odd "key"': 2.0}

@@ -28,7 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ..config import ModelCard, card_schedule, load_card
+from ..config import ModelCard, card_schedule, load_card, with_factors
 from ..plant.plant import Plant
 from ..plant.population import UM
 from .filter import FilterSettings, ParticleFilter
@@ -89,10 +89,7 @@ class StudyConfig:
 
 def off_card(card: ModelCard, gamma_mult: float, delta_mult: float) -> ModelCard:
     """A copy of ``card`` with gamma and delta multiplied (the plant's 'true' factors)."""
-    d = card.model_dump()
-    d["stochastic"]["gamma_per_um2"] *= gamma_mult
-    d["stochastic"]["delta_per_um2"] *= delta_mult
-    return type(card).model_validate(d)
+    return with_factors(card, gamma_mult, delta_mult)
 
 
 def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cfg: StudyConfig) -> dict:

@@ -36,6 +36,12 @@ SPEC: dict[str, tuple[float | None, float, float, str]] = {
     "bond_r_gain": (1.0, 0.2, 3.0, "multiplier on the aspect ratio of a bonded particle (eqn 18)"),
     "frac_r_gain": (1.0, 0.0, 3.0, "multiplier on the aspect ratio of fracture fragments"),
     "r_var_gain": (1.0, 0.2, 5.0, "multiplier on the r-variance source of bonding and fracture"),
+    # response to the parameters p = (gamma_plant / gamma_card, delta_plant / delta_card):
+    # ln c_b += bond_gamma_exp ln p1 + bond_delta_exp ln p2, likewise ln c_f (stage 2 of identify)
+    "bond_gamma_exp": (1.0, 0.0, 3.0, "elasticity of the bonding rate to the plant's gamma factor (p1)"),
+    "bond_delta_exp": (0.0, -2.0, 2.0, "elasticity of the bonding rate to the plant's delta factor (p2)"),
+    "frac_gamma_exp": (0.0, -2.0, 2.0, "elasticity of the fracture rate to the plant's gamma factor (p1)"),
+    "frac_delta_exp": (1.0, 0.0, 3.0, "elasticity of the fracture rate to the plant's delta factor (p2)"),
 }
 
 NAMES = tuple(SPEC)
@@ -89,6 +95,14 @@ def _fmt(v) -> str:
     return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
+def _key(k: str) -> str:
+    """A TOML key: bare when it can be, else quoted."""
+    k = str(k)
+    if k and all(ch.isalnum() or ch in "_-" for ch in k) and k.isascii():
+        return k
+    return '"' + k.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
 def toml_text(coeffs: dict[str, float], sections: dict[str, dict] | None = None, header: str = "") -> str:
     """TOML text with ``[coefficients]`` first, then the other (flat or one-level nested) sections."""
     lines = [f"# {ln}" for ln in header.splitlines()] + ([""] if header else [])
@@ -104,10 +118,10 @@ def toml_text(coeffs: dict[str, float], sections: dict[str, dict] | None = None,
             if isinstance(v, dict):
                 nested[k] = v
             else:
-                lines.append(f"{k} = {_fmt(v)}")
+                lines.append(f"{_key(k)} = {_fmt(v)}")
         for k, sub in nested.items():
             lines.append("")
-            lines.append(f"[{name}.{k}]")
+            lines.append(f"[{_key(name)}.{_key(k)}]")
             for kk, vv in sub.items():
-                lines.append(f"{kk} = {_fmt(vv)}")
+                lines.append(f"{_key(kk)} = {_fmt(vv)}")
     return "\n".join(lines) + "\n"

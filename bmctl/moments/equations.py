@@ -6,7 +6,8 @@ numpy value and a casadi expression graph. Components of a state are passed as a
 (``xs[i]`` is a scalar, a numpy array over a batch, or a casadi SX/MX scalar).
 
 State x = (s_mean_um, s_std_um, r_mean, r_std, temperature_c, hardening)
-Input u = (rpm, milling),  parameters p = (bond_mult, frac_mult).
+Input u = (rpm, milling),  parameters p = (bond_mult, frac_mult): the plant's gamma and delta
+relative to the card (eqns 15, 20); the rates respond to them with identified elasticities.
 
 The particle part is integrated in raw-moment coordinates y = (ln E[s], ln E[s^2], E[r], E[r^2])
 and read back through a smooth projection onto realisable sets (std > 0, 0 < r_mean < 1,
@@ -242,8 +243,11 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     r_b = (rm * om2 + v_r) / (om2 + v_r)  # E[r/(1-r)] / E[1/(1-r)]: mean r of a reacting particle
     r2_b = (rm * rm * om2 + v_r) / (om2 + v_r)  # E[r^2/(1-r)] / E[1/(1-r)]
     one_r = om * (om2 + v_r) / (om2 + 3 * v_r)  # 1 / E_b[1/(1-r)]: perimeter factor of a reacting particle
-    cb = bm * B.exp(q["bond_log_scale"])
-    cf = fm * B.exp(q["frac_log_scale"])
+    # p = (bm, fm): the plant's gamma and delta relative to the card; their effect on the averaged
+    # rates is identified (elasticities; 1 and 0 = the multipliers act on c_b, c_f directly)
+    lbm, lfm = B.log(bm), B.log(fm)
+    cb = B.exp(q["bond_log_scale"] + q.get("bond_gamma_exp", 1.0) * lbm + q.get("bond_delta_exp", 0.0) * lfm)
+    cf = B.exp(q["frac_log_scale"] + q.get("frac_gamma_exp", 0.0) * lbm + q.get("frac_delta_exp", 1.0) * lfm)
     ab, ob, ac, oc = q["bond_slope"], q["bond_offset"], q["frac_slope"], q["frac_offset"]
     # rounding per impact: lam(s) = eta 1.5 E[dU_p] / (pi/4 s^3 sigma_eff) = lam1 / s (s in um)
     ln_lam1 = (math.log(c.equiaxing * 1.5 * c.plastic_share / (math.pi / 4 * UM**3 * c.yield_Pa) + 1e-300)

@@ -46,6 +46,8 @@ class Spec:
     name: str
     inputs: list[tuple[float, float]]
     prefix: list[tuple[float, float]] = field(default_factory=list)
+    #: (gamma, delta) of the plant relative to the card; the model runs with p = factors
+    factors: tuple[float, float] = (1.0, 1.0)
 
 
 @dataclass
@@ -57,6 +59,7 @@ class Experiment:
     Y: np.ndarray  # (K + 1, 6) ensemble mean, x0 first
     S: np.ndarray  # (K + 1, 6) ensemble std across seeds
     dt_h: float = DT_H
+    p: np.ndarray = field(default_factory=lambda: np.ones(2))  # the plant's (gamma, delta) factors
 
     @property
     def x0(self) -> np.ndarray:
@@ -119,6 +122,32 @@ def validation_design(card: ModelCard, seed: int = 0, n: int = 6) -> list[Spec]:
     return [Spec(f"random-valid-{k}", random_schedule(rng, card.mill.rpm_max)) for k in range(n)]
 
 
+#: plant (gamma, delta) factors of the sensitivity experiments (stage 2)
+FACTORS = ((1.3, 0.7), (0.7, 1.3), (1.3, 1.0), (0.7, 1.0), (1.0, 1.3), (1.0, 0.7))
+
+
+def sensitivity_design(card: ModelCard, seed: int = 0, quick: bool = False) -> list[Spec]:
+    """Stage-2 experiments: plants with gamma and delta off the card (:data:`FACTORS`), at a low
+    and a high constant speed and on one random schedule each; they identify how the averaged
+    bonding and fracture rates respond to the parameters p = (gamma, delta) factors."""
+    R = card.mill.rpm_max
+    r = lambda f: round(f * R / 10) * 10  # noqa: E731
+    rng = np.random.default_rng([seed, 3])
+    specs = []
+    for g, d in (FACTORS[:2] if quick else FACTORS):
+        tag = f"g{g:g}-d{d:g}"
+        specs += [Spec(f"{tag}-const-{r(f):g}", _grid([(HOURS, r(f), 1.0)]), factors=(g, d)) for f in (1 / 2, 5 / 6)]
+        specs.append(Spec(f"{tag}-random", random_schedule(rng, R), factors=(g, d)))
+    return specs
+
+
+def sensitivity_validation_design(card: ModelCard) -> list[Spec]:
+    """Held-out stage-2 runs: the card's own recipe (process rpm, 12 h) on the two +-30 % plants
+    of the estimation study (gamma x1.3, delta x0.7 and the reverse)."""
+    rpm = card.process.rpm
+    return [Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, rpm, 1.0)]), factors=(g, d)) for g, d in FACTORS[:2]]
+
+
 def _plant_states(plant) -> np.ndarray:
     m = plant.moments()
     return np.array([m[k] for k in MOMENTS])
@@ -127,19 +156,22 @@ def _plant_states(plant) -> np.ndarray:
 def run_experiments(card: ModelCard, specs: Sequence[Spec], seeds: Sequence[int], particles: int,
                     progress: Callable[[str], None] | None = None) -> list[Experiment]:
     """Run every spec on plants seeded with ``seeds`` (prefixes shared: run once, snapshot, branch)."""
+    from ..config import with_factors
     from ..plant import make_plant
 
     runs: dict[str, list[np.ndarray]] = {s.name: [] for s in specs}
+    cards = {f: (card if f == (1.0, 1.0) else with_factors(card, *f)) for f in {tuple(s.factors) for s in specs}}
     for sd in seeds:
         prefixes: dict[tuple, dict] = {}
         for spec in specs:
-            key = tuple(spec.prefix)
+            c = cards[tuple(spec.factors)]
+            key = (tuple(spec.factors), tuple(spec.prefix))
             if key not in prefixes:
-                plant = make_plant(card, seed=int(sd), particles=particles)
+                plant = make_plant(c, seed=int(sd), particles=particles)
                 for rpm, duty in spec.prefix:
                     plant.advance(rpm, DT_H, duty)
                 prefixes[key] = plant.snapshot()
-            plant = make_plant(card, seed=int(sd), particles=particles)
+            plant = make_plant(c, seed=int(sd), particles=particles)
             plant.restore(prefixes[key])
             traj = [_plant_states(plant)]
             for rpm, duty in spec.inputs:
@@ -152,7 +184,8 @@ def run_experiments(card: ModelCard, specs: Sequence[Spec], seeds: Sequence[int]
     for spec in specs:
         A = np.stack(runs[spec.name])
         out.append(Experiment(spec.name, np.array(spec.inputs, dtype=float), A.mean(0),
-                              A.std(0, ddof=1) if A.shape[0] > 1 else np.zeros_like(A[0])))
+                              A.std(0, ddof=1) if A.shape[0] > 1 else np.zeros_like(A[0]),
+                              p=np.array(spec.factors, dtype=float)))
     return out
 
 
@@ -202,7 +235,7 @@ class _Sym:
         for e in experiments:
             K = e.U.shape[0]
             sim = F.mapaccum("sim", K, [0], [0])
-            X = sim(e.x0, e.U.T, np.ones(2), ca.repmat(thM, 1, K))
+            X = sim(e.x0, e.U.T, e.p, ca.repmat(thM, 1, K))
             res.append(X)
         self.sims = ca.Function("sims", [thM], res)
         self.jac = None
@@ -222,7 +255,10 @@ class _Sym:
         return f, J
 
 
-#: coefficients fitted by default (the rest keep their defaults)
+#: coefficients of stage 2 (the response to p), fitted on :func:`sensitivity_design` with the rest fixed
+SENSITIVITY = ("bond_gamma_exp", "bond_delta_exp", "frac_gamma_exp", "frac_delta_exp")
+
+#: coefficients fitted by default in stage 1 (the rest keep their defaults)
 FREE = ("bond_log_scale", "bond_slope", "bond_offset", "frac_log_scale", "frac_slope", "frac_offset",
         "round_log_scale", "round_size_bias", "round_var_log_scale", "round_rpm_slope",
         "round_var_rpm_slope", "bond_ds_gain", "frac_ds_gain", "bond_r_gain", "frac_r_gain", "r_var_gain")
@@ -284,7 +320,7 @@ def fit(model: MomentModel, experiments: Sequence[Experiment], free: Sequence[st
 
 def predict(model: MomentModel, e: Experiment) -> np.ndarray:
     """Moment-model trajectory from the experiment's initial (ensemble-mean) state."""
-    return model.simulate(e.x0, e.U, e.dt_h)
+    return model.simulate(e.x0, e.U, e.dt_h, p=e.p)
 
 
 def nrmse(pred: np.ndarray, Y: np.ndarray) -> np.ndarray:

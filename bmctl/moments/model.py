@@ -2,7 +2,7 @@
 
 State  x = (s_mean_um, s_std_um, r_mean, r_std, temperature_c, hardening)
 Input  u = (rpm, milling)        milling in [0, 1]: share of an interval spent milling
-Param  p = (bond_mult, frac_mult) multipliers on the bonding and fracture rates (default 1)
+Param  p = (bond_mult, frac_mult): the plant's gamma and delta factors relative to the card (default 1)
 
 The equations are in :mod:`bmctl.moments.equations` (one definition for numpy and
 casadi); docs/moments.md derives them and lists where they break.
