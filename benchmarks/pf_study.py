@@ -5,6 +5,7 @@ Run (full study, ~7 min on one busy core; the tables of docs/estimation.md):
     python benchmarks/pf_study.py --out out/pf_study                      # summary.md, runs.npz, study.png
     python benchmarks/pf_study.py --laws --out out/pf_study               # laws.md (law-misfit table)
     python benchmarks/pf_study.py --ablation --seeds 10 --out out/pf_ablation
+    python benchmarks/pf_study.py --size-law lognormal --out out/pf_study_lognormal   # n = 50/100/300, log-normal
 
     quick look:  python benchmarks/pf_study.py --seeds 3 --hours 6 --out out/pf_study_quick
 
@@ -212,6 +213,8 @@ def main(argv=None) -> int:
                     help="compare the bootstrap/untempered, guided/untempered and default filters (n = 300)")
     ap.add_argument("--laws", action="store_true",
                     help="only the law-misfit table: each size law's pseudo-true moments on 20,000-particle samples")
+    ap.add_argument("--size-law", choices=("weibull", "lognormal"), default=None,
+                    help="run n = 50, 100, 300 with this size law only (default: the standard variant set)")
     a = ap.parse_args(argv)
     if a.laws:
         return laws_table(a)
@@ -219,6 +222,8 @@ def main(argv=None) -> int:
                         filter_particles=a.filter_particles)
     if a.ablation:
         cfg.variants = S.ABLATION
+    elif a.size_law is not None:
+        cfg.variants = tuple(S.Variant(n, a.size_law) for n in (50, 100, 300))
     from bmctl.moments.model import make_moment_model
 
     model = make_moment_model(cfg.card)

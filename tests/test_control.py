@@ -110,6 +110,59 @@ def test_expanded_warm_solver_gives_the_same_plans(model):
     assert xb[0] == pytest.approx(xa[0], rel=0.005)
 
 
+def test_adaptive_gain_learns_a_slower_plant_and_reaches_the_target(model):
+    # "plant" = the moment model with half its particle-moment changes per interval; the adaptive
+    # MPC's gains must learn ~0.5 and its final error must be well below the plain MPC's
+    Xs = model.simulate(model.x0(), [[350.0, 1.0]] * 4, DT)
+    target = {"s_mean_um": float(Xs[-1, 0])}
+    finals = {}
+    for adaptive in (False, True):
+        cfg = mpc_cfg(batch_hours=3.0, temperature={"ceiling_c": 200.0},
+                      solver={"hessian": "limited-memory"}, adaptation={"mode": "gain" if adaptive else "none", "forgetting": 1.0})
+        ctrl = make_controller(cfg, model, target)
+        x, u = model.x0(), None
+        for k in range(6):
+            plan = ctrl.plan(x, k * DT, None, u)
+            assert plan.status.fallback == "none", plan.status.line()
+            u = plan.u_apply
+            xn = model.step(x, u, DT)
+            x = np.concatenate([x[:4] + 0.5 * (xn[:4] - x[:4]), xn[4:]])
+        ctrl.plan(x, 3.0, None, u)  # the last call updates the gains too
+        finals[adaptive] = abs(x[0] / target["s_mean_um"] - 1)
+        if adaptive:
+            assert np.all(np.abs(ctrl.gain - 0.5) < 0.1), ctrl.gain
+        else:
+            assert np.all(ctrl.gain == 1.0)
+    assert finals[True] < 0.5 * finals[False], finals
+
+
+def test_offset_free_bias_reduces_the_error_of_a_mismatched_model(model):
+    # "plant" = the moment model with gamma x1.3, delta x0.7 rate multipliers; the controller's
+    # model has (1, 1). Like a trial, the controller sees the true state every 2nd interval (a
+    # sample) and its model's prediction in between. The "bias" MPC must learn a positive
+    # s_mean discrepancy and end at most half as far from the target as the plain MPC.
+    p_true = np.array([1.3, 0.7])
+    target = {"s_mean_um": 60.0}
+    finals = {}
+    for mode in ("none", "bias"):
+        cfg = mpc_cfg(batch_hours=4.0, temperature={"ceiling_c": 200.0},
+                      solver={"hessian": "limited-memory"}, adaptation={"mode": mode, "forgetting": 0.7})
+        ctrl = make_controller(cfg, model, target)
+        x_true, x_seen, u = model.x0(), model.x0(), None
+        for k in range(8):
+            plan = ctrl.plan(x_seen, k * DT, None, u)
+            assert plan.status.fallback == "none", plan.status.line()
+            u = plan.u_apply
+            x_true = model.step(x_true, u, DT, p_true)
+            x_seen = x_true.copy() if k % 2 == 1 else model.step(x_seen, u, DT)
+        finals[mode] = abs(x_true[0] / target["s_mean_um"] - 1)
+        if mode == "bias":
+            assert ctrl.bias[0] > 1.0, ctrl.bias  # the plant grows more than the model predicts
+        else:
+            assert np.all(ctrl.bias == 0)
+    assert finals["bias"] < 0.5 * finals["none"], finals
+
+
 def test_mpc_rate_limit_from_last_applied_rpm(model):
     Xs = model.simulate(model.x0(), [[480.0, 1.0]] * 2, DT)
     ctrl = make_controller(mpc_cfg(horizon=2, batch_hours=1.0, temperature={"ceiling_c": 200.0}), model,

@@ -29,6 +29,9 @@ def configure(p):
     p.add_argument("--particles", type=int_arg("--particles", 200, 1_000_000), default=None,
                    help="simulated particles per plant (default 4000; --quick 2000)")
     p.add_argument("--quick", action="store_true", help="fewer experiments, one training seed (about 4x faster)")
+    p.add_argument("--sensitivity", action="store_true",
+                   help="stage 2: also fit how the rates respond to a plant whose gamma, delta are off the card "
+                        "(p = their factors); off by default, see docs/moments.md")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -85,26 +88,30 @@ def run(args) -> int:
     tab_train = ident.nrmse_table(model, train)
     log("validation done")
 
-    # stage 2: how the rates respond to the plant's gamma and delta (the parameters p)
-    sspecs = ident.sensitivity_design(card, args.seed, args.quick)
-    svspecs = ident.sensitivity_validation_design(card)
-    log(f"stage 2: {len(sspecs)} experiments with gamma, delta off the card x {len(train_seeds)} seeds")
-    strain = ident.run_experiments(card, sspecs, train_seeds, particles)
-    svalid = ident.run_experiments(card, svspecs, valid_seeds, particles)
-    for e in strain + svalid:
-        if not all(math.isfinite(v) for v in e.Y.ravel()):
-            raise InputError(f"{args.model}: the plant produced non-finite moments in {e.name}")
-    res2 = ident.fit(model, strain, free=ident.SENSITIVITY, log=log)
-    if not all(math.isfinite(v) for v in res2.coeffs.values()):
-        raise InputError(f"{args.model}: identification produced non-finite coefficients")
-    model2 = MomentModel(card, res2.coeffs, str(out))
-    stab0 = ident.nrmse_table(model, svalid)  # elasticities 1, 0, 0, 1: p multiplies c_b, c_f directly
-    stab = ident.nrmse_table(model2, svalid)
-    log("stage 2 done")
+    # stage 2 (optional): how the rates respond to the plant's gamma and delta (the parameters p)
+    coeffs, stage2 = res.coeffs, None
+    if args.sensitivity:
+        sspecs = ident.sensitivity_design(card, args.seed, args.quick)
+        svspecs = ident.sensitivity_validation_design(card)
+        log(f"stage 2: {len(sspecs)} experiments with gamma, delta off the card x {len(train_seeds)} seeds")
+        strain = ident.run_experiments(card, sspecs, train_seeds, particles)
+        svalid = ident.run_experiments(card, svspecs, valid_seeds, particles)
+        for e in strain + svalid:
+            if not all(math.isfinite(v) for v in e.Y.ravel()):
+                raise InputError(f"{args.model}: the plant produced non-finite moments in {e.name}")
+        res2 = ident.fit(model, strain, free=ident.SENSITIVITY, log=log)
+        if not all(math.isfinite(v) for v in res2.coeffs.values()):
+            raise InputError(f"{args.model}: identification produced non-finite coefficients")
+        coeffs = res2.coeffs
+        stab0 = ident.nrmse_table(model, svalid)  # elasticities 1, 0, 0, 1: p multiplies c_b, c_f directly
+        stab = ident.nrmse_table(MomentModel(card, coeffs, str(out)), svalid)
+        stage2 = (res2, strain, stab0, stab)
+        log("stage 2 done")
 
     names = ident.MOMENTS[:5]
     report = _report(card.card.name, names, tab0, tab, tab_train)
-    report += "\n" + _report_sensitivity(names, res2.coeffs, stab0, stab)
+    if stage2 is not None:
+        report += "\n" + _report_sensitivity(names, coeffs, stage2[2], stage2[3])
     validation = {
         "definition": "NRMSE = RMSE(model - plant ensemble mean) / range of the plant-mean trajectory "
                       "(floored at 10 % of its mean), per held-out schedule; mean and max over schedules",
@@ -112,23 +119,29 @@ def run(args) -> int:
         "mean": {k: round(float(v), 5) for k, v in zip(names, tab["mean"])},
         "max": {k: round(float(v), 5) for k, v in zip(names, tab["max"])},
         "defaults_mean": {k: round(float(v), 5) for k, v in zip(names, tab0["mean"])},
-        "sensitivity": {f"{n}, {k}": round(float(v), 5) for n, row in zip(stab["names"], stab["rows"])
-                        for k, v in zip(names[:4], row[:4])},
-        "sensitivity_before": {f"{n}, {k}": round(float(v), 5) for n, row in zip(stab0["names"], stab0["rows"])
-                               for k, v in zip(names[:4], row[:4])},
     }
+    if stage2 is not None:
+        _, _, stab0, stab = stage2
+        validation["sensitivity"] = {f"{n}, {k}": round(float(v), 5) for n, row in zip(stab["names"], stab["rows"])
+                                     for k, v in zip(names[:4], row[:4])}
+        validation["sensitivity_before"] = {f"{n}, {k}": round(float(v), 5)
+                                            for n, row in zip(stab0["names"], stab0["rows"])
+                                            for k, v in zip(names[:4], row[:4])}
     meta = {
         "card": card.card.name,
         "command": f"bmctl identify {args.model} --seed {args.seed}" + (" --quick" if args.quick else "")
+                   + (" --sensitivity" if args.sensitivity else "")
                    + (f" --particles {args.particles}" if args.particles else ""),
         "date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "experiments": len(train), "train_seeds": train_seeds, "particles": particles,
         "dt_h": ident.DT_H, "cost_initial": round(res.cost0, 6), "cost_final": round(res.cost, 6),
         "evaluations": res.nfev, "fit_seconds": round(res.seconds, 1),
-        "sensitivity_experiments": len(strain), "sensitivity_factors": [list(f) for f in ident.FACTORS],
-        "sensitivity_cost_initial": round(res2.cost0, 6), "sensitivity_cost_final": round(res2.cost, 6),
     }
-    text = toml_text(res2.coeffs, {"identification": meta, "validation": validation},
+    if stage2 is not None:
+        res2, strain = stage2[0], stage2[1]
+        meta.update({"sensitivity_experiments": len(strain), "sensitivity_factors": [list(f) for f in ident.FACTORS],
+                     "sensitivity_cost_initial": round(res2.cost0, 6), "sensitivity_cost_final": round(res2.cost, 6)})
+    text = toml_text(coeffs, {"identification": meta, "validation": validation},
                      header=f"Moment-model coefficients of {card.card.name}, written by `bmctl identify`.\n"
                             "Re-run the command in [identification] to regenerate; docs/moments.md explains them.")
     write_text(out, text)

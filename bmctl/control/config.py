@@ -126,6 +126,29 @@ class OnOff(Strict):
     round_minutes: bool = True  # applied milling time is a whole number of minutes
 
 
+class Adaptation(Strict):
+    """Correction of the MPC's prediction from the estimate's own history (docs/control.md).
+
+    At every call the controller compares the estimate with what the moment model predicted
+    for it from the previous estimate and the applied input (they differ after a micrograph
+    sample). ``mode``:
+
+    * "none": no correction;
+    * "gain": per particle moment j the MPC predicts x_j + g_j (F_j(x, u, p) - x_j); g_j is a
+      recursive least-squares ratio (with ``forgetting``) of the observed to the predicted
+      relative changes, with a prior of 1 worth one interval of ``prior_rel_change``, clipped
+      to [gain_min, gain_max];
+    * "bias": offset-free MPC: the MPC predicts F(x, u, p) + d, with d the exponentially
+      weighted mean (weight ``forgetting`` on the old value) of the per-interval discrepancies.
+    """
+
+    mode: Literal["none", "gain", "bias"] = "none"
+    forgetting: Annotated[float, Field(gt=0.0, le=1.0)] = 0.9  # per control interval
+    prior_rel_change: Pos = 0.03
+    gain_min: Pos = 0.2
+    gain_max: Pos = 3.0
+
+
 class _Common(Strict):
     name: str = ""
     description: str = ""
@@ -145,6 +168,7 @@ class MPCConfig(_Common):
     weights: Weights = Weights()
     solver: Solver = Solver()
     onoff: OnOff = OnOff()
+    adaptation: Adaptation = Adaptation()
 
 
 class LQRTuning(Strict):

@@ -73,6 +73,11 @@ class MPCController:
         self._prev: _Solution | None = None
         self._sticky_exact = False
         self._nlp = None
+        self.adaptive = cfg.adaptation.mode != "none"
+        self.gain = np.ones(4)  # prediction gain per particle moment (Adaptation, mode "gain")
+        self.bias = np.zeros(4)  # additive prediction bias per interval (Adaptation, mode "bias")
+        self._rls = np.zeros((2, 4))  # forgetting sums: observed x predicted, predicted^2 (relative)
+        self._last = None  # (t, x_est, p) of the previous call, for the gain update
 
     # --- public ------------------------------------------------------------------------------
     def set_target(self, target, t_end_h: float | None = None) -> None:
@@ -96,6 +101,8 @@ class MPCController:
         t = float(t_h)
         if not math.isfinite(t) or t < 0:
             raise InputError(f"t_h: must be a finite number >= 0 (got {t_h})")
+        if self.adaptive:
+            self._update_gain(x0, t, pp, up)
         if t >= self.t_end_h - 1e-9:
             return self._fixed_plan(x0, t, pp, np.zeros((1, 2)), Status(
                 "mpc", "batch_done", True, reason="batch finished: rest", t_ceiling_c=self.cfg.temperature.ceiling_c))
@@ -141,6 +148,24 @@ class MPCController:
         X = self.model.simulate(x0, U, self.interval_h, pp) if binary else self._states(x0, res["Z"])
         return self._make_plan(x0, t, U, X, status)
 
+    def _update_gain(self, x0, t, pp, up) -> None:
+        """Update the prediction correction from the last interval's discrepancy (Adaptation)."""
+        a = self.cfg.adaptation
+        last, self._last = self._last, (t, x0.copy(), pp.copy())
+        if last is None or up is None or abs(t - (last[0] + self.interval_h)) > 1e-6:
+            return
+        _, x_prev, p_prev = last
+        x_pred = self.model.step(x_prev, up, self.interval_h, p_prev)[:4]
+        if a.mode == "bias":
+            self.bias = a.forgetting * self.bias + (1.0 - a.forgetting) * (x0[:4] - x_pred)
+            return
+        ref = np.maximum(np.abs(x_prev[:4]), 1e-6)
+        pred = (x_pred - x_prev[:4]) / ref
+        obs = (x0[:4] - x_prev[:4]) / ref
+        self._rls = a.forgetting * self._rls + np.array([obs * pred, pred * pred])
+        w0 = a.prior_rel_change ** 2
+        self.gain = np.clip((self._rls[0] + w0) / (self._rls[1] + w0), a.gain_min, a.gain_max)
+
     # --- problem data ------------------------------------------------------------------------
     def _problem_data(self, x0, t, pp, up) -> dict:
         cfg, N, dt = self.cfg, self.N, self.interval_h
@@ -171,7 +196,9 @@ class MPCController:
         lo, hi, _ = rpm_window(cfg.bounds, self.model.rpm_max, up)
         has_prev = up is not None and up[0] > 0 and up[1] > 0
         P = np.concatenate([x0, pp, ref.T.ravel(), q.T.ravel(),
-                            [up[0] / self.rpm_scale if has_prev else 0.0, 1.0 if has_prev else 0.0]])
+                            [up[0] / self.rpm_scale if has_prev else 0.0, 1.0 if has_prev else 0.0]]
+                           + ([self.bias if self.cfg.adaptation.mode == "bias" else self.gain]
+                              if self.adaptive else []))
         sc = self.rpm_scale
         w_lb = np.full(N, self.rpm_lo / sc)
         w_ub = np.full(N, self.rpm_hi / sc)
@@ -198,7 +225,7 @@ class MPCController:
         M = ca.MX.sym("m", N)
         Z = ca.MX.sym("z", 6, N)
         S = ca.MX.sym("s", N)
-        P = ca.MX.sym("P", 6 + 2 + 8 * N + 2)
+        P = ca.MX.sym("P", 6 + 2 + 8 * N + 2 + (4 if self.adaptive else 0))
         x0, pp = P[0:6], P[6:8]
         ref = ca.reshape(P[8:8 + 4 * N], 4, N)
         q = ca.reshape(P[8 + 4 * N:8 + 8 * N], 4, N)
@@ -208,6 +235,11 @@ class MPCController:
         Xprev = ca.horzcat(x0, X[:, :-1])
         U = ca.vertcat(W.T * self.rpm_scale, M.T)
         Xn = F.map(N)(Xprev, U, ca.repmat(pp, 1, N))
+        if self.adaptive and cfg.adaptation.mode == "gain":  # corrected particle moments (T, h are exact)
+            G = ca.vertcat(P[10 + 8 * N:14 + 8 * N], 1.0, 1.0)
+            Xn = Xprev + ca.repmat(G, 1, N) * (Xn - Xprev)
+        elif self.adaptive:  # "bias": offset-free prediction
+            Xn = Xn + ca.repmat(ca.vertcat(P[10 + 8 * N:14 + 8 * N], 0.0, 0.0), 1, N)
         defect = (Xn - X) / ca.repmat(D, 1, N)
         Tpk, _ = eq.thermal_exact(eq.CA(), c, Xprev[4, :], Xprev[5, :], W.T, M.T * dt)
         E = X[0:4, :] - ref

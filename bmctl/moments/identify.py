@@ -128,8 +128,9 @@ FACTORS = ((1.3, 0.7), (0.7, 1.3), (1.3, 1.0), (0.7, 1.0), (1.0, 1.3), (1.0, 0.7
 
 def sensitivity_design(card: ModelCard, seed: int = 0, quick: bool = False) -> list[Spec]:
     """Stage-2 experiments: plants with gamma and delta off the card (:data:`FACTORS`), at a low
-    and a high constant speed and on one random schedule each; they identify how the averaged
-    bonding and fracture rates respond to the parameters p = (gamma, delta) factors."""
+    and a high constant speed, in short bursts (duty 0.2; and 0.1 after 3 h of growth) and on one
+    random schedule each; they identify how the averaged bonding and fracture rates respond to
+    the parameters p = (gamma, delta) factors."""
     R = card.mill.rpm_max
     r = lambda f: round(f * R / 10) * 10  # noqa: E731
     rng = np.random.default_rng([seed, 3])
@@ -137,6 +138,11 @@ def sensitivity_design(card: ModelCard, seed: int = 0, quick: bool = False) -> l
     for g, d in (FACTORS[:2] if quick else FACTORS):
         tag = f"g{g:g}-d{d:g}"
         specs += [Spec(f"{tag}-const-{r(f):g}", _grid([(HOURS, r(f), 1.0)]), factors=(g, d)) for f in (1 / 2, 5 / 6)]
+        # interrupted milling: short bursts in a cool vial (what an MPC with an energy penalty does)
+        specs.append(Spec(f"{tag}-duty-{r(2 / 3):g}-0.2", _grid([(HOURS, r(2 / 3), 0.2)]), factors=(g, d)))
+        if not quick:
+            specs.append(Spec(f"{tag}-branch-{r(1 / 2):g}-3h-duty-{r(2 / 3):g}-0.1",
+                              _grid([(9, r(2 / 3), 0.1)]), _grid([(3, r(1 / 2), 1.0)]), factors=(g, d)))
         specs.append(Spec(f"{tag}-random", random_schedule(rng, R), factors=(g, d)))
     return specs
 
