@@ -114,6 +114,9 @@ class Solver(Strict):
     #: with an approximate Hessian (built once per controller, used every interval; the
     #: exact-Hessian graph takes ~20 s to expand, so cold solves and exact retries are not); "all"; "none"
     expand: Literal["none", "warm", "all"] = "none"
+    #: RKC substeps per interval of the MPC's prediction (default: the moment model's, <= 1/16 h
+    #: each); fewer substeps with more stages are as stable and cheaper (docs/control.md)
+    substeps: Annotated[int, Field(ge=1, le=64)] | None = None
 
 
 class OnOff(Strict):

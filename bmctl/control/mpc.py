@@ -148,6 +148,24 @@ class MPCController:
         X = self.model.simulate(x0, U, self.interval_h, pp) if binary else self._states(x0, res["Z"])
         return self._make_plan(x0, t, U, X, status)
 
+    def _predict(self, x0, U, pp) -> np.ndarray:
+        """States under ``U`` as the NLP predicts them (the moment model, with the adaptation's
+        correction when on): a dynamically consistent initial guess."""
+        mode = self.cfg.adaptation.mode
+        if mode == "none":
+            return self.model.simulate(x0, U, self.interval_h, pp)
+        F = self.model.casadi_step(self.interval_h, self.cfg.solver.substeps)
+        X = [np.asarray(x0, dtype=float)]
+        for u in U:
+            x = X[-1]
+            xn = np.asarray(F(x, u, pp), dtype=float).ravel()
+            if mode == "bias":
+                xn[:4] = xn[:4] + self.bias
+            else:
+                xn[:4] = x[:4] + self.gain * (xn[:4] - x[:4])
+            X.append(xn)
+        return np.array(X)
+
     def _update_gain(self, x0, t, pp, up) -> None:
         """Update the prediction correction from the last interval's discrepancy (Adaptation)."""
         a = self.cfg.adaptation
@@ -155,7 +173,8 @@ class MPCController:
         if last is None or up is None or abs(t - (last[0] + self.interval_h)) > 1e-6:
             return
         _, x_prev, p_prev = last
-        x_pred = self.model.step(x_prev, up, self.interval_h, p_prev)[:4]
+        x_pred = np.asarray(self.model.casadi_step(self.interval_h, self.cfg.solver.substeps)(x_prev, up, p_prev),
+                            dtype=float).ravel()[:4]
         if a.mode == "bias":
             self.bias = a.forgetting * self.bias + (1.0 - a.forgetting) * (x0[:4] - x_pred)
             return
@@ -220,7 +239,7 @@ class MPCController:
 
         cfg, N, dt, m = self.cfg, self.N, self.interval_h, self.model
         c = m.const
-        F = m.casadi_step(dt)
+        F = m.casadi_step(dt, cfg.solver.substeps)
         W = ca.MX.sym("w", N)
         M = ca.MX.sym("m", N)
         Z = ca.MX.sym("z", 6, N)
@@ -334,7 +353,7 @@ class MPCController:
             W = np.clip(W, data["lbx"][:N], data["ubx"][:N])
         M = np.clip(M, data["lbx"][N:2 * N], data["ubx"][N:2 * N])
         U = np.column_stack([W * self.rpm_scale, M])
-        X = self.model.simulate(data["x0"], U, self.interval_h, data["p"])
+        X = self._predict(data["x0"], U, data["p"])
         Tpk = peak_temperature(self.model, X[:-1, 4], X[:-1, 5], U[:, 0], U[:, 1], self.interval_h)
         S = np.clip(Tpk - self.cfg.temperature.ceiling_c, 0.0, data["ubx"][8 * N:])
         V = np.concatenate([W, M, (X[1:] / X_SCALE).ravel(), S])

@@ -160,17 +160,26 @@ class MomentModel:
         return n, rkc_stages(self.const.rate_max_per_h, dt_h / n)
 
     # --- casadi --------------------------------------------------------------------------------
-    def casadi_step(self, dt_h: float):
-        """casadi.Function ``F(x[6], u[2], p[2]) -> x_next[6]`` over ``dt_h`` hours (SX, cached)."""
-        key = round(float(dt_h), 12)
+    def casadi_step(self, dt_h: float, substeps: int | None = None):
+        """casadi.Function ``F(x[6], u[2], p[2]) -> x_next[6]`` over ``dt_h`` hours (SX, cached).
+
+        ``substeps`` overrides the number of RKC substeps (default: substeps of <= 1/16 h); the
+        stages follow from the stiffness, so a coarser step stays stable but is less accurate.
+        """
+        n_default, _ = self._integration(float(dt_h))
+        n = n_default if substeps is None else int(substeps)
+        if n < 1:
+            raise InputError(f"substeps: must be >= 1 (got {substeps})")
+        key = round(float(dt_h), 12) if n == n_default else (round(float(dt_h), 12), n)
         if key not in self._ca_steps:
             import casadi as ca
 
             x = ca.SX.sym("x", 6)
             u = ca.SX.sym("u", 2)
             p = ca.SX.sym("p", 2)
+            s = rkc_stages(self.const.rate_max_per_h, float(dt_h) / n)
             out = eq.step(eq.CA(), self.const, self.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
-                          float(dt_h), *self._integration(float(dt_h)), rates=self._casadi_rates())
+                          float(dt_h), n, s, rates=self._casadi_rates())
             self._ca_steps[key] = ca.Function("moment_step", [x, u, p], [ca.vertcat(*out)],
                                               ["x", "u", "p"], ["x_next"])
         return self._ca_steps[key]
