@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 
 class InputError(Exception):
     """Bad user input: a file, a field, a flag or a value.
@@ -15,3 +17,22 @@ class InputError(Exception):
     message : str
         What is wrong, naming the file and field.
     """
+
+
+def finite_float(text: str, where: str) -> float:
+    """Parse one finite number given by the user, or raise a one-line :class:`InputError`.
+
+    Parameters
+    ----------
+    text : str
+        The text as given (a flag value, a list item, a ``key=value`` value).
+    where : str
+        What to name in the message, e.g. ``"--hours"`` or ``"--target: s_mean_um"``.
+    """
+    try:
+        v = float(text)
+    except ValueError:
+        raise InputError(f"{where}: not a number: {text!r}") from None
+    if not math.isfinite(v):
+        raise InputError(f"{where}: must be a finite number (got {text})")
+    return v

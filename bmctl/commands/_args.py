@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import math
 
-from ..errors import InputError
+from ..errors import InputError, finite_float
 
 
 def int_arg(name: str, lo: int | None = None, hi: int | None = None):
@@ -45,12 +44,7 @@ def float_arg(name: str, lo: float | None = None, hi: float | None = None, stric
     """
 
     def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise InputError(f"{name}: not a number: {text!r}") from None
-        if not math.isfinite(v):
-            raise InputError(f"{name}: must be a finite number (got {text})")
+        v = finite_float(text, name)
         if lo is not None and (v < lo or (strict and v == lo)):
             raise InputError(f"{name}: must be {'>' if strict else '>='} {lo:g} (got {text})")
         if hi is not None and v > hi:

@@ -10,10 +10,9 @@ interval of every state and parameter at each sample time) and a figure next to 
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, finite_float
 from ._args import float_arg, int_arg
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
@@ -54,13 +53,7 @@ def _parse_list(flag: str, text: str, allow_empty: bool = False) -> list[float |
                 out.append(None)
                 continue
             raise InputError(f"{flag}: empty entry in {text!r}")
-        try:
-            v = float(item)
-        except ValueError:
-            raise InputError(f"{flag}: not a number: {item!r}") from None
-        if not math.isfinite(v):
-            raise InputError(f"{flag}: must be finite numbers (got {item})")
-        out.append(v)
+        out.append(finite_float(item, flag))
     return out
 
 

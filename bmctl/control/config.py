@@ -13,14 +13,13 @@ See docs/control.md for the meaning of every field.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 from pydantic import Field, model_validator
 
 from ..config import Finite, Frac, NonNeg, Pos, Strict, read_toml, validate
-from ..errors import InputError
+from ..errors import InputError, finite_float
 
 #: moments a target may name (state components 0..3 of the moment model)
 TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
@@ -274,12 +273,6 @@ def parse_target(text: str, source: str = "--target") -> dict[str, float]:
             raise InputError(f"{source}: unknown moment {k!r} (one of {', '.join(TARGET_KEYS)})")
         if k in out:
             raise InputError(f"{source}: {k} given twice")
-        try:
-            val = float(v)
-        except ValueError:
-            raise InputError(f"{source}: {k}: not a number: {v!r}") from None
-        if not math.isfinite(val):
-            raise InputError(f"{source}: {k}: must be a finite number (got {v})")
-        out[k] = val
+        out[k] = finite_float(v, f"{source}: {k}")
     validate(Target, out, source)
     return out
