@@ -102,7 +102,7 @@ class MPCController:
         if not math.isfinite(t) or t < 0:
             raise InputError(f"t_h: must be a finite number >= 0 (got {t_h})")
         if self.adaptive:
-            self._update_gain(x0, t, pp, up)
+            self._update_adaptation(x0, t, pp, up)
         if t >= self.t_end_h - 1e-9:
             return self._fixed_plan(x0, t, pp, np.zeros((1, 2)), Status(
                 "mpc", "batch_done", True, reason="batch finished: rest", t_ceiling_c=self.cfg.temperature.ceiling_c))
@@ -148,33 +148,34 @@ class MPCController:
         X = self.model.simulate(x0, U, self.interval_h, pp) if binary else self._states(x0, res["Z"])
         return self._make_plan(x0, t, U, X, status)
 
-    def _predict(self, x0, U, pp) -> np.ndarray:
-        """States under ``U`` as the NLP predicts them (the moment model, with the adaptation's
-        correction when on): a dynamically consistent initial guess."""
-        mode = self.cfg.adaptation.mode
-        if mode == "none":
-            return self.model.simulate(x0, U, self.interval_h, pp)
+    def _step(self, x, u, pp) -> np.ndarray:
+        """One interval of the NLP's (uncorrected) prediction: the casadi step with ``[solver] substeps``."""
         F = self.model.casadi_step(self.interval_h, self.cfg.solver.substeps)
+        return np.asarray(F(x, u, pp), dtype=float).ravel()
+
+    def _predict(self, x0, U, pp) -> np.ndarray:
+        """States under ``U`` as the NLP predicts them (with the adaptation's correction when on):
+        a dynamically consistent initial guess."""
+        mode = self.cfg.adaptation.mode
         X = [np.asarray(x0, dtype=float)]
         for u in U:
             x = X[-1]
-            xn = np.asarray(F(x, u, pp), dtype=float).ravel()
+            xn = self._step(x, u, pp)
             if mode == "bias":
-                xn[:4] = xn[:4] + self.bias
-            else:
+                xn[:4] += self.bias
+            elif mode == "gain":
                 xn[:4] = x[:4] + self.gain * (xn[:4] - x[:4])
             X.append(xn)
         return np.array(X)
 
-    def _update_gain(self, x0, t, pp, up) -> None:
+    def _update_adaptation(self, x0, t, pp, up) -> None:
         """Update the prediction correction from the last interval's discrepancy (Adaptation)."""
         a = self.cfg.adaptation
         last, self._last = self._last, (t, x0.copy(), pp.copy())
         if last is None or up is None or abs(t - (last[0] + self.interval_h)) > 1e-6:
             return
         _, x_prev, p_prev = last
-        x_pred = np.asarray(self.model.casadi_step(self.interval_h, self.cfg.solver.substeps)(x_prev, up, p_prev),
-                            dtype=float).ravel()[:4]
+        x_pred = self._step(x_prev, up, p_prev)[:4]
         if a.mode == "bias":
             self.bias = a.forgetting * self.bias + (1.0 - a.forgetting) * (x0[:4] - x_pred)
             return
