@@ -78,40 +78,31 @@ def run(args) -> int:
     model0 = MomentModel(card, default_coeffs(card), "defaults")
     res = ident.fit(model0, train, log=log)
     model = MomentModel(card, res.coeffs, str(out))
-    for e in train + valid:
-        if not all(math.isfinite(v) for v in e.Y.ravel()):
-            raise InputError(f"{args.model}: the plant produced non-finite moments in {e.name}")
-    if not all(math.isfinite(v) for v in res.coeffs.values()):
-        raise InputError(f"{args.model}: identification produced non-finite coefficients")
+    _check_finite(args.model, train + valid, res.coeffs)
     tab0 = ident.nrmse_table(model0, valid)
     tab = ident.nrmse_table(model, valid)
     tab_train = ident.nrmse_table(model, train)
     log("validation done")
 
     # stage 2 (optional): how the rates respond to the plant's gamma and delta (the parameters p)
-    coeffs, stage2 = res.coeffs, None
+    coeffs = res.coeffs
     if args.sensitivity:
         sspecs = ident.sensitivity_design(card, args.seed, args.quick)
         svspecs = ident.sensitivity_validation_design(card)
         log(f"stage 2: {len(sspecs)} experiments with gamma, delta off the card x {len(train_seeds)} seeds")
         strain = ident.run_experiments(card, sspecs, train_seeds, particles)
         svalid = ident.run_experiments(card, svspecs, valid_seeds, particles)
-        for e in strain + svalid:
-            if not all(math.isfinite(v) for v in e.Y.ravel()):
-                raise InputError(f"{args.model}: the plant produced non-finite moments in {e.name}")
         res2 = ident.fit(model, strain, free=ident.SENSITIVITY, log=log)
-        if not all(math.isfinite(v) for v in res2.coeffs.values()):
-            raise InputError(f"{args.model}: identification produced non-finite coefficients")
+        _check_finite(args.model, strain + svalid, res2.coeffs)
         coeffs = res2.coeffs
         stab0 = ident.nrmse_table(model, svalid)  # elasticities 1, 0, 0, 1: p multiplies c_b, c_f directly
         stab = ident.nrmse_table(MomentModel(card, coeffs, str(out)), svalid)
-        stage2 = (res2, strain, stab0, stab)
         log("stage 2 done")
 
     names = ident.MOMENTS[:5]
     report = _report(card.card.name, names, tab0, tab, tab_train)
-    if stage2 is not None:
-        report += "\n" + _report_sensitivity(names, coeffs, stage2[2], stage2[3])
+    if args.sensitivity:
+        report += "\n" + _report_sensitivity(names, coeffs, stab0, stab)
     validation = {
         "definition": "NRMSE = RMSE(model - plant ensemble mean) / range of the plant-mean trajectory "
                       "(floored at 10 % of its mean), per held-out schedule; mean and max over schedules",
@@ -120,13 +111,9 @@ def run(args) -> int:
         "max": {k: round(float(v), 5) for k, v in zip(names, tab["max"])},
         "defaults_mean": {k: round(float(v), 5) for k, v in zip(names, tab0["mean"])},
     }
-    if stage2 is not None:
-        _, _, stab0, stab = stage2
-        validation["sensitivity"] = {f"{n}, {k}": round(float(v), 5) for n, row in zip(stab["names"], stab["rows"])
-                                     for k, v in zip(names[:4], row[:4])}
-        validation["sensitivity_before"] = {f"{n}, {k}": round(float(v), 5)
-                                            for n, row in zip(stab0["names"], stab0["rows"])
-                                            for k, v in zip(names[:4], row[:4])}
+    if args.sensitivity:
+        validation["sensitivity"] = _per_run(stab, names[:4])
+        validation["sensitivity_before"] = _per_run(stab0, names[:4])
     meta = {
         "card": card.card.name,
         "command": f"bmctl identify {args.model} --seed {args.seed}" + (" --quick" if args.quick else "")
@@ -137,8 +124,7 @@ def run(args) -> int:
         "dt_h": ident.DT_H, "cost_initial": round(res.cost0, 6), "cost_final": round(res.cost, 6),
         "evaluations": res.nfev, "fit_seconds": round(res.seconds, 1),
     }
-    if stage2 is not None:
-        res2, strain = stage2[0], stage2[1]
+    if args.sensitivity:
         meta.update({"sensitivity_experiments": len(strain), "sensitivity_factors": [list(f) for f in ident.FACTORS],
                      "sensitivity_cost_initial": round(res2.cost0, 6), "sensitivity_cost_final": round(res2.cost, 6)})
     text = toml_text(coeffs, {"identification": meta, "validation": validation},
@@ -148,6 +134,19 @@ def run(args) -> int:
     print(report)
     print(f"wrote {out} ({time.time() - t0:.0f} s)")
     return 0
+
+
+def _check_finite(model_path, experiments, coeffs) -> None:
+    for e in experiments:
+        if not all(math.isfinite(v) for v in e.Y.ravel()):
+            raise InputError(f"{model_path}: the plant produced non-finite moments in {e.name}")
+    if not all(math.isfinite(v) for v in coeffs.values()):
+        raise InputError(f"{model_path}: identification produced non-finite coefficients")
+
+
+def _per_run(tab, names) -> dict:
+    """{"<run>, <moment>": NRMSE} for the held-out runs of an nrmse_table."""
+    return {f"{n}, {k}": round(float(v), 5) for n, row in zip(tab["names"], tab["rows"]) for k, v in zip(names, row)}
 
 
 def _report_sensitivity(names, coeffs, tab0, tab) -> str:
