@@ -80,6 +80,17 @@ def savez(path: str | os.PathLike, **arrays) -> None:
             np.savez_compressed(fh, **arrays)
 
 
+def pyplot():
+    """``matplotlib.pyplot`` on the non-interactive Agg backend, imported on first use (figures
+    only: the numerical paths never pay for importing matplotlib)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def savefig(fig, path: str | os.PathLike, **kwargs) -> None:
     """Save a matplotlib figure atomically and close it."""
     import matplotlib.pyplot as plt

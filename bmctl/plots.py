@@ -5,13 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from .io import pyplot, savefig
 
-from .io import savefig  # noqa: E402
+plt = pyplot()
 
 
 def pdf_over_time(path: Path, axis: np.ndarray, pdfs: np.ndarray, times_h: Sequence[float], xlabel: str,

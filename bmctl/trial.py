@@ -320,10 +320,9 @@ def summarise(sc: Scenario, state: TrialState, ceiling: float | None) -> dict:
 
 def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
     """Moments with target and estimate bands; rpm and rests; temperature."""
-    import matplotlib
+    from .io import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     data = np.genfromtxt(traj, delimiter=",", names=True, dtype=None, encoding="utf-8")
     t = np.atleast_1d(data["t_h"])

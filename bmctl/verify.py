@@ -1212,12 +1212,9 @@ def analytic_figure(report: Report, path) -> None:
     path : path-like
         PNG file (written atomically).
     """
-    import matplotlib
+    from .io import pyplot, savefig
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .io import savefig
+    plt = pyplot()
 
     n = len(report.analytic)
     fig, axes = plt.subplots(2, (n + 1) // 2, figsize=(11, 8))
@@ -1238,12 +1235,9 @@ def reference_figure(report: Report, path) -> None:
     path : path-like
         PNG file (written atomically).
     """
-    import matplotlib
+    from .io import pyplot, savefig
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .io import savefig
+    plt = pyplot()
 
     n = len(report.reference)
     fig, axes = plt.subplots(2, n, figsize=(4 * n, 6.5), squeeze=False)

@@ -95,10 +95,9 @@ def table_rows(results: Sequence[WhatIfResult]) -> tuple[list[str], list[list]]:
 
 def write_outputs(results: Sequence[WhatIfResult], out: Path) -> list[Path]:
     """whatif.csv (table), whatif_moments.png (bands over time), whatif_final.png (final pdfs)."""
-    import matplotlib
+    from .io import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     out = Path(out)
     header, rows = table_rows(results)

@@ -152,12 +152,9 @@ def predicted_csv(d: Design) -> str:
 
 
 def design_figure(d: Design, path: Path) -> None:
-    import matplotlib
+    from ..io import pyplot, savefig
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..io import savefig
+    plt = pyplot()
 
     t = d.times_h
     fig, axes = plt.subplots(2, 2, figsize=(11, 6.5), sharex=True)

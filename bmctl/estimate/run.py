@@ -113,12 +113,9 @@ def estimate_rows(estimates: Sequence[Estimate]) -> tuple[list[str], list[list]]
 def plot_estimates(path: str | Path, estimates: Sequence[Estimate], samples: Sequence[Sample] | None = None,
                    title: str = "", truth: dict | None = None) -> None:
     """Mean and 90 % band of every state and parameter over time; the raw sample moments as dots."""
-    import matplotlib
+    from ..io import pyplot, savefig
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..io import savefig
+    plt = pyplot()
 
     names = estimates[0].names
     t = np.array([e.t_h for e in estimates])

@@ -128,10 +128,9 @@ def step_figure(model, x, u, p=None, hours: float = 4.0, frac: float = 0.1):
     Responses are deviations from the unforced nonlinear trajectory.
     """
     import control
-    import matplotlib
+    from ..io import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     sys_ = linearize(model, x, u, p)
     t = np.linspace(0.0, hours, 161)
