@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from . import io
-from .config import ModelCard, load_card
+from .config import ModelCard, load_card, with_factors
 from .errors import InputError
 from .scenario import TARGET_KEYS, Scenario, load_scenario, resolve
 
@@ -56,12 +56,7 @@ class TrialState:
 
 def _plant_card(sc: Scenario, base: Path) -> ModelCard:
     card = load_card(resolve(sc.plant.model or sc.model, base))
-    if sc.plant.gamma_factor != 1.0 or sc.plant.delta_factor != 1.0:
-        d = card.model_dump()
-        d["stochastic"]["gamma_per_um2"] *= sc.plant.gamma_factor
-        d["stochastic"]["delta_per_um2"] *= sc.plant.delta_factor
-        card = type(card).model_validate(d)
-    return card
+    return with_factors(card, sc.plant.gamma_factor, sc.plant.delta_factor)
 
 
 def _model_and_controller(sc: Scenario, base: Path):

@@ -87,11 +87,6 @@ class StudyConfig:
     base: FilterSettings = field(default_factory=FilterSettings)
 
 
-def off_card(card: ModelCard, gamma_mult: float, delta_mult: float) -> ModelCard:
-    """A copy of ``card`` with gamma and delta multiplied (the plant's 'true' factors)."""
-    return with_factors(card, gamma_mult, delta_mult)
-
-
 def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cfg: StudyConfig) -> dict:
     """One seeded run: plant truth and every variant's estimates at every sample time.
 
@@ -101,7 +96,7 @@ def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cf
     """
     from ..measure.sampler import micrograph_sample
 
-    plant = Plant(off_card(card, *scenario), np.random.default_rng([seed, 0]), cfg.plant_particles)
+    plant = Plant(with_factors(card, *scenario), np.random.default_rng([seed, 0]), cfg.plant_particles)
     segments = card_schedule(card, cfg.hours)
     times = np.arange(cfg.every_h, cfg.hours + 1e-9, cfg.every_h)
     filters = {}
@@ -210,7 +205,7 @@ def law_misfit(card_path: str, scenarios=((1.0, 1.0), (1.3, 0.7), (0.7, 1.3)), t
     card = load_card(card_path)
     out = []
     for sc in scenarios:
-        plant = Plant(off_card(card, *sc), np.random.default_rng([seed, 3]), particles)
+        plant = Plant(with_factors(card, *sc), np.random.default_rng([seed, 3]), particles)
         rng = np.random.default_rng([seed, 4])
         t_prev = 0.0
         for t in times:
