@@ -29,7 +29,7 @@ from .errors import InputError
 from .scenario import TARGET_KEYS, Scenario, load_scenario, resolve
 
 TRUE_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
-EST_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "bond_mult", "frac_mult")
+EST_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "gamma_mult", "delta_mult")
 
 
 def trajectory_header() -> list[str]:
@@ -107,7 +107,7 @@ def _sample(sc: Scenario, state: TrialState):
 def _x_est(est: dict) -> tuple[np.ndarray, np.ndarray]:
     x = np.array([est["s_mean_um"], est["s_std_um"], est["r_mean"], est["r_std"], est["temperature_c"],
                   est.get("hardening", 0.0)])
-    return x, np.array([est.get("bond_mult", 1.0), est.get("frac_mult", 1.0)])
+    return x, np.array([est.get("gamma_mult", 1.0), est.get("delta_mult", 1.0)])
 
 
 def step(sc: Scenario, state: TrialState, ceiling: float | None) -> list:
@@ -344,11 +344,11 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
         ax.axhline(ceiling, color="k", ls=":", label="ceiling")
     ax.set_title("vial temperature (°C)"), ax.set_xlabel("t (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
     ax = axes[1][2]
-    ax.plot(t, data["est_bond_mult"], label="bond_mult")
-    ax.plot(t, data["est_frac_mult"], label="frac_mult")
-    ax.fill_between(t, data["est_bond_mult_q05"], data["est_bond_mult_q95"], alpha=0.2)
-    ax.fill_between(t, data["est_frac_mult_q05"], data["est_frac_mult_q95"], alpha=0.2)
-    ax.set_title("estimated rate multipliers"), ax.set_xlabel("t (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
+    ax.plot(t, data["est_gamma_mult"], label="gamma_mult")
+    ax.plot(t, data["est_delta_mult"], label="delta_mult")
+    ax.fill_between(t, data["est_gamma_mult_q05"], data["est_gamma_mult_q95"], alpha=0.2)
+    ax.fill_between(t, data["est_delta_mult_q05"], data["est_delta_mult_q95"], alpha=0.2)
+    ax.set_title("estimated gamma, delta factors"), ax.set_xlabel("t (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
     fig.suptitle(f"{sc.scenario.name}: {sc.scenario.description}")
     fig.tight_layout()
     io.savefig(fig, out / "trial.png", dpi=110)

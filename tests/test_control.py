@@ -137,11 +137,11 @@ def test_adaptive_gain_learns_a_slower_plant_and_reaches_the_target(model):
 
 
 def test_offset_free_bias_reduces_the_error_of_a_mismatched_model(model):
-    # "plant" = the moment model with gamma x1.3, delta x0.7 rate multipliers; the controller's
-    # model has (1, 1). Like a trial, the controller sees the true state every 2nd interval (a
+    # "plant" = the moment model told gamma x1.5, delta x0.6 (about the mismatch that x1.3, x0.7
+    # gave before p acted inside eqns 15 and 20); the controller's model has (1, 1). Like a trial, the controller sees the true state every 2nd interval (a
     # sample) and its model's prediction in between. The "bias" MPC must learn a positive
     # s_mean discrepancy and end at most half as far from the target as the plain MPC.
-    p_true = np.array([1.3, 0.7])
+    p_true = np.array([1.5, 0.6])
     target = {"s_mean_um": 60.0}
     finals = {}
     for mode in ("none", "bias"):

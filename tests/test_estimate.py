@@ -238,7 +238,7 @@ def test_cli_estimate_writes_csv_and_figure(tmp_path, capsys):
     assert rc == 0, err
     rows = list(csv.DictReader(out.read_text().splitlines()))
     assert [float(r["t_h"]) for r in rows] == [1.0, 2.0]
-    for name in ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening", "bond_mult", "frac_mult"):
+    for name in ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening", "gamma_mult", "delta_mult"):
         for r in rows:
             assert float(r[f"{name}_q05"]) <= float(r[name]) <= float(r[f"{name}_q95"])
     assert all(0 < float(r["ess"]) <= 200 for r in rows)

@@ -156,8 +156,8 @@ def run(args) -> int:
           f"min ESS {min(e.ess for e in estimates):.0f}, resampled {pf.n_resampled}x")
     print(f"  at {last.t_h:g} h: s mean {d['s_mean_um']:.1f} um [{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
           f"r mean {d['r_mean']:.3f} [{d['r_mean_q05']:.3f}, {d['r_mean_q95']:.3f}], "
-          f"bond_mult {d['bond_mult']:.2f} [{d['bond_mult_q05']:.2f}, {d['bond_mult_q95']:.2f}], "
-          f"frac_mult {d['frac_mult']:.2f} [{d['frac_mult_q05']:.2f}, {d['frac_mult_q95']:.2f}]")
+          f"gamma_mult {d['gamma_mult']:.2f} [{d['gamma_mult_q05']:.2f}, {d['gamma_mult_q95']:.2f}], "
+          f"delta_mult {d['delta_mult']:.2f} [{d['delta_mult_q05']:.2f}, {d['delta_mult_q95']:.2f}]")
     print(f"  wrote {out}")
     print(f"  wrote {fig_path}")
     return 0

@@ -12,8 +12,11 @@ from __future__ import annotations
 import math
 import sys
 import time
+from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
+
+import numpy as np
 
 from ..errors import InputError
 from ._args import int_arg
@@ -29,9 +32,6 @@ def configure(p):
     p.add_argument("--particles", type=int_arg("--particles", 200, 1_000_000), default=None,
                    help="simulated particles per plant (default 4000; --quick 2000)")
     p.add_argument("--quick", action="store_true", help="fewer experiments, one training seed (about 4x faster)")
-    p.add_argument("--sensitivity", action="store_true",
-                   help="stage 2: also fit how the rates respond to a plant whose gamma, delta are off the card "
-                        "(p = their factors); off by default, see docs/moments.md")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -73,36 +73,24 @@ def run(args) -> int:
     train = ident.run_experiments(card, specs, train_seeds, particles)
     log("training experiments done")
     valid = ident.run_experiments(card, vspecs, valid_seeds, particles)
+    off = ident.run_experiments(card, ident.off_card_design(card), valid_seeds, particles)
     log("held-out experiments done")
 
     model0 = MomentModel(card, default_coeffs(card), "defaults")
     res = ident.fit(model0, train, log=log)
     model = MomentModel(card, res.coeffs, str(out))
-    _check_finite(args.model, train + valid, res.coeffs)
+    _check_finite(args.model, train + valid + off, res.coeffs)
+    coeffs = res.coeffs
     tab0 = ident.nrmse_table(model0, valid)
     tab = ident.nrmse_table(model, valid)
     tab_train = ident.nrmse_table(model, train)
+    # off-card check: the model told the plant's (gamma, delta) factors, and not told (p = 1)
+    otab = ident.nrmse_table(model, off)
+    otab1 = ident.nrmse_table(model, [replace(e, p=np.ones(2)) for e in off])
     log("validation done")
 
-    # stage 2 (optional): how the rates respond to the plant's gamma and delta (the parameters p)
-    coeffs = res.coeffs
-    if args.sensitivity:
-        sspecs = ident.sensitivity_design(card, args.seed, args.quick)
-        svspecs = ident.sensitivity_validation_design(card)
-        log(f"stage 2: {len(sspecs)} experiments with gamma, delta off the card x {len(train_seeds)} seeds")
-        strain = ident.run_experiments(card, sspecs, train_seeds, particles)
-        svalid = ident.run_experiments(card, svspecs, valid_seeds, particles)
-        res2 = ident.fit(model, strain, free=ident.SENSITIVITY, log=log)
-        _check_finite(args.model, strain + svalid, res2.coeffs)
-        coeffs = res2.coeffs
-        stab0 = ident.nrmse_table(model, svalid)  # elasticities 1, 0, 0, 1: p multiplies c_b, c_f directly
-        stab = ident.nrmse_table(MomentModel(card, coeffs, str(out)), svalid)
-        log("stage 2 done")
-
     names = ident.MOMENTS[:5]
-    report = _report(card.card.name, names, tab0, tab, tab_train)
-    if args.sensitivity:
-        report += "\n" + _report_sensitivity(names, coeffs, stab0, stab)
+    report = _report(card.card.name, names, tab0, tab, tab_train) + "\n" + _report_off_card(names, otab1, otab)
     validation = {
         "definition": "NRMSE = RMSE(model - plant ensemble mean) / range of the plant-mean trajectory "
                       "(floored at 10 % of its mean), per held-out schedule; mean and max over schedules",
@@ -111,22 +99,17 @@ def run(args) -> int:
         "max": {k: round(float(v), 5) for k, v in zip(names, tab["max"])},
         "defaults_mean": {k: round(float(v), 5) for k, v in zip(names, tab0["mean"])},
     }
-    if args.sensitivity:
-        validation["sensitivity"] = _per_run(stab, names[:4])
-        validation["sensitivity_before"] = _per_run(stab0, names[:4])
+    validation["off_card"] = _per_run(otab, names[:4])
+    validation["off_card_p1"] = _per_run(otab1, names[:4])
     meta = {
         "card": card.card.name,
         "command": f"bmctl identify {args.model} --seed {args.seed}" + (" --quick" if args.quick else "")
-                   + (" --sensitivity" if args.sensitivity else "")
                    + (f" --particles {args.particles}" if args.particles else ""),
         "date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "experiments": len(train), "train_seeds": train_seeds, "particles": particles,
         "dt_h": ident.DT_H, "cost_initial": round(res.cost0, 6), "cost_final": round(res.cost, 6),
         "evaluations": res.nfev, "fit_seconds": round(res.seconds, 1),
     }
-    if args.sensitivity:
-        meta.update({"sensitivity_experiments": len(strain), "sensitivity_factors": [list(f) for f in ident.FACTORS],
-                     "sensitivity_cost_initial": round(res2.cost0, 6), "sensitivity_cost_final": round(res2.cost, 6)})
     text = toml_text(coeffs, {"identification": meta, "validation": validation},
                      header=f"Moment-model coefficients of {card.card.name}, written by `bmctl identify`.\n"
                             "Re-run the command in [identification] to regenerate; docs/moments.md explains them.")
@@ -149,12 +132,11 @@ def _per_run(tab, names) -> dict:
     return {f"{n}, {k}": round(float(v), 5) for n, row in zip(tab["names"], tab["rows"]) for k, v in zip(names, row)}
 
 
-def _report_sensitivity(names, coeffs, tab0, tab) -> str:
+def _report_off_card(names, tab0, tab) -> str:
     w = max(len(n) for n in tab["names"]) + 2
-    ex = ", ".join(f"{k} {coeffs[k]:.3f}" for k in ("bond_gamma_exp", "bond_delta_exp", "frac_gamma_exp",
-                                                    "frac_delta_exp"))
-    lines = [f"stage 2, response to the plant's (gamma, delta) factors: {ex}",
-             f"{'held-out run (NRMSE, before -> after)':<{w}}" + "".join(f"{n:>22s}" for n in names[:4])]
+    lines = ["off-card plants (gamma, delta off the card; nothing fitted on them): NRMSE with p = (1, 1) -> "
+             "with p = the plant's factors",
+             f"{'recipe run':<{w}}" + "".join(f"{n:>22s}" for n in names[:4])]
     for n, r0, r1 in zip(tab["names"], tab0["rows"], tab["rows"]):
         lines.append(f"{n:<{w}}" + "".join(f"{100 * a:10.1f}% ->{100 * b:6.1f}%" for a, b in zip(r0[:4], r1[:4])))
     return "\n".join(lines)

@@ -10,7 +10,7 @@ The controller interface (stable; used by ``bmctl trial`` and ``bmctl whatif``):
                                                   # mill milling*interval_h at rpm, then rest
 
 ``x_est`` is the moment-model state (6,), ``t_h`` the batch time (h) at the start of the
-interval, ``p`` the (bond_mult, frac_mult) estimate (default (1, 1)), ``u_prev`` the
+interval, ``p`` the (gamma_mult, delta_mult) estimate (default (1, 1)), ``u_prev`` the
 (rpm, milling) applied over the previous interval (None at the batch start).
 """
 

@@ -72,7 +72,7 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None) -
         Batch length (> 0); the horizon is ``ceil(hours / interval_h)`` intervals.
     cfg : MPCConfig
     p : array_like, optional
-        (bond_mult, frac_mult); default (1, 1).
+        (gamma_mult, delta_mult); default (1, 1).
     """
     from .mpc import MPCController
 

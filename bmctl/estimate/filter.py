@@ -3,7 +3,7 @@
 The model is one small object (the moment model: ``step``, ``x0``, ``p0``, ``state_names``);
 the algorithm lives here, apart (as in Chopin's ``particles``). Each particle carries the
 moment state x = (s_mean_um, s_std_um, r_mean, r_std, temperature_c, hardening) and the log
-of the parameter multipliers (bond_mult, frac_mult).
+of the parameter multipliers (gamma_mult, delta_mult).
 
 Propagation
     the moment model under the applied (rpm, milling), then model-discrepancy noise: a
@@ -243,7 +243,7 @@ class ParticleFilter:
         self.pending_h = 0.0  # hours of process noise not yet applied
         self.q = np.array(st.process_noise_per_sqrt_h, dtype=float)
         self.state_names = tuple(model.state_names)
-        self.param_names = tuple(getattr(model, "param_names", ("bond_mult", "frac_mult")))
+        self.param_names = tuple(getattr(model, "param_names", ("gamma_mult", "delta_mult")))
         self.n_resampled = 0
         self.n_degenerate = 0
         self.last_fit = None

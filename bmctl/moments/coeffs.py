@@ -36,12 +36,6 @@ SPEC: dict[str, tuple[float | None, float, float, str]] = {
     "bond_r_gain": (1.0, 0.2, 3.0, "multiplier on the aspect ratio of a bonded particle (eqn 18)"),
     "frac_r_gain": (1.0, 0.0, 3.0, "multiplier on the aspect ratio of fracture fragments"),
     "r_var_gain": (1.0, 0.2, 5.0, "multiplier on the r-variance source of bonding and fracture"),
-    # response to the parameters p = (gamma_plant / gamma_card, delta_plant / delta_card):
-    # ln c_b += bond_gamma_exp ln p1 + bond_delta_exp ln p2, likewise ln c_f (stage 2 of identify)
-    "bond_gamma_exp": (1.0, 0.0, 3.0, "elasticity of the bonding rate to the plant's gamma factor (p1)"),
-    "bond_delta_exp": (0.0, -2.0, 2.0, "elasticity of the bonding rate to the plant's delta factor (p2)"),
-    "frac_gamma_exp": (0.0, -2.0, 2.0, "elasticity of the fracture rate to the plant's gamma factor (p1)"),
-    "frac_delta_exp": (1.0, 0.0, 3.0, "elasticity of the fracture rate to the plant's delta factor (p2)"),
 }
 
 NAMES = tuple(SPEC)

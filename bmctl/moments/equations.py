@@ -6,8 +6,8 @@ numpy value and a casadi expression graph. Components of a state are passed as a
 (``xs[i]`` is a scalar, a numpy array over a batch, or a casadi SX/MX scalar).
 
 State x = (s_mean_um, s_std_um, r_mean, r_std, temperature_c, hardening)
-Input u = (rpm, milling),  parameters p = (bond_mult, frac_mult): the plant's gamma and delta
-relative to the card (eqns 15, 20); the rates respond to them with identified elasticities.
+Input u = (rpm, milling),  parameters p = (gamma_mult, delta_mult): the plant's contact factor
+gamma and parting factor delta relative to the card, acting inside eqns (15) and (20).
 
 The particle part is integrated in raw-moment coordinates y = (ln E[s], ln E[s^2], E[r], E[r^2])
 and read back through a smooth projection onto realisable sets (std > 0, 0 < r_mean < 1,
@@ -243,11 +243,12 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     r_b = (rm * om2 + v_r) / (om2 + v_r)  # E[r/(1-r)] / E[1/(1-r)]: mean r of a reacting particle
     r2_b = (rm * rm * om2 + v_r) / (om2 + v_r)  # E[r^2/(1-r)] / E[1/(1-r)]
     one_r = om * (om2 + v_r) / (om2 + 3 * v_r)  # 1 / E_b[1/(1-r)]: perimeter factor of a reacting particle
-    # p = (bm, fm): the plant's gamma and delta relative to the card; their effect on the averaged
-    # rates is identified (elasticities; 1 and 0 = the multipliers act on c_b, c_f directly)
-    lbm, lfm = B.log(bm), B.log(fm)
-    cb = B.exp(q["bond_log_scale"] + q.get("bond_gamma_exp", 1.0) * lbm + q.get("bond_delta_exp", 0.0) * lfm)
-    cf = B.exp(q["frac_log_scale"] + q.get("frac_gamma_exp", 0.0) * lbm + q.get("frac_delta_exp", 1.0) * lfm)
+    # p = (bm, fm): the plant's gamma and delta relative to the card. They act where eqns (15) and
+    # (20) put them, inside the saturation of p_b and p_c, so the averaged rates respond to them as
+    # the plant's do (weakly where the probabilities saturate); nothing about the response is fitted.
+    gamma, delta = c.gamma_per_um2 * bm, c.delta_per_um2 * fm
+    cb = B.exp(q["bond_log_scale"])
+    cf = B.exp(q["frac_log_scale"])
     ab, ob, ac, oc = q["bond_slope"], q["bond_offset"], q["frac_slope"], q["frac_offset"]
     # rounding per impact: lam(s) = eta 1.5 E[dU_p] / (pi/4 s^3 sigma_eff) = lam1 / s (s in um)
     ln_lam1 = (math.log(c.equiaxing * 1.5 * c.plastic_share / (math.pi / 4 * UM**3 * c.yield_Pa) + 1e-300)
@@ -264,7 +265,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
         sk = s[k]
         # ln(dU_d / (d_c u_c)) with d_c = s at x = 1/2: ln e + ln s - ln UM - ln u_c
         lnL0 = ln_e + ln_s[k] - math.log(UM) - ln_uc
-        q_k = c.delta_per_um2 * sk * sk * Ef
+        q_k = delta * sk * sk * Ef  # eqn 20
         pf = ds = dr = dr2 = 0.0
         for x, wx, (rsum, r2sum) in zip(GL_X, GL_W, frag):
             xx = x * (1 - x)
@@ -291,7 +292,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
             d_h = 0.75 * si * sj / (si + sj) * sq_u * B.sqrt(u_fac / (si2 * si + sj2 * sj))
             d_um = smin_pos(B, d_h, 0.5 * math.pi * smin_pos(B, si, sj))  # eqn 16, capped
             lnLb = ln_e + B.log((si2 + sj2) / d_um) - math.log(UM) - ln_ub
-            pb = sat(B, c.gamma_per_um2 * si * sj * Ef * Ef) * sigmoid(B, ab * lnLb + ob)
+            pb = sat(B, gamma * si * sj * Ef * Ef) * sigmoid(B, ab * lnLb + ob)  # eqns 15, 17
             p = wij * pb * (1 - Pf[i]) * (1 - Pf[j])
             r_new = smax(B, 1.0 - s_new / ((si + sj) / one_r - 2 * d_um / math.pi), 0.0, 0.01) * q["bond_r_gain"]
             Pb_sum = Pb_sum + p

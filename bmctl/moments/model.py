@@ -2,7 +2,7 @@
 
 State  x = (s_mean_um, s_std_um, r_mean, r_std, temperature_c, hardening)
 Input  u = (rpm, milling)        milling in [0, 1]: share of an interval spent milling
-Param  p = (bond_mult, frac_mult): the plant's gamma and delta factors relative to the card (default 1)
+Param  p = (gamma_mult, delta_mult): the plant's gamma and delta factors relative to the card (default 1)
 
 The equations are in :mod:`bmctl.moments.equations` (one definition for numpy and
 casadi); docs/moments.md derives them and lists where they break.
@@ -24,7 +24,7 @@ from .physics import Constants, constants, derived_threshold_laws
 
 STATE_NAMES = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening")
 INPUT_NAMES = ("rpm", "milling")
-PARAM_NAMES = ("bond_mult", "frac_mult")
+PARAM_NAMES = ("gamma_mult", "delta_mult")
 MAX_SUBSTEP_H = 0.0625  # RKC substep of the milling phase (accuracy of the fast modes at top speed)
 STIFFNESS_PER_IMPACT = 2.0  # bound on |eigenvalue| of the z field per impact (measured ~1.4)
 
@@ -84,7 +84,7 @@ class MomentModel:
         return np.array([c.s0_mean_um, c.s0_std_um, c.r0_mean, c.r0_mean, c.ambient_C, 0.0])
 
     def p0(self) -> np.ndarray:
-        """Nominal parameters (bond_mult, frac_mult) = (1, 1)."""
+        """Nominal parameters (gamma_mult, delta_mult) = (1, 1)."""
         return np.ones(2)
 
     def _p(self, p):
@@ -116,7 +116,7 @@ class MomentModel:
         dt_h : float
             Interval length (h), > 0.
         p : array_like, (..., 2), optional
-            (bond_mult, frac_mult); default (1, 1).
+            (gamma_mult, delta_mult); default (1, 1).
         """
         dt_h = float(dt_h)
         x, u, p = _arr(x), _arr(u), _arr(self._p(p))
