@@ -60,7 +60,7 @@ def summarise(cfg: S.StudyConfig, res: dict, model) -> str:
                  f"plant M = {cfg.plant_particles}, filter N = {cfg.filter_particles}; coefficient file sha256 "
                  f"{_sha(model.coeffs_source)}.\n")
     lines.append("## The moment model's one-step error from the true moments (RMS ln(model/plant) over the sample times)\n")
-    lines.append("| scenario | multipliers | s_mean | s_std | r_mean | r_std |")
+    lines.append("| scenario | model told p | s_mean | s_std | r_mean | r_std |")
     lines.append("|---|---|---|---|---|---|")
     for sc, runs in res.items():
         tm = np.mean([r["truth"] for r in runs], axis=0)
@@ -89,12 +89,13 @@ def summarise(cfg: S.StudyConfig, res: dict, model) -> str:
             w = np.concatenate([np.log(r[v.label]["q95"][:, [0, 2]] / r[v.label]["q05"][:, [0, 2]]) for r in runs])
             lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | " + " | ".join(f"{100 * x:.1f}" for x in np.median(e, axis=0))
                          + f" | {100 * np.mean(w[:, 0]):.1f} | {100 * np.mean(w[:, 1]):.1f} |")
-    lines.append("\n## Multipliers: truth and estimates (mean over seeds of the filter mean [mean 90 % limits])\n")
+    lines.append("\n## Parameters (gamma_mult / delta_mult): truth and estimates (mean over seeds of the filter mean "
+                 "[mean 90 % limits])\n")
     times = res[next(iter(res))][0]["t_h"]
     show = [k for k, t in enumerate(times) if t in (1, 3, 6, 12) or k == len(times) - 1]
     show = sorted(set(show))
-    hdr = "| scenario | variant | nominal (bond, frac) | model-optimal (bond, frac) | " + " | ".join(
-        f"t = {times[k]:g} h" for k in show) + " | ln(bond/frac) end (nominal) |"
+    hdr = "| scenario | variant | truth (gamma, delta) | model-optimal | " + " | ".join(
+        f"t = {times[k]:g} h" for k in show) + " | |ln(est/truth)|, gamma / delta: start -> end |"
     lines.append(hdr)
     lines.append("|" + "---|" * (5 + len(show)))
     for sc, runs in res.items():
@@ -106,9 +107,10 @@ def summarise(cfg: S.StudyConfig, res: dict, model) -> str:
             tr = S.param_trajectory(runs, v.label)
             cells = [f"{tr['mean'][k, 0]:.2f} [{tr['q05'][k, 0]:.2f}, {tr['q95'][k, 0]:.2f}] / "
                      f"{tr['mean'][k, 1]:.2f} [{tr['q05'][k, 1]:.2f}, {tr['q95'][k, 1]:.2f}]" for k in show]
-            lr = np.log(tr["mean"][-1, 0] / tr["mean"][-1, 1])
+            d0 = np.abs(np.log(sc))  # the filter starts at the card, p = (1, 1)
+            d1 = np.abs(np.log(tr["mean"][-1, :2] / np.asarray(sc)))
             lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | ({sc[0]:g}, {sc[1]:g}) | ({pt[0]:.2f}, {pt[1]:.2f}) | "
-                         + " | ".join(cells) + f" | {lr:+.2f} ({np.log(sc[0] / sc[1]):+.2f}) |")
+                         + " | ".join(cells) + f" | {d0[0]:.2f} -> {d1[0]:.2f} / {d0[1]:.2f} -> {d1[1]:.2f} |")
     return "\n".join(lines) + "\n"
 
 
@@ -124,7 +126,7 @@ def figure(path: Path, cfg: S.StudyConfig, res: dict) -> None:
     fig, axes = plt.subplots(2, 3, figsize=(13, 7))
     for i, sc in enumerate(scs[:2]):
         runs = res[sc]
-        for j, (pname, col) in enumerate((("bond_mult", 0), ("frac_mult", 1))):
+        for j, (pname, col) in enumerate((("gamma_mult", 0), ("delta_mult", 1))):
             ax = axes[i, j]
             for v in cfg.variants:
                 if v.size_law != "weibull":

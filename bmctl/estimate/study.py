@@ -11,9 +11,9 @@ same plant trajectory. The filter runs the moment model of the UNMODIFIED card.
 What "truth" means:
 
 * moments: the plant's population moments (s_mean, s_std, r_mean, r_std) at the sample time;
-* multipliers, two readings, both reported: the nominal ratios (gamma_plant / gamma_card,
-  delta_plant / delta_card) - what the multipliers would be if the moment model were exact -
-  and the model-optimal ("pseudo-true") multipliers: those that make the moment model's
+* parameters p = (gamma_mult, delta_mult), two readings, both reported: the truth, the
+  plant's (gamma_plant / gamma_card, delta_plant / delta_card), and the model-optimal
+  ("pseudo-true") parameters: those that make the moment model's
   trajectory from the card's initial state best match the plant's mean (s_mean, s_std)
   trajectory (least squares in log, on a grid). With a misspecified model the filter can at
   best converge to the latter.
