@@ -216,8 +216,9 @@ def fragment_tables(B, one_r, gfr):
 def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     """Rates (per hour of milling) of E[s], E[s^2], E[r], E[r^2] at speed w = rpm / rpm_max.
 
-    The population is closed as s ~ log-normal(m, sd) (5 Gauss-Hermite nodes) and
-    r ~ its mean rm in the kernels (mean field). Per particle and impact (rate k(w)):
+    The population is closed as s ~ log-normal(m, sd) (5 Gauss-Hermite nodes); at size node k
+    the r law has mean r_k ~ rm s_k^beta (``r_size_corr``) and the variance left over, seen by
+    the kernels through delta-method averages. Per particle and impact (rate k(w)):
     fracture probability Pf(s) = E_x[sat(delta s^2 x(1-x)/(1-r))] * logistic law of
     eqn (17) in ln(dU_d / (d_c u_c)); bonding of a pair Pb(si, sj) = sat(gamma si sj/(1-r)^2)
     * logistic law in ln((dU_i + dU_j)/(d_ij u_b)) * (1 - Pf_i)(1 - Pf_j).
@@ -234,15 +235,31 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     ln_uc = math.log(c.u_J_per_m) - c.n_frac * lratio
     ln_e = math.log(c.e_max_J_per_um2) + 1.2 * lw  # ln(J per um^2 of s^2)
     ln_u_mean = math.log(c.u_mean_max_J) + 2.0 * lw
-    # r law seen by the kernels: p_b, p_c ~ 1/(1-r) (eqns 15, 20) weight irregular particles up.
-    # Second-order (delta-method) averages over the r law, finite for any realisable state:
+    # size nodes (log-normal closure)
+    ln_s = [B.log(m) - 0.5 * var_ln + sig_ln * t for t in GH_T]
+    s = [B.exp(v) for v in ln_s]
+    # r law seen by the kernels. Irregular particles are the large, freshly bonded ones: the
+    # mean r at size node k is r_k = rm c_k, c_k ~ (s_k / s_geo)^beta normalised so that
+    # E[c] = 1 over the nodes (beta = `r_size_corr`; 0 = mean field), within-node variance v_w
+    # the rest of v_r. p_b, p_c ~ 1/(1-r) (eqns 15, 20) weight irregular particles up; their
+    # second-order (delta-method) averages at each node are finite for every realisable state.
     om = 1.0 - rm
     v_r = rho * rho * rm * om
-    om2 = om * om
-    Ef = 1.0 / om + v_r / (om2 * om)  # E[1/(1-r)]
-    r_b = (rm * om2 + v_r) / (om2 + v_r)  # E[r/(1-r)] / E[1/(1-r)]: mean r of a reacting particle
-    r2_b = (rm * rm * om2 + v_r) / (om2 + v_r)  # E[r^2/(1-r)] / E[1/(1-r)]
-    one_r = om * (om2 + v_r) / (om2 + 3 * v_r)  # 1 / E_b[1/(1-r)]: perimeter factor of a reacting particle
+    beta = q["r_size_corr"]
+    ck = [B.exp(beta * sig_ln * t) for t in GH_T]
+    c_norm = sum(GH_W[k] * ck[k] for k in range(N_S))
+    rk = [smin(B, rm * ck[k] / c_norm, R_HI, R_EPS) for k in range(N_S)]
+    Er_nodes = sum(GH_W[k] * rk[k] for k in range(N_S))
+    var_between = sum(GH_W[k] * rk[k] * rk[k] for k in range(N_S)) - Er_nodes * Er_nodes
+    v_w = smax(B, v_r - var_between, 0.05 * v_r, 1e-8)
+    Ef, r_b, r2_b, one_r = [], [], [], []
+    for k in range(N_S):
+        omk = 1.0 - rk[k]
+        omk2 = omk * omk
+        Ef.append(1.0 / omk + v_w / (omk2 * omk))  # E[1/(1-r)]
+        r_b.append((rk[k] * omk2 + v_w) / (omk2 + v_w))  # E[r/(1-r)] / E[1/(1-r)]: r of a reacting particle
+        r2_b.append((rk[k] * rk[k] * omk2 + v_w) / (omk2 + v_w))  # E[r^2/(1-r)] / E[1/(1-r)]
+        one_r.append(omk * (omk2 + v_w) / (omk2 + 3 * v_w))  # perimeter factor of a reacting particle
     # p = (bm, fm): the plant's gamma and delta relative to the card. They act where eqns (15) and
     # (20) put them, inside the saturation of p_b and p_c, so the averaged rates respond to them as
     # the plant's do (weakly where the probabilities saturate); nothing about the response is fitted.
@@ -254,18 +271,15 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     ln_lam1 = (math.log(c.equiaxing * 1.5 * c.plastic_share / (math.pi / 4 * UM**3 * c.yield_Pa) + 1e-300)
                + q["round_log_scale"] + q["round_rpm_slope"] * (ws - 0.5) + ln_e - lratio
                + B.log(smax(B, 1.0 - c.equiaxing_hardening * h, 0.0, 0.02)))  # eta_eq (1 - a h)^+
-    frag = fragment_tables(B, one_r, q["frac_r_gain"])
     kap = q["round_size_bias"]
 
-    # size nodes (log-normal closure)
-    ln_s = [B.log(m) - 0.5 * var_ln + sig_ln * t for t in GH_T]
-    s = [B.exp(v) for v in ln_s]
     Pf, dsf, drf, dr2f, lam = [], [], [], [], []
     for k in range(N_S):
         sk = s[k]
+        frag = fragment_tables(B, one_r[k], q["frac_r_gain"])
         # ln(dU_d / (d_c u_c)) with d_c = s at x = 1/2: ln e + ln s - ln UM - ln u_c
         lnL0 = ln_e + ln_s[k] - math.log(UM) - ln_uc
-        q_k = delta * sk * sk * Ef  # eqn 20
+        q_k = delta * sk * sk * Ef[k]  # eqn 20
         pf = ds = dr = dr2 = 0.0
         for x, wx, (rsum, r2sum) in zip(GL_X, GL_W, frag):
             xx = x * (1 - x)
@@ -276,11 +290,12 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
             dr2 = dr2 + p * r2sum
         Pf.append(cf * pf)
         dsf.append(cf * ds * sk)
-        drf.append(cf * (dr - pf * r_b))
-        dr2f.append(cf * dr2)
+        drf.append(cf * (dr - pf * r_b[k]))
+        dr2f.append(cf * (dr2 - pf * r2_b[k]))
         lam.append(B.exp(ln_lam1 - ln_s[k] - kap * var_ln))  # at the r-mass-biased size s exp(kap var)
 
     Pb_sum = dsb = drb = dr2b = 0.0
+    cn = c.contact_nodes
     u_fac = 3 * math.pi / (c.modulus_Pa * UM**3)
     sq_u = B.exp(0.5 * ln_u_mean)
     for i in range(N_S):
@@ -292,13 +307,20 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
             d_h = 0.75 * si * sj / (si + sj) * sq_u * B.sqrt(u_fac / (si2 * si + sj2 * sj))
             d_um = smin_pos(B, d_h, 0.5 * math.pi * smin_pos(B, si, sj))  # eqn 16, capped
             lnLb = ln_e + B.log((si2 + sj2) / d_um) - math.log(UM) - ln_ub
-            pb = sat(B, gamma * si * sj * Ef * Ef) * sigmoid(B, ab * lnLb + ob)  # eqns 15, 17
+            pb = sat(B, gamma * si * sj * Ef[i] * Ef[j]) * sigmoid(B, ab * lnLb + ob)  # eqns 15, 17
             p = wij * pb * (1 - Pf[i]) * (1 - Pf[j])
-            r_new = smax(B, 1.0 - s_new / ((si + sj) / one_r - 2 * d_um / math.pi), 0.0, 0.01) * q["bond_r_gain"]
+            # eqn 18, averaged over the random contact length (d ~ sqrt(U_in), eqn 16; CONTACT_BINS)
+            perim = si / one_r[i] + sj / one_r[j]
+            d_pi = 2 * d_um / math.pi  # the capped mean contact length scaled by the node's sqrt(U) factor
+            rn1 = rn2 = 0.0
+            for wd, fd in cn:
+                r_new = smax(B, 1.0 - s_new / (perim - d_pi * fd), 0.0, 0.01) * q["bond_r_gain"]
+                rn1 = rn1 + wd * r_new
+                rn2 = rn2 + wd * r_new * r_new
             Pb_sum = Pb_sum + p
             dsb = dsb + p * (s_new - si - sj)
-            drb = drb + p * (r_new - 2 * r_b)
-            dr2b = dr2b + p * r_new * r_new
+            drb = drb + p * (rn1 - r_b[i] - r_b[j])
+            dr2b = dr2b + p * (rn2 - r2_b[i] - r2_b[j])
     Pb_sum = cb * Pb_sum
     dsb, drb, dr2b = cb * dsb, cb * drb, cb * dr2b
 
@@ -308,15 +330,22 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     Er2 = rm * rm + v_r
     gv = q["r_var_gain"]
     zn = c.round_nodes
-    round1 = sum(GH_W[k] * wz * (1 - B.exp(-lam[k] * z)) for k in range(N_S) for wz, z in zn)
-    round2 = sum(GH_W[k] * wz * (1 - B.exp(-2 * lam[k] * z)) for k in range(N_S) for wz, z in zn)
+    # rounding of E[r] and E[r^2]: node k carries the share r_k / rm of E[r] and (r_k^2 + v_w) / E[r^2] of E[r^2]
+    e2k = [rk[k] * rk[k] + v_w for k in range(N_S)]
+    e2n = sum(GH_W[k] * e2k[k] for k in range(N_S))
+    round1 = round2 = 0.0
+    for k in range(N_S):
+        for wz, z in zn:
+            e1 = B.exp(-lam[k] * z)  # r <- r exp(-lam Z) per impact (equiaxing); r^2 <- r^2 exp(-2 lam Z)
+            round1 = round1 + GH_W[k] * (rk[k] / Er_nodes) * wz * (1 - e1)
+            round2 = round2 + GH_W[k] * (e2k[k] / e2n) * wz * (1 - e1 * e1)
     round2 = round2 * B.exp(q["round_var_log_scale"] + q["round_var_rpm_slope"] * (ws - 0.5))
     dsf_sum = sum(GH_W[k] * dsf[k] for k in range(N_S))
     dEs = rate * (0.5 * q["bond_ds_gain"] * dsb + q["frac_ds_gain"] * dsf_sum) - m * g_N
     dEs2 = -Es2 * g_N
     src1 = 0.5 * drb + sum(GH_W[k] * drf[k] for k in range(N_S))
     dEr = rate * (src1 - round1 * rm) - rm * g_N
-    src2 = 0.5 * (dr2b - Pb_sum * 2 * r2_b) + sum(GH_W[k] * (dr2f[k] - Pf[k] * r2_b) for k in range(N_S))
+    src2 = 0.5 * dr2b + sum(GH_W[k] * dr2f[k] for k in range(N_S))
     # r_var_gain blends the mean-field r^2 source with a pure shift of the r law (2 rm src1)
     src2 = gv * src2 + (1 - gv) * 2 * rm * src1
     dEr2 = rate * (src2 - round2 * Er2) - Er2 * g_N

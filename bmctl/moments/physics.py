@@ -29,6 +29,7 @@ EXP_TRAPPED = 0.8
 #: probability bins of the random plastic energy of one impact (rounding law), finer in the lower
 #: tail that dominates E[exp(-lam Z)] when lam is large
 ROUND_BINS = (0.0, 0.02, 0.06, 0.15, 0.3, 0.5, 0.75, 1.0)
+CONTACT_BINS = (0.0, 0.25, 0.5, 0.75, 1.0)  # quantile bins of sqrt(U_in / E[U_in]) (contact length, eqn 16)
 
 
 @dataclass(frozen=True)
@@ -100,6 +101,7 @@ class Constants:
     s0_std_um: float
     r0_mean: float
     round_nodes: tuple = ((1.0, 1.0),)
+    contact_nodes: tuple = ((1.0, 1.0),)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -140,10 +142,14 @@ def impact_factors(alpha: float, beta: float, n: int = 400_000, seed: int = 1234
     qs = np.quantile(plastic_z, ROUND_BINS)
     idx = np.clip(np.searchsorted(qs, plastic_z, side="right") - 1, 0, len(ROUND_BINS) - 2)
     round_nodes = tuple((float(np.mean(idx == k)), float(plastic_z[idx == k].mean())) for k in range(len(ROUND_BINS) - 1))
+    sq = np.sqrt(u_in / u_mean)
+    qd = np.quantile(sq, CONTACT_BINS)
+    jd = np.clip(np.searchsorted(qd, sq, side="right") - 1, 0, len(CONTACT_BINS) - 2)
+    contact_nodes = tuple((float(np.mean(jd == k)), float(sq[jd == k].mean())) for k in range(len(CONTACT_BINS) - 1))
     zb = np.log(np.sqrt(u_in / u_mean) * (share[0] + share[1]) / (2 * share_mean))
     zc = np.log(u_in / u_mean * share[0] / share_mean)
     return {"u_mean": u_mean, "share": share_mean, "plastic": plastic, "zb": zb, "zc": zc,
-            "round_nodes": round_nodes}
+            "round_nodes": round_nodes, "contact_nodes": contact_nodes}
 
 
 def logistic_law(logz: np.ndarray, sharpness: float) -> tuple[float, float]:
@@ -220,6 +226,7 @@ def constants(card: ModelCard) -> Constants:
         s0_std_um=float(card.initial.s_std_um),
         r0_mean=float(card.initial.r_mean),
         round_nodes=f["round_nodes"],
+        contact_nodes=f["contact_nodes"],
     )
 
 
