@@ -179,6 +179,59 @@ def test_short_case_follows_plant_ensemble(model):
     np.testing.assert_allclose(pred[:, 4], mean[:, 4], rtol=1e-9)
 
 
+def test_bond_shape_averaged_over_the_plants_contact_length():
+    """The r of a new bond (eqn 18) over the plant's random contact length (eqn 16 under the
+    energy law of eqn 5): the model's 4-bin quadrature against a Monte Carlo of the plant's own
+    functions, at a mean energy where 1/3 of the bonds come out exactly round (r clipped at 0)
+    and 1/6 of the contacts reach the cap of eqn 16.
+
+    Tolerances: 2 % of E[r] and 5 % of E[r^2] (the quadrature's bins and the smooth clip at 0;
+    the Monte Carlo's own error is < 0.5 %). The mean contact alone (the previous closure)
+    misses both by a factor > 2, so the check can tell the two apart.
+    """
+    from bmctl.moments import equations as eq
+    from bmctl.moments.physics import impact_factors
+    from bmctl.plant import events as ev
+
+    nodes = impact_factors(2.1, 1.8)["contact_nodes"]
+    assert len(nodes) == 4 and math.isclose(sum(w for w, _ in nodes), 1.0)
+    u, _ = ev.sample_impact_energies(np.random.default_rng(7), 1.0, 200_000)  # not the nodes' stream
+    si, sj, ri, rj, modulus, u_mean = 40e-6, 30e-6, 0.05, 0.10, 120e9, 0.01
+    d = ev.hertz_contact_length(si, sj, u_mean * u / u.mean(), modulus)
+    _, r = ev.bonded(si, ri, sj, rj, d)
+    assert 0.2 < np.mean(r == 0) < 0.5 and 0.05 < np.mean(d >= 0.999 * np.pi / 2 * sj) < 0.3
+    d_pi = 2 * ev.hertz_contact_length(si, sj, u_mean, modulus) / math.pi
+    args = (math.hypot(si, sj), si / (1 - ri) + sj / (1 - rj), d_pi)
+    m1, m2 = eq.bond_r_moments(eq.NP, *args, nodes)
+    assert abs(m1 - r.mean()) <= 0.02 * r.mean(), (m1, r.mean())
+    assert abs(m2 - np.mean(r * r)) <= 0.05 * np.mean(r * r), (m2, np.mean(r * r))
+    o1, o2 = eq.bond_r_moments(eq.NP, *args, ((1.0, 1.0),))
+    assert o1 < 0.5 * r.mean() and o2 < 0.5 * np.mean(r * r)
+
+
+@pytest.mark.parametrize("name", CARDS)
+def test_size_shape_link_has_the_plants_sign(name):
+    """The closure's s-r link (``r_size_corr``) points the way the plant's does: after 2 h at
+    300 rpm the plant's mean r rises with size (slope of ln E[r | s quintile] on ln s > 0.5;
+    measured 1.6-2.7, docs/moments.md Sec. 6), and identification gave every card beta > 0."""
+    import tomllib
+
+    from bmctl.plant import make_plant
+
+    path = coeffs_path(card_path(name))
+    if not path.exists():
+        pytest.skip(f"no identified coefficients for {name}")
+    beta = tomllib.loads(path.read_text())["coefficients"].get("r_size_corr", 0.0)
+    plant = make_plant(card_path(name), seed=1, particles=3000)
+    plant.advance(300.0, 2.0)
+    ls, r = np.log(plant.s), plant.r
+    edges = np.quantile(ls, np.linspace(0, 1, 6))
+    idx = np.clip(np.searchsorted(edges, ls, side="right") - 1, 0, 4)
+    slope = np.polyfit([ls[idx == k].mean() for k in range(5)], np.log([r[idx == k].mean() for k in range(5)]), 1)[0]
+    assert slope > 0.5, slope
+    assert beta > 0, beta
+
+
 def test_response_to_gamma_delta_follows_the_plant(model):
     """p = the plant's (gamma, delta) factors act inside eqns (15) and (20), nothing fitted: the
     model told p must follow plants with gamma, delta 30 % off the card. Compared: ln of the

@@ -213,6 +213,22 @@ def fragment_tables(B, one_r, gfr):
     return out
 
 
+def bond_r_moments(B, s_new, perim, d_pi, nodes, gain=1.0):
+    """E[r_new] and E[r_new^2] of a bonded particle over the random contact length.  (18), (16), (5)
+
+    r_new = 1 - s_new / (perim - 2 d / pi) (eqn 18, clipped smoothly at 0), with the contact
+    length d = d_mean * f and f ~ sqrt(U_in / E[U_in]) (eqn 16 under the energy law of eqn 5)
+    taken at the quadrature ``nodes`` ((weight, f), physics.CONTACT_BINS). ``d_pi`` is
+    2 d_mean / pi; ``perim`` = s_i / (1 - r_i) + s_j / (1 - r_j) (the summed perimeter / pi).
+    """
+    rn1 = rn2 = 0.0
+    for wd, fd in nodes:
+        r_new = smax(B, 1.0 - s_new / (perim - d_pi * fd), 0.0, 0.01) * gain
+        rn1 = rn1 + wd * r_new
+        rn2 = rn2 + wd * r_new * r_new
+    return rn1, rn2
+
+
 def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     """Rates (per hour of milling) of E[s], E[s^2], E[r], E[r^2] at speed w = rpm / rpm_max.
 
@@ -312,11 +328,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
             # eqn 18, averaged over the random contact length (d ~ sqrt(U_in), eqn 16; CONTACT_BINS)
             perim = si / one_r[i] + sj / one_r[j]
             d_pi = 2 * d_um / math.pi  # the capped mean contact length scaled by the node's sqrt(U) factor
-            rn1 = rn2 = 0.0
-            for wd, fd in cn:
-                r_new = smax(B, 1.0 - s_new / (perim - d_pi * fd), 0.0, 0.01) * q["bond_r_gain"]
-                rn1 = rn1 + wd * r_new
-                rn2 = rn2 + wd * r_new * r_new
+            rn1, rn2 = bond_r_moments(B, s_new, perim, d_pi, cn, q["bond_r_gain"])
             Pb_sum = Pb_sum + p
             dsb = dsb + p * (s_new - si - sj)
             drb = drb + p * (rn1 - r_b[i] - r_b[j])
