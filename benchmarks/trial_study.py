@@ -3,8 +3,10 @@
 Run:  python benchmarks/trial_study.py --seeds 10 scenarios/trial-mismatch.toml \
           scenarios/trial-mismatch-recipe.toml scenarios/trial-mismatch-lqr.toml [--out out/study]
 
-Each (scenario, seed) runs `bmctl.trial.run_trial` into OUT/<scenario>/seed<N> (an existing finished
-run is reused, an interrupted one resumed). Prints a markdown table: final relative error per target
+Each (scenario, seed) runs `bmctl.trial.run_trial` into OUT/<scenario>/seed<N>. A finished run is
+reused and an interrupted one resumed only if nothing it depends on changed: the fingerprint (sha256
+of the scenario and of every file under models/ and controllers/) is stored next to it, and a run
+with another fingerprint is started afresh. Prints a markdown table: final relative error per target
 (mean, sd, max over seeds), peak vial temperature, temperature violations, fallbacks, solver failures,
 median MPC solve time and wall time per trial.
 """
@@ -12,8 +14,10 @@ median MPC solve time and wall time per trial.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
+import shutil
 import time
 from pathlib import Path
 
@@ -22,6 +26,18 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from bmctl.trial import run_trial  # noqa: E402
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def fingerprint(scenario: str) -> str:
+    """sha256 of the scenario file and of every model card, coefficient file and controller config."""
+    h = hashlib.sha256(Path(scenario).read_bytes())
+    for folder in ("models", "controllers"):
+        for f in sorted((ROOT / folder).glob("*.toml")):
+            h.update(f.name.encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def main() -> None:
@@ -35,8 +51,14 @@ def main() -> None:
     for sc in a.scenarios:
         name = Path(sc).stem
         sums, walls = [], []
+        fp = fingerprint(sc)
         for seed in range(a.first_seed, a.first_seed + a.seeds):
             out = Path(a.out) / name / f"seed{seed}"
+            stamp = out / "fingerprint.txt"
+            if out.exists() and (not stamp.exists() or stamp.read_text().strip() != fp):
+                shutil.rmtree(out)  # made with other models or configs: start afresh
+            out.mkdir(parents=True, exist_ok=True)
+            stamp.write_text(fp + "\n")
             t0 = time.perf_counter()
             if (out / "summary.json").exists():
                 s = json.loads((out / "summary.json").read_text())
