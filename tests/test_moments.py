@@ -232,6 +232,26 @@ def test_size_shape_link_has_the_plants_sign(name):
     assert beta > 0, beta
 
 
+def test_identification_recovers_known_coefficients(model):
+    """``identify.fit`` (casadi with the coefficients as symbols, exact Jacobian, bounded least
+    squares) recovers coefficients that generated the data, from the built-in defaults: the
+    bonding scale, the s-r link beta and the rounding scale, on three short schedules."""
+    from bmctl.moments import identify as ident
+    from bmctl.moments.model import MomentModel
+
+    true = {"bond_log_scale": 0.3, "r_size_corr": 0.5, "round_log_scale": 0.4}
+    mt = MomentModel(model.card, dict(model.coeffs, **true))
+    exps = []
+    for name, U in (("a", [[300.0, 1.0]] * 8), ("b", [[500.0, 1.0]] * 4 + [[150.0, 1.0]] * 4),
+                    ("c", [[400.0, 0.5]] * 8)):
+        Y = mt.simulate(mt.x0(), np.array(U), 0.5)
+        exps.append(ident.Experiment(name, np.array(U), Y, np.zeros_like(Y)))
+    res = ident.fit(model, exps, free=tuple(true))
+    assert res.cost < 1e-6 * res.cost0
+    for k, v in true.items():
+        assert res.coeffs[k] == pytest.approx(v, abs=1e-4), k
+
+
 def test_response_to_gamma_delta_follows_the_plant(model):
     """p = the plant's (gamma, delta) factors act inside eqns (15) and (20), nothing fitted: the
     model told p must follow plants with gamma, delta 30 % off the card. Compared: ln of the
