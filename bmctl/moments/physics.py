@@ -60,6 +60,10 @@ class Constants:
     round_nodes : tuple of (weight, z)
         Probabilities and conditional means of the plastic energy Z of one impact relative
         to its mean, over ROUND_BINS: E[1 - exp(-lam Z)] ~ sum_k w_k (1 - exp(-lam z_k)).
+    contact_nodes : tuple of (weight, f)
+        Probabilities and conditional means of f = sqrt(U_in / E[U_in]) over CONTACT_BINS:
+        the Hertz contact length of eqn 16 is d_mean f, so the r of a new bond (eqn 18) is
+        averaged over them (equations.bond_r_moments).
     ambient_C, heat_capacity_J_per_K, cooling_time_h : float
         Vial thermal model.
     softening_max, softening_scale_K, hardening_max : float
