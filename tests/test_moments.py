@@ -115,6 +115,24 @@ def test_unrealisable_states_are_projected(model, bad):
     assert np.isfinite(model.loglik(x, [10.0, 40.0, 90.0], [0.0, 0.1, 0.5]))
 
 
+@pytest.mark.parametrize("beta", [-1.0, 0.5, 4.0])
+def test_steps_stay_realisable_across_the_s_r_link_bounds(model, beta):
+    """Identification may try any r_size_corr within its bounds [-1, 4]: every step from random
+    states and inputs stays finite and realisable (r of a size node is capped below 1)."""
+    from bmctl.moments.model import MomentModel
+
+    m = MomentModel(model.card, dict(model.coeffs, r_size_corr=beta))
+    rng = np.random.default_rng(0)
+    n = 300
+    X = np.column_stack([rng.uniform(5, 150, n), rng.uniform(0.5, 80, n), rng.uniform(0, 0.9, n),
+                         rng.uniform(0, 0.5, n), rng.uniform(20, 100, n), rng.uniform(0, 1, n)])
+    U = np.column_stack([rng.uniform(0, 600, n), rng.uniform(0, 1, n)])
+    Y = m.step(X, U, 0.5)
+    assert np.all(np.isfinite(Y)) and np.all(np.isfinite(m.rhs(X, U)))
+    assert np.all(Y[:, 0] > 0) and np.all(Y[:, 1] > 0)
+    assert np.all((Y[:, 2] > 0) & (Y[:, 2] < 1)) and np.all(Y[:, 3] ** 2 < Y[:, 2] * (1 - Y[:, 2]))
+
+
 def test_distributions_reproduce_the_moments(model):
     for x in _states(model):
         s, r = model.distributions(x)
