@@ -233,8 +233,8 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     """Rates (per hour of milling) of E[s], E[s^2], E[r], E[r^2] at speed w = rpm / rpm_max.
 
     The population is closed as s ~ log-normal(m, sd) (5 Gauss-Hermite nodes); at size node k
-    the r law has mean r_k ~ rm s_k^beta (``r_size_corr``) and the variance left over, seen by
-    the kernels through delta-method averages. Per particle and impact (rate k(w)):
+    the r law has mean r_k with logit r_k linear in ln s_k (slope ``r_size_corr``, mean rm) and
+    the variance left over, seen by the kernels through delta-method averages. Per particle and impact (rate k(w)):
     fracture probability Pf(s) = E_x[sat(delta s^2 x(1-x)/(1-r))] * logistic law of
     eqn (17) in ln(dU_d / (d_c u_c)); bonding of a pair Pb(si, sj) = sat(gamma si sj/(1-r)^2)
     * logistic law in ln((dU_i + dU_j)/(d_ij u_b)) * (1 - Pf_i)(1 - Pf_j).
@@ -255,16 +255,25 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     ln_s = [B.log(m) - 0.5 * var_ln + sig_ln * t for t in GH_T]
     s = [B.exp(v) for v in ln_s]
     # r law seen by the kernels. Irregular particles are the large, freshly bonded ones: the
-    # mean r at size node k is r_k = rm c_k, c_k ~ (s_k / s_geo)^beta normalised so that
-    # E[c] = 1 over the nodes (beta = `r_size_corr`; 0 = mean field), within-node variance v_w
-    # the rest of v_r. p_b, p_c ~ 1/(1-r) (eqns 15, 20) weight irregular particles up; their
+    # mean r at size node k follows a logit link in ln s with slope beta = `r_size_corr`
+    # (0 = mean field), normalised so that the nodes average to rm; the within-node variance
+    # v_w is the rest of v_r. p_b, p_c ~ 1/(1-r) (eqns 15, 20) weight irregular particles up; their
     # second-order (delta-method) averages at each node are finite for every realisable state.
     om = 1.0 - rm
     v_r = rho * rho * rm * om
     beta = q["r_size_corr"]
-    ck = [B.exp(beta * sig_ln * t) for t in GH_T]
-    c_norm = sum(GH_W[k] * ck[k] for k in range(N_S))
-    rk = [smin(B, rm * ck[k] / c_norm, R_HI, R_EPS) for k in range(N_S)]
+    # logit link: logit r_k = a + beta (ln s_k - mu_ln); a by 4 Newton steps from logit(rm) so that
+    # the nodes average to rm, then an exact rescale (beta = 0: every node at rm, the mean field)
+    bt = [beta * sig_ln * t for t in GH_T]
+    a_ = B.log(rm / (1 - rm))
+    for _ in range(4):
+        sg = [sigmoid(B, a_ + v) for v in bt]
+        f_ = sum(GH_W[k] * sg[k] for k in range(N_S)) - rm
+        fp = sum(GH_W[k] * sg[k] * (1 - sg[k]) for k in range(N_S))
+        a_ = a_ - f_ / (fp + 1e-9)
+    sg = [sigmoid(B, a_ + v) for v in bt]
+    nrm = sum(GH_W[k] * sg[k] for k in range(N_S))
+    rk = [smin(B, rm * sg[k] / nrm, R_HI, R_EPS) for k in range(N_S)]
     Er_nodes = sum(GH_W[k] * rk[k] for k in range(N_S))
     var_between = sum(GH_W[k] * rk[k] * rk[k] for k in range(N_S)) - Er_nodes * Er_nodes
     v_w = smax(B, v_r - var_between, 0.05 * v_r, 1e-8)

@@ -259,7 +259,7 @@ class FitResult:
 
 
 def fit(model: MomentModel, experiments: Sequence[Experiment], free: Sequence[str] = FREE,
-        weights: Sequence[float] = (1.0, 1.0, 1.0, 1.0), max_nfev: int = 50,
+        weights: Sequence[float] = (1.0, 1.0, 1.0, 1.0), max_nfev: int = 80,
         log: Callable[[str], None] | None = None) -> FitResult:
     """Least-squares fit of ``free`` coefficients on range-normalised simulation errors."""
     from scipy.optimize import least_squares
