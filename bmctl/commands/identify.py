@@ -80,7 +80,6 @@ def run(args) -> int:
     res = ident.fit(model0, train, log=log)
     model = MomentModel(card, res.coeffs, str(out))
     _check_finite(args.model, train + valid + off, res.coeffs)
-    coeffs = res.coeffs
     tab0 = ident.nrmse_table(model0, valid)
     tab = ident.nrmse_table(model, valid)
     tab_train = ident.nrmse_table(model, train)
@@ -110,7 +109,7 @@ def run(args) -> int:
         "dt_h": ident.DT_H, "cost_initial": round(res.cost0, 6), "cost_final": round(res.cost, 6),
         "evaluations": res.nfev, "fit_seconds": round(res.seconds, 1),
     }
-    text = toml_text(coeffs, {"identification": meta, "validation": validation},
+    text = toml_text(res.coeffs, {"identification": meta, "validation": validation},
                      header=f"Moment-model coefficients of {card.card.name}, written by `bmctl identify`.\n"
                             "Re-run the command in [identification] to regenerate; docs/moments.md explains them.")
     write_text(out, text)

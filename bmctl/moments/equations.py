@@ -336,7 +336,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
             p = wij * pb * (1 - Pf[i]) * (1 - Pf[j])
             # eqn 18, averaged over the random contact length (d ~ sqrt(U_in), eqn 16; CONTACT_BINS)
             perim = si / one_r[i] + sj / one_r[j]
-            d_pi = 2 * d_um / math.pi  # the capped mean contact length scaled by the node's sqrt(U) factor
+            d_pi = 2 * d_um / math.pi  # the capped mean contact length; bond_r_moments scales it per sqrt(U) bin
             rn1, rn2 = bond_r_moments(B, s_new, perim, d_pi, cn, q["bond_r_gain"])
             Pb_sum = Pb_sum + p
             dsb = dsb + p * (s_new - si - sj)
@@ -356,10 +356,11 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     e2n = sum(GH_W[k] * e2k[k] for k in range(N_S))
     round1 = round2 = 0.0
     for k in range(N_S):
+        g1, g2 = GH_W[k] * (rk[k] / Er_nodes), GH_W[k] * (e2k[k] / e2n)  # node k's shares
         for wz, z in zn:
             e1 = B.exp(-lam[k] * z)  # r <- r exp(-lam Z) per impact (equiaxing); r^2 <- r^2 exp(-2 lam Z)
-            round1 = round1 + GH_W[k] * (rk[k] / Er_nodes) * wz * (1 - e1)
-            round2 = round2 + GH_W[k] * (e2k[k] / e2n) * wz * (1 - e1 * e1)
+            round1 = round1 + g1 * wz * (1 - e1)
+            round2 = round2 + g2 * wz * (1 - e1 * e1)
     round2 = round2 * B.exp(q["round_var_log_scale"] + q["round_var_rpm_slope"] * (ws - 0.5))
     dsf_sum = sum(GH_W[k] * dsf[k] for k in range(N_S))
     dEs = rate * (0.5 * q["bond_ds_gain"] * dsb + q["frac_ds_gain"] * dsf_sum) - m * g_N

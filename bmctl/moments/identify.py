@@ -131,7 +131,7 @@ def off_card_design(card: ModelCard) -> list[Spec]:
     delta are off the card (:data:`FACTORS`). Nothing is fitted on them: they test the derived
     response of the rates to the parameters p = (gamma, delta) factors."""
     rpm = card.process.rpm
-    return [Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, rpm, 1.0)]), factors=(g, d)) for g, d in FACTORS[:2]]
+    return [Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, rpm, 1.0)]), factors=(g, d)) for g, d in FACTORS]
 
 
 def _plant_states(plant) -> np.ndarray:
