@@ -35,19 +35,21 @@ class Backend:
     sqrt: Callable
     tanh: Callable
     stack: Callable
+    fmin: Callable
+    fmax: Callable
 
 
 def _np_stack(xs):
     return np.stack(np.broadcast_arrays(*[np.asarray(v, dtype=float) for v in xs]), axis=-1)
 
 
-NP = Backend("numpy", np.exp, np.log, np.sqrt, np.tanh, _np_stack)
+NP = Backend("numpy", np.exp, np.log, np.sqrt, np.tanh, _np_stack, np.minimum, np.maximum)
 
 
 def _ca_backend() -> Backend:
     import casadi as ca
 
-    return Backend("casadi", ca.exp, ca.log, ca.sqrt, ca.tanh, lambda xs: ca.vertcat(*xs))
+    return Backend("casadi", ca.exp, ca.log, ca.sqrt, ca.tanh, lambda xs: ca.vertcat(*xs), ca.fmin, ca.fmax)
 
 
 def backend(xp: Any) -> Backend:
@@ -75,8 +77,10 @@ def CA() -> Backend:  # noqa: N802 - a constant-like accessor
 
 
 def sigmoid(B, v):
-    """1 / (1 + exp(-v)) written with tanh (no overflow in numpy, smooth in casadi)."""
-    return 0.5 * (1.0 + B.tanh(0.5 * v))
+    """1 / (1 + exp(-v)); v is clipped to +-700 first (no overflow; the clip bites only where the
+    value is 0 or 1 to machine precision). exp is 3x cheaper than tanh in casadi's virtual machine
+    and, unlike 0.5 (1 + tanh(v / 2)), keeps full relative precision of small probabilities."""
+    return 1.0 / (1.0 + B.exp(-B.fmin(B.fmax(v, -700.0), 700.0)))
 
 
 def smax(B, a, lo, eps):
@@ -100,6 +104,18 @@ def sat(B, q):
     """Smooth min(q, 1) for q >= 0: q / (1 + q^4)^(1/4) (a probability that saturates)."""
     q2 = q * q
     return q / B.sqrt(B.sqrt(1.0 + q2 * q2))
+
+
+def node_exps(B, k):
+    """exp(k t) at the Gauss-Hermite nodes t (symmetric about 0, with t = 0 in the middle)."""
+    half = [B.exp(k * GH_T[j]) for j in range(N_S // 2 + 1, N_S)]
+    return [1.0 / v for v in reversed(half)] + [1.0] + half
+
+
+def node_sigmoids(B, a, ev):
+    """sigmoid(a + v_k) from ev_k = exp(-v_k); a is clipped to +-600 (|v_k| stays < 100)."""
+    ea = B.exp(-B.fmin(B.fmax(a, -600.0), 600.0))
+    return [1.0 / (1.0 + ea * e) for e in ev]
 
 
 # --- quadrature ---------------------------------------------------------------------------------
@@ -203,12 +219,20 @@ def strength_ratio(B, c: Constants, T, h):
 
 
 def fragment_tables(B, one_r, gfr):
-    """Per split node x: (r1 + r2, r1^2 + r2^2) of the two fragments (plant events.fractured, smooth clip)."""
+    """Per split node x: (r1 + r2, r1^2 + r2^2) of the two fragments (plant events.fractured, smooth clip).
+
+    r = smax(1 - sqrt(x) / (x / one_r + 2 sqrt(x (1 - x)) / pi), 0, 0.01) gfr, written out
+    (smax(d, 0, e) = (d + sqrt(d^2 + e^2)) / 2) with 1 / one_r formed once.
+    """
+    inv = 1.0 / one_r
+    g2 = 0.5 * gfr
     out = []
     for x in GL_X:
-        xx = x * (1 - x)
-        r1 = smax(B, 1.0 - math.sqrt(x) / (x / one_r + 2 * math.sqrt(xx) / math.pi), 0.0, 0.01) * gfr
-        r2 = smax(B, 1.0 - math.sqrt(1 - x) / ((1 - x) / one_r + 2 * math.sqrt(xx) / math.pi), 0.0, 0.01) * gfr
+        c = 2 * math.sqrt(x * (1 - x)) / math.pi
+        d1 = 1.0 - math.sqrt(x) / (x * inv + c)
+        d2 = 1.0 - math.sqrt(1 - x) / ((1 - x) * inv + c)
+        r1 = g2 * (d1 + B.sqrt(d1 * d1 + 1e-4))
+        r2 = g2 * (d2 + B.sqrt(d2 * d2 + 1e-4))
         out.append((r1 + r2, r1 * r1 + r2 * r2))
     return out
 
@@ -221,12 +245,19 @@ def bond_r_moments(B, s_new, perim, d_pi, nodes, gain=1.0):
     taken at the quadrature ``nodes`` ((weight, f), physics.CONTACT_BINS). ``d_pi`` is
     2 d_mean / pi; ``perim`` = s_i / (1 - r_i) + s_j / (1 - r_j) (the summed perimeter / pi).
     """
+    # smax(v, 0, 0.01) = (v + sqrt(v^2 + 1e-4)) / 2, its 1/2 and the gain applied once
+    equal = len({wd for wd, _ in nodes}) == 1
     rn1 = rn2 = 0.0
     for wd, fd in nodes:
-        r_new = smax(B, 1.0 - s_new / (perim - d_pi * fd), 0.0, 0.01) * gain
-        rn1 = rn1 + wd * r_new
-        rn2 = rn2 + wd * r_new * r_new
-    return rn1, rn2
+        v = 1.0 - s_new / (perim - d_pi * fd)
+        r2x = v + B.sqrt(v * v + 1e-4)  # 2 r_new / gain
+        if equal:
+            rn1, rn2 = rn1 + r2x, rn2 + r2x * r2x
+        else:
+            rn1, rn2 = rn1 + wd * r2x, rn2 + wd * (r2x * r2x)
+    g = 0.5 * gain * (nodes[0][0] if equal else 1.0)
+    g2 = 0.25 * gain * gain * (nodes[0][0] if equal else 1.0)
+    return g * rn1, g2 * rn2
 
 
 def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
@@ -264,14 +295,16 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     beta = q["r_size_corr"]
     # logit link: logit r_k = a + beta (ln s_k - mu_ln); a by 4 Newton steps from logit(rm) so that
     # the nodes average to rm, then an exact rescale (beta = 0: every node at rm, the mean field)
-    bt = [beta * sig_ln * t for t in GH_T]
+    # sigmoid(a + v_k) = 1 / (1 + e^-a e^-v_k): the node factors e^-v_k are formed once (the nodes
+    # are symmetric, so two exponentials and their inverses), each Newton step costs one exponential
+    ev = node_exps(B, -beta * sig_ln)
     a_ = B.log(rm / (1 - rm))
     for _ in range(4):
-        sg = [sigmoid(B, a_ + v) for v in bt]
+        sg = node_sigmoids(B, a_, ev)
         f_ = sum(GH_W[k] * sg[k] for k in range(N_S)) - rm
         fp = sum(GH_W[k] * sg[k] * (1 - sg[k]) for k in range(N_S))
         a_ = a_ - f_ / (fp + 1e-9)
-    sg = [sigmoid(B, a_ + v) for v in bt]
+    sg = node_sigmoids(B, a_, ev)
     nrm = sum(GH_W[k] * sg[k] for k in range(N_S))
     rk = [smin(B, rm * sg[k] / nrm, R_HI, R_EPS) for k in range(N_S)]
     Er_nodes = sum(GH_W[k] * rk[k] for k in range(N_S))
@@ -299,16 +332,19 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     kap = q["round_size_bias"]
 
     Pf, dsf, drf, dr2f, lam = [], [], [], [], []
+    c_split = [B.exp(ac * math.log(2 * math.sqrt(x * (1 - x)))) for x in GL_X]  # |ac ln(..)| < 100
     for k in range(N_S):
         sk = s[k]
         frag = fragment_tables(B, one_r[k], q["frac_r_gain"])
         # ln(dU_d / (d_c u_c)) with d_c = s at x = 1/2: ln e + ln s - ln UM - ln u_c
         lnL0 = ln_e + ln_s[k] - math.log(UM) - ln_uc
         q_k = delta * sk * sk * Ef[k]  # eqn 20
+        e_k = B.exp(-B.fmin(B.fmax(ac * lnL0 + oc, -600.0), 600.0))
         pf = ds = dr = dr2 = 0.0
-        for x, wx, (rsum, r2sum) in zip(GL_X, GL_W, frag):
+        for x, wx, (rsum, r2sum), c_x in zip(GL_X, GL_W, frag, c_split):
             xx = x * (1 - x)
-            p = wx * sat(B, q_k * xx) * sigmoid(B, ac * (lnL0 - math.log(2 * math.sqrt(xx))) + oc)
+            # sigmoid(ac (lnL0 - ln(2 sqrt(xx))) + oc) = 1 / (1 + e_k c_x)   (eqn 17)
+            p = wx * sat(B, q_k * xx) / (1.0 + e_k * c_x)
             pf = pf + p
             ds = ds + p * (math.sqrt(x) + math.sqrt(1 - x) - 1.0)
             dr = dr + p * rsum
@@ -321,23 +357,36 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
 
     Pb_sum = dsb = drb = dr2b = 0.0
     cn = c.contact_nodes
-    u_fac = 3 * math.pi / (c.modulus_Pa * UM**3)
-    sq_u = B.exp(0.5 * ln_u_mean)
+    uu = B.exp(ln_u_mean) * (3 * math.pi / (c.modulus_Pa * UM**3))  # E[U] u_fac of eqn 16
+    base_b = ln_e - math.log(UM) - ln_ub
+    # per-node factors, formed once: the contact cap (pi/2) smin_pos(si, sj) enters smin_pos below
+    # through its -8th power, (pi/2)^-8 (si^-8 + sj^-8) (no exp/log pairs per pair)
+    s2 = [sk * sk for sk in s]
+    s3 = [s2[k] * s[k] for k in range(N_S)]
+    s_m8 = [1.0 / ((v * v) * (v * v)) for v in s2]
+    cap_m8 = (0.5 * math.pi) ** -8
+    gE = [s[k] * Ef[k] for k in range(N_S)]  # eqn 15 per particle (s / (1 - r), averaged)
+    surv = [1 - Pf[k] for k in range(N_S)]
+    per = [s[k] / one_r[k] for k in range(N_S)]  # perimeter / pi of a reacting particle
     for i in range(N_S):
         for j in range(i, N_S):
             wij = GH_W[i] * GH_W[j] * (1.0 if i == j else 2.0)
             si, sj = s[i], s[j]
-            si2, sj2 = si * si, sj * sj
-            s_new = B.sqrt(si2 + sj2)
-            d_h = 0.75 * si * sj / (si + sj) * sq_u * B.sqrt(u_fac / (si2 * si + sj2 * sj))
-            d_um = smin_pos(B, d_h, 0.5 * math.pi * smin_pos(B, si, sj))  # eqn 16, capped
-            lnLb = ln_e + B.log((si2 + sj2) / d_um) - math.log(UM) - ln_ub
-            pb = sat(B, gamma * si * sj * Ef[i] * Ef[j]) * sigmoid(B, ab * lnLb + ob)  # eqns 15, 17
-            p = wij * pb * (1 - Pf[i]) * (1 - Pf[j])
-            # eqn 18, averaged over the random contact length (d ~ sqrt(U_in), eqn 16; CONTACT_BINS)
-            perim = si / one_r[i] + sj / one_r[j]
-            d_pi = 2 * d_um / math.pi  # the capped mean contact length; bond_r_moments scales it per sqrt(U) bin
-            rn1, rn2 = bond_r_moments(B, s_new, perim, d_pi, cn, q["bond_r_gain"])
+            s2n = s2[i] + s2[j]
+            s_new = B.sqrt(s2n)  # eqn 18 (s^2 conserved, eqn 2)
+            # eqn 16, capped: d = smin_pos(d_h, (pi/2) smin_pos(si, sj)) = S^(-1/8), with
+            # d_h^2 = (3/4 si sj / (si + sj))^2 E[U] u_fac / (si^3 + sj^3)
+            a_h = 0.75 * si * sj / (si + sj)
+            d_h2 = a_h * a_h * uu / (s3[i] + s3[j])
+            d_h4 = d_h2 * d_h2
+            S = 1.0 / (d_h4 * d_h4) + cap_m8 * (s_m8[i] + s_m8[j])
+            S8 = B.sqrt(B.sqrt(B.sqrt(S)))  # = 1 / d
+            lnLb = base_b + B.log(s2n * S8)
+            pb = sat(B, gamma * gE[i] * gE[j]) * sigmoid(B, ab * lnLb + ob)  # eqns 15, 17
+            p = (wij * pb) * surv[i] * surv[j]
+            # eqn 18, averaged over the random contact length (d ~ sqrt(U_in), eqn 16; CONTACT_BINS);
+            # 2 d / pi is the capped mean contact length, bond_r_moments scales it per sqrt(U) bin
+            rn1, rn2 = bond_r_moments(B, s_new, per[i] + per[j], (2 / math.pi) / S8, cn, q["bond_r_gain"])
             Pb_sum = Pb_sum + p
             dsb = dsb + p * (s_new - si - sj)
             drb = drb + p * (rn1 - r_b[i] - r_b[j])
@@ -355,12 +404,17 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     e2k = [rk[k] * rk[k] + v_w for k in range(N_S)]
     e2n = sum(GH_W[k] * e2k[k] for k in range(N_S))
     round1 = round2 = 0.0
+    w_z = sum(wz for wz, _ in zn)
     for k in range(N_S):
         g1, g2 = GH_W[k] * (rk[k] / Er_nodes), GH_W[k] * (e2k[k] / e2n)  # node k's shares
+        # r <- r exp(-lam Z) per impact (equiaxing); r^2 <- r^2 exp(-2 lam Z): sum_Z wz (1 - e) = w_z - sum_Z wz e
+        m1 = m2 = 0.0
         for wz, z in zn:
-            e1 = B.exp(-lam[k] * z)  # r <- r exp(-lam Z) per impact (equiaxing); r^2 <- r^2 exp(-2 lam Z)
-            round1 = round1 + g1 * wz * (1 - e1)
-            round2 = round2 + g2 * wz * (1 - e1 * e1)
+            e1 = B.exp(lam[k] * -z)
+            m1 = m1 + wz * e1
+            m2 = m2 + wz * (e1 * e1)
+        round1 = round1 + g1 * (w_z - m1)
+        round2 = round2 + g2 * (w_z - m2)
     round2 = round2 * B.exp(q["round_var_log_scale"] + q["round_var_rpm_slope"] * (ws - 0.5))
     dsf_sum = sum(GH_W[k] * dsf[k] for k in range(N_S))
     dEs = rate * (0.5 * q["bond_ds_gain"] * dsb + q["frac_ds_gain"] * dsf_sum) - m * g_N
