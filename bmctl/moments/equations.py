@@ -128,6 +128,12 @@ GH_W = tuple(float(v) for v in _W / math.sqrt(2 * math.pi))
 _XL, _WL = np.polynomial.legendre.leggauss(N_X)
 GL_X = tuple(float(0.5 * (v + 1)) for v in _XL)
 GL_W = tuple(float(0.5 * v) for v in _WL)
+# Every quantity of a split at x (eqn 20's x (1 - x), the fragment pair) is symmetric in x <-> 1 - x
+# and so are the nodes: the fracture sums run over the lower half with doubled weights.
+GL_XH = GL_X[: N_X // 2]
+GL_WH = tuple(2.0 * v for v in GL_W[: N_X // 2])
+assert N_X % 2 == 0 and all(abs(GL_X[k] + GL_X[-1 - k] - 1) < 1e-14 and abs(GL_W[k] - GL_W[-1 - k]) < 1e-14
+                            for k in range(N_X // 2))
 
 # limits of the realisable projection
 S_FLOOR_UM = 0.1
@@ -219,7 +225,7 @@ def strength_ratio(B, c: Constants, T, h):
 
 
 def fragment_tables(B, one_r, gfr):
-    """Per split node x: (r1 + r2, r1^2 + r2^2) of the two fragments (plant events.fractured, smooth clip).
+    """Per split node x of GL_XH: (r1 + r2, r1^2 + r2^2) of the two fragments (plant events.fractured, smooth clip).
 
     r = smax(1 - sqrt(x) / (x / one_r + 2 sqrt(x (1 - x)) / pi), 0, 0.01) gfr, written out
     (smax(d, 0, e) = (d + sqrt(d^2 + e^2)) / 2) with 1 / one_r formed once.
@@ -227,7 +233,7 @@ def fragment_tables(B, one_r, gfr):
     inv = 1.0 / one_r
     g2 = 0.5 * gfr
     out = []
-    for x in GL_X:
+    for x in GL_XH:
         c = 2 * math.sqrt(x * (1 - x)) / math.pi
         d1 = 1.0 - math.sqrt(x) / (x * inv + c)
         d2 = 1.0 - math.sqrt(1 - x) / ((1 - x) * inv + c)
@@ -332,7 +338,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     kap = q["round_size_bias"]
 
     Pf, dsf, drf, dr2f, lam = [], [], [], [], []
-    c_split = [B.exp(ac * math.log(2 * math.sqrt(x * (1 - x)))) for x in GL_X]  # |ac ln(..)| < 100
+    c_split = [B.exp(ac * math.log(2 * math.sqrt(x * (1 - x)))) for x in GL_XH]  # |ac ln(..)| < 100
     for k in range(N_S):
         sk = s[k]
         frag = fragment_tables(B, one_r[k], q["frac_r_gain"])
@@ -341,7 +347,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
         q_k = delta * sk * sk * Ef[k]  # eqn 20
         e_k = B.exp(-B.fmin(B.fmax(ac * lnL0 + oc, -600.0), 600.0))
         pf = ds = dr = dr2 = 0.0
-        for x, wx, (rsum, r2sum), c_x in zip(GL_X, GL_W, frag, c_split):
+        for x, wx, (rsum, r2sum), c_x in zip(GL_XH, GL_WH, frag, c_split):
             xx = x * (1 - x)
             # sigmoid(ac (lnL0 - ln(2 sqrt(xx))) + oc) = 1 / (1 + e_k c_x)   (eqn 17)
             p = wx * sat(B, q_k * xx) / (1.0 + e_k * c_x)
