@@ -19,8 +19,8 @@ sys.path.insert(0, str(ROOT))
 from bmctl.moments import make_moment_model  # noqa: E402
 
 
-def timeit(fn, repeat: int = 20, warmup: int = 2) -> float:
-    """Median wall time of ``fn()`` in ms."""
+def timeit(fn, repeat: int = 20, warmup: int = 2, best: list | None = None) -> float:
+    """Median wall time of ``fn()`` in ms (the fastest run is appended to ``best``)."""
     for _ in range(warmup):
         fn()
     ts = []
@@ -28,6 +28,8 @@ def timeit(fn, repeat: int = 20, warmup: int = 2) -> float:
         t = time.perf_counter()
         fn()
         ts.append(time.perf_counter() - t)
+    if best is not None:
+        best.append(1e3 * min(ts))
     return 1e3 * float(np.median(ts))
 
 
@@ -48,7 +50,10 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         model.simulate(x0, U, dt)
         rows.append((f"first 12 h prediction, dt {dt:g} h (builds casadi)", 1e3 * (time.perf_counter() - t0), "once"))
-        rows.append((f"12 h prediction, dt {dt:g} h ({K} steps)", timeit(lambda: model.simulate(x0, U, dt)), "<= 5 ms"))
+        best = []
+        med = timeit(lambda: model.simulate(x0, U, dt), 60, 3, best)
+        rows.append((f"12 h prediction, dt {dt:g} h ({K} steps): median of 60", med, "<= 5 ms"))
+        rows.append((f"12 h prediction, dt {dt:g} h ({K} steps): fastest of 60", best[0], ""))
 
     F = model.casadi_step(0.5)
     u, p = np.array([300.0, 1.0]), model.p0()
@@ -63,7 +68,13 @@ def main(argv=None) -> int:
     rows.append(("numpy step, one state, dt 0.5 h", timeit(lambda: model.step(x0, u, 0.5), 10), ""))
 
     w = max(len(r[0]) for r in rows)
-    print(f"moment model benchmark: {model.card.card.name} ({model.coeffs_source})")
+    import os
+
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    R = model._ca_steps.get("rates")
+    n_ins = R.n_instructions() if R is not None else "?"
+    print(f"moment model benchmark: {model.card.card.name} ({model.coeffs_source}); "
+          f"rate field {n_ins} casadi instructions; load average {load:.2f}")
     print(f"{'case':<{w}}  {'ms':>9}  target")
     for name, ms, target in rows:
         print(f"{name:<{w}}  {ms:9.3f}  {target}")

@@ -77,10 +77,11 @@ def CA() -> Backend:  # noqa: N802 - a constant-like accessor
 
 
 def sigmoid(B, v):
-    """1 / (1 + exp(-v)); v is clipped to +-700 first (no overflow; the clip bites only where the
-    value is 0 or 1 to machine precision). exp is 3x cheaper than tanh in casadi's virtual machine
-    and, unlike 0.5 (1 + tanh(v / 2)), keeps full relative precision of small probabilities."""
-    return 1.0 / (1.0 + B.exp(-B.fmin(B.fmax(v, -700.0), 700.0)))
+    """1 / (1 + exp(-v)), with -v capped at 700 (no overflow, and no inf/inf in a derivative; the cap
+    bites only where the value is 0 to machine precision). exp is 3x cheaper than tanh in casadi's
+    virtual machine and, unlike 0.5 (1 + tanh(v / 2)), keeps the relative precision of small
+    probabilities."""
+    return 1.0 / (1.0 + B.exp(B.fmin(-v, 700.0)))
 
 
 def smax(B, a, lo, eps):
@@ -113,8 +114,8 @@ def node_exps(B, k):
 
 
 def node_sigmoids(B, a, ev):
-    """sigmoid(a + v_k) from ev_k = exp(-v_k); a is clipped to +-600 (|v_k| stays < 100)."""
-    ea = B.exp(-B.fmin(B.fmax(a, -600.0), 600.0))
+    """sigmoid(a + v_k) from ev_k = exp(-v_k); -a is capped at 600 (|v_k| stays < 100)."""
+    ea = B.exp(B.fmin(-a, 600.0))
     return [1.0 / (1.0 + ea * e) for e in ev]
 
 
@@ -307,9 +308,10 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     a_ = B.log(rm / (1 - rm))
     for _ in range(4):
         sg = node_sigmoids(B, a_, ev)
-        f_ = sum(GH_W[k] * sg[k] for k in range(N_S)) - rm
-        fp = sum(GH_W[k] * sg[k] * (1 - sg[k]) for k in range(N_S))
-        a_ = a_ - f_ / (fp + 1e-9)
+        wsg = [GH_W[k] * sg[k] for k in range(N_S)]
+        s1 = sum(wsg)
+        fp = s1 - sum(wsg[k] * sg[k] for k in range(N_S))  # sum w sg (1 - sg)
+        a_ = a_ - (s1 - rm) / (fp + 1e-9)
     sg = node_sigmoids(B, a_, ev)
     nrm = sum(GH_W[k] * sg[k] for k in range(N_S))
     rk = [smin(B, rm * sg[k] / nrm, R_HI, R_EPS) for k in range(N_S)]
@@ -345,7 +347,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
         # ln(dU_d / (d_c u_c)) with d_c = s at x = 1/2: ln e + ln s - ln UM - ln u_c
         lnL0 = ln_e + ln_s[k] - math.log(UM) - ln_uc
         q_k = delta * sk * sk * Ef[k]  # eqn 20
-        e_k = B.exp(-B.fmin(B.fmax(ac * lnL0 + oc, -600.0), 600.0))
+        e_k = B.exp(B.fmin(-(ac * lnL0 + oc), 600.0))
         pf = ds = dr = dr2 = 0.0
         for x, wx, (rsum, r2sum), c_x in zip(GL_XH, GL_WH, frag, c_split):
             xx = x * (1 - x)
