@@ -36,6 +36,8 @@ SPEC: dict[str, tuple[float | None, float, float, str]] = {
     "bond_r_gain": (1.0, 0.2, 3.0, "multiplier on the aspect ratio of a bonded particle (eqn 18)"),
     "frac_r_gain": (1.0, 0.0, 3.0, "multiplier on the aspect ratio of fracture fragments"),
     "r_var_gain": (1.0, 0.2, 5.0, "multiplier on the r-variance source of bonding and fracture"),
+    "bond_rpm_slope": (0.0, -6.0, 6.0, "empirical: ln bonding rate changes by this per unit rpm/rpm_max"),
+    "frac_rpm_slope": (0.0, -6.0, 6.0, "empirical: ln fracture rate changes by this per unit rpm/rpm_max"),
     "r_size_corr": (0.0, -1.0, 6.0, "s-r closure: slope of logit E[r | s] in ln s (0 = mean field, r independent of s)"),
 }
 

@@ -330,8 +330,8 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     # (20) put them, inside the saturation of p_b and p_c, so the averaged rates respond to them as
     # the plant's do (weakly where the probabilities saturate); nothing about the response is fitted.
     gamma, delta = c.gamma_per_um2 * bm, c.delta_per_um2 * fm
-    cb = B.exp(q["bond_log_scale"])
-    cf = B.exp(q["frac_log_scale"])
+    cb = B.exp(q["bond_log_scale"] + q["bond_rpm_slope"] * (ws - 0.5))
+    cf = B.exp(q["frac_log_scale"] + q["frac_rpm_slope"] * (ws - 0.5))
     ab, ob, ac, oc = q["bond_slope"], q["bond_offset"], q["frac_slope"], q["frac_offset"]
     # rounding per impact: lam(s) = eta 1.5 E[dU_p] / (pi/4 s^3 sigma_eff) = lam1 / s (s in um)
     ln_lam1 = (math.log(c.equiaxing * 1.5 * c.plastic_share / (math.pi / 4 * UM**3 * c.yield_Pa) + 1e-300)

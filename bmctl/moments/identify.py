@@ -111,7 +111,7 @@ def design(card: ModelCard, seed: int = 0, quick: bool = False) -> list[Spec]:
             Spec(f"branch-{r(1 / 6):g}-6h-{r(2 / 3):g}", _grid([(6, r(2 / 3), 1.0)]), _grid([(6, r(1 / 6), 1.0)])),
         ]
     rng = np.random.default_rng([seed, 1])
-    for k in range(2 if quick else 4):
+    for k in range(2 if quick else 8):
         specs.append(Spec(f"random-train-{k}", random_schedule(rng, R)))
     return specs
 
@@ -245,7 +245,7 @@ class _Sym:
 FREE = ("bond_log_scale", "bond_slope", "bond_offset", "frac_log_scale", "frac_slope", "frac_offset",
         "round_log_scale", "round_size_bias", "round_var_log_scale", "round_rpm_slope",
         "round_var_rpm_slope", "bond_ds_gain", "frac_ds_gain", "bond_r_gain", "frac_r_gain", "r_var_gain",
-        "r_size_corr")
+        "r_size_corr", "bond_rpm_slope", "frac_rpm_slope")
 
 
 @dataclass
