@@ -252,19 +252,31 @@ def bond_r_moments(B, s_new, perim, d_pi, nodes, gain=1.0):
     taken at the quadrature ``nodes`` ((weight, f), physics.CONTACT_BINS). ``d_pi`` is
     2 d_mean / pi; ``perim`` = s_i / (1 - r_i) + s_j / (1 - r_j) (the summed perimeter / pi).
     """
-    # smax(v, 0, 0.01) = (v + sqrt(v^2 + 1e-4)) / 2, its 1/2 and the gain applied once
+    (g1, g2), (rn1, rn2) = _bond_r_scales(nodes, gain), _bond_r_sums(B, s_new, perim, d_pi, nodes)
+    return g1 * rn1, g2 * rn2
+
+
+def _bond_r_scales(nodes, gain):
+    """Factors that turn :func:`_bond_r_sums` into E[r_new], E[r_new^2] (the smooth clip's 1/2,
+    the gain and, for equal weights, the weight)."""
+    equal = len({wd for wd, _ in nodes}) == 1
+    w = nodes[0][0] if equal else 1.0
+    return 0.5 * gain * w, 0.25 * gain * gain * w
+
+
+def _bond_r_sums(B, s_new, perim, d_pi, nodes):
+    """sum_b w_b x_b and sum_b w_b x_b^2 with x_b = 2 smax(v_b, 0, 0.01) = v_b + sqrt(v_b^2 + 1e-4),
+    v_b = 1 - s_new / (perim - d_pi f_b) (eqn 18 at contact bin b); equal weights are left out."""
     equal = len({wd for wd, _ in nodes}) == 1
     rn1 = rn2 = 0.0
     for wd, fd in nodes:
         v = 1.0 - s_new / (perim - d_pi * fd)
-        r2x = v + B.sqrt(v * v + 1e-4)  # 2 r_new / gain
+        r2x = v + B.sqrt(v * v + 1e-4)
         if equal:
             rn1, rn2 = rn1 + r2x, rn2 + r2x * r2x
         else:
             rn1, rn2 = rn1 + wd * r2x, rn2 + wd * (r2x * r2x)
-    g = 0.5 * gain * (nodes[0][0] if equal else 1.0)
-    g2 = 0.25 * gain * gain * (nodes[0][0] if equal else 1.0)
-    return g * rn1, g2 * rn2
+    return rn1, rn2
 
 
 def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
@@ -340,14 +352,15 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     kap = q["round_size_bias"]
 
     Pf, dsf, drf, dr2f, lam = [], [], [], [], []
+    base_c, nac = ln_e - math.log(UM) - ln_uc, -ac
     c_split = [B.exp(ac * math.log(2 * math.sqrt(x * (1 - x)))) for x in GL_XH]  # |ac ln(..)| < 100
     for k in range(N_S):
         sk = s[k]
         frag = fragment_tables(B, one_r[k], q["frac_r_gain"])
         # ln(dU_d / (d_c u_c)) with d_c = s at x = 1/2: ln e + ln s - ln UM - ln u_c
-        lnL0 = ln_e + ln_s[k] - math.log(UM) - ln_uc
+        lnL0 = base_c + ln_s[k]
         q_k = delta * sk * sk * Ef[k]  # eqn 20
-        e_k = B.exp(B.fmin(-(ac * lnL0 + oc), 600.0))
+        e_k = B.exp(B.fmin(nac * lnL0 - oc, 600.0))
         pf = ds = dr = dr2 = 0.0
         for x, wx, (rsum, r2sum), c_x in zip(GL_XH, GL_WH, frag, c_split):
             xx = x * (1 - x)
@@ -363,44 +376,54 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
         dr2f.append(cf * (dr2 - pf * r2_b[k]))
         lam.append(B.exp(ln_lam1 - ln_s[k] - kap * var_ln))  # at the r-mass-biased size s exp(kap var)
 
-    Pb_sum = dsb = drb = dr2b = 0.0
     cn = c.contact_nodes
     uu = B.exp(ln_u_mean) * (3 * math.pi / (c.modulus_Pa * UM**3))  # E[U] u_fac of eqn 16
-    base_b = ln_e - math.log(UM) - ln_ub
+    # eqn 17's law, sigmoid(ab (base_b + ln L) + ob), as 1 / (1 + exp(nab ln L + nc0))
+    nab, nc0 = -ab, -(ab * (ln_e - math.log(UM) - ln_ub) + ob)
     # per-node factors, formed once: the contact cap (pi/2) smin_pos(si, sj) enters smin_pos below
     # through its -8th power, (pi/2)^-8 (si^-8 + sj^-8) (no exp/log pairs per pair)
     s2 = [sk * sk for sk in s]
     s3 = [s2[k] * s[k] for k in range(N_S)]
-    s_m8 = [1.0 / ((v * v) * (v * v)) for v in s2]
-    cap_m8 = (0.5 * math.pi) ** -8
+    cap_m8 = [(0.5 * math.pi) ** -8 / ((v * v) * (v * v)) for v in s2]
+    a34 = [0.75 * sk for sk in s]
     gE = [s[k] * Ef[k] for k in range(N_S)]  # eqn 15 per particle (s / (1 - r), averaged)
-    surv = [1 - Pf[k] for k in range(N_S)]
+    gG = [gamma * v for v in gE]
+    wsv = [GH_W[k] * (1 - Pf[k]) for k in range(N_S)]  # node weight x survival of fracture
     per = [s[k] / one_r[k] for k in range(N_S)]  # perimeter / pi of a reacting particle
+    # sums over pairs: Q_k = bond probability mass of the pairs that contain node k (both ends),
+    # so that sum_pairs p (x_new - x_i - x_j) = sum_pairs p x_new - sum_k x_k Q_k
+    Q = [0.0] * N_S
+    sb = rb1 = rb2 = 0.0
     for i in range(N_S):
         for j in range(i, N_S):
-            wij = GH_W[i] * GH_W[j] * (1.0 if i == j else 2.0)
             si, sj = s[i], s[j]
             s2n = s2[i] + s2[j]
             s_new = B.sqrt(s2n)  # eqn 18 (s^2 conserved, eqn 2)
             # eqn 16, capped: d = smin_pos(d_h, (pi/2) smin_pos(si, sj)) = S^(-1/8), with
             # d_h^2 = (3/4 si sj / (si + sj))^2 E[U] u_fac / (si^3 + sj^3)
-            a_h = 0.75 * si * sj / (si + sj)
+            a_h = a34[i] * sj / (si + sj)
             d_h2 = a_h * a_h * uu / (s3[i] + s3[j])
             d_h4 = d_h2 * d_h2
-            S = 1.0 / (d_h4 * d_h4) + cap_m8 * (s_m8[i] + s_m8[j])
+            S = 1.0 / (d_h4 * d_h4) + (cap_m8[i] + cap_m8[j])
             S8 = B.sqrt(B.sqrt(B.sqrt(S)))  # = 1 / d
-            lnLb = base_b + B.log(s2n * S8)
-            pb = sat(B, gamma * gE[i] * gE[j]) * sigmoid(B, ab * lnLb + ob)  # eqns 15, 17
-            p = (wij * pb) * surv[i] * surv[j]
+            lnL = B.log(s2n * S8)
+            pb = sat(B, gG[i] * gE[j]) / (1.0 + B.exp(B.fmin(nab * lnL + nc0, 700.0)))  # eqns 15, 17
+            p = pb * wsv[i] * wsv[j]
+            if i != j:
+                p = 2.0 * p
             # eqn 18, averaged over the random contact length (d ~ sqrt(U_in), eqn 16; CONTACT_BINS);
-            # 2 d / pi is the capped mean contact length, bond_r_moments scales it per sqrt(U) bin
-            rn1, rn2 = bond_r_moments(B, s_new, per[i] + per[j], (2 / math.pi) / S8, cn, q["bond_r_gain"])
-            Pb_sum = Pb_sum + p
-            dsb = dsb + p * (s_new - si - sj)
-            drb = drb + p * (rn1 - r_b[i] - r_b[j])
-            dr2b = dr2b + p * (rn2 - r2_b[i] - r2_b[j])
-    Pb_sum = cb * Pb_sum
-    dsb, drb, dr2b = cb * dsb, cb * drb, cb * dr2b
+            # 2 d / pi is the capped mean contact length, the sums scale it per sqrt(U) bin
+            rn1, rn2 = _bond_r_sums(B, s_new, per[i] + per[j], (2 / math.pi) / S8, cn)
+            Q[i] = Q[i] + p
+            Q[j] = Q[j] + p
+            sb = sb + p * s_new
+            rb1 = rb1 + p * rn1
+            rb2 = rb2 + p * rn2
+    g1, g2 = _bond_r_scales(cn, q["bond_r_gain"])
+    Pb_sum = cb * (0.5 * sum(Q))
+    dsb = cb * (sb - sum(s[k] * Q[k] for k in range(N_S)))
+    drb = cb * (g1 * rb1 - sum(r_b[k] * Q[k] for k in range(N_S)))
+    dr2b = cb * (g2 * rb2 - sum(r2_b[k] * Q[k] for k in range(N_S)))
 
     Pf_sum = sum(GH_W[k] * Pf[k] for k in range(N_S))
     g_N = rate * (Pf_sum - 0.5 * Pb_sum)  # d ln N / dt
@@ -419,8 +442,9 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
         m1 = m2 = 0.0
         for wz, z in zn:
             e1 = B.exp(lam[k] * -z)
-            m1 = m1 + wz * e1
-            m2 = m2 + wz * (e1 * e1)
+            we = wz * e1
+            m1 = m1 + we
+            m2 = m2 + we * e1
         round1 = round1 + g1 * (w_z - m1)
         round2 = round2 + g2 * (w_z - m2)
     round2 = round2 * B.exp(q["round_var_log_scale"] + q["round_var_rpm_slope"] * (ws - 0.5))
