@@ -125,6 +125,7 @@ N_S = 5  # Gauss-Hermite nodes over ln s
 N_X = 4  # Gauss-Legendre nodes over the fracture split x in (0, 1)
 _T, _W = np.polynomial.hermite_e.hermegauss(N_S)
 GH_T = tuple(float(v) for v in _T)
+assert N_S % 2 == 1 and GH_T[N_S // 2] == 0.0 and all(abs(GH_T[k] + GH_T[-1 - k]) < 1e-14 for k in range(N_S // 2))
 GH_W = tuple(float(v) for v in _W / math.sqrt(2 * math.pi))
 _XL, _WL = np.polynomial.legendre.leggauss(N_X)
 GL_X = tuple(float(0.5 * (v + 1)) for v in _XL)
@@ -279,6 +280,19 @@ def _bond_r_sums(B, s_new, perim, d_pi, nodes):
     return rn1, rn2
 
 
+def _inv_contact(B, a34_i, si, sj, s3_sum, cap_sum, uu):
+    """1 / d of eqn 16 with its cap, d = smin_pos(d_h, (pi/2) smin_pos(si, sj)), without exp/log:
+    d^-8 = d_h^-8 + (pi/2)^-8 (si^-8 + sj^-8), d_h^2 = (3/4 si sj / (si + sj))^2 uu / (si^3 + sj^3).
+
+    The per-node parts are passed in: ``a34_i`` = 3/4 si, ``s3_sum`` = si^3 + sj^3, ``cap_sum`` =
+    (pi/2)^-8 (si^-8 + sj^-8), ``uu`` = E[U] 3 pi / (E um^3). Sizes in um.
+    """
+    a_h = a34_i * sj / (si + sj)
+    d_h2 = a_h * a_h * uu / s3_sum
+    d_h4 = d_h2 * d_h2
+    return B.sqrt(B.sqrt(B.sqrt(1.0 / (d_h4 * d_h4) + cap_sum)))
+
+
 def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     """Rates (per hour of milling) of E[s], E[s^2], E[r], E[r^2] at speed w = rpm / rpm_max.
 
@@ -401,11 +415,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
             s_new = B.sqrt(s2n)  # eqn 18 (s^2 conserved, eqn 2)
             # eqn 16, capped: d = smin_pos(d_h, (pi/2) smin_pos(si, sj)) = S^(-1/8), with
             # d_h^2 = (3/4 si sj / (si + sj))^2 E[U] u_fac / (si^3 + sj^3)
-            a_h = a34[i] * sj / (si + sj)
-            d_h2 = a_h * a_h * uu / (s3[i] + s3[j])
-            d_h4 = d_h2 * d_h2
-            S = 1.0 / (d_h4 * d_h4) + (cap_m8[i] + cap_m8[j])
-            S8 = B.sqrt(B.sqrt(B.sqrt(S)))  # = 1 / d
+            S8 = _inv_contact(B, a34[i], si, sj, s3[i] + s3[j], cap_m8[i] + cap_m8[j], uu)  # = 1 / d
             lnL = B.log(s2n * S8)
             pb = sat(B, gG[i] * gE[j]) / (1.0 + B.exp(B.fmin(nab * lnL + nc0, 700.0)))  # eqns 15, 17
             p = pb * wsv[i] * wsv[j]
