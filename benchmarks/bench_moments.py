@@ -7,6 +7,7 @@ Prints a table of median wall times (ms). Targets: one 12 h prediction <= 5 ms.
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -19,8 +20,8 @@ sys.path.insert(0, str(ROOT))
 from bmctl.moments import make_moment_model  # noqa: E402
 
 
-def timeit(fn, repeat: int = 20, warmup: int = 2, best: list | None = None) -> float:
-    """Median wall time of ``fn()`` in ms (the fastest run is appended to ``best``)."""
+def times(fn, repeat: int = 20, warmup: int = 2) -> np.ndarray:
+    """Wall times of ``repeat`` calls of ``fn()`` in ms, after ``warmup`` calls."""
     for _ in range(warmup):
         fn()
     ts = []
@@ -28,9 +29,12 @@ def timeit(fn, repeat: int = 20, warmup: int = 2, best: list | None = None) -> f
         t = time.perf_counter()
         fn()
         ts.append(time.perf_counter() - t)
-    if best is not None:
-        best.append(1e3 * min(ts))
-    return 1e3 * float(np.median(ts))
+    return 1e3 * np.array(ts)
+
+
+def timeit(fn, repeat: int = 20, warmup: int = 2) -> float:
+    """Median wall time of ``fn()`` in ms."""
+    return float(np.median(times(fn, repeat, warmup)))
 
 
 def main(argv=None) -> int:
@@ -50,10 +54,9 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         model.simulate(x0, U, dt)
         rows.append((f"first 12 h prediction, dt {dt:g} h (builds casadi)", 1e3 * (time.perf_counter() - t0), "once"))
-        best = []
-        med = timeit(lambda: model.simulate(x0, U, dt), 60, 3, best)
-        rows.append((f"12 h prediction, dt {dt:g} h ({K} steps): median of 60", med, "<= 5 ms"))
-        rows.append((f"12 h prediction, dt {dt:g} h ({K} steps): fastest of 60", best[0], ""))
+        ts = times(lambda: model.simulate(x0, U, dt), 60, 3)
+        rows.append((f"12 h prediction, dt {dt:g} h ({K} steps): median of 60", float(np.median(ts)), "<= 5 ms"))
+        rows.append((f"12 h prediction, dt {dt:g} h ({K} steps): fastest of 60", float(ts.min()), ""))
 
     F = model.casadi_step(0.5)
     u, p = np.array([300.0, 1.0]), model.p0()
@@ -68,8 +71,6 @@ def main(argv=None) -> int:
     rows.append(("numpy step, one state, dt 0.5 h", timeit(lambda: model.step(x0, u, 0.5), 10), ""))
 
     w = max(len(r[0]) for r in rows)
-    import os
-
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     R = model._ca_steps.get("rates")
     n_ins = R.n_instructions() if R is not None else "?"

@@ -33,23 +33,21 @@ class Backend:
     exp: Callable
     log: Callable
     sqrt: Callable
-    tanh: Callable
     stack: Callable
     fmin: Callable
-    fmax: Callable
 
 
 def _np_stack(xs):
     return np.stack(np.broadcast_arrays(*[np.asarray(v, dtype=float) for v in xs]), axis=-1)
 
 
-NP = Backend("numpy", np.exp, np.log, np.sqrt, np.tanh, _np_stack, np.minimum, np.maximum)
+NP = Backend("numpy", np.exp, np.log, np.sqrt, _np_stack, np.minimum)
 
 
 def _ca_backend() -> Backend:
     import casadi as ca
 
-    return Backend("casadi", ca.exp, ca.log, ca.sqrt, ca.tanh, lambda xs: ca.vertcat(*xs), ca.fmin, ca.fmax)
+    return Backend("casadi", ca.exp, ca.log, ca.sqrt, lambda xs: ca.vertcat(*xs), ca.fmin)
 
 
 def backend(xp: Any) -> Backend:
@@ -413,9 +411,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
             si, sj = s[i], s[j]
             s2n = s2[i] + s2[j]
             s_new = B.sqrt(s2n)  # eqn 18 (s^2 conserved, eqn 2)
-            # eqn 16, capped: d = smin_pos(d_h, (pi/2) smin_pos(si, sj)) = S^(-1/8), with
-            # d_h^2 = (3/4 si sj / (si + sj))^2 E[U] u_fac / (si^3 + sj^3)
-            S8 = _inv_contact(B, a34[i], si, sj, s3[i] + s3[j], cap_m8[i] + cap_m8[j], uu)  # = 1 / d
+            S8 = _inv_contact(B, a34[i], si, sj, s3[i] + s3[j], cap_m8[i] + cap_m8[j], uu)  # 1 / d, eqn 16 capped
             lnL = B.log(s2n * S8)
             pb = sat(B, gG[i] * gE[j]) / (1.0 + B.exp(B.fmin(nab * lnL + nc0, 700.0)))  # eqns 15, 17
             p = pb * wsv[i] * wsv[j]
@@ -429,11 +425,11 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
             sb = sb + p * s_new
             rb1 = rb1 + p * rn1
             rb2 = rb2 + p * rn2
-    g1, g2 = _bond_r_scales(cn, q["bond_r_gain"])
+    gb1, gb2 = _bond_r_scales(cn, q["bond_r_gain"])
     Pb_sum = cb * (0.5 * sum(Q))
     dsb = cb * (sb - sum(s[k] * Q[k] for k in range(N_S)))
-    drb = cb * (g1 * rb1 - sum(r_b[k] * Q[k] for k in range(N_S)))
-    dr2b = cb * (g2 * rb2 - sum(r2_b[k] * Q[k] for k in range(N_S)))
+    drb = cb * (gb1 * rb1 - sum(r_b[k] * Q[k] for k in range(N_S)))
+    dr2b = cb * (gb2 * rb2 - sum(r2_b[k] * Q[k] for k in range(N_S)))
 
     Pf_sum = sum(GH_W[k] * Pf[k] for k in range(N_S))
     g_N = rate * (Pf_sum - 0.5 * Pb_sum)  # d ln N / dt
