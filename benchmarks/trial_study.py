@@ -5,8 +5,8 @@ Run:  python benchmarks/trial_study.py --seeds 10 scenarios/trial-mismatch.toml 
 
 Each (scenario, seed) runs `bmctl.trial.run_trial` into OUT/<scenario>/seed<N>. A finished run is
 reused and an interrupted one resumed only if nothing it depends on changed: the fingerprint (sha256
-of the scenario and of every file under models/ and controllers/) is stored next to it, and a run
-with another fingerprint is started afresh. Prints a markdown table: final relative error per target
+of the scenario, of every file under models/ and controllers/ and of the bmctl sources) is stored
+next to it, and a run with another fingerprint is started afresh. Prints a markdown table: final relative error per target
 (mean, sd, max over seeds), peak vial temperature, temperature violations, fallbacks, solver failures,
 median MPC solve time and wall time per trial.
 """
@@ -32,11 +32,13 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def fingerprint(scenario: str) -> str:
-    """sha256 of the scenario file and of every model card, coefficient file and controller config."""
+    """sha256 of the scenario file, of every model card, coefficient file and controller config, and of
+    the bmctl sources (a code change must not reuse results of the old code)."""
     h = hashlib.sha256(Path(scenario).read_bytes())
-    for folder in ("models", "controllers"):
-        for f in sorted((ROOT / folder).glob("*.toml")):
-            h.update(f.name.encode() + b"\0" + f.read_bytes())
+    files = [f for folder in ("models", "controllers") for f in sorted((ROOT / folder).glob("*.toml"))]
+    files += sorted((ROOT / "bmctl").rglob("*.py"))
+    for f in files:
+        h.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes())
     return h.hexdigest()[:16]
 
 
