@@ -6,9 +6,9 @@ Run:  python benchmarks/trial_study.py --seeds 10 scenarios/trial-mismatch.toml 
 Each (scenario, seed) runs `bmctl.trial.run_trial` into OUT/<scenario>/seed<N>. A finished run is
 reused and an interrupted one resumed only if nothing it depends on changed: the fingerprint (sha256
 of the scenario, of every file under models/ and controllers/ and of the bmctl sources) is stored
-next to it, and a run with another fingerprint is started afresh. Prints a markdown table: final relative error per target
-(mean, sd, max over seeds), peak vial temperature, temperature violations, fallbacks, solver failures,
-median MPC solve time and wall time per trial.
+next to it, and a run with another fingerprint is started afresh. Prints a markdown table: final
+relative error per target (mean, sd, max over seeds), peak vial temperature, temperature violations,
+fallbacks, solver failures, median MPC solve time and wall time per trial.
 """
 
 from __future__ import annotations
