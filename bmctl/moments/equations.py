@@ -74,14 +74,6 @@ def CA() -> Backend:  # noqa: N802 - a constant-like accessor
 # --- smooth helpers ---------------------------------------------------------------------------
 
 
-def sigmoid(B, v):
-    """1 / (1 + exp(-v)), with -v capped at 700 (no overflow, and no inf/inf in a derivative; the cap
-    bites only where the value is 0 to machine precision). exp is 3x cheaper than tanh in casadi's
-    virtual machine and, unlike 0.5 (1 + tanh(v / 2)), keeps the relative precision of small
-    probabilities."""
-    return 1.0 / (1.0 + B.exp(B.fmin(-v, 700.0)))
-
-
 def smax(B, a, lo, eps):
     """Smooth max(a, lo): lo + ((a - lo) + sqrt((a - lo)^2 + eps^2)) / 2  (>= lo, ~a for a >> lo + eps)."""
     d = a - lo
@@ -92,11 +84,6 @@ def smin(B, a, hi, eps):
     """Smooth min(a, hi)."""
     d = hi - a
     return hi - 0.5 * (d + B.sqrt(d * d + eps * eps))
-
-
-def smin_pos(B, a, b, n=8):
-    """Smooth min(a, b) of positive a, b: (a^-n + b^-n)^(-1/n) (scale-free, within 9 % of the min)."""
-    return B.exp(-B.log(B.exp(-n * B.log(a)) + B.exp(-n * B.log(b))) / n)
 
 
 def sat(B, q):
@@ -112,7 +99,10 @@ def node_exps(B, k):
 
 
 def node_sigmoids(B, a, ev):
-    """sigmoid(a + v_k) from ev_k = exp(-v_k); -a is capped at 600 (|v_k| stays < 100)."""
+    """sigmoid(a + v_k) = 1 / (1 + e^-a ev_k) from ev_k = exp(-v_k); -a is capped at 600 (|v_k| stays
+    < 100), so nothing overflows. The field writes every logistic law this way, capped on the side
+    that can overflow: exp is 3x cheaper than tanh in casadi's virtual machine and, unlike
+    0.5 (1 + tanh(v / 2)), keeps the relative precision of small probabilities."""
     ea = B.exp(B.fmin(-a, 600.0))
     return [1.0 / (1.0 + ea * e) for e in ev]
 
@@ -255,18 +245,24 @@ def bond_r_moments(B, s_new, perim, d_pi, nodes, gain=1.0):
     return g1 * rn1, g2 * rn2
 
 
+def _common_weight(nodes):
+    """The weight shared by all quadrature ``nodes`` ((weight, f) pairs), or None if they differ."""
+    ws = {wd for wd, _ in nodes}
+    return ws.pop() if len(ws) == 1 else None
+
+
 def _bond_r_scales(nodes, gain):
     """Factors that turn :func:`_bond_r_sums` into E[r_new], E[r_new^2] (the smooth clip's 1/2,
     the gain and, for equal weights, the weight)."""
-    equal = len({wd for wd, _ in nodes}) == 1
-    w = nodes[0][0] if equal else 1.0
+    w = _common_weight(nodes)
+    w = 1.0 if w is None else w
     return 0.5 * gain * w, 0.25 * gain * gain * w
 
 
 def _bond_r_sums(B, s_new, perim, d_pi, nodes):
     """sum_b w_b x_b and sum_b w_b x_b^2 with x_b = 2 smax(v_b, 0, 0.01) = v_b + sqrt(v_b^2 + 1e-4),
     v_b = 1 - s_new / (perim - d_pi f_b) (eqn 18 at contact bin b); equal weights are left out."""
-    equal = len({wd for wd, _ in nodes}) == 1
+    equal = _common_weight(nodes) is not None
     rn1 = rn2 = 0.0
     for wd, fd in nodes:
         v = 1.0 - s_new / (perim - d_pi * fd)
@@ -279,7 +275,8 @@ def _bond_r_sums(B, s_new, perim, d_pi, nodes):
 
 
 def _inv_contact(B, a34_i, si, sj, s3_sum, cap_sum, uu):
-    """1 / d of eqn 16 with its cap, d = smin_pos(d_h, (pi/2) smin_pos(si, sj)), without exp/log:
+    """1 / d of eqn 16 with its cap, d = smin_pos(d_h, (pi/2) smin_pos(si, sj)) with the scale-free
+    smooth minimum smin_pos(a, b) = (a^-8 + b^-8)^(-1/8) (within 9 % of the min), without exp/log:
     d^-8 = d_h^-8 + (pi/2)^-8 (si^-8 + sj^-8), d_h^2 = (3/4 si sj / (si + sj))^2 uu / (si^3 + sj^3).
 
     The per-node parts are passed in: ``a34_i`` = 3/4 si, ``s3_sum`` = si^3 + sj^3, ``cap_sum`` =
@@ -392,7 +389,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     uu = B.exp(ln_u_mean) * (3 * math.pi / (c.modulus_Pa * UM**3))  # E[U] u_fac of eqn 16
     # eqn 17's law, sigmoid(ab (base_b + ln L) + ob), as 1 / (1 + exp(nab ln L + nc0))
     nab, nc0 = -ab, -(ab * (ln_e - math.log(UM) - ln_ub) + ob)
-    # per-node factors, formed once: the contact cap (pi/2) smin_pos(si, sj) enters smin_pos below
+    # per-node factors, formed once: the contact cap (pi/2) smin_pos(si, sj) enters _inv_contact
     # through its -8th power, (pi/2)^-8 (si^-8 + sj^-8) (no exp/log pairs per pair)
     s2 = [sk * sk for sk in s]
     s3 = [s2[k] * s[k] for k in range(N_S)]
