@@ -72,8 +72,7 @@ def main(argv=None) -> int:
 
     w = max(len(r[0]) for r in rows)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    R = model._ca_steps.get("rates")
-    n_ins = R.n_instructions() if R is not None else "?"
+    n_ins = model.rate_function().n_instructions()
     print(f"moment model benchmark: {model.card.card.name} ({model.coeffs_source}); "
           f"rate field {n_ins} casadi instructions; load average {load:.2f}")
     print(f"{'case':<{w}}  {'ms':>9}  target")

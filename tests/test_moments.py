@@ -7,6 +7,7 @@ import pytest
 
 from bmctl.cli import main
 from bmctl.errors import InputError
+from bmctl.moments import equations as eq
 from bmctl.moments import make_moment_model
 from bmctl.moments.coeffs import coeffs_path
 
@@ -50,6 +51,11 @@ def test_numpy_and_casadi_agree(model):
         np.testing.assert_allclose(model.rhs(x, u, p), np.array(f(x, u, p)).ravel(), rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(model.rhs(x, u, p), np.array(model.rhs(ca.DM(x), ca.DM(u), ca.DM(p), xp=ca)).ravel(),
                                    rtol=1e-9, atol=1e-12)
+        # the public rate field (what every RKC stage evaluates) against the numpy definition
+        y = eq.to_y(eq.NP, list(x[:4]))
+        a = [x[4], x[5], u[0] / model.rpm_max, p[0], p[1]]
+        np.testing.assert_allclose(np.array(model.rate_function()(y, a)).ravel(),
+                                   eq.y_rates(eq.NP, model.const, model.coeffs, y, *a), rtol=1e-9, atol=1e-12)
 
 
 def test_batched_step_equals_single_steps(model):

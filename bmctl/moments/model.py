@@ -205,6 +205,24 @@ class MomentModel:
 
         return rates
 
+    def rate_function(self):
+        """casadi.Function ``rates(y[4], a[5]) -> dy/dt[4]``: the particle field (cached).
+
+        ``y`` are the integration coordinates (ln E[s], ln E[s^2], E[r], E[r^2]) and ``a`` =
+        (T, h, rpm / rpm_max, gamma_mult, delta_mult). :meth:`casadi_step` evaluates it at every
+        RKC stage, so its ``n_instructions()`` is the measure of the model's cost that
+        ``benchmarks/bench_moments.py`` prints.
+
+        Examples
+        --------
+        >>> from bmctl.moments import make_moment_model
+        >>> m = make_moment_model("models/alni-1to1-300rpm-lab.toml")
+        >>> m.rate_function().n_in(), m.rate_function().n_out()
+        (2, 1)
+        """
+        self._casadi_rates()
+        return self._ca_steps["rates"]
+
     def casadi_rhs(self):
         """casadi.Function ``f(x, u, p) -> dx/dt`` (per hour)."""
         import casadi as ca
