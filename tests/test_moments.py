@@ -435,7 +435,6 @@ def test_fast_forms_equal_the_textbook_forms():
     smin_pos(d_h, (pi/2) smin_pos(si, sj)), and the logit link's shared-exponential sigmoids
     against sigmoid(a + beta sigma t_k). Relative tolerance 1e-12 (float rounding only), over
     sizes 0.1-500 um, mean energies over 8 decades and link slopes across their bounds."""
-    from bmctl.moments import equations as eq
 
     def smin_pos(a, b, n=8):  # the textbook smooth minimum of eqn 16's cap, (a^-n + b^-n)^(-1/n)
         return np.exp(-np.log(np.exp(-n * np.log(a)) + np.exp(-n * np.log(b))) / n)

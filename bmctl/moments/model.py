@@ -184,20 +184,11 @@ class MomentModel:
                                               ["x", "u", "p"], ["x_next"])
         return self._ca_steps[key]
 
-    def _casadi_rates(self, q=None):
-        """The particle field dy/dt as a casadi Function, wrapped to take and return lists."""
+    def _casadi_rates(self):
+        """The particle field dy/dt (:meth:`rate_function`), wrapped to take and return lists."""
         import casadi as ca
 
-        if q is None and "rates" in self._ca_steps:
-            R = self._ca_steps["rates"]
-        else:
-            y = ca.SX.sym("y", 4)
-            a = ca.SX.sym("a", 5)  # T, h, w, bm, fm
-            qq = self.coeffs if q is None else q
-            out = eq.y_rates(eq.CA(), self.const, qq, [y[i] for i in range(4)], a[0], a[1], a[2], a[3], a[4])
-            R = ca.Function("moment_rates", [y, a], [ca.vertcat(*out)], {"cse": True})
-            if q is None:
-                self._ca_steps["rates"] = R
+        R = self.rate_function()
 
         def rates(yl, T, h, w, bm, fm):
             v = R(ca.vertcat(*yl), ca.vertcat(T, h, w, bm, fm))
@@ -220,7 +211,13 @@ class MomentModel:
         >>> m.rate_function().n_in(), m.rate_function().n_out()
         (2, 1)
         """
-        self._casadi_rates()
+        if "rates" not in self._ca_steps:
+            import casadi as ca
+
+            y = ca.SX.sym("y", 4)
+            a = ca.SX.sym("a", 5)  # T, h, w, bm, fm
+            out = eq.y_rates(eq.CA(), self.const, self.coeffs, [y[i] for i in range(4)], a[0], a[1], a[2], a[3], a[4])
+            self._ca_steps["rates"] = ca.Function("moment_rates", [y, a], [ca.vertcat(*out)], {"cse": True})
         return self._ca_steps["rates"]
 
     def casadi_rhs(self):
