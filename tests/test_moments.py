@@ -278,6 +278,25 @@ def test_identification_recovers_known_coefficients(model):
         assert res.coeffs[k] == pytest.approx(v, abs=1e-4), k
 
 
+def test_residual_scales_sit_between_own_and_common_range():
+    """The fit divides each run's residual by the geometric mean of that run's own range and the
+    range over all runs: a run in which a moment hardly moves gets more weight than under the
+    common range, but less than under its own (docs/moments.md, Sec. 6)."""
+    from bmctl.moments import identify as ident
+
+    t = np.linspace(0.0, 1.0, 9)[:, None]
+    flat = 10.0 + 0.5 * t * np.ones((1, 6))  # range 0.5, floored at 10 % of the mean (~1.0)
+    steep = 10.0 + 20.0 * t * np.ones((1, 6))  # range 20
+    exps = [ident.Experiment(n, np.zeros((8, 2)), Y, np.zeros_like(Y)) for n, Y in (("flat", flat), ("steep", steep))]
+    sc = ident.run_scales(exps)
+    common = ident.scales(exps)
+    assert sc.shape == (2, 6)
+    assert np.allclose(common, 20.0)
+    assert np.allclose(sc[0], np.sqrt(ident.span(flat) * 20.0))
+    assert np.all(ident.span(flat) < sc[0]) and np.all(sc[0] < common)
+    assert np.allclose(sc[1], 20.0)
+
+
 def test_response_to_gamma_delta_follows_the_plant(model):
     """p = the plant's (gamma, delta) factors act inside eqns (15) and (20), nothing fitted: the
     model told p must follow plants with gamma, delta 30 % off the card. Compared: ln of the

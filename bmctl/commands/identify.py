@@ -67,7 +67,7 @@ def run(args) -> int:
             print(f"[{time.time() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
     specs = ident.design(card, args.seed, args.quick)
-    vspecs = ident.validation_design(card, args.seed, 4 if args.quick else 6)
+    vspecs = ident.validation_design(card, args.seed, 4 if args.quick else ident.N_VALID)
     log(f"{card.card.name}: {len(specs)} training experiments x {len(train_seeds)} seeds, "
         f"{len(vspecs)} held-out schedules x {len(valid_seeds)} seeds, M={particles}")
     train = ident.run_experiments(card, specs, train_seeds, particles)
