@@ -8,7 +8,7 @@
 2. :func:`run_experiments` runs each on an ensemble of seeded plants and keeps the
    ensemble mean (and spread) of the moments after every interval.
 3. :func:`fit` fits the free coefficients (coeffs.SPEC) by least squares on the
-   simulation error of the whole trajectories, range-normalised; exact derivatives come
+   simulation error of the whole trajectories, range-normalised (:func:`run_scales`); exact derivatives come
    from casadi (the same equations, with the coefficients as symbols).
 4. :func:`nrmse_table` compares predictions and ensemble means on held-out schedules.
 
