@@ -1,0 +1,63 @@
+"""Confirmation set of the moment model: held-out schedules that no fitting choice looked at.
+
+Run:  python benchmarks/moments_confirm.py MODEL.toml [COEFFS.toml ...] [--schedules N]
+
+Draws N (default 24) random 12 h schedules from a stream that ``bmctl identify`` never uses
+(``numpy.random.default_rng([0, 3])``; identify trains on ``[seed, 1]`` and validates on
+``[seed, 2]``), runs them on plants seeded 21-23 (M = 4000, like identify's validation) and
+prints the mean NRMSE (and its standard error over the schedules) of each coefficient file,
+default: the card's own ``models/<card>.moments.toml``. docs/moments.md, Sec. 6, reports it.
+About 1 min of plant runs per card on one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bmctl.config import load_card  # noqa: E402
+from bmctl.moments import identify as ident  # noqa: E402
+from bmctl.moments.coeffs import coeffs_path, load_coeffs  # noqa: E402
+from bmctl.moments.model import MomentModel  # noqa: E402
+
+STREAM = (0, 3)
+SEEDS = (21, 22, 23)
+PARTICLES = 4000
+
+
+def confirmation_design(card, n: int) -> list[ident.Spec]:
+    """``n`` random schedules from the confirmation stream (same law as the held-out ones)."""
+    rng = np.random.default_rng(list(STREAM))
+    return [ident.Spec(f"confirm-{k}", ident.random_schedule(rng, card.mill.rpm_max)) for k in range(n)]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("model", help="model card (models/*.toml)")
+    ap.add_argument("coeffs", nargs="*", help="coefficient files (default: the card's own)")
+    ap.add_argument("--schedules", type=int, default=24)
+    args = ap.parse_args(argv)
+    card = load_card(args.model)
+    files = args.coeffs or [str(coeffs_path(args.model))]
+    t0 = time.time()
+    runs = ident.run_experiments(card, confirmation_design(card, args.schedules), SEEDS, PARTICLES)
+    print(f"{card.card.name}: {args.schedules} confirmation schedules x {len(SEEDS)} seeds, M={PARTICLES} "
+          f"({time.time() - t0:.0f} s of plant runs)")
+    names = ident.MOMENTS[:4]
+    print(f"{'coefficients':<48}" + "".join(f"{n:>18}" for n in names))
+    for f in files:
+        rows = ident.nrmse_table(MomentModel(card, load_coeffs(f), f), runs)["rows"][:, :4] * 100
+        se = rows.std(0, ddof=1) / np.sqrt(len(rows))
+        print(f"{Path(f).name:<48}" + "".join(f"{m:9.1f} % ± {s:3.1f}" for m, s in zip(rows.mean(0), se)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
