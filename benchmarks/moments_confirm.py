@@ -27,15 +27,9 @@ from bmctl.moments import identify as ident  # noqa: E402
 from bmctl.moments.coeffs import coeffs_path, load_coeffs  # noqa: E402
 from bmctl.moments.model import MomentModel  # noqa: E402
 
-STREAM = (0, 3)
+STREAM = 3  # random stream [0, STREAM]: identify trains on [seed, 1] and validates on [seed, 2]
 SEEDS = (21, 22, 23)
 PARTICLES = 4000
-
-
-def confirmation_design(card, n: int) -> list[ident.Spec]:
-    """``n`` random schedules from the confirmation stream (same law as the held-out ones)."""
-    rng = np.random.default_rng(list(STREAM))
-    return [ident.Spec(f"confirm-{k}", ident.random_schedule(rng, card.mill.rpm_max)) for k in range(n)]
 
 
 def main(argv=None) -> int:
@@ -47,7 +41,7 @@ def main(argv=None) -> int:
     card = load_card(args.model)
     files = args.coeffs or [str(coeffs_path(args.model))]
     t0 = time.time()
-    runs = ident.run_experiments(card, confirmation_design(card, args.schedules), SEEDS, PARTICLES)
+    runs = ident.run_experiments(card, ident.validation_design(card, 0, args.schedules, STREAM), SEEDS, PARTICLES)
     print(f"{card.card.name}: {args.schedules} confirmation schedules x {len(SEEDS)} seeds, M={PARTICLES} "
           f"({time.time() - t0:.0f} s of plant runs)")
     names = ident.MOMENTS[:4]
