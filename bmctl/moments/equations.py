@@ -470,6 +470,29 @@ def y_rates(B, c, q, y, T, h, w, bm, fm):
     return [dEs / m, dEs2 / (m * m + sd * sd), dEr, dEr2]
 
 
+def casadi_rate_field(c, q, theta=None):
+    """The particle field :func:`y_rates` as one casadi.Function and a list-in, list-out wrapper.
+
+    Returns ``(F, rates)``: ``F(y[4], a[5][, theta]) -> dy/dt[4]`` with ``a`` = (T, h,
+    rpm / rpm_max, gamma_mult, delta_mult), and ``rates(y, T, h, w, bm, fm)`` (the ``rates``
+    argument of :func:`step`). ``theta``, when given, is a casadi symbol that ``q`` refers to
+    (the free coefficients of an identification); it becomes a third input of ``F``.
+    """
+    import casadi as ca
+
+    y = ca.SX.sym("y", 4)
+    a = ca.SX.sym("a", 5)  # T, h, w, bm, fm
+    extra = [] if theta is None else [theta]
+    out = y_rates(CA(), c, q, [y[i] for i in range(4)], a[0], a[1], a[2], a[3], a[4])
+    F = ca.Function("moment_rates", [y, a] + extra, [ca.vertcat(*out)], {"cse": True})
+
+    def rates(yl, T, h, w, bm, fm):
+        v = F(ca.vertcat(*yl), ca.vertcat(T, h, w, bm, fm), *extra)
+        return [v[i] for i in range(4)]
+
+    return F, rates
+
+
 def rhs(B, c, q, xs, us, ps):
     """Continuous-time field dx/dt (per hour), duty-averaged over the milling fraction.
 

@@ -218,15 +218,7 @@ class _Sym:
         q = dict(fixed)
         for i, k in enumerate(self.free):
             q[k] = th[i]
-        y = ca.SX.sym("y", 4)
-        a = ca.SX.sym("a", 5)
-        R = ca.Function("rates_q", [y, a, th],
-                        [ca.vertcat(*eq.y_rates(eq.CA(), model.const, q, [y[i] for i in range(4)], *[a[i] for i in range(5)]))])
-
-        def rates(yl, T, h, w, bm, fm):
-            v = R(ca.vertcat(*yl), ca.vertcat(T, h, w, bm, fm), th)
-            return [v[i] for i in range(4)]
-
+        _, rates = eq.casadi_rate_field(model.const, q, theta=th)
         x = ca.SX.sym("x", 6)
         u = ca.SX.sym("u", 2)
         p = ca.SX.sym("p", 2)

@@ -185,16 +185,9 @@ class MomentModel:
         return self._ca_steps[key]
 
     def _casadi_rates(self):
-        """The particle field dy/dt (:meth:`rate_function`), wrapped to take and return lists."""
-        import casadi as ca
-
-        R = self.rate_function()
-
-        def rates(yl, T, h, w, bm, fm):
-            v = R(ca.vertcat(*yl), ca.vertcat(T, h, w, bm, fm))
-            return [v[i] for i in range(4)]
-
-        return rates
+        """The particle field (:meth:`rate_function`), wrapped to take and return lists."""
+        self.rate_function()
+        return self._ca_steps["rates_wrapper"]
 
     def rate_function(self):
         """casadi.Function ``rates(y[4], a[5]) -> dy/dt[4]``: the particle field (cached).
@@ -212,12 +205,7 @@ class MomentModel:
         (2, 1)
         """
         if "rates" not in self._ca_steps:
-            import casadi as ca
-
-            y = ca.SX.sym("y", 4)
-            a = ca.SX.sym("a", 5)  # T, h, w, bm, fm
-            out = eq.y_rates(eq.CA(), self.const, self.coeffs, [y[i] for i in range(4)], a[0], a[1], a[2], a[3], a[4])
-            self._ca_steps["rates"] = ca.Function("moment_rates", [y, a], [ca.vertcat(*out)], {"cse": True})
+            self._ca_steps["rates"], self._ca_steps["rates_wrapper"] = eq.casadi_rate_field(self.const, self.coeffs)
         return self._ca_steps["rates"]
 
     def casadi_rhs(self):
