@@ -74,6 +74,10 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"bmctl: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # an output that cannot be written (disk full, permissions): one line, no traceback
+        where = exc.filename if exc.filename is not None else "output"
+        print(f"bmctl: error: {where}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("bmctl: interrupted", file=sys.stderr)
         return 130

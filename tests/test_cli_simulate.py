@@ -121,3 +121,32 @@ def test_failed_rerun_keeps_previous_outputs(tmp_path, capsys):
     assert (out / "moments.csv").read_text() == before
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary leftovers
     shutil.rmtree(out)
+
+
+@pytest.mark.parametrize("command", [
+    ["simulate", LAB], ["whatif", LAB, str(card_path("alni-1to1-300rpm-lab").parent.parent / "scenarios"
+                                           / "schedule-lab-300rpm-12h.toml")],
+    ["linearize", LAB], ["verify", "--quick"], ["identify", LAB, "--quick"],
+])
+def test_unwritable_out_fails_before_any_work(tmp_path, capsys, command):
+    """An --out below a file (a typo, a read-only place) is reported at once: one line, exit 2, nothing made."""
+    blocker = tmp_path / "afile"
+    blocker.write_text("x")
+    target = blocker / ("c.toml" if command[0] == "identify" else "out")
+    rc, out, err = run([*command, "--out", str(target)], capsys)
+    assert rc == 2 and err.startswith("bmctl: error: --out:") and "not a folder" in err
+    assert len(err.strip().splitlines()) == 1 and out == ""  # refused before the run printed anything
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_write_failure_during_output_is_one_line(tmp_path, capsys, monkeypatch):
+    """An OSError while writing (disk full, permissions changed mid-run) names the file: exit 2, no traceback."""
+    import bmctl.simulate as sim
+
+    def full(*_a, **_k):
+        raise OSError(28, "No space left on device", str(tmp_path / "o" / "moments.csv"))
+
+    monkeypatch.setattr(sim, "write_outputs", full)
+    rc, _, err = run(["simulate", LAB, "--hours", "0.2", "--particles", "200", "--out", str(tmp_path / "o"),
+                      "--no-progress"], capsys)
+    assert rc == 2 and err.strip() == f"bmctl: error: {tmp_path / 'o' / 'moments.csv'}: No space left on device"

@@ -2,8 +2,45 @@
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
 
 from ..errors import InputError, finite_float
+
+
+def output_path(path, name: str = "--out", folder: bool = True) -> Path:
+    """Check an output folder (``folder``) or file before any work is done; returns it as a Path.
+
+    No folder is created: the check finds the nearest existing ancestor and creates (and at
+    once removes) a temporary file there, so a run with a mistyped or read-only ``--out`` fails
+    at once with one line instead of after the computation.
+
+    Parameters
+    ----------
+    path : path-like
+        The output folder or file.
+    name : str, optional
+        The flag, named in error messages.
+    folder : bool, optional
+        True for an output folder, False for an output file.
+    """
+    p = Path(path)
+    if p.exists():
+        if folder and not p.is_dir():
+            raise InputError(f"{name}: {p} exists and is not a folder")
+        if not folder and p.is_dir():
+            raise InputError(f"{name}: {p} is a folder, expected a file")
+    anc = p if (folder and p.exists()) else p.parent
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if not anc.is_dir():
+        raise InputError(f"{name}: cannot create {p}: {anc} is not a folder")
+    try:  # a probe file, removed at once: permissions, read-only or virtual file systems
+        with tempfile.TemporaryFile(dir=anc):
+            pass
+    except OSError as exc:
+        raise InputError(f"{name}: cannot write {p}: {exc.strerror or exc} ({anc})") from None
+    return p
 
 
 def int_arg(name: str, lo: int | None = None, hi: int | None = None):

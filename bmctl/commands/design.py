@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ._args import output_path
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_CONTROLLER = "controllers/mpc-default.toml"
@@ -51,9 +52,7 @@ def run(args) -> int:
     cfg = load_controller(path)
     if not isinstance(cfg, MPCConfig):
         raise InputError(f"{path}: kind: design needs an mpc controller (got {cfg.kind!r})")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out: {out} exists and is not a folder")
+    out = output_path(args.out)
     model = make_moment_model(args.model)
     hours = args.hours if args.hours is not None else float(model.card.process.hours)
 

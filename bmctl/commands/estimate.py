@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError, finite_float
-from ._args import float_arg, int_arg
+from ._args import float_arg, int_arg, output_path
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 
@@ -128,9 +128,7 @@ def run(args) -> int:
             raise InputError(f"{args.schedule}: covers {total:g} h, the last sample is at {t_end:g} h")
     else:
         segments = card_schedule(card, max(card.process.hours, t_end), args.rpm)
-    out = Path(args.out)
-    if out.is_dir():
-        raise InputError(f"--out: {out} is a folder, expected a .csv file")
+    out = output_path(args.out, folder=False)
     if out.suffix.lower() != ".csv":
         raise InputError(f"--out: expected a .csv file name (got {out})")
     law_kw = {"size_law": args.size_law}

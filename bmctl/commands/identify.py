@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._args import int_arg
+from ._args import int_arg, output_path
 
 
 
@@ -38,9 +38,7 @@ def configure(p):
 def _out_path(args) -> Path:
     from ..moments.coeffs import coeffs_path
 
-    out = Path(args.out) if args.out is not None else coeffs_path(args.model)
-    if out.exists() and out.is_dir():
-        raise InputError(f"--out: {out} is a folder, expected a file")
+    out = output_path(args.out if args.out is not None else coeffs_path(args.model), folder=False)
     if out.suffix != ".toml":
         raise InputError(f"--out: {out} must end in .toml")
     if not out.parent.exists():

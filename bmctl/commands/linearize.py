@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ._args import output_path
 
 
 def _float(name, lo=None):
@@ -43,9 +43,7 @@ def run(args) -> int:
         raise InputError(f"--rpm: must be in (0, {card.mill.rpm_max:g}] (got {rpm:g})")
     if args.horizon <= 0:
         raise InputError(f"--horizon: must be > 0 (got {args.horizon:g})")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out: {out} exists and is not a folder")
+    out = output_path(args.out)
     model = make_moment_model(args.model)
     x, u = operating_point(model, rpm, args.at_hours)
     a = analyse(model, x, u, horizon_h=args.horizon)

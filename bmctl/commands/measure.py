@@ -13,6 +13,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import InputError
+from ._args import output_path
 from ..measure.segment import MIN_AREA_PX, check_scale, measure_labels, parse_crop, segment
 from ..measure.tables import ParticleTable, read_table, write_table
 
@@ -38,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
     if args.min_area_px < 1:
         raise InputError(f"--min-area-px: must be >= 1 (got {args.min_area_px})")
     crop = parse_crop(args.crop) if args.crop is not None else None
+    if args.out:
+        output_path(args.out, folder=False)
     images = [p for p in args.inputs if not _is_table(p)]
     if images and scale is None:
         raise InputError(f"--um-per-px: required to measure images ({images[0]})")

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
 from ..config import card_schedule, load_card, load_schedule
 from ..errors import InputError
-from ._args import float_arg, int_arg
+from ._args import float_arg, int_arg, output_path
 
 
 
@@ -44,9 +43,7 @@ def run(args) -> int:
             raise InputError(f"{src}: rpm {rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g} ({args.model})")
     if args.every is not None and args.every <= 0:
         raise InputError(f"--every: must be > 0 (got {args.every:g})")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out: {out} exists and is not a folder")
+    out = output_path(args.out)
     total_h = sum(h for h, _ in segments)
     bar = None
     progress = None

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import int_arg
+from ._args import int_arg, output_path
 
 
 
@@ -26,7 +26,8 @@ def run(args) -> int:
     sc = load_scenario(args.scenario)
     if args.resume and args.out and Path(args.resume) != Path(args.out):
         raise InputError("--resume: give the trial folder once (--resume DIR), not with a different --out")
-    out = Path(args.resume or args.out or f"out/trial-{sc.scenario.name}-seed{args.seed}")
+    out = output_path(args.resume or args.out or f"out/trial-{sc.scenario.name}-seed{args.seed}",
+                      "--resume" if args.resume else "--out")
     bar = None
     if not args.no_progress:
         from tqdm import tqdm

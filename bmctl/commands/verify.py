@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import int_arg
+from ._args import int_arg, output_path
 
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 
@@ -41,9 +41,7 @@ def run(args) -> int:
     from .. import verify as V
     from ..config import load_card
 
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out: {out} exists and is not a folder")
+    out = output_path(args.out)
     paths = [Path(p) for p in args.models] if args.models else default_cards()
     if not paths:
         raise InputError(f"--models: no model cards given and none found in {MODELS_DIR}")

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import int_arg
+from ._args import int_arg, output_path
 
 
 
@@ -24,6 +24,7 @@ def run(args) -> int:
     from ..config import load_card, load_schedule
     from ..whatif import run_schedule_ensemble, table_rows, write_outputs
 
+    out = output_path(args.out)
     card = load_card(args.model)
     scheds = []
     for path in args.schedules:
@@ -39,6 +40,6 @@ def run(args) -> int:
     for r in rows:
         print(f"{r[0][:28]:28s} {r[1]:5.1f} {r[2]:7.0f} {r[3]:6.1f} {r[5]:6.1f} [{r[6]:4.0f},{r[7]:4.0f}] "
               f"{r[8]:6.1f} [{r[9]:4.0f},{r[10]:4.0f}] {r[11]:6.3f} [{r[12]:.2f},{r[13]:.2f}]")
-    for p in write_outputs(results, Path(args.out)):
+    for p in write_outputs(results, out):
         print(f"  wrote {p}")
     return 0
