@@ -476,3 +476,32 @@ def test_fast_forms_equal_the_textbook_forms():
     fast = eq.node_sigmoids(B, a, eq.node_exps(B, -k))
     for t, sg in zip(eq.GH_T, fast):
         np.testing.assert_allclose(sg, sigmoid(a + k * t), rtol=1e-12)
+
+
+def test_identify_figures_show_best_median_and_worst(tmp_path):
+    """The validation figure picks its schedules by the mean NRMSE of the particle moments (and writes PNGs)."""
+    from bmctl import plots
+    from bmctl.moments import identify as ident
+
+    model = make_moment_model(LAB)
+    U = np.array([[300.0, 1.0]] * 4 + [[0.0, 0.0]] * 2 + [[450.0, 0.5]] * 2)
+    X = model.simulate(model.x0(), U, 0.5)
+    exps, preds = [], []
+    for k in [3, 0, 4, 1, 2]:  # plant = model x (1 + 0.02 k): the error grows with k, listed out of order
+        exps.append(ident.Experiment(f"run-{k}", U, X * (1 + 0.02 * k), 0.01 * np.abs(X)))
+        preds.append(X)
+    rows = np.array([ident.nrmse(P, e.Y) for P, e in zip(preds, exps)])
+    shown = plots.identify_validation(tmp_path / "v.png", exps, preds, rows, "test")
+    assert shown == ["run-0", "run-2", "run-3", "run-4"]  # best, median, 2nd worst, worst
+    plots.identify_nrmse(tmp_path / "n.png", rows, 2 * rows, "test")
+    for name in ("v.png", "n.png"):
+        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_identify_unwritable_figures_folder(tmp_path, capsys):
+    blocker = tmp_path / "afile"
+    blocker.write_text("x")
+    assert main(["identify", str(LAB), "--out", str(tmp_path / "c.toml"), "--figures", str(blocker / "f")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("bmctl: error: --figures:") and len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]

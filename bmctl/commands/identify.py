@@ -33,6 +33,8 @@ def configure(p):
                    help="simulated particles per plant (default 4000; --quick 2000)")
     p.add_argument("--quick", action="store_true", help="fewer experiments, one training seed (about 4x faster)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.add_argument("--figures", default=None, metavar="DIR",
+                   help="also write validation.png (model vs plant on held-out schedules) and nrmse.png here")
 
 
 def _out_path(args) -> Path:
@@ -55,6 +57,7 @@ def run(args) -> int:
 
     card = load_card(args.model)
     out = _out_path(args)
+    figs = output_path(args.figures, "--figures") if args.figures is not None else None
     particles = args.particles or (2000 if args.quick else 4000)
     train_seeds = [1000 * args.seed + k for k in ((1,) if args.quick else (1, 2))]
     valid_seeds = [1000 * args.seed + k for k in ((11, 12) if args.quick else (11, 12, 13))]
@@ -112,6 +115,14 @@ def run(args) -> int:
                             "Re-run the command in [identification] to regenerate; docs/moments.md explains them.")
     write_text(out, text)
     print(report)
+    if figs is not None:
+        from .. import plots
+
+        preds = [ident.predict(model, e) for e in valid]
+        label = f"{card.card.name}: moment model vs plant, held-out schedules"
+        plots.identify_validation(figs / "validation.png", valid, preds, tab["rows"], label)
+        plots.identify_nrmse(figs / "nrmse.png", tab["rows"], tab0["rows"], label)
+        print(f"wrote {figs / 'validation.png'}, {figs / 'nrmse.png'}")
     print(f"wrote {out} ({time.time() - t0:.0f} s)")
     return 0
 
