@@ -13,9 +13,9 @@ import argparse
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import output_path
 from ..measure.segment import MIN_AREA_PX, check_scale, measure_labels, parse_crop, segment
 from ..measure.tables import ParticleTable, read_table, write_table
+from ._args import output_path
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
