@@ -39,6 +39,7 @@ SPEC: dict[str, tuple[float | None, float, float, str]] = {
     "bond_rpm_slope": (0.0, -6.0, 6.0, "empirical: ln bonding rate changes by this per unit rpm/rpm_max"),
     "frac_rpm_slope": (0.0, -6.0, 6.0, "empirical: ln fracture rate changes by this per unit rpm/rpm_max"),
     "r_size_corr": (0.0, -1.0, 6.0, "s-r closure: slope of logit E[r | s] in ln s (0 = mean field, r independent of s)"),
+    "frac_link_shift": (0.0, -6.0, 6.0, "s-r closure: change of the link slope seen by the fracture terms (0 = the same link)"),
 }
 
 NAMES = tuple(SPEC)

@@ -320,33 +320,43 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     # second-order (delta-method) averages at each node are finite for every realisable state.
     om = 1.0 - rm
     v_r = rho * rho * rm * om
-    beta = q["r_size_corr"]
-    # logit link: logit r_k = a + beta (ln s_k - mu_ln); a by 4 Newton steps from logit(rm) so that
-    # the nodes average to rm, then an exact rescale (beta = 0: every node at rm, the mean field)
-    # sigmoid(a + v_k) = 1 / (1 + e^-a e^-v_k): the node factors e^-v_k are formed once (the nodes
-    # are symmetric, so two exponentials and their inverses), each Newton step costs one exponential
-    ev = node_exps(B, -beta * sig_ln)
-    a_ = B.log(rm / (1 - rm))
-    for _ in range(4):
+
+    def link(beta):
+        """(r_k, E over nodes, within-node variance, E[1/(1-r)], r_b, r2_b, perimeter factor) per node."""
+        # logit link: logit r_k = a + beta (ln s_k - mu_ln); a by 4 Newton steps from logit(rm) so that
+        # the nodes average to rm, then an exact rescale (beta = 0: every node at rm, the mean field)
+        # sigmoid(a + v_k) = 1 / (1 + e^-a e^-v_k): the node factors e^-v_k are formed once (the nodes
+        # are symmetric, so two exponentials and their inverses), each Newton step costs one exponential
+        ev = node_exps(B, -beta * sig_ln)
+        a_ = B.log(rm / (1 - rm))
+        for _ in range(4):
+            sg = node_sigmoids(B, a_, ev)
+            wsg = [GH_W[k] * sg[k] for k in range(N_S)]
+            s1 = sum(wsg)
+            fp = s1 - sum(wsg[k] * sg[k] for k in range(N_S))  # sum w sg (1 - sg)
+            a_ = a_ - (s1 - rm) / (fp + 1e-9)
         sg = node_sigmoids(B, a_, ev)
-        wsg = [GH_W[k] * sg[k] for k in range(N_S)]
-        s1 = sum(wsg)
-        fp = s1 - sum(wsg[k] * sg[k] for k in range(N_S))  # sum w sg (1 - sg)
-        a_ = a_ - (s1 - rm) / (fp + 1e-9)
-    sg = node_sigmoids(B, a_, ev)
-    nrm = sum(GH_W[k] * sg[k] for k in range(N_S))
-    rk = [smin(B, rm * sg[k] / nrm, R_HI, R_EPS) for k in range(N_S)]
-    Er_nodes = sum(GH_W[k] * rk[k] for k in range(N_S))
-    var_between = sum(GH_W[k] * rk[k] * rk[k] for k in range(N_S)) - Er_nodes * Er_nodes
-    v_w = smax(B, v_r - var_between, 0.05 * v_r, 1e-8)
-    Ef, r_b, r2_b, one_r = [], [], [], []
-    for k in range(N_S):
-        omk = 1.0 - rk[k]
-        omk2 = omk * omk
-        Ef.append(1.0 / omk + v_w / (omk2 * omk))  # E[1/(1-r)]
-        r_b.append((rk[k] * omk2 + v_w) / (omk2 + v_w))  # E[r/(1-r)] / E[1/(1-r)]: r of a reacting particle
-        r2_b.append((rk[k] * rk[k] * omk2 + v_w) / (omk2 + v_w))  # E[r^2/(1-r)] / E[1/(1-r)]
-        one_r.append(omk * (omk2 + v_w) / (omk2 + 3 * v_w))  # perimeter factor of a reacting particle
+        nrm = sum(GH_W[k] * sg[k] for k in range(N_S))
+        rk = [smin(B, rm * sg[k] / nrm, R_HI, R_EPS) for k in range(N_S)]
+        Er_nodes = sum(GH_W[k] * rk[k] for k in range(N_S))
+        var_between = sum(GH_W[k] * rk[k] * rk[k] for k in range(N_S)) - Er_nodes * Er_nodes
+        v_w = smax(B, v_r - var_between, 0.05 * v_r, 1e-8)
+        Ef, r_b, r2_b, one_r = [], [], [], []
+        for k in range(N_S):
+            omk = 1.0 - rk[k]
+            omk2 = omk * omk
+            Ef.append(1.0 / omk + v_w / (omk2 * omk))  # E[1/(1-r)]
+            r_b.append((rk[k] * omk2 + v_w) / (omk2 + v_w))  # E[r/(1-r)] / E[1/(1-r)]: r of a reacting particle
+            r2_b.append((rk[k] * rk[k] * omk2 + v_w) / (omk2 + v_w))  # E[r^2/(1-r)] / E[1/(1-r)]
+            one_r.append(omk * (omk2 + v_w) / (omk2 + 3 * v_w))  # perimeter factor of a reacting particle
+        return rk, Er_nodes, v_w, Ef, r_b, r2_b, one_r
+
+    # bonding and rounding see the link of slope beta; the fracture terms (parent removed, eqn 20's
+    # 1/(1-r), fragment perimeters) see slope beta + `frac_link_shift` (docs/moments.md, Sec. 2):
+    # the net r a fracture creates depends on the parent's r twice, through its removal and through
+    # the fragments' share of its perimeter, and one slope for both processes cannot set it
+    rk, Er_nodes, v_w, Ef, r_b, r2_b, one_r = link(q["r_size_corr"])
+    _, _, _, Ef_f, r_b_f, r2_b_f, one_r_f = link(q["r_size_corr"] + q["frac_link_shift"])
     # p = (bm, fm): the plant's gamma and delta relative to the card. They act where eqns (15) and
     # (20) put them, inside the saturation of p_b and p_c, so the averaged rates respond to them as
     # the plant's do (weakly where the probabilities saturate); nothing about the response is fitted.
@@ -365,10 +375,10 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     c_split = [B.exp(ac * math.log(2 * math.sqrt(x * (1 - x)))) for x in GL_XH]  # |ac ln(..)| < 100
     for k in range(N_S):
         sk = s[k]
-        frag = fragment_tables(B, one_r[k], q["frac_r_gain"])
+        frag = fragment_tables(B, one_r_f[k], q["frac_r_gain"])
         # ln(dU_d / (d_c u_c)) with d_c = s at x = 1/2: ln e + ln s - ln UM - ln u_c
         lnL0 = base_c + ln_s[k]
-        q_k = delta * sk * sk * Ef[k]  # eqn 20
+        q_k = delta * sk * sk * Ef_f[k]  # eqn 20
         e_k = B.exp(B.fmin(nac * lnL0 - oc, 600.0))
         pf = ds = dr = dr2 = 0.0
         for x, wx, (rsum, r2sum), c_x in zip(GL_XH, GL_WH, frag, c_split):
@@ -381,8 +391,8 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
             dr2 = dr2 + p * r2sum
         Pf.append(cf * pf)
         dsf.append(cf * ds * sk)
-        drf.append(cf * (dr - pf * r_b[k]))
-        dr2f.append(cf * (dr2 - pf * r2_b[k]))
+        drf.append(cf * (dr - pf * r_b_f[k]))
+        dr2f.append(cf * (dr2 - pf * r2_b_f[k]))
         lam.append(B.exp(ln_lam1 - ln_s[k] - kap * var_ln))  # at the r-mass-biased size s exp(kap var)
 
     cn = c.contact_nodes

@@ -259,7 +259,7 @@ class _Sym:
 FREE = ("bond_log_scale", "bond_slope", "bond_offset", "frac_log_scale", "frac_slope", "frac_offset",
         "round_log_scale", "round_size_bias", "round_var_log_scale", "round_rpm_slope",
         "round_var_rpm_slope", "bond_ds_gain", "frac_ds_gain", "bond_r_gain", "frac_r_gain", "r_var_gain",
-        "r_size_corr", "bond_rpm_slope", "frac_rpm_slope")
+        "r_size_corr", "frac_link_shift", "bond_rpm_slope", "frac_rpm_slope")
 
 
 @dataclass
