@@ -293,7 +293,8 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
 
     The population is closed as s ~ log-normal(m, sd) (5 Gauss-Hermite nodes); at size node k
     the r law has mean r_k with logit r_k linear in ln s_k (slope ``r_size_corr``, mean rm) and
-    the variance left over, seen by the kernels through delta-method averages. Per particle and impact (rate k(w)):
+    the variance left over, seen by the kernels through delta-method averages (the fracture terms
+    see the link with slope ``r_size_corr + frac_link_shift``). Per particle and impact (rate k(w)):
     fracture probability Pf(s) = E_x[sat(delta s^2 x(1-x)/(1-r))] * logistic law of
     eqn (17) in ln(dU_d / (d_c u_c)); bonding of a pair Pb(si, sj) = sat(gamma si sj/(1-r)^2)
     * logistic law in ln((dU_i + dU_j)/(d_ij u_b)) * (1 - Pf_i)(1 - Pf_j).
