@@ -505,3 +505,22 @@ def test_identify_unwritable_figures_folder(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("bmctl: error: --figures:") and len(err.strip().splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_frac_link_shift_acts_on_the_fracture_terms_only():
+    """The fracture terms' own link slope (docs/moments.md, Sec. 2): with fracture switched off the
+    field does not depend on it; with fracture on it moves the shape rates."""
+    model = make_moment_model(LAB)
+    c, q0 = model.const, dict(model.coeffs)
+    state = (45.0, 25.0, 0.12, 0.11, 45.0, 0.3)  # s_mean, s_std, r_mean, r_std, T, h
+    m, sd, rm, rs, T, h = state
+    rho = rs / math.sqrt(rm * (1 - rm))
+
+    def rates(**over):
+        return np.array(eq.raw_rates(eq.NP, c, {**q0, **over}, m, sd, rm, rho, T, h, 0.5, 1.0, 1.0))
+
+    off_a = rates(frac_log_scale=-40.0, frac_link_shift=-2.0)
+    off_b = rates(frac_log_scale=-40.0, frac_link_shift=2.0)
+    assert np.allclose(off_a, off_b, rtol=1e-12, atol=0)
+    on_a, on_b = rates(frac_link_shift=-2.0), rates(frac_link_shift=2.0)
+    assert abs(on_a[2] - on_b[2]) > 1e-3 * abs(on_a[2])  # dE[r]/dt moves
