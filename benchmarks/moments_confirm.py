@@ -24,8 +24,8 @@ sys.path.insert(0, str(ROOT))
 
 from bmctl.config import load_card  # noqa: E402
 from bmctl.moments import identify as ident  # noqa: E402
-from bmctl.moments.coeffs import coeffs_path, load_coeffs  # noqa: E402
-from bmctl.moments.model import MomentModel  # noqa: E402
+from bmctl.moments.coeffs import coeffs_path  # noqa: E402
+from bmctl.moments.model import make_moment_model  # noqa: E402
 
 STREAM = 3  # random stream [0, STREAM]: identify trains on [seed, 1] and validates on [seed, 2]
 SEEDS = (21, 22, 23)
@@ -47,7 +47,7 @@ def main(argv=None) -> int:
     names = ident.MOMENTS[:4]
     print(f"{'coefficients':<48}" + "".join(f"{n:>18}" for n in names))
     for f in files:
-        rows = ident.nrmse_table(MomentModel(card, load_coeffs(f), f), runs)["rows"][:, :4] * 100
+        rows = ident.nrmse_table(make_moment_model(card, f), runs)["rows"][:, :4] * 100
         se = rows.std(0, ddof=1) / np.sqrt(len(rows))
         print(f"{Path(f).name:<48}" + "".join(f"{m:9.1f} % ± {s:3.1f}" for m, s in zip(rows.mean(0), se)))
     return 0
