@@ -389,6 +389,8 @@ def _card_with(tmp_path, old, new):
     (["--particles", "-5"], "--particles"),
     (["--particles", "nan"], "--particles"),
     (["--seed", "abc"], "--seed"),
+    (["--random-schedules", "-1"], "--random-schedules"),
+    (["--random-schedules", "4.5"], "--random-schedules"),
     (["--bogus"], "unrecognized"),
 ])
 def test_identify_bad_flags(tmp_path, capsys, argv_tail, what):
@@ -524,3 +526,21 @@ def test_frac_link_shift_acts_on_the_fracture_terms_only():
     assert np.allclose(off_a, off_b, rtol=1e-12, atol=0)
     on_a, on_b = rates(frac_link_shift=-2.0), rates(frac_link_shift=2.0)
     assert abs(on_a[2] - on_b[2]) > 1e-3 * abs(on_a[2])  # dE[r]/dt moves
+
+
+def test_design_more_random_schedules_extends_the_same_stream():
+    """``design(n_random=N)`` keeps the structured runs and the first random schedules of a
+    smaller design and adds new ones (the refits of docs/moments.md compare designs this way)."""
+    from bmctl.config import load_card
+    from bmctl.moments import identify as ident
+
+    card = load_card(LAB)
+    base = ident.design(card, 0)
+    more = ident.design(card, 0, n_random=ident.N_RANDOM_TRAIN + 4)
+    assert len(more) == len(base) + 4
+    for a, b in zip(base, more):
+        assert a.name == b.name and a.inputs == b.inputs and a.prefix == b.prefix
+    extra = more[len(base):]
+    assert all(s.name.startswith("random-train-") for s in extra)
+    assert all(s.inputs != b.inputs for s in extra for b in base)
+    assert len(ident.design(card, 0, quick=True, n_random=0)) == len(ident.design(card, 0, quick=True)) - 2

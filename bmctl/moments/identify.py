@@ -91,8 +91,13 @@ def random_schedule(rng: np.random.Generator, rpm_max: float, hours: float = HOU
     return _grid(segs)
 
 
-def design(card: ModelCard, seed: int = 0, quick: bool = False) -> list[Spec]:
-    """Training experiments for ``card`` (speeds as fractions of the mill's rpm_max)."""
+def design(card: ModelCard, seed: int = 0, quick: bool = False, n_random: int | None = None) -> list[Spec]:
+    """Training experiments for ``card`` (speeds as fractions of the mill's rpm_max).
+
+    ``n_random`` random schedules close the design (default :data:`N_RANDOM_TRAIN`, 2 with
+    ``quick``). They come from one stream, so a larger ``n_random`` keeps the first schedules
+    of a smaller one and adds more.
+    """
     R = card.mill.rpm_max
     r = lambda f: round(f * R / 10) * 10  # noqa: E731
     specs = [Spec(f"const-{r(f):g}", _grid([(HOURS, r(f), 1.0)])) for f in ((1 / 6, 1 / 3, 1 / 2, 2 / 3, 5 / 6, 1.0)
@@ -113,7 +118,9 @@ def design(card: ModelCard, seed: int = 0, quick: bool = False) -> list[Spec]:
             Spec(f"branch-{r(1 / 6):g}-6h-{r(2 / 3):g}", _grid([(6, r(2 / 3), 1.0)]), _grid([(6, r(1 / 6), 1.0)])),
         ]
     rng = np.random.default_rng([seed, 1])
-    for k in range(2 if quick else N_RANDOM_TRAIN):
+    if n_random is None:
+        n_random = 2 if quick else N_RANDOM_TRAIN
+    for k in range(int(n_random)):
         specs.append(Spec(f"random-train-{k}", random_schedule(rng, R)))
     return specs
 
