@@ -12,13 +12,6 @@ from .io import pyplot, savefig
 plt = pyplot()
 
 
-def matplotlib_ticker():
-    """``matplotlib.ticker`` (imported with the Agg backend already selected)."""
-    import matplotlib.ticker
-
-    return matplotlib.ticker
-
-
 def pdf_over_time(path: Path, axis: np.ndarray, pdfs: np.ndarray, times_h: Sequence[float], xlabel: str,
                   title: str, xmax: float | None = None) -> None:
     """Population-fraction pdfs p(x) at each recorded time, as curves coloured by time (Fig. 9a/b analogue)."""
@@ -119,7 +112,9 @@ def identify_nrmse(path: Path, rows: np.ndarray, rows_defaults: np.ndarray, titl
     ax.set_xticks(range(len(names)), [_MOMENT_LABELS[k] for k in names])
     ax.set_ylabel("NRMSE per held-out schedule (%)")
     ax.set_yscale("log")
-    plain = matplotlib_ticker().FuncFormatter(lambda v, _: f"{v:g}")
+    from matplotlib.ticker import FuncFormatter
+
+    plain = FuncFormatter(lambda v, _: f"{v:g}")
     ax.yaxis.set_major_formatter(plain)
     ax.yaxis.set_minor_formatter(plain)
     ax.plot([], [], color="k", lw=2, label="mean over schedules")

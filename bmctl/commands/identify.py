@@ -122,9 +122,8 @@ def run(args) -> int:
     if figs is not None:
         from .. import plots
 
-        preds = [ident.predict(model, e) for e in valid]
         label = f"{card.card.name}: moment model vs plant, held-out schedules"
-        plots.identify_validation(figs / "validation.png", valid, preds, tab["rows"], label)
+        plots.identify_validation(figs / "validation.png", valid, tab["preds"], tab["rows"], label)
         plots.identify_nrmse(figs / "nrmse.png", tab["rows"], tab0["rows"], label)
         print(f"wrote {figs / 'validation.png'}, {figs / 'nrmse.png'}")
     print(f"wrote {out} ({time.time() - t0:.0f} s)")

@@ -335,6 +335,9 @@ def nrmse(pred: np.ndarray, Y: np.ndarray) -> np.ndarray:
 
 
 def nrmse_table(model: MomentModel, experiments: Sequence[Experiment]) -> dict:
-    """{'rows': per-experiment NRMSE (K x 6), 'mean': mean over experiments, 'max': worst}."""
-    rows = np.array([nrmse(predict(model, e), e.Y) for e in experiments])
-    return {"names": [e.name for e in experiments], "rows": rows, "mean": rows.mean(0), "max": rows.max(0)}
+    """{'rows': per-experiment NRMSE (K x 6), 'mean': mean over experiments, 'max': worst,
+    'preds': the predicted trajectories}."""
+    preds = [predict(model, e) for e in experiments]
+    rows = np.array([nrmse(P, e.Y) for P, e in zip(preds, experiments)])
+    return {"names": [e.name for e in experiments], "rows": rows, "mean": rows.mean(0), "max": rows.max(0),
+            "preds": preds}

@@ -187,7 +187,7 @@ class MomentModel:
     def _casadi_rates(self):
         """The particle field (:meth:`rate_function`), wrapped to take and return lists."""
         self.rate_function()
-        return self._ca_steps["rates_wrapper"]
+        return self._ca_steps["rates"][1]
 
     def rate_function(self):
         """casadi.Function ``rates(y[4], a[5]) -> dy/dt[4]``: the particle field (cached).
@@ -205,8 +205,8 @@ class MomentModel:
         (2, 1)
         """
         if "rates" not in self._ca_steps:
-            self._ca_steps["rates"], self._ca_steps["rates_wrapper"] = eq.casadi_rate_field(self.const, self.coeffs)
-        return self._ca_steps["rates"]
+            self._ca_steps["rates"] = eq.casadi_rate_field(self.const, self.coeffs)  # (Function, list wrapper)
+        return self._ca_steps["rates"][0]
 
     def casadi_rhs(self):
         """casadi.Function ``f(x, u, p) -> dx/dt`` (per hour)."""
