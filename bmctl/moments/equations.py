@@ -288,8 +288,11 @@ def _inv_contact(B, a34_i, si, sj, s3_sum, cap_sum, uu):
     return B.sqrt(B.sqrt(B.sqrt(1.0 / (d_h4 * d_h4) + cap_sum)))
 
 
-def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
+def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool = False):
     """Rates (per hour of milling) of E[s], E[s^2], E[r], E[r^2] at speed w = rpm / rpm_max.
+
+    With ``events``, two more: bonding and fracture events per particle and hour of milling
+    (the plant's counts; d ln N / dt is their difference).
 
     The population is closed as s ~ log-normal(m, sd) (5 Gauss-Hermite nodes); at size node k
     the r law has mean r_k with logit r_k linear in ln s_k (slope ``r_size_corr``, mean rm) and
@@ -471,17 +474,20 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm):
     # r_var_gain blends the mean-field r^2 source with a pure shift of the r law (2 rm src1)
     src2 = gv * src2 + (1 - gv) * 2 * rm * src1
     dEr2 = rate * (src2 - round2 * Er2) - Er2 * g_N
+    if events:
+        return dEs, dEs2, dEr, dEr2, rate * 0.5 * Pb_sum, rate * Pf_sum
     return dEs, dEs2, dEr, dEr2
 
 
-def y_rates(B, c, q, y, T, h, w, bm, fm):
-    """dy/dt (per hour of milling) of the integration coordinates y."""
+def y_rates(B, c, q, y, T, h, w, bm, fm, events: bool = False):
+    """dy/dt (per hour of milling) of the integration coordinates y; with ``events``, followed by
+    the bonding and fracture events per particle and hour (:func:`raw_rates`)."""
     m, sd, rm, rho = y_to_state(B, y)
-    dEs, dEs2, dEr, dEr2 = raw_rates(B, c, q, m, sd, rm, rho, T, h, w, bm, fm)
-    return [dEs / m, dEs2 / (m * m + sd * sd), dEr, dEr2]
+    out = raw_rates(B, c, q, m, sd, rm, rho, T, h, w, bm, fm, events=events)
+    return [out[0] / m, out[1] / (m * m + sd * sd), out[2], out[3], *out[4:]]
 
 
-def casadi_rate_field(c, q, theta=None):
+def casadi_rate_field(c, q, theta=None, events: bool = False):
     """The particle field :func:`y_rates` as one casadi.Function and a list-in, list-out wrapper.
 
     Returns ``(F, rates)``: ``F(y[4], a[5][, theta]) -> dy/dt[4]`` with ``a`` = (T, h,
@@ -494,12 +500,12 @@ def casadi_rate_field(c, q, theta=None):
     y = ca.SX.sym("y", 4)
     a = ca.SX.sym("a", 5)  # T, h, w, bm, fm
     extra = [] if theta is None else [theta]
-    out = y_rates(CA(), c, q, [y[i] for i in range(4)], a[0], a[1], a[2], a[3], a[4])
+    out = y_rates(CA(), c, q, [y[i] for i in range(4)], a[0], a[1], a[2], a[3], a[4], events=events)
     F = ca.Function("moment_rates", [y, a] + extra, [ca.vertcat(*out)], {"cse": True})
 
     def rates(yl, T, h, w, bm, fm):
-        v = F(ca.vertcat(*yl), ca.vertcat(T, h, w, bm, fm), *extra)
-        return [v[i] for i in range(4)]
+        v = F(ca.vertcat(*yl[:4]), ca.vertcat(T, h, w, bm, fm), *extra)
+        return [v[i] for i in range(len(out))]
 
     return F, rates
 
@@ -568,7 +574,7 @@ def rkc_coefficients(stages: int, damping: float = 2.0 / 13.0) -> dict:
     return {"s": s, "mu": mu, "nu": nu, "mut": mut, "gamt": gamt, "c": c, "beta": beta}
 
 
-def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int, rates=None):
+def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int, rates=None, events: bool = False):
     """Advance over ``dt_h`` hours: mill ``milling * dt_h`` at rpm, then rest (as Plant.advance).
 
     Milling phase: ``n_sub`` substeps of RKC2 with ``stages`` stages in y coordinates,
@@ -576,11 +582,11 @@ def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int, rates=None):
     ``rates(y, T, h, w, bm, fm)`` defaults to :func:`y_rates` (a compiled casadi version of it
     makes symbolic construction fast).
     """
-    rates = rates or (lambda y, T, h, w, bm, fm: y_rates(B, c, q, y, T, h, w, bm, fm))
+    rates = rates or (lambda y, T, h, w, bm, fm: y_rates(B, c, q, y[:4], T, h, w, bm, fm, events=events))
     w = us[0] / c.rpm_max
     duty = us[1]
     bm, fm = ps[0], ps[1]
-    z = to_y(B, xs)
+    z = to_y(B, xs) + ([0.0, 0.0] if events else [])
     T0, h0 = xs[4], xs[5]
     t_mill = duty * dt_h
     hs = t_mill / n_sub
@@ -605,4 +611,4 @@ def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int, rates=None):
         t = t + hs
     T1, h1 = thermal_exact(B, c, T0, h0, w, t_mill)
     T2, h2 = thermal_exact(B, c, T1, h1, 0.0, dt_h - t_mill)
-    return state_to_x(B, *y_to_state(B, z)) + [T2, h2]
+    return state_to_x(B, *y_to_state(B, z[:4])) + [T2, h2] + list(z[4:])

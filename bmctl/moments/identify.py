@@ -62,6 +62,9 @@ class Experiment:
     S: np.ndarray  # (K + 1, 6) ensemble std across seeds
     dt_h: float = DT_H
     p: np.ndarray = field(default_factory=lambda: np.ones(2))  # the plant's (gamma, delta) factors
+    #: (K, 2) ensemble-mean bonding and fracture events per particle in each interval (the fit
+    #: does not use them; benchmarks/moments_events.py compares them with the model's)
+    events: np.ndarray | None = None
 
     @property
     def x0(self) -> np.ndarray:
@@ -157,6 +160,7 @@ def run_experiments(card: ModelCard, specs: Sequence[Spec], seeds: Sequence[int]
     from ..plant import make_plant
 
     runs: dict[str, list[np.ndarray]] = {s.name: [] for s in specs}
+    events: dict[str, list[np.ndarray]] = {s.name: [] for s in specs}
     cards = {f: (card if f == (1.0, 1.0) else with_factors(card, *f)) for f in {tuple(s.factors) for s in specs}}
     for sd in seeds:
         prefixes: dict[tuple, dict] = {}
@@ -170,11 +174,14 @@ def run_experiments(card: ModelCard, specs: Sequence[Spec], seeds: Sequence[int]
                 prefixes[key] = plant.snapshot()
             plant = make_plant(c, seed=int(sd), particles=particles)
             plant.restore(prefixes[key])
-            traj = [_plant_states(plant)]
+            traj, ev = [_plant_states(plant)], []
             for rpm, duty in spec.inputs:
+                M, b0, f0 = plant.M, plant.counts.bonds, plant.counts.fractures
                 plant.advance(rpm, DT_H, duty)
                 traj.append(_plant_states(plant))
+                ev.append(((plant.counts.bonds - b0) / M, (plant.counts.fractures - f0) / M))
             runs[spec.name].append(np.array(traj))
+            events[spec.name].append(np.array(ev).reshape(-1, 2))
             if progress is not None:
                 progress(f"seed {sd}: {spec.name}")
     out = []
@@ -182,7 +189,7 @@ def run_experiments(card: ModelCard, specs: Sequence[Spec], seeds: Sequence[int]
         A = np.stack(runs[spec.name])
         out.append(Experiment(spec.name, np.array(spec.inputs, dtype=float), A.mean(0),
                               A.std(0, ddof=1) if A.shape[0] > 1 else np.zeros_like(A[0]),
-                              p=np.array(spec.factors, dtype=float)))
+                              p=np.array(spec.factors, dtype=float), events=np.mean(events[spec.name], axis=0)))
     return out
 
 
