@@ -579,3 +579,19 @@ def test_event_rates_follow_the_plants_counts_on_the_recipe(name):
     assert np.all(C[-1] < 1e-4)  # the model's rates are smooth at rpm 0, so 'none' is < 1e-4
     lr = np.log(C[4:24] / e.events[4:24])
     assert np.all(np.abs(lr) <= 0.3), lr
+
+
+def test_event_counts_agree_in_numpy_and_casadi(model):
+    """The counters ride in the same step in both evaluators (the casadi rate field with events)."""
+    import casadi as ca
+
+    x, u = model.x0(), [420.0, 0.7]
+    n, st = model._integration(0.5)
+    _, rates = eq.casadi_rate_field(model.const, model.coeffs, events=True)
+    out = eq.step(eq.CA(), model.const, model.coeffs, [ca.DM(v) for v in x], u, [1.0, 1.0], 0.5, n, st,
+                  rates=rates, events=True)
+    got = np.array([float(ca.evalf(v)) for v in out])
+    want_x = model.step(x, u, 0.5)
+    want_c = model.event_counts(x, [u], 0.5)[0]
+    np.testing.assert_allclose(got[:6], want_x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(got[6:], want_c, rtol=1e-9)

@@ -493,7 +493,9 @@ def casadi_rate_field(c, q, theta=None, events: bool = False):
     Returns ``(F, rates)``: ``F(y[4], a[5][, theta]) -> dy/dt[4]`` with ``a`` = (T, h,
     rpm / rpm_max, gamma_mult, delta_mult), and ``rates(y, T, h, w, bm, fm)`` (the ``rates``
     argument of :func:`step`). ``theta``, when given, is a casadi symbol that ``q`` refers to
-    (the free coefficients of an identification); it becomes a third input of ``F``.
+    (the free coefficients of an identification); it becomes a third input of ``F``. With
+    ``events``, ``F`` has two more outputs, the bonding and fracture events per particle and hour
+    (pass ``events=True`` to :func:`step` with these ``rates`` too).
     """
     import casadi as ca
 
@@ -580,7 +582,9 @@ def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int, rates=None, 
     Milling phase: ``n_sub`` substeps of RKC2 with ``stages`` stages in y coordinates,
     T and h exact (closed form) at every stage time. Rest: particles unchanged, T and h exact.
     ``rates(y, T, h, w, bm, fm)`` defaults to :func:`y_rates` (a compiled casadi version of it
-    makes symbolic construction fast).
+    makes symbolic construction fast). With ``events`` the result has two more entries: the
+    bonding and fracture events per particle over the interval, integrated with the moments
+    (``rates`` must then return the event rates too).
     """
     rates = rates or (lambda y, T, h, w, bm, fm: y_rates(B, c, q, y[:4], T, h, w, bm, fm, events=events))
     w = us[0] / c.rpm_max
