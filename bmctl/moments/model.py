@@ -180,7 +180,7 @@ class MomentModel:
         >>> from bmctl.moments.model import make_moment_model
         >>> mm = make_moment_model("models/alni-1to1-300rpm-lab.toml")
         >>> C = mm.event_counts(mm.x0(), [[300.0, 1.0], [0.0, 1.0]], 1.0)
-        >>> bool(C[0, 0] > 0 and C[1, 0] == 0)
+        >>> bool(C[0, 0] > 1 and C[1, 0] < 1e-4)  # the rest: none (the rates are smooth at rpm 0)
         True
         """
         dt_h = float(dt_h)
