@@ -417,6 +417,19 @@ def test_identify_nan_in_card(tmp_path, capsys):
     assert not coeffs_path(card).exists()
 
 
+def test_identify_report_names_each_miss_and_its_margin():
+    """The report's verdict names every moment above the 5 % target with its margin, and says met only
+    when none is (NaN counts as a miss)."""
+    from bmctl.commands.identify import _target_line
+
+    names = ["s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c"]
+    line = _target_line(names, [0.032, 0.025, 0.055, 0.052, 0.0])
+    assert "NOT met" in line and "r_mean 5.5 % (+0.5 points)" in line and "r_std 5.2 % (+0.2 points)" in line
+    assert "s_mean_um" not in line and "temperature_c" not in line
+    assert _target_line(names, [0.05, 0.01, 0.02, 0.03, 0.0]).endswith(": met")
+    assert "s_std_um nan" in _target_line(names, [0.01, float("nan"), 0.02, 0.03, 0.0])
+
+
 def test_identify_out_is_a_folder(tmp_path, capsys):
     assert main(["identify", str(LAB), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -164,6 +164,26 @@ def _report(name, names, tab0, tab, tab_train) -> str:
     lines.append(f"{'max':<{w}}" + "".join(f"{100 * v:14.1f}%" for v in tab["max"][:5]))
     lines.append(f"{'mean, defaults':<{w}}" + "".join(f"{100 * v:14.1f}%" for v in tab0["mean"][:5]))
     lines.append(f"{'mean, training':<{w}}" + "".join(f"{100 * v:14.1f}%" for v in tab_train["mean"][:5]))
-    ok = all(v <= 0.05 for v in tab["mean"][:5])
-    lines.append("target <= 5 % on every moment (mean over schedules): " + ("met" if ok else "NOT met"))
+    lines.append(_target_line(names, tab["mean"]))
     return "\n".join(lines)
+
+
+#: issue 3's validation target: mean NRMSE over the held-out schedules, per moment
+TARGET_NRMSE = 0.05
+
+
+def _target_line(names, mean) -> str:
+    """The verdict on the target, naming each moment that misses it and by how much.
+
+    >>> _target_line(["s_mean_um", "r_mean", "r_std"], [0.032, 0.0551, 0.0522])  # doctest: +NORMALIZE_WHITESPACE
+    'target <= 5 % on every moment (mean over schedules): NOT met: r_mean 5.5 % (+0.5 points),
+     r_std 5.2 % (+0.2 points); why: docs/moments.md, Sec. 6'
+    >>> _target_line(["s_mean_um"], [0.032])
+    'target <= 5 % on every moment (mean over schedules): met'
+    """
+    head = f"target <= {100 * TARGET_NRMSE:g} % on every moment (mean over schedules): "
+    misses = [(n, float(v)) for n, v in zip(names, mean) if not float(v) <= TARGET_NRMSE]
+    if not misses:
+        return head + "met"
+    parts = ", ".join(f"{n} {100 * v:.1f} % (+{100 * (v - TARGET_NRMSE):.1f} points)" for n, v in misses)
+    return head + "NOT met: " + parts + "; why: docs/moments.md, Sec. 6"
