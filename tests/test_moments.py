@@ -428,6 +428,7 @@ def test_identify_report_names_each_miss_and_its_margin():
     assert "s_mean_um" not in line and "temperature_c" not in line
     assert _target_line(names, [0.05, 0.01, 0.02, 0.03, 0.0]).endswith(": met")
     assert "s_std_um nan" in _target_line(names, [0.01, float("nan"), 0.02, 0.03, 0.0])
+    assert "r_std 5.04 % (+0.04 points)" in _target_line(names, [0.01, 0.01, 0.02, 0.0504, 0.0])
 
 
 def test_identify_out_is_a_folder(tmp_path, capsys):
