@@ -360,7 +360,11 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool 
     # the net r a fracture creates depends on the parent's r twice, through its removal and through
     # the fragments' share of its perimeter, and one slope for both processes cannot set it
     rk, Er_nodes, v_w, Ef, r_b, r2_b, one_r = link(q["r_size_corr"])
-    _, _, _, Ef_f, r_b_f, r2_b_f, one_r_f = link(q["r_size_corr"] + q["frac_link_shift"])
+    shift = q["frac_link_shift"]
+    if isinstance(shift, (int, float)) and shift == 0:  # the same link: reuse it (defaults, numpy path)
+        Ef_f, r_b_f, r2_b_f, one_r_f = Ef, r_b, r2_b, one_r
+    else:
+        _, _, _, Ef_f, r_b_f, r2_b_f, one_r_f = link(q["r_size_corr"] + shift)
     # p = (bm, fm): the plant's gamma and delta relative to the card. They act where eqns (15) and
     # (20) put them, inside the saturation of p_b and p_c, so the averaged rates respond to them as
     # the plant's do (weakly where the probabilities saturate); nothing about the response is fitted.
