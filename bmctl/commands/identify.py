@@ -185,6 +185,7 @@ def _target_line(names, mean) -> str:
     misses = [(n, float(v)) for n, v in zip(names, mean) if not float(v) <= TARGET_NRMSE]
     if not misses:
         return head + "met"
+
     def miss(n, v):
         d = 100 * (v - TARGET_NRMSE)
         digits = 2 if d < 0.1 else 1  # a miss by 0.04 points must not read "+0.0"
