@@ -549,15 +549,20 @@ def test_design_more_random_schedules_extends_the_same_stream():
     from bmctl.moments import identify as ident
 
     card = load_card(LAB)
+    on_card = lambda specs: [s for s in specs if s.factors == (1.0, 1.0)]  # noqa: E731
     base = ident.design(card, 0)
     more = ident.design(card, 0, n_random=ident.N_RANDOM_TRAIN + 4)
     assert len(more) == len(base) + 4
-    for a, b in zip(base, more):
+    for a, b in zip(on_card(base), on_card(more)):
         assert a.name == b.name and a.inputs == b.inputs and a.prefix == b.prefix
-    extra = more[len(base):]
-    assert all(s.name.startswith("random-train-") for s in extra)
+    extra = on_card(more)[len(on_card(base)):]
+    assert len(extra) == 4 and all(s.name.startswith("random-train-") for s in extra)
     assert all(s.inputs != b.inputs for s in extra for b in base)
     assert len(ident.design(card, 0, quick=True, n_random=0)) == len(ident.design(card, 0, quick=True)) - 2
+    # the off-card training plants do not depend on n_random
+    off = lambda specs: [(s.name, s.factors, s.inputs) for s in specs if s.factors != (1.0, 1.0)]  # noqa: E731
+    assert off(base) == off(more) and len(off(base)) == len(ident.TRAIN_FACTORS) * (1 + ident.N_RANDOM_OFF_CARD)
+    assert {s[1] for s in off(base)} == set(ident.TRAIN_FACTORS)
 
 
 def test_event_counts_balance_the_particle_number(model):

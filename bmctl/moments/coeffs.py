@@ -40,6 +40,8 @@ SPEC: dict[str, tuple[float | None, float, float, str]] = {
     "frac_rpm_slope": (0.0, -6.0, 6.0, "empirical: ln fracture rate changes by this per unit rpm/rpm_max"),
     "r_size_corr": (0.0, -1.0, 6.0, "s-r closure: slope of logit E[r | s] in ln s (0 = mean field, r independent of s)"),
     "frac_link_shift": (0.0, -6.0, 6.0, "s-r closure: change of the link slope seen by the fracture terms (0 = the same link)"),
+    "r_link_cv_slope": (0.0, -3.0, 3.0, "s-r closure: change of the link slope per unit ln CV^2 of r (where r sits on a few irregular particles)"),
+    "frac_link_cv_shift": (0.0, -3.0, 3.0, "s-r closure: change of the fracture link's extra slope per unit ln CV^2 of r"),
 }
 
 NAMES = tuple(SPEC)

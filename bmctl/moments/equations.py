@@ -288,6 +288,11 @@ def _inv_contact(B, a34_i, si, sj, s3_sum, cap_sum, uu):
     return B.sqrt(B.sqrt(B.sqrt(1.0 / (d_h4 * d_h4) + cap_sum)))
 
 
+def _zero(v) -> bool:
+    """True for a plain number equal to 0 (not a casadi symbol): the term it scales can be left out."""
+    return isinstance(v, (int, float)) and v == 0
+
+
 def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool = False):
     """Rates (per hour of milling) of E[s], E[s^2], E[r], E[r^2] at speed w = rpm / rpm_max.
 
@@ -359,12 +364,17 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool 
     # 1/(1-r), fragment perimeters) see slope beta + `frac_link_shift` (docs/moments.md, Sec. 2):
     # the net r a fracture creates depends on the parent's r twice, through its removal and through
     # the fragments' share of its perimeter, and one slope for both processes cannot set it
-    rk, Er_nodes, v_w, Ef, r_b, r2_b, one_r = link(q["r_size_corr"])
-    shift = q["frac_link_shift"]
-    if isinstance(shift, (int, float)) and shift == 0:  # the same link: reuse it (defaults, numpy path)
+    # both slopes grow with ln CV^2 of r (`r_link_cv_slope`, `frac_link_cv_shift`): where most particles
+    # are round, r sits on a few large irregular ones and the plant's link is steeper (Sec. 6, stop 19)
+    k_cv, k_fcv = q.get("r_link_cv_slope", 0.0), q.get("frac_link_cv_shift", 0.0)
+    lncv2 = B.log(rho * rho * om / rm)  # ln (r_std / r_mean)^2 of the realisable state
+    beta = q["r_size_corr"] if _zero(k_cv) else q["r_size_corr"] + k_cv * lncv2
+    rk, Er_nodes, v_w, Ef, r_b, r2_b, one_r = link(beta)
+    shift = q["frac_link_shift"] if _zero(k_fcv) else q["frac_link_shift"] + k_fcv * lncv2
+    if _zero(shift):  # the same link: reuse it (defaults, numpy path)
         Ef_f, r_b_f, r2_b_f, one_r_f = Ef, r_b, r2_b, one_r
     else:
-        _, _, _, Ef_f, r_b_f, r2_b_f, one_r_f = link(q["r_size_corr"] + shift)
+        _, _, _, Ef_f, r_b_f, r2_b_f, one_r_f = link(beta + shift)
     # p = (bm, fm): the plant's gamma and delta relative to the card. They act where eqns (15) and
     # (20) put them, inside the saturation of p_b and p_c, so the averaged rates respond to them as
     # the plant's do (weakly where the probabilities saturate); nothing about the response is fitted.

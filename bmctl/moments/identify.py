@@ -34,6 +34,9 @@ HOURS = 12.0
 MOMENTS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening")
 FIT_IDX = (0, 1, 2, 3)
 N_RANDOM_TRAIN = 16  # random schedules in the training design (docs/moments.md, Sec. 6)
+#: (gamma, delta) factors of the training plants off the card, and random schedules on each
+TRAIN_FACTORS = ((1.15, 0.85), (0.85, 1.15))
+N_RANDOM_OFF_CARD = 3
 N_VALID = 24  # held-out random schedules: the standard error of their mean NRMSE is ~0.3-0.8 points
 
 
@@ -125,6 +128,14 @@ def design(card: ModelCard, seed: int = 0, quick: bool = False, n_random: int | 
         n_random = 2 if quick else N_RANDOM_TRAIN
     for k in range(int(n_random)):
         specs.append(Spec(f"random-train-{k}", random_schedule(rng, R)))
+    # plants off the card (TRAIN_FACTORS, half the off-card check's +-30 %): the fit sees how the
+    # plant answers gamma and delta, which the particle filter estimates through the model
+    # (docs/moments.md, Sec. 6, stop 19); their schedules come from their own stream [seed, 4]
+    grng = np.random.default_rng([seed, 4])
+    for g, d in TRAIN_FACTORS:
+        specs.append(Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, card.process.rpm, 1.0)]), factors=(g, d)))
+        for k in range(1 if quick else N_RANDOM_OFF_CARD):
+            specs.append(Spec(f"random-g{g:g}-d{d:g}-{k}", random_schedule(grng, R), factors=(g, d)))
     return specs
 
 
@@ -273,7 +284,8 @@ class _Sym:
 FREE = ("bond_log_scale", "bond_slope", "bond_offset", "frac_log_scale", "frac_slope", "frac_offset",
         "round_log_scale", "round_size_bias", "round_var_log_scale", "round_rpm_slope",
         "round_var_rpm_slope", "bond_ds_gain", "frac_ds_gain", "bond_r_gain", "frac_r_gain", "r_var_gain",
-        "r_size_corr", "frac_link_shift", "bond_rpm_slope", "frac_rpm_slope")
+        "r_size_corr", "frac_link_shift", "r_link_cv_slope", "frac_link_cv_shift", "bond_rpm_slope",
+        "frac_rpm_slope")
 
 
 @dataclass
