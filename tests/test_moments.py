@@ -301,9 +301,10 @@ def test_response_to_gamma_delta_follows_the_plant(model):
     """p = the plant's (gamma, delta) factors act inside eqns (15) and (20), nothing fitted: the
     model told p must follow plants with gamma, delta 30 % off the card. Compared: ln of the
     s_mean ratio (off-card / card) at 1-4 h of the lab recipe, plant ensemble (2 seeds x 3000)
-    against the model. Tolerance 0.15 (measured: 0.07 and 0.13; the seed noise of a ratio is
-    ~0.03); the structure it replaced (p multiplying the averaged rates c_b, c_f) is 0.29 and
-    0.21 off."""
+    against the model. Tolerance 0.08 (measured on the stop-19 coefficients: 0.041 and 0.037;
+    0.07 and 0.13 on the stop-15 ones, when the tolerance was 0.15; the seed noise of a ratio is
+    ~0.03). The structure it replaced (p multiplying the averaged rates c_b, c_f) is 0.31 and
+    0.06 off: worse on both plants, and outside the tolerance on the first."""
     from bmctl.config import with_factors
     from bmctl.moments.model import MomentModel
     from bmctl.plant.plant import Plant
@@ -322,18 +323,21 @@ def test_response_to_gamma_delta_follows_the_plant(model):
     U = [[300.0, 1.0]] * 4
     base_plant = plant_s(model.card)
     base_model = model.simulate(model.x0(), U, 1.0)[1:, 0]
+    tol, direct_errs = 0.08, []
     for p in [(1.3, 0.7), (0.7, 1.3)]:
         plant_ratio = np.log(plant_s(with_factors(model.card, *p)) / base_plant)
         model_ratio = np.log(model.simulate(model.x0(), U, 1.0, p=np.array(p))[1:, 0] / base_model)
         assert np.sign(plant_ratio[-1]) == np.sign(model_ratio[-1])
         err = np.max(np.abs(model_ratio - plant_ratio))
-        assert err < 0.15, (p, plant_ratio, model_ratio)
+        assert err < tol, (p, plant_ratio, model_ratio)
         # the test can fail: p as direct multipliers on the averaged rates misses by more
         direct = MomentModel(model.card, {**model.coeffs,
                                           "bond_log_scale": model.coeffs["bond_log_scale"] + np.log(p[0]),
                                           "frac_log_scale": model.coeffs["frac_log_scale"] + np.log(p[1])}, "direct")
         direct_ratio = np.log(direct.simulate(direct.x0(), U, 1.0)[1:, 0] / base_model)
-        assert np.max(np.abs(direct_ratio - plant_ratio)) > err + 0.05, (p, plant_ratio, direct_ratio)
+        direct_errs.append(np.max(np.abs(direct_ratio - plant_ratio)))
+        assert direct_errs[-1] > err, (p, plant_ratio, direct_ratio)
+    assert max(direct_errs) > tol + 0.05, direct_errs
 
 
 # --- linear analysis ---------------------------------------------------------------------------
