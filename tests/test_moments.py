@@ -618,3 +618,28 @@ def test_event_counts_agree_in_numpy_and_casadi(model):
     want_c = model.event_counts(x, [u], 0.5)[0]
     np.testing.assert_allclose(got[:6], want_x, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(got[6:], want_c, rtol=1e-9)
+
+
+def test_cv_link_coefficients_steepen_the_link_where_r_is_spread():
+    """``r_link_cv_slope`` and ``frac_link_cv_shift`` (docs/moments.md, Sec. 2, stop 19): at 0 the
+    field is the one without them, bit for bit; the fracture one acts on the fracture terms only;
+    and the link they set depends on the state's CV of r (two states with the same r_mean)."""
+    model = make_moment_model(LAB)
+    c = model.const
+    q0 = {k: v for k, v in model.coeffs.items() if k not in ("r_link_cv_slope", "frac_link_cv_shift")}
+    m, sd, T, h = 45.0, 25.0, 45.0, 0.3
+
+    def rates(rm, rs, **over):
+        rho = rs / math.sqrt(rm * (1 - rm))
+        return np.array(eq.raw_rates(eq.NP, c, {**q0, **over}, m, sd, rm, rho, T, h, 0.5, 1.0, 1.0))
+
+    base = rates(0.12, 0.11)
+    assert np.array_equal(base, rates(0.12, 0.11, r_link_cv_slope=0.0, frac_link_cv_shift=0.0))
+    off_a = rates(0.12, 0.11, frac_log_scale=-40.0, frac_link_cv_shift=-1.0)
+    off_b = rates(0.12, 0.11, frac_log_scale=-40.0, frac_link_cv_shift=1.0)
+    assert np.allclose(off_a, off_b, rtol=1e-12, atol=0)
+    for k in ("r_link_cv_slope", "frac_link_cv_shift"):
+        assert abs(rates(0.12, 0.11, **{k: 1.0})[2] - base[2]) > 1e-3 * abs(base[2])
+    # k ln CV^2 with CV = 1 adds nothing to the slope; at another CV it does
+    assert np.allclose(rates(0.1, 0.1, r_link_cv_slope=1.0), rates(0.1, 0.1), rtol=1e-9, atol=0)
+    assert not np.allclose(rates(0.1, 0.2, r_link_cv_slope=1.0), rates(0.1, 0.2), rtol=1e-6, atol=0)
