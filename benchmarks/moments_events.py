@@ -32,10 +32,14 @@ from bmctl.moments.model import make_moment_model  # noqa: E402
 EPS = 0.01  # events per particle added to both counts before the log ratio
 
 
-def log_ratios(model, e) -> np.ndarray:
-    """ln((model + EPS) / (plant + EPS)) of (bonds, fractures) on the milling intervals of ``e``."""
+def milling(e) -> np.ndarray:
+    """Mask of the intervals of ``e`` with milling (rpm > 0 and a milling share > 0)."""
+    return e.U[:, 0] * e.U[:, 1] > 0
+
+
+def log_ratios(model, e, mill) -> np.ndarray:
+    """ln((model + EPS) / (plant + EPS)) of (bonds, fractures) on the intervals ``mill`` of ``e``."""
     C = model.event_counts(e.x0, e.U, e.dt_h, e.p)
-    mill = e.U[:, 0] * e.U[:, 1] > 0
     return np.log((C[mill] + EPS) / (e.events[mill] + EPS))
 
 
@@ -57,11 +61,11 @@ def main(argv=None) -> int:
         print(f"{'run':<24}{'bonds':>24}{'fractures':>24}{'plant bonds/h':>15}{'fractures/h':>13}")
         allr = []
         for e in runs:
-            lr = log_ratios(model, e)
+            mill = milling(e)
+            lr = log_ratios(model, e, mill)
             if lr.size == 0:
                 continue
             allr.append(lr)
-            mill = e.U[:, 0] * e.U[:, 1] > 0
             per_h = e.events[mill].sum(0) / (e.dt_h * e.U[mill, 1].sum())
             cells = "".join(f"{v.mean():+10.3f} [{v.min():+.2f}, {v.max():+.2f}]" for v in lr.T)
             print(f"{e.name:<24}{cells}{per_h[0]:15.2f}{per_h[1]:13.2f}")

@@ -587,7 +587,8 @@ def test_event_rates_follow_the_plants_counts_on_the_recipe(name):
     per particle that the model predicts on the card's recipe (12 h at the process rpm, then a
     0.5-h rest) are compared with a plant's (seed 0, M = 4000), per 0.5-h interval from 2 h on.
     Bound: |ln(model / plant)| <= 0.3 (35 %) per interval, what docs/moments.md (Sec. 6) states
-    for the recipe; measured 2-12 h: -0.02 ... +0.23 on the three cards, seeds 0 and 1. The rest
+    for the recipe; measured 2-12 h: -0.12 ... +0.18 on the three cards, seeds 0 and 1 (stop-19
+    coefficients; -0.02 ... +0.23 on the stop-15 ones). The rest
     interval records no plant events, and < 1e-4 per particle in the model (its rates are smooth
     at rpm 0)."""
     from bmctl.config import load_card
