@@ -1,12 +1,14 @@
 """Confirmation set of the moment model: held-out schedules that no fitting choice looked at.
 
 Run:  python benchmarks/moments_confirm.py MODEL.toml [COEFFS.toml ...] [--schedules N]
+                                            [--stream K] [--seeds S ...]
 
 Draws N (default 24) random 12 h schedules from a stream that ``bmctl identify`` never uses
 (``numpy.random.default_rng([0, 3])``; identify trains on ``[seed, 1]`` and validates on
 ``[seed, 2]``), runs them on plants seeded 21-23 (M = 4000, like identify's validation) and
 prints the mean NRMSE (and its standard error over the schedules) of each coefficient file,
-default: the card's own ``models/<card>.moments.toml``. docs/moments.md, Sec. 6, reports it.
+default: the card's own ``models/<card>.moments.toml``. ``--stream 5 --seeds 31 32 33`` gives the
+fresh set of stop 20. docs/moments.md, Sec. 6, reports both.
 About 1 min of plant runs per card on one core.
 """
 
@@ -37,13 +39,20 @@ def main(argv=None) -> int:
     ap.add_argument("model", help="model card (models/*.toml)")
     ap.add_argument("coeffs", nargs="*", help="coefficient files (default: the card's own)")
     ap.add_argument("--schedules", type=int, default=24)
+    ap.add_argument("--stream", type=int, default=STREAM,
+                    help=f"random stream [0, STREAM] of the schedules (default {STREAM}; 2 is identify's validation)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(SEEDS), help="plant seeds (default 21 22 23)")
     args = ap.parse_args(argv)
+    if args.stream in (1, 2, 4):
+        ap.error(f"--stream {args.stream} is one of identify's own streams (1 training, 2 validation, "
+                 "4 off-card training); pick another")
     card = load_card(args.model)
     files = args.coeffs or [str(coeffs_path(args.model))]
     t0 = time.time()
-    runs = ident.run_experiments(card, ident.validation_design(card, 0, args.schedules, STREAM), SEEDS, PARTICLES)
-    print(f"{card.card.name}: {args.schedules} confirmation schedules x {len(SEEDS)} seeds, M={PARTICLES} "
-          f"({time.time() - t0:.0f} s of plant runs)")
+    runs = ident.run_experiments(card, ident.validation_design(card, 0, args.schedules, args.stream), args.seeds,
+                                 PARTICLES)
+    print(f"{card.card.name}: {args.schedules} schedules of stream [0, {args.stream}] x {len(args.seeds)} seeds, "
+          f"M={PARTICLES} ({time.time() - t0:.0f} s of plant runs)")
     names = ident.MOMENTS[:4]
     print(f"{'coefficients':<48}" + "".join(f"{n:>18}" for n in names))
     for f in files:
