@@ -3,12 +3,12 @@
 Run:  python benchmarks/moments_events.py MODEL.toml [COEFFS.toml ...] [--particles M]
 
 Runs the training design of ``bmctl identify MODEL.toml --seed 0`` (the same experiments,
-plant seeds 1-2, M = 4000 by default) and compares, per run, the bonding and fracture events
+plant seeds 1-4, M = 4000 by default) and compares, per run, the bonding and fracture events
 per particle in each 0.5-h interval that the moment model predicts (``MomentModel.event_counts``,
 started from the plant's ensemble mean) with the plant's counts. Prints the mean (and range)
 over the milling intervals of ln(model / plant) (+0.01 in both, for near-idle intervals), and
 the plant's events per particle-hour. The fit does not see these counts, so the table tests
-the rates the trajectories imply. About 1 min of plant runs per card on one core.
+the rates the trajectories imply. About 2.5 min of plant runs per card on one core.
 docs/moments.md, Sec. 6, reports it.
 """
 
@@ -52,7 +52,7 @@ def main(argv=None) -> int:
     card = load_card(args.model)
     files = args.coeffs or [str(coeffs_path(args.model))]
     t0 = time.time()
-    runs = ident.run_experiments(card, ident.design(card, 0), (1, 2), args.particles)
+    runs = ident.run_experiments(card, ident.design(card, 0), ident.TRAIN_SEEDS, args.particles)
     print(f"{card.card.name}: {len(runs)} training runs x 2 seeds, M={args.particles} "
           f"({time.time() - t0:.0f} s of plant runs)")
     for f in files:

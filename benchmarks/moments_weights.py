@@ -6,7 +6,7 @@ Run:  python benchmarks/moments_weights.py MODEL.toml [--weights 1,1,2,1.5 ...] 
 
 Runs the experiments of ``bmctl identify MODEL.toml --seed 0`` (training, held-out, off-card;
 the same seeds and M) and the confirmation set of ``benchmarks/moments_confirm.py`` once, about
-3.5 min of plant runs per card on one core (``--cache FILE`` keeps them in FILE, a pickle, and
+5 min of plant runs per card on one core (``--cache FILE`` keeps them in FILE, a pickle, and
 reads them from it the next time). Then, for each ``--weights`` (s_mean, s_std, r_mean, r_std;
 default 1,1,1,1, which reproduces the shipped fit), it fits the identified coefficients from the
 built-in defaults like ``identify.fit`` does, and with ``--balanced`` adds a warm-started second
@@ -37,12 +37,12 @@ from bmctl.moments import identify as ident  # noqa: E402
 from bmctl.moments.model import MomentModel, default_coeffs  # noqa: E402
 
 
-def experiments(card) -> dict:
+def experiments(card, train_seeds=ident.TRAIN_SEEDS, n_valid: int = ident.N_VALID) -> dict:
     """identify's training, held-out and off-card runs (seed 0) and the confirmation set."""
     valid_seeds = [11, 12, 13]
     return {
-        "train": ident.run_experiments(card, ident.design(card, 0), [1, 2], PARTICLES),
-        "held-out": ident.run_experiments(card, ident.validation_design(card, 0), valid_seeds, PARTICLES),
+        "train": ident.run_experiments(card, ident.design(card, 0), train_seeds, PARTICLES),
+        "held-out": ident.run_experiments(card, ident.validation_design(card, 0, n_valid), valid_seeds, PARTICLES),
         "confirmation": ident.run_experiments(card, ident.validation_design(card, 0, 24, STREAM), SEEDS,
                                               PARTICLES),
         "off-card": ident.run_experiments(card, ident.off_card_design(card), valid_seeds, PARTICLES),
@@ -80,6 +80,10 @@ def main(argv=None) -> int:
                     help="weights of s_mean, s_std, r_mean, r_std (repeatable; default 1,1,1,1)")
     ap.add_argument("--balanced", action="store_true", help="add the balanced second stage to each fit")
     ap.add_argument("--cache", type=Path, help="pickle file that keeps the plant runs between calls")
+    ap.add_argument("--train-seeds", type=int, nargs="+", default=list(ident.TRAIN_SEEDS),
+                    help=f"training plant seeds (default {' '.join(map(str, ident.TRAIN_SEEDS))}; stop 20's table: 1 2)")
+    ap.add_argument("--valid-schedules", type=int, default=ident.N_VALID,
+                    help=f"held-out schedules (default {ident.N_VALID}; stop 20's table: 24)")
     args = ap.parse_args(argv)
     card = load_card(args.model)
     t0 = time.time()
@@ -87,7 +91,7 @@ def main(argv=None) -> int:
         with open(args.cache, "rb") as fh:
             runs = pickle.load(fh)
     else:
-        runs = experiments(card)
+        runs = experiments(card, args.train_seeds, args.valid_schedules)
         if args.cache is not None:
             tmp = args.cache.with_name(args.cache.name + ".part")
             with open(tmp, "wb") as fh:
