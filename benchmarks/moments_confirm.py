@@ -34,6 +34,11 @@ SEEDS = (21, 22, 23)
 PARTICLES = 4000
 
 
+def confirmation_runs(card, schedules: int = 24, stream: int = STREAM, seeds=SEEDS) -> list:
+    """Plant-ensemble runs of ``schedules`` random schedules from stream ``[0, stream]``."""
+    return ident.run_experiments(card, ident.validation_design(card, 0, schedules, stream), seeds, PARTICLES)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("model", help="model card (models/*.toml)")
@@ -49,8 +54,7 @@ def main(argv=None) -> int:
     card = load_card(args.model)
     files = args.coeffs or [str(coeffs_path(args.model))]
     t0 = time.time()
-    runs = ident.run_experiments(card, ident.validation_design(card, 0, args.schedules, args.stream), args.seeds,
-                                 PARTICLES)
+    runs = confirmation_runs(card, args.schedules, args.stream, args.seeds)
     print(f"{card.card.name}: {args.schedules} schedules of stream [0, {args.stream}] x {len(args.seeds)} seeds, "
           f"M={PARTICLES} ({time.time() - t0:.0f} s of plant runs)")
     names = ident.MOMENTS[:4]

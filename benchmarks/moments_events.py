@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     files = args.coeffs or [str(coeffs_path(args.model))]
     t0 = time.time()
     runs = ident.run_experiments(card, ident.design(card, 0), ident.TRAIN_SEEDS, args.particles)
-    print(f"{card.card.name}: {len(runs)} training runs x 2 seeds, M={args.particles} "
+    print(f"{card.card.name}: {len(runs)} training runs x {len(ident.TRAIN_SEEDS)} seeds, M={args.particles} "
           f"({time.time() - t0:.0f} s of plant runs)")
     for f in files:
         model = make_moment_model(card, f)

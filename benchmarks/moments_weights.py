@@ -30,7 +30,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE.parent), str(HERE)]
 
-from moments_confirm import PARTICLES, SEEDS, STREAM  # noqa: E402
+from moments_confirm import PARTICLES, confirmation_runs  # noqa: E402
 
 from bmctl.config import load_card  # noqa: E402
 from bmctl.moments import identify as ident  # noqa: E402
@@ -39,12 +39,11 @@ from bmctl.moments.model import MomentModel, default_coeffs  # noqa: E402
 
 def experiments(card, train_seeds=ident.TRAIN_SEEDS, n_valid: int = ident.N_VALID) -> dict:
     """identify's training, held-out and off-card runs (seed 0) and the confirmation set."""
-    valid_seeds = [11, 12, 13]
+    valid_seeds = ident.VALID_SEEDS
     return {
         "train": ident.run_experiments(card, ident.design(card, 0), train_seeds, PARTICLES),
         "held-out": ident.run_experiments(card, ident.validation_design(card, 0, n_valid), valid_seeds, PARTICLES),
-        "confirmation": ident.run_experiments(card, ident.validation_design(card, 0, 24, STREAM), SEEDS,
-                                              PARTICLES),
+        "confirmation": confirmation_runs(card),
         "off-card": ident.run_experiments(card, ident.off_card_design(card), valid_seeds, PARTICLES),
     }
 
@@ -81,7 +80,8 @@ def main(argv=None) -> int:
     ap.add_argument("--balanced", action="store_true", help="add the balanced second stage to each fit")
     ap.add_argument("--cache", type=Path, help="pickle file that keeps the plant runs between calls")
     ap.add_argument("--train-seeds", type=int, nargs="+", default=list(ident.TRAIN_SEEDS),
-                    help=f"training plant seeds (default {' '.join(map(str, ident.TRAIN_SEEDS))}; stop 20's table: 1 2)")
+                    help=f"training plant seeds (default {' '.join(map(str, ident.TRAIN_SEEDS))}; "
+                         "stop 20's table: 1 2)")
     ap.add_argument("--valid-schedules", type=int, default=ident.N_VALID,
                     help=f"held-out schedules (default {ident.N_VALID}; stop 20's table: 24)")
     args = ap.parse_args(argv)

@@ -63,7 +63,7 @@ def run(args) -> int:
     figs = output_path(args.figures, "--figures") if args.figures is not None else None
     particles = args.particles or (2000 if args.quick else 4000)
     train_seeds = [1000 * args.seed + k for k in ((1,) if args.quick else ident.TRAIN_SEEDS)]
-    valid_seeds = [1000 * args.seed + k for k in ((11, 12) if args.quick else (11, 12, 13))]
+    valid_seeds = [1000 * args.seed + k for k in ((11, 12) if args.quick else ident.VALID_SEEDS)]
     t0 = time.time()
 
     def log(msg):
