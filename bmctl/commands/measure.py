@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     bar_um = check_scale(args.scale_bar_um, "--scale-bar-um") if args.scale_bar_um is not None else None
     if args.out:
         output_path(args.out, folder=False)
-    tables, locs, lines, results, reports = [], [], [], [], []
+    tables, locs, lines, results, reports, warned = [], [], [], [], [], []
     next_id = 1
     for path in args.inputs:
         if _is_table(path):
@@ -97,8 +97,7 @@ def run(args: argparse.Namespace) -> int:
             excl = f", data bar from row {res.info_bar_row} excluded" if res.info_bar_row is not None else ""
             lines.append(f"{path}: {len(t)} particles; {res.scale.um_per_px:.5g} um/px from {res.scale.source} "
                          f"({res.scale.detail}){excl}; min area {res.min_area_px} px")
-            for w in res.warnings:
-                print(f"bmctl: warning: {path}: {w.message}", file=sys.stderr)
+            warned += [f"bmctl: warning: {path}: {w.message}" for w in res.warnings]
         ids = np.arange(next_id, next_id + len(t))
         next_id += len(t)
         tables.append(t)
@@ -126,6 +125,8 @@ def run(args: argparse.Namespace) -> int:
         write_text(folder / "measure.json", json.dumps(doc, indent=2) + "\n")
         write_table(args.out, table, loc)
     summ = table.summary()
+    for w in warned:  # only once every input is read: a bad input still prints one line
+        print(w, file=sys.stderr)
     print("\n".join(lines))
     print(f"measure: {summ['count']} particles, median s = {summ['s_median_um']:.4g} um, median r = {summ['r_median']:.3f}"
           + (f"; wrote {args.out}, {Path(args.out).parent / 'measure.json'}" + (f" and {len(written)} overlay(s)" if written else "")

@@ -115,7 +115,7 @@ def _fei_xl(value, width_px: int) -> tuple[float, str] | None:
 def _zeiss(value) -> tuple[float, str] | None:
     if isinstance(value, dict):
         for key, item in value.items():
-            if key == "ap_image_pixel_size" or (isinstance(item, tuple) and item and item[0] == "Image Pixel Size"):
+            if key in ("ap_pixel_size", "ap_image_pixel_size") or (isinstance(item, tuple) and item and item[0] == "Image Pixel Size"):
                 if isinstance(item, tuple) and len(item) >= 3 and _unit_to_um(str(item[2])):
                     return float(item[1]) * _unit_to_um(str(item[2])), f"Zeiss tag 34118 Image Pixel Size = {item[1]} {item[2]}"
         return None
