@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from bmctl.measure import load_image, measure_image, micrograph_sample, render_micrograph
+from bmctl.measure.micrograph import measure_micrograph
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data"
 
@@ -45,6 +46,8 @@ def main() -> int:
     if tif.exists():
         img2 = load_image(tif)
         rows.append(("segment + measure, SiO2 712x423 cropped (~500 particles)", _time(lambda: measure_image(img2, 0.0368, crop="0:423,:"), args.repeat)))
+        rows.append(("measure_micrograph, SiO2 712x484 (scale from metadata, data bar found, checks)",
+                     _time(lambda: measure_micrograph(tif), args.repeat)))
     rng = np.random.default_rng(1)
     s = rng.lognormal(np.log(40.0), 0.4, 10000)
     r = np.clip(rng.gamma(2.0, 0.03, 10000), 0, 0.6)

@@ -1,30 +1,58 @@
 """Segment micrographs into per-particle size s and aspect ratio r (and pass particle tables through).
 
-Each IMAGE is segmented (:func:`bmctl.measure.segment.segment`) and its particles measured
-in micrometres; a ``.csv`` argument is read as a particle table instead
-(:func:`bmctl.measure.tables.read_table`) and normalised. All inputs are pooled into one
-table ``area_um2,perimeter_um,s_um,r`` written atomically to ``--out``; nothing is written
-when any input is bad.
+Each IMAGE is measured by :func:`bmctl.measure.micrograph.measure_micrograph`: the data bar at
+the bottom is detected and excluded, the pixel size is read from the instrument's metadata
+(or from the scale bar, given its length), specks are dropped, and the particles measured in
+micrometres. A ``.csv`` argument is read as a particle table instead
+(:func:`bmctl.measure.tables.read_table`) and normalised. All inputs are pooled into one table
+``particle_id,image,x_um,y_um,area_um2,perimeter_um,s_um,r`` written atomically to ``--out``,
+with an overlay PNG per image (outlines and particle ids) and ``measure.json`` (scale and how
+it was found, exclusions, counts, warnings) beside it; nothing is written when any input is bad.
+Warnings on likely-wrong results go to stderr.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import InputError
-from ..measure.segment import MIN_AREA_PX, check_scale, measure_labels, parse_crop, segment
-from ..measure.tables import ParticleTable, read_table, write_table
+from ..io import write_text
+from ..measure.micrograph import measure_micrograph
+from ..measure.overlay import write_overlay
+from ..measure.scale import check_scale
+from ..measure.tables import ParticleLocations, ParticleTable, read_table, write_table
 from ._args import output_path
+
+
+def _min_area(text: str):
+    if text == "auto":
+        return "auto"
+    try:
+        v = int(text)
+    except ValueError:
+        raise InputError(f"--min-area-px: expected a number of px or 'auto' (got {text!r})") from None
+    if v < 1:
+        raise InputError(f"--min-area-px: must be >= 1 (got {v})")
+    return v
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``measure`` arguments."""
     parser.add_argument("inputs", nargs="+", metavar="IMAGE", help="micrograph(s) (png/tif/...) or particle table(s) (.csv)")
-    parser.add_argument("--um-per-px", type=float, default=None, metavar="X", help="pixel size in micrometres (required for images)")
-    parser.add_argument("--out", default=None, metavar="CSV", help="write the pooled particle table here")
-    parser.add_argument("--min-area-px", type=int, default=MIN_AREA_PX, metavar="N", help=f"drop blobs below N px (default {MIN_AREA_PX})")
-    parser.add_argument("--crop", default=None, metavar="Y0:Y1,X0:X1", help="keep this window, e.g. 0:423,: to cut an info bar")
+    parser.add_argument("--um-per-px", type=float, default=None, metavar="X", help="pixel size in micrometres (overrides the image metadata)")
+    parser.add_argument("--scale-bar-um", type=float, default=None, metavar="L",
+                        help="length of the scale bar on the image, in um (used when the metadata has no pixel size)")
+    parser.add_argument("--out", default=None, metavar="CSV", help="write the pooled particle table here (overlays and measure.json beside it)")
+    parser.add_argument("--min-area-px", type=_min_area, default="auto", metavar="N",
+                        help="drop blobs below N px (default auto: 1/100 of the area-weighted median particle area, at least 30)")
+    parser.add_argument("--crop", default=None, metavar="Y0:Y1,X0:X1", help="keep this window only")
+    parser.add_argument("--keep-info-bar", action="store_true", help="do not detect and exclude the data bar at the bottom")
+    parser.add_argument("--no-overlay", action="store_true", help="do not write the overlay PNGs")
     parser.add_argument("--dark-particles", action="store_true", help="particles darker than the background")
     parser.add_argument("--no-flatten", action="store_true", help="skip the background flattening")
 
@@ -33,34 +61,74 @@ def _is_table(path: str) -> bool:
     return Path(path).suffix.lower() == ".csv"
 
 
+def _overlay_names(results, folder: Path) -> list[Path]:
+    names, seen = [], set()
+    for res in results:
+        stem = Path(res.name).stem
+        cand, k = f"{stem}.overlay.png", 2
+        while cand in seen:
+            cand, k = f"{stem}-{k}.overlay.png", k + 1
+        seen.add(cand)
+        names.append(folder / cand)
+    return names
+
+
 def run(args: argparse.Namespace) -> int:
-    """Measure all inputs, print a summary, write ``--out``; bad input raises InputError."""
+    """Measure all inputs, print a summary and warnings, write ``--out`` and what goes beside it."""
     scale = check_scale(args.um_per_px) if args.um_per_px is not None else None
-    if args.min_area_px < 1:
-        raise InputError(f"--min-area-px: must be >= 1 (got {args.min_area_px})")
-    crop = parse_crop(args.crop) if args.crop is not None else None
+    bar_um = check_scale(args.scale_bar_um, "--scale-bar-um") if args.scale_bar_um is not None else None
     if args.out:
         output_path(args.out, folder=False)
-    images = [p for p in args.inputs if not _is_table(p)]
-    if images and scale is None:
-        raise InputError(f"--um-per-px: required to measure images ({images[0]})")
-    tables, lines = [], []
+    tables, locs, lines, results, reports, warned = [], [], [], [], [], []
+    next_id = 1
     for path in args.inputs:
         if _is_table(path):
             t = read_table(path)
+            x = y = np.full(len(t), np.nan)
+            lines.append(f"{path}: {len(t)} particles (table)")
+            reports.append({"table": path, "count": len(t)})
         else:
-            seg = segment(path, min_area_px=args.min_area_px, crop=crop, flatten=not args.no_flatten,
-                          dark_particles=args.dark_particles)
-            t = measure_labels(seg.labels, scale)
+            res = measure_micrograph(path, um_per_px=scale, scale_bar_um=bar_um, keep_info_bar=args.keep_info_bar,
+                                     min_area_px=args.min_area_px, crop=args.crop, flatten=not args.no_flatten,
+                                     dark_particles=args.dark_particles)
+            t, x, y = res.table, res.x_um, res.y_um
+            results.append(res)
+            reports.append(res.report())
+            excl = f", data bar from row {res.info_bar_row} excluded" if res.info_bar_row is not None else ""
+            lines.append(f"{path}: {len(t)} particles; {res.scale.um_per_px:.5g} um/px from {res.scale.source} "
+                         f"({res.scale.detail}){excl}; min area {res.min_area_px} px")
+            warned += [f"bmctl: warning: {path}: {w.message}" for w in res.warnings]
+        ids = np.arange(next_id, next_id + len(t))
+        next_id += len(t)
         tables.append(t)
-        lines.append(f"{path}: {len(t)} particles")
+        locs.append(ParticleLocations(ids, (path,) * len(t), np.asarray(x, float), np.asarray(y, float)))
     table = ParticleTable.concat(tables)
     if len(table) == 0:
-        raise InputError(f"{args.inputs[0]}: no particles found (check --um-per-px, --min-area-px, --crop)")
+        raise InputError(f"{args.inputs[0]}: no particles found (check the scale, --min-area-px, --crop)")
+    loc = ParticleLocations(np.concatenate([q.particle_id for q in locs]), sum((q.image for q in locs), ()),
+                            np.concatenate([q.x_um for q in locs]), np.concatenate([q.y_um for q in locs]))
+    written = []
     if args.out:
-        write_table(args.out, table)
+        folder = Path(args.out).parent
+        if not args.no_overlay:
+            img_index = [i for i, p in enumerate(args.inputs) if not _is_table(p)]
+            for res, out_png, i in zip(results, _overlay_names(results, folder), img_index):
+                ids = locs[i].particle_id
+                write_overlay(out_png, res.image, res.segmentation.labels, res.segmentation.offset, ids,
+                              excluded_from_row=res.info_bar_row, scale_bar=res.scale_bar,
+                              title=f"{Path(res.name).name}: {len(res.table)} particles, {res.scale.um_per_px:.4g} um/px")
+                reports[i]["overlay"] = str(out_png)
+                written.append(str(out_png))
+        summ = table.summary()
+        doc = {"table": str(args.out), "count": summ["count"], "s_median_um": summ["s_median_um"],
+               "r_median": summ["r_median"], "inputs": reports}
+        write_text(folder / "measure.json", json.dumps(doc, indent=2) + "\n")
+        write_table(args.out, table, loc)
     summ = table.summary()
+    for w in warned:  # only once every input is read: a bad input still prints one line
+        print(w, file=sys.stderr)
     print("\n".join(lines))
     print(f"measure: {summ['count']} particles, median s = {summ['s_median_um']:.4g} um, median r = {summ['r_median']:.3f}"
-          + (f"; wrote {args.out}" if args.out else ""))
+          + (f"; wrote {args.out}, {Path(args.out).parent / 'measure.json'}" + (f" and {len(written)} overlay(s)" if written else "")
+             if args.out else ""))
     return 0

@@ -3,7 +3,8 @@
 A particle table CSV has a header and one row per particle, either with columns
 ``area_um2,perimeter_um`` (s and r are derived; extra columns, ``s_um`` and ``r`` too,
 are ignored) or with columns ``s_um,r`` (area and perimeter are derived). Tables are
-written with the four columns ``area_um2,perimeter_um,s_um,r``.
+written with the four columns ``area_um2,perimeter_um,s_um,r``, by ``bmctl measure`` preceded by
+``particle_id,image,x_um,y_um`` (the centroid); readers accept both layouts.
 
 Isoperimetric bound: every closed curve of area A has L >= 2 sqrt(pi A) = pi s, i.e.
 r >= 0. A measured perimeter a little below the bound (estimator noise on small, round
@@ -24,6 +25,7 @@ from ..io import write_csv
 from ..plant.events import aspect_from_perimeter, perimeter_from_aspect, size_from_area
 
 COLUMNS = ("area_um2", "perimeter_um", "s_um", "r")
+LOCATION_COLUMNS = ("particle_id", "image", "x_um", "y_um")  # written first by `bmctl measure`
 ISOPERIMETRIC_TOL = 0.05  # relative shortfall of L below pi s accepted (and raised to pi s)
 
 
@@ -199,12 +201,46 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
     return ParticleTable.from_area_perimeter(arr[:, 0], arr[:, 1])
 
 
-def write_table(path: str | os.PathLike, table: ParticleTable) -> None:
-    """Write ``area_um2,perimeter_um,s_um,r`` atomically (:func:`bmctl.io.write_csv`).
+@dataclass(frozen=True)
+class ParticleLocations:
+    """Where each measured particle is: id, source image and centroid (um from the image's
+    top-left corner; NaN for particles that came from a table).
+
+    Attributes
+    ----------
+    particle_id : ndarray of int
+    image : tuple of str
+    x_um, y_um : ndarray of float
+    """
+
+    particle_id: np.ndarray
+    image: tuple
+    x_um: np.ndarray
+    y_um: np.ndarray
+
+    def rows(self):
+        """Iterate over rows (particle_id, image, x_um, y_um); NaN centroids are written empty."""
+        for k, name, x, y in zip(self.particle_id.tolist(), self.image, self.x_um.tolist(), self.y_um.tolist()):
+            yield (int(k), name, x if np.isfinite(x) else "", y if np.isfinite(y) else "")
+
+
+def write_table(path: str | os.PathLike, table: ParticleTable, locations: ParticleLocations | None = None) -> None:
+    """Write the table atomically (:func:`bmctl.io.write_csv`).
+
+    Columns ``area_um2,perimeter_um,s_um,r``, preceded by ``particle_id,image,x_um,y_um``
+    when ``locations`` is given. :func:`read_table` reads both layouts.
 
     Parameters
     ----------
     path : path-like
     table : ParticleTable
+    locations : ParticleLocations, optional
+        One entry per row of ``table``.
     """
-    write_csv(path, COLUMNS, table.rows(), fmt="{:.7g}")
+    if locations is None:
+        write_csv(path, COLUMNS, table.rows(), fmt="{:.7g}")
+        return
+    if len(locations.particle_id) != len(table):
+        raise ValueError("write_table: locations and table differ in length")
+    rows = (tuple(a) + tuple(b) for a, b in zip(locations.rows(), table.rows()))
+    write_csv(path, LOCATION_COLUMNS + COLUMNS, rows, fmt="{:.7g}")

@@ -1,0 +1,165 @@
+"""One micrograph end to end: data bar, scale, segmentation, speck limit, table, centroids, checks.
+
+:func:`measure_micrograph` is what ``bmctl measure`` runs per image; it returns everything
+the command writes (table, overlay, ``measure.json`` entry) so that the user can see how each
+number was obtained.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage as ndi
+
+from ..errors import InputError
+from .loading import as_gray_float, load_image, parse_crop
+from .quality import QualityWarning, auto_min_area, check_segmentation
+from .scale import Scale, ScaleBar, check_scale, find_info_bar, nearest_125, resolve_scale
+from .segment import MIN_AREA_PX, Segmentation, measure_labels, remove_edge_and_specks, segment
+from .tables import ParticleTable
+
+SCALE_BAR_MISMATCH = 0.05  # metadata scale vs the 1-2-5 length nearest to the implied bar length
+
+
+@dataclass(frozen=True)
+class MicrographResult:
+    """Everything measured on one image.
+
+    Attributes
+    ----------
+    name : str
+    image : ndarray
+        The full input image (gray, [0, 1]).
+    segmentation : Segmentation
+    scale : Scale
+    scale_bar : ScaleBar or None
+    info_bar_row : int or None
+        First excluded row of the data bar (``None``: none found or kept).
+    min_area_px : int
+        Speck limit used.
+    table : ParticleTable
+    x_um, y_um : ndarray
+        Centroids from the image's top-left corner.
+    warnings : list of QualityWarning
+    """
+
+    name: str
+    image: np.ndarray
+    segmentation: Segmentation
+    scale: Scale
+    scale_bar: ScaleBar | None
+    info_bar_row: int | None
+    min_area_px: int
+    table: ParticleTable
+    x_um: np.ndarray
+    y_um: np.ndarray
+    warnings: list
+
+    def report(self) -> dict:
+        """JSON-ready summary: scale and how it was found, exclusions, counts, medians, warnings."""
+        summ = self.table.summary()
+        bar = None
+        if self.scale_bar is not None:
+            bar = {"row": self.scale_bar.row, "x0": self.scale_bar.x0, "x1": self.scale_bar.x1,
+                   "length_px": self.scale_bar.length_px,
+                   "length_um_at_this_scale": round(self.scale_bar.length_px * self.scale.um_per_px, 4)}
+        return {
+            "image": self.name,
+            "shape_px": list(self.image.shape),
+            "scale": {"um_per_px": self.scale.um_per_px, "source": self.scale.source, "detail": self.scale.detail},
+            "scale_bar": bar,
+            "info_bar_first_row": self.info_bar_row,
+            "min_area_px": self.min_area_px,
+            "count": summ["count"],
+            "s_median_um": summ["s_median_um"],
+            "r_median": summ["r_median"],
+            "warnings": [w.as_dict() for w in self.warnings],
+        }
+
+
+def _scale_bar_check(scale: Scale, bar: ScaleBar | None) -> QualityWarning | None:
+    if bar is None or scale.source == "scale-bar":
+        return None
+    implied = bar.length_px * scale.um_per_px
+    off = abs(implied / nearest_125(implied) - 1.0)
+    if off <= SCALE_BAR_MISMATCH:
+        return None
+    return QualityWarning("scale", off, SCALE_BAR_MISMATCH,
+                          f"the scale bar ({bar.length_px:g} px) is {implied:.3g} um at {scale.um_per_px:.4g} um/px, "
+                          f"not a round length: check the scale ({scale.source})")
+
+
+def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_bar: bool = False,
+                       min_area_px="auto", crop=None, **segment_kw) -> MicrographResult:
+    """Measure one micrograph with the scale found from metadata or its scale bar.
+
+    Parameters
+    ----------
+    source : path-like or ndarray
+        Image file or gray/colour array (arrays have no metadata: give ``um_per_px`` or
+        ``scale_bar_um``).
+    um_per_px : float, optional
+        Pixel size; overrides the metadata.
+    scale_bar_um : float, optional
+        Length of the scale bar drawn on the image (used when there is no metadata).
+    keep_info_bar : bool, optional
+        Do not detect and exclude the data bar at the bottom.
+    min_area_px : int or "auto", optional
+        Speck limit; ``"auto"`` = :func:`bmctl.measure.quality.auto_min_area`.
+    crop : str or tuple, optional
+        Window to keep (``"Y0:Y1,X0:X1"``).
+    **segment_kw
+        Passed to :func:`bmctl.measure.segment.segment`.
+
+    Returns
+    -------
+    MicrographResult
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        Unreadable image, no scale, bad crop.
+    """
+    if isinstance(source, np.ndarray):
+        name, path, img = "image", None, as_gray_float(source)
+    else:
+        name, path = str(source), os.fspath(source)
+        img = load_image(path)
+    if um_per_px is not None:
+        um_per_px = check_scale(um_per_px)
+    if scale_bar_um is not None:
+        scale_bar_um = check_scale(scale_bar_um, "--scale-bar-um")
+    info_row = None if keep_info_bar else find_info_bar(img)
+    scale, bar = resolve_scale(path, img, um_per_px=um_per_px, scale_bar_um=scale_bar_um, info_top=info_row)
+    mask = None
+    if crop is not None:
+        crop = parse_crop(crop) if isinstance(crop, str) else crop
+        if info_row is not None:
+            mask = np.arange(img.shape[0])[:, None] < info_row * np.ones((1, img.shape[1]), dtype=bool)
+    elif info_row is not None:
+        crop = (0, info_row, 0, -1)
+    auto = isinstance(min_area_px, str)
+    if auto and min_area_px != "auto":
+        raise InputError(f"--min-area-px: expected a number of px or 'auto' (got {min_area_px!r})")
+    floor = MIN_AREA_PX if auto else int(min_area_px)
+    seg = segment(img, min_area_px=floor, crop=crop, mask=mask, name=name, **segment_kw)
+    used = floor
+    if auto:
+        used = auto_min_area(seg.raw_labels, seg.valid, floor)
+        if used != floor:
+            seg = dataclasses.replace(seg, labels=remove_edge_and_specks(seg.raw_labels, seg.valid, used))
+    table = measure_labels(seg.labels, scale.um_per_px)
+    n = int(seg.labels.max())
+    if n:
+        cy, cx = np.array(ndi.center_of_mass(seg.labels > 0, seg.labels, np.arange(1, n + 1))).reshape(-1, 2).T
+        x_um, y_um = (cx + seg.offset[1]) * scale.um_per_px, (cy + seg.offset[0]) * scale.um_per_px
+    else:
+        x_um = y_um = np.empty(0)
+    warns = check_segmentation(seg.labels, seg.raw_labels, seg.foreground, seg.valid, used)
+    extra = _scale_bar_check(scale, bar)
+    if extra is not None:
+        warns.insert(0, extra)
+    return MicrographResult(name, img, seg, scale, bar, info_row, used, table, x_um, y_um, warns)

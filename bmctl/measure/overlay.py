@@ -1,0 +1,63 @@
+"""Overlay PNG: the micrograph with each measured particle's outline and id, so the user sees
+what was segmented (and what was excluded: data bar, crop)."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+from scipy import ndimage as ndi
+from skimage import segmentation
+
+from ..io import pyplot, savefig
+
+
+def write_overlay(path: str | os.PathLike, image: np.ndarray, labels: np.ndarray, offset=(0, 0), ids=None,
+                  *, excluded_from_row: int | None = None, scale_bar=None, title: str = "") -> None:
+    """Write the image with particle outlines (yellow) and ids (cyan) as a PNG, atomically.
+
+    Parameters
+    ----------
+    path : path-like
+    image : ndarray of float, shape (H, W)
+        The full input image (gray, [0, 1]).
+    labels : ndarray of int
+        Particles 1..n in the segmented frame (cropped), placed at ``offset``.
+    offset : (int, int), optional
+        (row, column) of the frame in ``image``.
+    ids : sequence of int, optional
+        Id printed for label ``i`` (``ids[i - 1]``); default ``i``.
+    excluded_from_row : int, optional
+        First row of the excluded data bar (shaded red).
+    scale_bar : bmctl.measure.scale.ScaleBar, optional
+        Marked in green when found.
+    title : str, optional
+    """
+    plt = pyplot()
+    h, w = image.shape
+    rgb = np.repeat(np.clip(image, 0, 1)[..., None], 3, axis=2)
+    full = np.zeros((h, w), dtype=labels.dtype)
+    oy, ox = offset
+    full[oy:oy + labels.shape[0], ox:ox + labels.shape[1]] = labels
+    rgb[segmentation.find_boundaries(full, mode="inner")] = (1.0, 0.9, 0.0)
+    if excluded_from_row is not None:
+        rgb[excluded_from_row:] = 0.6 * rgb[excluded_from_row:] + 0.4 * np.array([1.0, 0.0, 0.0])
+    scale = max(1.0, 1400.0 / max(h, w))
+    fig = plt.figure(figsize=(w * scale / 100.0, h * scale / 100.0), dpi=100)
+    ax = fig.add_axes([0, 0, 1, 1])
+    ax.imshow(rgb, interpolation="nearest")
+    ax.set_axis_off()
+    n = int(full.max())
+    if n:
+        idx = np.arange(1, n + 1)
+        cy, cx = np.array(ndi.center_of_mass(full > 0, full, idx)).T
+        names = ids if ids is not None else idx
+        fs = float(np.clip(400.0 / np.sqrt(n + 1), 3.0, 9.0))
+        for y, x, k in zip(cy, cx, names):
+            ax.text(x, y, str(int(k)), color="cyan", fontsize=fs, ha="center", va="center")
+    if scale_bar is not None:
+        ax.plot([scale_bar.x0, scale_bar.x1], [scale_bar.row, scale_bar.row], color="lime", lw=2)
+    if title:
+        ax.text(4, 4, title, color="white", fontsize=9, va="top", ha="left",
+                bbox={"facecolor": "black", "alpha": 0.6, "pad": 2})
+    savefig(fig, path, dpi=100)

@@ -1,0 +1,359 @@
+"""Pixel size of a micrograph: vendor metadata, the data bar and its scale bar.
+
+Order of precedence (:func:`resolve_scale`): ``--um-per-px`` given by the user, then the
+pixel size stored by the instrument in the TIFF (:func:`scale_from_metadata`), then a scale
+bar found in the image when the user gives its length (``--scale-bar-um``,
+:func:`find_scale_bar`). Supported metadata (``docs/measurement.md`` §8.1):
+
+* FEI/Thermo Fisher (Helios, Quanta, Nova, Scios, Apreo, ...): TIFF tag 34682 ``FEI_HELIOS``,
+  ``[Scan] PixelWidth`` in metres;
+* FEI/Philips XL series: TIFF tag 34680 ``FEI_SFEG``; it stores no pixel size, only the
+  magnification and the display it refers to, so the pixel size is *derived*: horizontal field
+  width = display width (``ImageDevice.SizeY`` x ``RatioXY``, mm) / magnification, divided by
+  the image width in px (an assumption, checked against the scale bar on the shipped image);
+* Zeiss SmartSEM: TIFF tag 34118 ``CZ_SEM``, ``AP_PIXEL_SIZE`` ("Image Pixel Size", with unit);
+* TESCAN: TIFF tag 50431, text ``PixelSizeX=`` in metres;
+* JEOL: the sidecar ``IMAGE.txt`` with ``$$SM_MICRON_BAR`` (bar length, px) and
+  ``$$SM_MICRON_MARKER`` (its length, e.g. ``5um``);
+* ImageJ-calibrated TIFF: ``unit=`` in the ImageDescription and XResolution (px per unit);
+* plain TIFF XResolution/ResolutionUnit (cm or inch) only when it is physical, i.e. the pixel
+  is <= 10 um; print resolutions (72-600 dpi, >= 42 um per px) are ignored.
+
+The data bar (info strip) of SEM images is a band of rows near the bottom in which most
+pixels have exactly one value (the strip's fill); :func:`find_info_bar` finds its first row.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage as ndi
+
+from ..errors import InputError
+
+MAX_PHYSICAL_UM_PER_PX = 10.0  # larger "pixel sizes" in XResolution are print/screen dpi
+INFO_BAR_SEARCH = 0.35  # share of the image height (from the bottom) searched for a data bar
+INFO_BAR_FLAT_SHARE = 0.5  # a data-bar row: at least this share of its pixels has the modal value
+INFO_BAR_MIN_ROWS = 4
+SCALE_BAR_MIN_PX = 20
+
+
+@dataclass(frozen=True)
+class Scale:
+    """A pixel size and where it came from.
+
+    Attributes
+    ----------
+    um_per_px : float
+        Pixel size in micrometres.
+    source : str
+        ``"user"``, ``"metadata"`` or ``"scale-bar"``.
+    detail : str
+        What was read (tag, values, assumption), for the user.
+    """
+
+    um_per_px: float
+    source: str
+    detail: str
+
+
+@dataclass(frozen=True)
+class ScaleBar:
+    """A horizontal scale bar found in the image.
+
+    Attributes
+    ----------
+    length_px : float
+        Bar length in px (between the centres of its end ticks when it has ticks).
+    row : int
+        Image row of the bar.
+    x0, x1 : int
+        First and last column of the bar's run.
+    """
+
+    length_px: float
+    row: int
+    x0: int
+    x1: int
+
+
+def _unit_to_um(unit: str) -> float | None:
+    u = unit.strip().lower().replace("µ", "u").replace("μ", "u")
+    return {"m": 1e6, "mm": 1e3, "um": 1.0, "micron": 1.0, "microns": 1.0, "nm": 1e-3, "pm": 1e-6}.get(u)
+
+
+def _fei_helios(value) -> tuple[float, str] | None:
+    if isinstance(value, dict):
+        for section in ("Scan", "EScan", "IScan"):
+            px = value.get(section, {}).get("PixelWidth") if isinstance(value.get(section), dict) else None
+            if px:
+                return float(px) * 1e6, f"FEI/Thermo tag 34682 [{section}] PixelWidth = {float(px):.6g} m"
+        return None
+    m = re.search(r"\[Scan\][^\[]*?PixelWidth\s*=\s*([0-9.eE+-]+)", str(value))
+    return (float(m.group(1)) * 1e6, f"FEI/Thermo tag 34682 [Scan] PixelWidth = {m.group(1)} m") if m else None
+
+
+def _fei_xl(value, width_px: int) -> tuple[float, str] | None:
+    if not isinstance(value, dict):
+        return None
+    mag = (value.get("Vector") or {}).get("Magnification")
+    dev = value.get("ImageDevice") or {}
+    size_y, ratio = dev.get("SizeY"), dev.get("RatioXY")
+    if not (mag and size_y and ratio):
+        return None
+    hfw_um = float(size_y) * float(ratio) * 1e3 / float(mag)  # display width (mm) / magnification
+    return hfw_um / width_px, (
+        f"FEI/Philips XL tag 34680: magnification {float(mag):g} on a display {float(size_y):g} mm x {float(ratio):g} "
+        f"wide -> field width {hfw_um:.4g} um over {width_px} px (assumes the image spans the display width)"
+    )
+
+
+def _zeiss(value) -> tuple[float, str] | None:
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if key in ("ap_pixel_size", "ap_image_pixel_size") or (isinstance(item, tuple) and item and item[0] == "Image Pixel Size"):
+                if isinstance(item, tuple) and len(item) >= 3 and _unit_to_um(str(item[2])):
+                    return float(item[1]) * _unit_to_um(str(item[2])), f"Zeiss tag 34118 Image Pixel Size = {item[1]} {item[2]}"
+        return None
+    m = re.search(r"Image Pixel Size\s*=\s*([0-9.eE+-]+)\s*(\w+)", str(value))
+    if m and _unit_to_um(m.group(2)):
+        return float(m.group(1)) * _unit_to_um(m.group(2)), f"Zeiss tag 34118 Image Pixel Size = {m.group(1)} {m.group(2)}"
+    return None
+
+
+def _tescan(value) -> tuple[float, str] | None:
+    text = value.decode("latin-1", "replace") if isinstance(value, bytes) else str(value)
+    m = re.search(r"PixelSizeX\s*=\s*([0-9.eE+-]+)", text)
+    return (float(m.group(1)) * 1e6, f"TESCAN tag 50431 PixelSizeX = {m.group(1)} m") if m else None
+
+
+def _jeol_sidecar(path: Path) -> tuple[float, str] | None:
+    side = path.with_suffix(".txt")
+    if not side.is_file():
+        return None
+    text = side.read_text(encoding="latin-1", errors="replace")
+    bar = re.search(r"\$\$?SM_MICRON_BAR\s+([0-9.]+)", text)
+    marker = re.search(r"\$\$?SM_MICRON_MARKER\s+([0-9.]+)\s*([a-zA-Zµμ]+)", text)
+    if not (bar and marker and _unit_to_um(marker.group(2)) and float(bar.group(1)) > 0):
+        return None
+    um = float(marker.group(1)) * _unit_to_um(marker.group(2))
+    return um / float(bar.group(1)), f"JEOL {side.name}: marker {marker.group(1)} {marker.group(2)} = {bar.group(1)} px"
+
+
+def _resolution(tags, description: str) -> tuple[float, str] | None:
+    xres = tags.get(282)
+    if xres is None:
+        return None
+    num, den = xres.value if isinstance(xres.value, tuple) else (xres.value, 1)
+    px_per_unit = float(num) / float(den) if den else 0.0
+    if px_per_unit <= 0:
+        return None
+    m = re.search(r"unit=(\S+)", description or "")
+    if "ImageJ=" in (description or "") and m and _unit_to_um(m.group(1).replace("\\u00B5", "u")):
+        return _unit_to_um(m.group(1).replace("\\u00B5", "u")) / px_per_unit, f"ImageJ calibration: {px_per_unit:g} px per {m.group(1)}"
+    unit = tags.get(296)
+    um_per_unit = {2: 25400.0, 3: 10000.0}.get(int(unit.value) if unit is not None else 2)
+    if um_per_unit is None:
+        return None
+    um = um_per_unit / px_per_unit
+    if um > MAX_PHYSICAL_UM_PER_PX:
+        return None  # a print/screen resolution, not the pixel size
+    return um, f"TIFF XResolution {px_per_unit:g} px per {'inch' if um_per_unit > 20000 else 'cm'}"
+
+
+def scale_from_metadata(path: str | os.PathLike) -> Scale | None:
+    """The pixel size stored by the instrument, or ``None`` if the file has none we can read.
+
+    Parameters
+    ----------
+    path : path-like
+        Image file (TIFF tags are read with ``tifffile``; JEOL uses a ``.txt`` sidecar).
+
+    Returns
+    -------
+    Scale or None
+    """
+    path = Path(path)
+    found = None
+    if path.suffix.lower() in (".tif", ".tiff"):
+        import tifffile
+
+        try:
+            with tifffile.TiffFile(path) as tif:
+                page = tif.pages[0]
+                tags = page.tags
+                width = int(page.shape[-1] if page.ndim == 2 else page.shape[1])
+                desc = page.description or ""
+                for code, reader in ((34682, _fei_helios), (34118, _zeiss), (50431, _tescan)):
+                    if found is None and code in tags:
+                        found = reader(tags[code].value)
+                if found is None and 34680 in tags:
+                    found = _fei_xl(tags[34680].value, width)
+                if found is None:
+                    found = _jeol_sidecar(path)
+                if found is None:
+                    found = _resolution(tags, desc)
+        except (tifffile.TiffFileError, OSError, ValueError, KeyError, TypeError):
+            found = None
+    else:
+        found = _jeol_sidecar(path)
+    if found is None or not np.isfinite(found[0]) or found[0] <= 0:
+        return None
+    return Scale(float(found[0]), "metadata", found[1])
+
+
+# --- data bar and scale bar -----------------------------------------------------------------------
+
+def _modal_share(row: np.ndarray) -> tuple[float, float]:
+    vals, counts = np.unique(row, return_counts=True)
+    k = int(np.argmax(counts))
+    return float(counts[k]) / row.size, float(vals[k])
+
+
+def find_info_bar(img: np.ndarray) -> int | None:
+    """First row of the data bar (info strip) at the bottom of an SEM image, or ``None``.
+
+    A data-bar row has one value (the strip's fill) in at least ``INFO_BAR_FLAT_SHARE`` of its
+    pixels, which a noisy micrograph row never has. The bar is the topmost run of at least
+    ``INFO_BAR_MIN_ROWS`` such rows in the bottom ``INFO_BAR_SEARCH`` of the image; everything
+    from it to the bottom edge is excluded.
+
+    Parameters
+    ----------
+    img : ndarray of float, shape (H, W)
+
+    Returns
+    -------
+    int or None
+    """
+    h = img.shape[0]
+    start = int(h * (1.0 - INFO_BAR_SEARCH))
+    flat = np.array([_modal_share(img[y])[0] >= INFO_BAR_FLAT_SHARE for y in range(start, h)])
+    run = 0
+    for i, f in enumerate(flat):
+        run = run + 1 if f else 0
+        if run >= INFO_BAR_MIN_ROWS:
+            top = start + i - run + 1
+            return top if top > 8 else None
+    return None
+
+
+def find_scale_bar(img: np.ndarray, top: int | None = None) -> ScaleBar | None:
+    """The longest thin horizontal bar of strongly contrasting pixels below row ``top``.
+
+    Searched in the data bar when there is one (``top`` = its first row), else in the bottom
+    quarter of the image. The bar's pixels differ from the region's modal (fill) value by more
+    than half the image range; its length is the run length, less half the width of each end
+    tick (vertical strokes at the ends taller than the bar), i.e. the distance between tick centres.
+
+    Returns
+    -------
+    ScaleBar or None
+        ``None`` when no run of at least ``SCALE_BAR_MIN_PX`` px exists.
+    """
+    h, w = img.shape
+    y0 = top if top is not None else int(0.75 * h)
+    region = img[y0:]
+    fill = _modal_share(region.ravel())[1]
+    ink = np.abs(region - fill) > 0.5 * float(np.ptp(img) or 1.0)
+    best = None
+    for y in range(region.shape[0]):
+        lab, n = ndi.label(ink[y])
+        if n == 0:
+            continue
+        sizes = np.bincount(lab)[1:]
+        k = int(np.argmax(sizes))
+        if sizes[k] >= SCALE_BAR_MIN_PX and (best is None or sizes[k] > best[0]):
+            xs = np.nonzero(lab == k + 1)[0]
+            best = (int(sizes[k]), y, int(xs[0]), int(xs[-1]))
+    if best is None:
+        return None
+    n, y, x0, x1 = best
+    rows = np.nonzero(ink[:, x0:x1 + 1].all(axis=1))[0]
+    thick = rows[(rows >= y - 10) & (rows <= y + 10)]
+    t0, t1 = int(thick.min()), int(thick.max())
+    around = np.r_[ink[max(t0 - 3, 0):t0, x0:x1 + 1].ravel(), ink[t1 + 1:t1 + 4, x0:x1 + 1].ravel()]
+    if t1 - t0 + 1 > 10 or (around.size and around.mean() > 0.3):
+        return None  # thick, or ink all around it: a bright object, not a bar
+
+    def tick_width(cols):
+        wdt = 0
+        for x in cols:
+            col = ink[:, x]
+            if (t0 >= 2 and col[t0 - 2]) or (t1 + 2 < col.size and col[t1 + 2]):
+                wdt += 1
+            else:
+                break
+        return wdt
+
+    wl, wr = tick_width(range(x0, x1 + 1)), tick_width(range(x1, x0 - 1, -1))
+    if wl >= n // 2 or wr >= n // 2:
+        wl = wr = 0
+    return ScaleBar(float(n - 0.5 * (wl + wr)), y0 + y, x0, x1)
+
+
+def nearest_125(value: float) -> float:
+    """The nearest number of the 1-2-5 series (scale-bar lengths), e.g. 4.9 -> 5."""
+    if value <= 0:
+        return value
+    e = np.floor(np.log10(value))
+    cands = np.array([1, 2, 5, 10]) * 10.0**e
+    return float(cands[np.argmin(np.abs(np.log(cands / value)))])
+
+
+SCALE_HELP = "give the scale with --um-per-px X, or --scale-bar-um L (the length written on the image's scale bar)"
+
+
+def resolve_scale(path, img: np.ndarray, *, um_per_px=None, scale_bar_um=None, info_top=None) -> tuple[Scale, ScaleBar | None]:
+    """The pixel size to use for one image, and the scale bar found (if any).
+
+    Parameters
+    ----------
+    path : path-like or None
+        Image file (for metadata); ``None`` for arrays.
+    img : ndarray of float
+        The full image.
+    um_per_px : float, optional
+        User override.
+    scale_bar_um : float, optional
+        Length of the image's scale bar in um; used when there is no user scale and no metadata.
+    info_top : int, optional
+        First row of the data bar (where the scale bar is searched).
+
+    Returns
+    -------
+    Scale, ScaleBar or None
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        No scale can be found; the message says how to give one.
+    """
+    bar = find_scale_bar(img, info_top)
+    if um_per_px is not None:
+        return Scale(float(um_per_px), "user", "--um-per-px"), bar
+    meta = scale_from_metadata(path) if path is not None else None
+    if meta is not None:
+        return meta, bar
+    name = str(path) if path is not None else "image"
+    if scale_bar_um is not None:
+        if bar is None:
+            raise InputError(f"{name}: --scale-bar-um given but no scale bar found; {SCALE_HELP.split(', or')[0]}")
+        return Scale(float(scale_bar_um) / bar.length_px, "scale-bar",
+                     f"scale bar {bar.length_px:g} px at row {bar.row} = {float(scale_bar_um):g} um (--scale-bar-um)"), bar
+    raise InputError(f"{name}: no pixel size in the image metadata; {SCALE_HELP}")
+
+
+def check_scale(um_per_px, name: str = "--um-per-px") -> float:
+    """Validate a pixel size: a finite number > 0, else :class:`InputError`."""
+    try:
+        v = float(um_per_px)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: not a number ({um_per_px!r})") from None
+    if not np.isfinite(v) or v <= 0:
+        raise InputError(f"{name}: must be a finite number > 0 (got {um_per_px})")
+    return v
