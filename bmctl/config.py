@@ -334,6 +334,8 @@ def card_schedule(card: ModelCard, hours: float | None = None, rpm: float | None
     p = card.process
     total = p.hours if hours is None else hours
     speed = p.rpm if rpm is None else rpm
+    if not (0 < total <= 1000.0):  # bmctl.config.HOURS: bounds the number of segments below
+        raise InputError(f"hours: {total:g} h is outside (0, 1000] h, the longest batch")
     if p.mode == "continuous" or rpm is not None and rpm == 0:
         return [(total, speed)]
     mill_h, rest_h = p.mill_min / 60.0, p.rest_min / 60.0

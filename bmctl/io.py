@@ -53,7 +53,7 @@ def check_input_file(path: str | os.PathLike, max_bytes: int = INPUT_MAX_BYTES) 
     try:
         st = os.stat(p)
     except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
+        raise InputError(f"{p}: file not found (no such file or folder)") from None
     except OSError as exc:
         raise InputError(f"{p}: cannot read: {exc.strerror or exc}") from None
     if stat.S_ISDIR(st.st_mode):
