@@ -33,7 +33,7 @@ def format_report(rep: dict) -> str:
     lines = [f"card {rep['name']}", "", "loading"]
     lines.append(f"  ball mass          {ld['ball_mass_g']:.4g} g (rho pi d^3/6: {ld['ball_mass_from_geometry_g']:.4g} g)")
     lines.append(f"  balls, total       {ld['balls_total_g']:.4g} g; fill {ld['ball_fill']:.1%} of a {ld['vial_ml']:.3g} ml vial")
-    lines.append(f"  powder             {ld['powder_g']:.4g} g (ball-to-powder ratio {ld['ball_to_powder_ratio']:g})")
+    lines.append(f"  powder             {ld['powder_g']:.4g} g (ball-to-powder ratio {ld['ball_to_powder_ratio']:.4g})")
     pw = rep["powder"]
     if pw is not None:
         comp = " + ".join(f"{x:.3g} {n}" for n, x in zip(pw["materials"], pw["molar_fractions"]))
