@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "whatif": ("bmctl.commands.whatif", "compare rpm schedules on a plant ensemble"),
     "design": ("bmctl.commands.design", "offline open-loop rpm/rest schedule from the MPC problem"),
     "compare": ("bmctl.commands.compare", "measured particle sample against the plant prediction at a time"),
+    "card": ("bmctl.commands.card", "model cards: derived masses, kinematics and validity (card show)"),
 }
 
 

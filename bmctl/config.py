@@ -17,11 +17,14 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from .errors import InputError
 
 T = TypeVar("T", bound=BaseModel)
+
+#: a settings file larger than this is not a settings file
+TOML_MAX_BYTES = 1 << 20
 
 
 def _finite(v: float) -> float:
@@ -36,10 +39,29 @@ NonNeg = Annotated[float, Field(ge=0), AfterValidator(_finite)]
 Frac = Annotated[float, Field(ge=0, le=1), AfterValidator(_finite)]
 
 
-class Strict(BaseModel):
-    """Base: unknown keys are errors, values are validated on assignment."""
+def Range(lo: float, hi: float, lo_open: bool = False, hi_open: bool = False) -> Any:
+    """A finite float in [lo, hi] (``lo_open``/``hi_open``: that end excluded).
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False)
+    Every physical field of a card has such a range, from physics and from where the
+    model holds; the reason is the comment beside the field (docs/own-mill.md lists them).
+    """
+    bounds = {("gt" if lo_open else "ge"): lo, ("lt" if hi_open else "le"): hi}
+    return Annotated[float, Field(**bounds), AfterValidator(_finite)]
+
+
+#: sun-disc speeds of laboratory planetary mills reach ~1,100 rpm (Fritsch P-7 premium); 2,000 is
+#: a hard physical ceiling for the kinematics (Burgio) as implemented
+RPM = Range(0.0, 2000.0)
+#: one batch: up to 1,000 h of milling (the longest mechanical-alloying runs reported are ~500 h)
+HOURS = Range(0.0, 1000.0, lo_open=True)
+
+
+class Strict(BaseModel):
+    """Base: unknown keys are errors, values are validated on assignment, and numbers must be
+    numbers (strict mode: no string or boolean coercion; an integer is accepted for a float,
+    as TOML writes 300 for 300.0)."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False, strict=True)
 
 
 class CardInfo(Strict):
@@ -52,87 +74,117 @@ class CardInfo(Strict):
 class Process(Strict):
     """The paper's operating recipe for this case (used by `bmctl simulate` by default)."""
 
-    rpm: NonNeg
-    hours: Pos = 12.0
+    rpm: RPM
+    hours: HOURS = 12.0
     mode: Literal["continuous", "interrupted"] = "continuous"
-    mill_min: Pos | None = None  # interrupted: minutes milling per cycle
-    rest_min: Pos | None = None  # interrupted: minutes resting per cycle
+    # interrupted cycles: 6 s to a day per phase (shorter phases would not be resolved by the
+    # plant's time step and would multiply the schedule's segments)
+    mill_min: Range(0.1, 1440.0) | None = None  # interrupted: minutes milling per cycle
+    rest_min: Range(0.1, 1440.0) | None = None  # interrupted: minutes resting per cycle
 
 
 class Mill(Strict):
     """Planetary-mill geometry (Burgio et al. 1991 kinematics)."""
 
-    sun_radius_m: Pos = 0.07
-    vial_radius_m: Pos = 0.0225
-    vial_height_m: Pos = 0.05
-    speed_ratio: Finite = -2.0  # vial spin / sun-disc spin (negative: counter-rotating)
-    ball_diameter_m: Pos = 0.010
-    ball_count: Annotated[int, Field(ge=1)] = 10
-    ball_to_powder_ratio: Pos = 10.0
-    ball_modulus_Pa: Pos = 200e9
-    ball_density_kg_m3: Pos = 7900.0
-    rpm_max: Pos = 600.0
+    sun_radius_m: Range(0.01, 1.0) = 0.07  # laboratory to pilot planetary mills: 5-50 cm
+    vial_radius_m: Range(0.002, 0.5) = 0.0225  # 2 mm (micro vials) to 50 cm
+    vial_height_m: Range(0.002, 1.0) = 0.05
+    # vial spin / sun-disc spin: counter-rotating (negative) in every planetary mill; Burgio's
+    # velocity holds for -4 <= ratio <= -0.25 (commercial mills: -1 to -3)
+    speed_ratio: Range(-4.0, -0.25) = -2.0
+    ball_material: str | None = None  # a bmctl.materials name: gives density and modulus
+    ball_diameter_m: Range(1e-4, 0.05) = 0.010  # 0.1-50 mm grinding balls
+    ball_count: Annotated[int, Field(ge=1, le=100_000)] = 10
+    ball_to_powder_ratio: Range(1.0, 100.0) = 10.0  # mass ratio; mechanical alloying uses 1:1-100:1
+    ball_modulus_Pa: Range(1e9, 1.2e12) = 200e9  # polymers excluded; diamond is 1.2 TPa
+    ball_density_kg_m3: Range(1000.0, 20000.0) = 7900.0  # nylon-coated to tungsten
+    rpm_max: Range(0.0, 2000.0, lo_open=True) = 600.0  # the mill's own limit (kinematics: RPM above)
 
 
 class Material(Strict):
     """Powder and impactor properties (paper Sec. 4.1, molar law of mixtures)."""
 
-    impactor_mass_kg: Pos = 4.14e-3
-    elastic_modulus_Pa: Pos = 120e9
-    yield_stress_Pa: Pos = 78.7e6
-    bond_threshold_J_per_m: Pos = 6.4  # paper: u = 6.4e-6 J/um
-    powder_density_kg_m3: Pos = 5200.0
+    impactor_mass_kg: Range(1e-9, 1.0) = 4.14e-3  # one ball (checked against diameter and density)
+    elastic_modulus_Pa: Range(1e9, 1.2e12) = 120e9
+    yield_stress_Pa: Range(1e5, 1e10) = 78.7e6  # soft solders (~1 MPa) to hard steels (~5 GPa)
+    # u: outside ~[0.01, 1000] J/m every impact (or none) bonds or breaks at any rpm (paper: 6.4)
+    bond_threshold_J_per_m: Range(0.01, 1000.0) = 6.4  # paper: u = 6.4e-6 J/um
+    powder_density_kg_m3: Range(500.0, 25000.0) = 5200.0  # lithium to osmium
+
+
+class Powder(Strict):
+    """What the powder is made of: materials of bmctl.materials and their molar ratio."""
+
+    materials: list[str] = Field(min_length=1, max_length=8)
+    molar_ratio: list[Range(0.0, 1e6, lo_open=True)] = Field(min_length=1, max_length=8)
+    mass_kg: Range(1e-6, 100.0) | None = None  # total powder loading (else from ball_to_powder_ratio)
+
+
+class Validity(Strict):
+    """Where the card holds; runs that leave it warn (temperature, sizes) or are refused (rpm)."""
+
+    rpm_max: Range(0.0, 2000.0, lo_open=True) | None = None  # default: mill.rpm_max
+    s_min_um: Range(0.01, 1e5) | None = None  # default: 1 um (below, Hertzian trapping is unmodelled)
+    s_max_um: Range(0.01, 1e5) | None = None  # default: simulation.s_max_um
+    # default: the lowest melting point of the powder's materials (above it nothing here holds)
+    temperature_max_C: Range(-200.0, 4000.0) | None = None
 
 
 class Stochastic(Strict):
     """The paper's four calibrated factors (eqns 9, 15, 20)."""
 
-    alpha: Pos
-    beta: Pos
-    gamma_per_um2: Pos  # printed as um^2; dimensionless p_b needs um^-2 (docs/model.md, eqn 15)
-    delta_per_um2: Pos
+    # logistic exponents of eqn (9): the paper fits 1.7-2.2; beyond [0.1, 20] the pdfs degenerate
+    alpha: Range(0.1, 20.0)
+    beta: Range(0.1, 20.0)
+    # printed as um^2; dimensionless p_b needs um^-2 (docs/model.md, eqn 15); paper 1e-4-1e-3,
+    # above 1 um^-2 every contact of a 1 um particle would saturate
+    gamma_per_um2: Range(0.0, 1.0, lo_open=True)
+    delta_per_um2: Range(0.0, 1.0, lo_open=True)
 
 
 class Partition(Strict):
     """Energy-partition decisions (docs/model.md, eqns 6, 11, 16, 17)."""
 
     coated_fraction: Frac = 0.2  # share of the powder coating ball/vial surfaces (Maurice & Courtney)
-    strain_efficiency: NonNeg = 0.01  # share of plastic heat (8) that does shape-changing work in (11)
-    equiaxing_efficiency: NonNeg = 0.0  # share of plastic heat that rounds irregular particles (after 13)
-    equiaxing_hardening: NonNeg = 0.0  # a: rounding efficiency scales as max(0, 1 - a h) with hardening h (after 13)
-    threshold_sharpness: Pos = 8.0  # k*u in the logistic (17)
-    max_strain: Pos = 0.5  # |eps| cap per impact in (11)
+    strain_efficiency: Frac = 0.01  # share of plastic heat (8) that does shape-changing work in (11)
+    equiaxing_efficiency: Frac = 0.0  # share of plastic heat that rounds irregular particles (after 13)
+    # a: rounding efficiency scales as max(0, 1 - a h) with hardening h in [0, 1) (after 13)
+    equiaxing_hardening: Range(0.0, 100.0) = 0.0
+    threshold_sharpness: Range(0.1, 1000.0) = 8.0  # k*u in the logistic (17)
+    max_strain: Range(0.0, 1.0, lo_open=True) = 0.5  # |eps| cap per impact in (11)
 
 
 class Thermal(Strict):
     """Vial temperature, softening and work hardening (beyond the paper; neutral = all zero)."""
 
-    ambient_C: Finite = 25.0
-    heat_capacity_J_per_K: Pos = 800.0
-    cooling_time_s: Pos = 1800.0
-    softening_max: Annotated[float, Field(ge=0, lt=1)] = 0.0  # S: largest relative loss of yield stress
-    softening_scale_K: Pos = 30.0  # T_s: temperature rise for 63 % of S
-    hardening_max: NonNeg = 0.0
-    hardening_work_J_per_kg: Pos = 1e8
-    recovery_time_s: Pos = 1e9  # static recovery of hardening (large = none)
-    bond_hardening_exponent: NonNeg = 1.0
-    fracture_hardening_exponent: NonNeg = 1.0
+    ambient_C: Range(-200.0, 100.0) = 25.0  # cryo-milling (liquid N2) to a hot room
+    # vial and balls: a 10 ml vial with its balls is ~50 J/K, a 500 ml steel vial ~5 kJ/K
+    heat_capacity_J_per_K: Range(1.0, 1e6) = 800.0
+    cooling_time_s: Range(1.0, 1e7) = 1800.0
+    softening_max: Annotated[float, Field(ge=0, lt=1), AfterValidator(_finite)] = 0.0  # S: largest loss
+    softening_scale_K: Range(0.1, 2000.0) = 30.0  # T_s: temperature rise for 63 % of S
+    hardening_max: Range(0.0, 100.0) = 0.0  # H: sigma rises to (1 + H) sigma when fully hardened
+    hardening_work_J_per_kg: Range(1.0, 1e12) = 1e8
+    recovery_time_s: Range(1.0, 1e12) = 1e9  # static recovery of hardening (large = none)
+    # thresholds scale as ratio^n with ratio in (0, 1 + H]: |n| <= 20 keeps them finite
+    bond_hardening_exponent: Range(0.0, 20.0) = 1.0
+    fracture_hardening_exponent: Range(0.0, 20.0) = 1.0
 
 
 class Initial(Strict):
     """Initial powder: Gaussian size, nearly round."""
 
-    s_mean_um: Pos = 40.0
-    s_std_um: NonNeg = 4.0
-    r_mean: Annotated[float, Field(ge=0, lt=1)] = 0.02
+    s_mean_um: Range(0.1, 1e4) = 40.0
+    s_std_um: Range(0.0, 1e4) = 4.0
+    r_mean: Annotated[float, Field(ge=0, lt=1), AfterValidator(_finite)] = 0.02
 
 
 class Simulation(Strict):
     particles: Annotated[int, Field(ge=100, le=10_000_000)] = 20_000
-    record_every_h: Pos = 1.0
-    batch_fraction: Annotated[float, Field(gt=0, le=0.5)] = 0.05
-    max_step_s: Pos = 60.0
-    s_max_um: Pos = 1000.0
+    record_every_h: Range(1e-3, 1000.0) = 1.0  # 3.6 s to the longest batch
+    batch_fraction: Range(1e-4, 0.5) = 0.05  # share of the particles per step (smaller: more steps)
+    max_step_s: Range(1e-3, 3600.0) = 60.0
+    s_max_um: Range(1.0, 1e5) = 1000.0  # raster extent: 1 um bins, memory grows with it
 
 
 class ModelCard(Strict):
@@ -142,16 +194,41 @@ class ModelCard(Strict):
     process: Process
     mill: Mill = Mill()
     material: Material = Material()
+    powder: Powder | None = None
+    validity: Validity = Validity()
     stochastic: Stochastic
     partition: Partition = Partition()
     thermal: Thermal = Thermal()
     initial: Initial = Initial()
     simulation: Simulation = Simulation()
 
+    @model_validator(mode="after")
+    def _consistent(self):
+        m = self.mill
+        if m.ball_diameter_m >= 2 * m.vial_radius_m or m.ball_diameter_m >= m.vial_height_m:
+            raise ValueError(f"mill.ball_diameter_m: a {m.ball_diameter_m * 1e3:g} mm ball does not fit a vial of "
+                             f"{2 * m.vial_radius_m * 1e3:g} x {m.vial_height_m * 1e3:g} mm")
+        balls = m.ball_count * math.pi / 6 * m.ball_diameter_m**3
+        vial = math.pi * m.vial_radius_m**2 * m.vial_height_m
+        if balls > 0.64 * vial:  # random close packing: no room left to fly
+            raise ValueError(f"mill.ball_count: {m.ball_count} balls fill {balls / vial:.0%} of the vial "
+                             "(at most 64 %, random close packing)")
+        if self.process.rpm > m.rpm_max:
+            raise ValueError(f"process.rpm: {self.process.rpm:g} exceeds mill.rpm_max {m.rpm_max:g}")
+        if self.initial.s_mean_um >= self.simulation.s_max_um:
+            raise ValueError(f"initial.s_mean_um: {self.initial.s_mean_um:g} is not below simulation.s_max_um "
+                             f"{self.simulation.s_max_um:g}")
+        if self.material.yield_stress_Pa >= 0.1 * self.material.elastic_modulus_Pa:
+            raise ValueError("material.yield_stress_Pa: must be below 10 % of elastic_modulus_Pa (a yield strain "
+                             "above 0.1 is not a metal)")
+        if self.powder is not None and len(self.powder.materials) != len(self.powder.molar_ratio):
+            raise ValueError("powder.molar_ratio: needs one number per entry of powder.materials")
+        return self
+
 
 class Segment(Strict):
-    hours: Pos
-    rpm: NonNeg
+    hours: HOURS
+    rpm: RPM
 
 
 class Schedule(Strict):
@@ -186,23 +263,24 @@ def format_validation_error(source: str, err: ValidationError) -> str:
         msg += f" (got {e['input']!r})"
     more = len(err.errors()) - 1
     tail = f" (+{more} more problem{'s' if more > 1 else ''})" if more else ""
+    if not e["loc"]:  # a whole-model check: its message starts with the field it names
+        return f"{source}: {msg}{tail}"
     return f"{source}: {loc}: {msg}{tail}"
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file; missing/unreadable/malformed files raise InputError."""
+    """Read a TOML file; missing/unreadable/malformed files, and anything that is not a regular
+    file of a sane size (a FIFO, a device), raise InputError."""
+    from .io import read_input_bytes
+
     p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: file not found")
-    if p.is_dir():
-        raise InputError(f"{p}: is a directory, expected a TOML file")
+    raw = read_input_bytes(p, max_bytes=TOML_MAX_BYTES)
     try:
-        with open(p, "rb") as fh:
-            return tomllib.load(fh)
+        return tomllib.loads(raw.decode("utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{p}: malformed TOML: {exc}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: cannot read: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{p}: cannot read: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
 
 
 def validate(model: type[T], data: dict[str, Any], source: str) -> T:
@@ -237,7 +315,9 @@ def load_card(path: str | Path) -> ModelCard:
     >>> card.stochastic.alpha  # doctest: +SKIP
     2.1
     """
-    card = load(ModelCard, path)
+    from .cards import resolve_card_data
+
+    card = validate(ModelCard, resolve_card_data(read_toml(path), str(path)), str(path))
     p = card.process
     if p.mode == "interrupted" and (p.mill_min is None or p.rest_min is None):
         raise InputError(f"{path}: process: interrupted mode needs mill_min and rest_min")
@@ -254,6 +334,8 @@ def card_schedule(card: ModelCard, hours: float | None = None, rpm: float | None
     p = card.process
     total = p.hours if hours is None else hours
     speed = p.rpm if rpm is None else rpm
+    if not (0 < total <= 1000.0):  # bmctl.config.HOURS: bounds the number of segments below
+        raise InputError(f"hours: {total:g} h is outside (0, 1000] h, the longest batch")
     if p.mode == "continuous" or rpm is not None and rpm == 0:
         return [(total, speed)]
     mill_h, rest_h = p.mill_min / 60.0, p.rest_min / 60.0

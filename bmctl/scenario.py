@@ -7,7 +7,7 @@ from typing import Annotated
 
 from pydantic import Field, model_validator
 
-from .config import NonNeg, Pos, Strict, load
+from .config import HOURS, NonNeg, Pos, Range, Strict, load
 from .errors import InputError
 
 TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
@@ -30,7 +30,7 @@ class PlantSpec(Strict):
 class SamplingSpec(Strict):
     """Micrograph sampling (multi-rate: every_h may be longer than the control interval)."""
 
-    every_h: Pos = 1.0
+    every_h: Range(1 / 60, 1000.0) = 1.0
     particles: Annotated[int, Field(ge=5, le=100_000)] = 300
     um_per_px: Pos | None = 1.0
     noise: NonNeg = 0.03
@@ -51,8 +51,8 @@ class Scenario(Strict):
 
     scenario: ScenarioInfo
     model: str  # the controller's and estimator's model card
-    hours: Pos = 12.0
-    temperature_max_c: Pos | None = None  # vial ceiling: overrides the controller's, counts violations
+    hours: HOURS = 12.0
+    temperature_max_c: Range(0.0, 4000.0, lo_open=True) | None = None  # vial ceiling: overrides the controller's, counts violations
     target: dict[str, Annotated[float, Field(gt=0)]] = {}
     plant: PlantSpec = PlantSpec()
     sampling: SamplingSpec = SamplingSpec()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import tempfile
 from pathlib import Path
 
@@ -11,9 +12,10 @@ from ..errors import InputError, finite_float
 def output_path(path, name: str = "--out", folder: bool = True) -> Path:
     """Check an output folder (``folder``) or file before any work is done; returns it as a Path.
 
-    No folder is created: the check finds the nearest existing ancestor and creates (and at
-    once removes) a temporary file there, so a run with a mistyped or read-only ``--out`` fails
-    at once with one line instead of after the computation.
+    No folder is created: the check resolves symbolic links (a write goes where the link
+    points; the link itself is never replaced), finds the nearest existing ancestor of the
+    resolved path and creates (and at once removes) a temporary file there, so a run with a
+    mistyped or read-only ``--out`` fails at once with one line instead of after the computation.
 
     Parameters
     ----------
@@ -25,21 +27,25 @@ def output_path(path, name: str = "--out", folder: bool = True) -> Path:
         True for an output folder, False for an output file.
     """
     p = Path(path)
-    if p.exists():
-        if folder and not p.is_dir():
-            raise InputError(f"{name}: {p} exists and is not a folder")
-        if not folder and p.is_dir():
-            raise InputError(f"{name}: {p} is a folder, expected a file")
-    anc = p if (folder and p.exists()) else p.parent
+    real = Path(os.path.realpath(p))
+    shown = p if real == p.absolute() else f"{p} (-> {real})"
+    if real.exists():
+        if folder and not real.is_dir():
+            raise InputError(f"{name}: {shown} exists and is not a folder")
+        if not folder and real.is_dir():
+            raise InputError(f"{name}: {shown} is a folder, expected a file")
+        if not folder and not real.is_file():
+            raise InputError(f"{name}: {shown} is not a regular file")
+    anc = real if (folder and real.exists()) else real.parent
     while not anc.exists() and anc != anc.parent:
         anc = anc.parent
     if not anc.is_dir():
-        raise InputError(f"{name}: cannot create {p}: {anc} is not a folder")
+        raise InputError(f"{name}: cannot create {shown}: {anc} is not a folder")
     try:  # a probe file, removed at once: permissions, read-only or virtual file systems
         with tempfile.TemporaryFile(dir=anc):
             pass
     except OSError as exc:
-        raise InputError(f"{name}: cannot write {p}: {exc.strerror or exc} ({anc})") from None
+        raise InputError(f"{name}: cannot write {shown}: {exc.strerror or exc} ({anc})") from None
     return p
 
 

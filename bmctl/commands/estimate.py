@@ -35,7 +35,7 @@ def configure(p):
                    help="pixel size: measure micrographs instead of reading tables")
     p.add_argument("--out", default="out/estimate/estimate.csv", metavar="FILE.csv", help="estimate table (default out/estimate/estimate.csv)")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
-    p.add_argument("--particles", type=int_arg("--particles", 100), default=2000, help="filter particles N (default 2000)")
+    p.add_argument("--particles", type=int_arg("--particles", 100, 1_000_000), default=2000, help="filter particles N (default 2000)")
     p.add_argument("--size-law", choices=("weibull", "lognormal"), default="weibull",
                    help="law of s given (s_mean, s_std) (default weibull; see docs/estimation.md)")
     p.add_argument("--sigma-r", type=float_arg("--sigma-r", lo=0.005), default=None,
@@ -104,6 +104,8 @@ def run(args) -> int:
         raise InputError(f"--times: must be >= 0 (got {min(times):g})")
     if any(b < a for a, b in zip(times, times[1:])):
         raise InputError(f"--times: must be in increasing order (got {args.times})")
+    if max(times) > 1000.0:  # the longest batch a card allows (bmctl.config.HOURS)
+        raise InputError(f"--times: {max(times):g} h exceeds the longest batch, 1000 h")
     files = _sample_files(args.samples, images=args.um_per_px is not None)
     if len(files) != len(times):
         raise InputError(f"--times: {len(times)} time(s) for {len(files)} sample(s)")

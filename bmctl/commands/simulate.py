@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 
 from ..config import card_schedule, load_card, load_schedule
 from ..errors import InputError
@@ -14,9 +15,9 @@ from ._args import float_arg, int_arg, output_path
 
 def configure(p):
     p.add_argument("model", metavar="MODEL.toml", help="model card (see models/)")
-    p.add_argument("--hours", type=float_arg("--hours", lo=0.0), default=None, help="milling time (default: the card's)")
+    p.add_argument("--hours", type=float_arg("--hours", lo=0.0, hi=1000.0), default=None, help="milling time (default: the card's)")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
-    p.add_argument("--particles", type=int_arg("--particles", 100), default=None, help="simulated particles M")
+    p.add_argument("--particles", type=int_arg("--particles", 100, 10_000_000), default=None, help="simulated particles M")
     p.add_argument("--rpm", type=float_arg("--rpm", lo=0.0), default=None, help="sun-disc speed (default: the card's)")
     p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest)")
     p.add_argument("--every", type=float_arg("--every", lo=0.0), default=None, help="recording interval in h (default 1)")
@@ -44,6 +45,12 @@ def run(args) -> int:
     if args.every is not None and args.every <= 0:
         raise InputError(f"--every: must be > 0 (got {args.every:g})")
     out = output_path(args.out)
+    from ..cards import check_work, run_warnings, simulation_work
+
+    flags = "/".join(f for f, v in (("--hours", args.hours), ("--particles", args.particles), ("--every", args.every),
+                                    ("--schedule", args.schedule)) if v is not None) or f"{args.model}: simulation"
+    check_work(simulation_work(card, segments, args.particles or card.simulation.particles,
+                               args.every or card.simulation.record_every_h), flags)
     total_h = sum(h for h, _ in segments)
     bar = None
     progress = None
@@ -59,7 +66,12 @@ def run(args) -> int:
     finally:
         if bar is not None:
             bar.close()
-    paths = write_outputs(res, out)
+    from .. import io
+
+    with io.output_set():  # a late failure leaves none of the run's files
+        paths = write_outputs(res, out)
+    for line in run_warnings(card, res.column("t_h"), res.column("temperature_c"), res.column("s_mean_um")):
+        print(f"bmctl: warning: {line}", file=sys.stderr)
     last = res.records[-1]
     m = last.moments
     print(f"{card.card.name}: {total_h:g} h, M={args.particles or card.simulation.particles}, seed {args.seed}: "

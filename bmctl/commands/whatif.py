@@ -34,6 +34,10 @@ def run(args) -> int:
                 raise InputError(f"{path}: segment[{i}].rpm: {seg.rpm:g} exceeds the mill's rpm_max "
                                  f"{card.mill.rpm_max:g}")
         scheds.append((sched.name or Path(path).stem, [(s.hours, s.rpm) for s in sched.segment]))
+    from ..cards import check_work, simulation_work
+
+    work = [simulation_work(card, segs, args.particles, 0.25, raster=False) for _, segs in scheds]
+    check_work({k: args.seeds * sum(w[k] for w in work) for k in work[0]}, "--seeds/--particles/SCHEDULE.toml")
     results = [run_schedule_ensemble(card, name, segs, args.seeds, args.particles, args.seed) for name, segs in scheds]
     header, rows = table_rows(results)
     print(f"{'schedule':28s} {'h':>5s} {'kJ':>7s} {'Tpeak':>6s} {'s_mean':>16s} {'s_std':>16s} {'r_mean':>17s}")

@@ -18,7 +18,7 @@ from typing import Annotated, Any, Literal, Union
 
 from pydantic import Field, model_validator
 
-from ..config import Finite, Frac, NonNeg, Pos, Strict, read_toml, validate
+from ..config import Finite, Frac, NonNeg, Pos, Range, Strict, read_toml, validate
 from ..errors import InputError, finite_float
 
 #: moments a target may name (state components 0..3 of the moment model)
@@ -65,7 +65,7 @@ class Bounds(Strict):
 class Temperature(Strict):
     """Vial-temperature ceiling: hard, with a heavily penalised slack so the problem stays feasible."""
 
-    ceiling_c: Finite = 80.0
+    ceiling_c: Range(-200.0, 4000.0, lo_open=True) = 80.0  # above the coldest ambient a card allows
     slack_weight: NonNeg = 1e3  # per degC of violation, summed over intervals (exact L1 penalty)
     slack_weight_quad: NonNeg = 10.0  # per degC^2
     slack_max_c: NonNeg | None = None  # cap on the slack (0 = a truly hard constraint; may be infeasible)
@@ -154,7 +154,7 @@ class Adaptation(Strict):
 class _Common(Strict):
     name: str = ""
     description: str = ""
-    interval_h: Pos = 0.5  # control interval (the controller is called once per interval)
+    interval_h: Range(1 / 60, 24.0) = 0.5  # control interval, a minute to a day (called once per interval)
     batch_hours: Pos | None = None  # batch length; default: the model card's process.hours
     target: Target = Target()
     reference: list[ReferencePoint] = []
@@ -196,7 +196,7 @@ class RecipeConfig(_Common):
     """An open-loop recipe: rpm, continuous or ``mill_min`` on / ``rest_min`` off cycles."""
 
     kind: Literal["recipe"]
-    interval_h: Pos | None = None  # default: one mill/rest cycle, or 0.5 h when continuous
+    interval_h: Range(1 / 60, 24.0) | None = None  # default: one mill/rest cycle, or 0.5 h when continuous
     rpm: Pos
     mill_min: Pos | None = None
     rest_min: Pos | None = None

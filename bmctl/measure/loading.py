@@ -30,8 +30,9 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     from skimage import io
 
     p = str(path)
-    if not os.path.isfile(p):
-        raise InputError(f"{p}: no such file")
+    from ..io import check_input_file
+
+    check_input_file(p)  # a regular file of a sane size (no FIFO, no device)
     try:
         with warnings.catch_warnings():  # imageio warns while probing plugins on junk files
             warnings.simplefilter("ignore")

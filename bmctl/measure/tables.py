@@ -157,7 +157,9 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
     """
     p = str(path)
     try:
-        text = Path(path).read_text(encoding="utf-8-sig")
+        from ..io import read_input_bytes  # a regular file of a sane size (no FIFO, no device)
+
+        text = read_input_bytes(path).decode("utf-8-sig")
     except FileNotFoundError:
         raise InputError(f"{p}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:

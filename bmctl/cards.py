@@ -1,0 +1,411 @@
+"""Model cards for any planetary mill and powder: derive what the user does not state, reject
+what contradicts itself, report what a process engineer checks, and bound the work of a run.
+
+A card states what a user knows -- mill geometry, ball material, diameter and count, the
+ball-to-powder ratio or the powder mass, the powder's materials and molar ratio, the initial
+size distribution -- and :func:`resolve_card_data` derives the rest before validation:
+
+* ball (impactor) mass  m = rho_b pi d^3 / 6 (the paper's m = 4.14 g is a 10 mm steel ball);
+* ball density and modulus from ``mill.ball_material`` (:mod:`bmctl.materials`);
+* ball-to-powder ratio from ``powder.mass_kg`` (or the powder mass from the ratio);
+* equivalent E and sigma by the molar law of mixtures, X = sum_i x_i X_i with molar
+  fractions x_i (paper Sec. 4.1), and the powder's density as its true mixture density
+  rho = sum_i x_i M_i / sum_i (x_i M_i / rho_i).
+
+A stated value wins over a derived one, but one that contradicts it is an error: a ball mass
+more than 2 % off rho_b pi d^3 / 6, a ball density or modulus more than 10 % off the named
+ball material, a powder density more than 5 % off the mixture's, an E or sigma outside the
+range of the powder's components (no mixture rule can leave it), a powder mass and ratio that
+disagree by more than 2 %. The bonding/fracture threshold u is never derived: no per-metal
+value exists; it is a calibrated constant of the powder pair (docs/own-mill.md).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any
+
+from .errors import InputError
+
+#: tables every card file must have ([material] may be left out when [powder] is given)
+REQUIRED_TABLES = ("card", "process", "mill", "stochastic", "partition", "thermal", "initial", "simulation")
+#: fields a card may leave out (everything else in a required table must be stated or derived)
+OPTIONAL_FIELDS = {
+    "card": {"description", "sources", "units"},
+    "process": {"mode", "mill_min", "rest_min"},
+    "mill": {"ball_material"},
+    "powder": {"mass_kg"},
+}
+#: relative tolerances of the consistency checks (see the module docstring)
+BALL_MASS_RTOL = 0.02
+BALL_PROPERTY_RTOL = 0.10
+POWDER_DENSITY_RTOL = 0.05
+POWDER_MASS_RTOL = 0.02
+#: sizes below which Hertzian trapping of single particles is not modelled (default validity)
+S_MIN_UM_DEFAULT = 1.0
+
+
+def _rel(a: float, b: float) -> float:
+    return abs(a - b) / abs(b)
+
+
+def _num(table: dict, key: str, where: str) -> float | None:
+    """A number from a raw table, or None; strings and booleans are left for the validator."""
+    v = table.get(key)
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return None
+    return float(v) if math.isfinite(v) and v > 0 else None
+
+
+def ball_mass_kg(diameter_m: float, density_kg_m3: float) -> float:
+    """Mass of one ball, rho pi d^3 / 6 (kg)."""
+    return density_kg_m3 * math.pi / 6.0 * diameter_m**3
+
+
+def mixture(materials: list[str], molar_ratio: list[float], where: str = "powder") -> dict[str, Any]:
+    """Molar law of mixtures of the named materials (paper Sec. 4.1).
+
+    Parameters
+    ----------
+    materials : list of str
+        Names in :data:`bmctl.materials.MATERIALS`.
+    molar_ratio : list of float
+        Moles of each (any scale: 1:3 is ``[1, 3]``).
+    where : str, optional
+        File and table named in error messages.
+
+    Returns
+    -------
+    dict
+        ``elastic_modulus_Pa``, ``yield_stress_Pa``, ``poisson`` (molar averages),
+        ``powder_density_kg_m3`` (true density of the mixture), ``melting_C`` (the lowest),
+        ``fractions`` and the component ranges ``E_range``, ``sigma_range``.
+    """
+    from .materials import material
+
+    props = [material(n, f"{where}.materials") for n in materials]
+    total = sum(molar_ratio)
+    x = [r / total for r in molar_ratio]
+    for p in props:
+        if p.yield_stress_Pa is None or p.molar_mass_kg_mol is None:
+            raise InputError(f"{where}.materials: {p.name} is a ball material (no plastic yield or molar mass "
+                             "in the table); state the powder's properties in [material]")
+    mass = sum(xi * p.molar_mass_kg_mol for xi, p in zip(x, props))
+    volume = sum(xi * p.molar_mass_kg_mol / p.density_kg_m3 for xi, p in zip(x, props))
+    return {
+        "fractions": x,
+        "elastic_modulus_Pa": sum(xi * p.elastic_modulus_Pa for xi, p in zip(x, props)),
+        "yield_stress_Pa": sum(xi * p.yield_stress_Pa for xi, p in zip(x, props)),
+        "poisson": sum(xi * p.poisson for xi, p in zip(x, props)),
+        "powder_density_kg_m3": mass / volume,
+        "melting_C": min(p.melting_C for p in props),
+        "melting_of": min(props, key=lambda p: p.melting_C).name,
+        "E_range": (min(p.elastic_modulus_Pa for p in props), max(p.elastic_modulus_Pa for p in props)),
+        "sigma_range": (min(p.yield_stress_Pa for p in props), max(p.yield_stress_Pa for p in props)),
+    }
+
+
+def _fill_or_check(table: dict, key: str, derived: float, rtol: float, where: str, why: str) -> None:
+    stated = _num(table, key, where)
+    if key not in table:
+        table[key] = derived
+    elif stated is not None and _rel(stated, derived) > rtol:
+        raise InputError(f"{where}.{key}: {stated:g} contradicts {why} = {derived:.4g} "
+                         f"(more than {rtol:.0%} apart); correct it or leave it out to derive it")
+
+
+def resolve_card_data(data: dict[str, Any], source: str) -> dict[str, Any]:
+    """Complete a card's raw TOML tables: check they are all there, derive what is not stated,
+    reject contradictions. Returns a new dict ready for :class:`bmctl.config.ModelCard`.
+
+    Parameters
+    ----------
+    data : dict
+        The parsed TOML.
+    source : str
+        The file, named in error messages.
+
+    Raises
+    ------
+    InputError
+        A missing table or field, or contradictory values (one line naming the field).
+    """
+    from .config import ModelCard
+
+    d = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+    tables = REQUIRED_TABLES + (() if "powder" in d else ("material",))
+    for name in tables:
+        if name not in d:
+            raise InputError(f"{source}: [{name}]: required table is missing")
+        if not isinstance(d[name], dict):
+            raise InputError(f"{source}: {name}: expected a table")
+    for name in ("powder", "validity", "material"):
+        if name in d and not isinstance(d[name], dict):
+            raise InputError(f"{source}: {name}: expected a table")
+    mill, mat = d["mill"], d.setdefault("material", {})
+    # the ball: density and modulus from its material
+    if isinstance(mill.get("ball_material"), str):
+        from .materials import material
+
+        ball = material(mill["ball_material"], f"{source}: mill.ball_material")
+        why = f"the table's {ball.name}"
+        _fill_or_check(mill, "ball_density_kg_m3", ball.density_kg_m3, BALL_PROPERTY_RTOL, f"{source}: mill", why)
+        _fill_or_check(mill, "ball_modulus_Pa", ball.elastic_modulus_Pa, BALL_PROPERTY_RTOL, f"{source}: mill", why)
+    d_b, rho_b = _num(mill, "ball_diameter_m", ""), _num(mill, "ball_density_kg_m3", "")
+    if d_b is not None and rho_b is not None:
+        _fill_or_check(mat, "impactor_mass_kg", ball_mass_kg(d_b, rho_b), BALL_MASS_RTOL, f"{source}: material",
+                       f"a {d_b * 1e3:g} mm ball of {rho_b:g} kg/m^3: rho pi d^3/6")
+    # the powder: law of mixtures, and its mass
+    powder = d.get("powder")
+    if isinstance(powder, dict):
+        names, ratio = powder.get("materials"), powder.get("molar_ratio")
+        ok = (isinstance(names, list) and isinstance(ratio, list) and len(names) == len(ratio) > 0
+              and all(isinstance(n, str) for n in names)
+              and all(isinstance(r, (int, float)) and not isinstance(r, bool) and math.isfinite(r) and r > 0
+                      for r in ratio))
+        if ok:
+            mix = mixture(names, [float(r) for r in ratio], f"{source}: powder")
+            where = f"{source}: material"
+            _fill_or_check(mat, "powder_density_kg_m3", mix["powder_density_kg_m3"], POWDER_DENSITY_RTOL, where,
+                           "the mixture's density")
+            for key, rng in (("elastic_modulus_Pa", mix["E_range"]), ("yield_stress_Pa", mix["sigma_range"])):
+                stated = _num(mat, key, where)
+                if key not in mat:
+                    mat[key] = mix[key]
+                elif stated is not None and not (rng[0] * 0.99 <= stated <= rng[1] * 1.01):
+                    raise InputError(f"{where}.{key}: {stated:g} lies outside the range of the powder's "
+                                     f"materials [{rng[0]:g}, {rng[1]:g}]: no law of mixtures gives it")
+        n_b = mill.get("ball_count")
+        m_p, m_b = _num(powder, "mass_kg", ""), _num(mat, "impactor_mass_kg", "")
+        if m_p is not None and m_b is not None and isinstance(n_b, int) and not isinstance(n_b, bool) and n_b > 0:
+            _fill_or_check(mill, "ball_to_powder_ratio", n_b * m_b / m_p, POWDER_MASS_RTOL, f"{source}: mill",
+                           f"{n_b} balls of {m_b * 1e3:.4g} g over powder.mass_kg {m_p:g}")
+    # completeness: every field that has a meaning is stated or derived
+    for name in tables + tuple(t for t in ("powder", "validity") if t in d):
+        model = ModelCard.model_fields[name].annotation
+        model = next((a for a in getattr(model, "__args__", (model,)) if a is not type(None)), model)
+        optional = OPTIONAL_FIELDS.get(name, set()) | (set(model.model_fields) if name == "validity" else set())
+        for field in model.model_fields:
+            if field not in optional and field not in d[name]:
+                raise InputError(f"{source}: {name}.{field}: required field is missing")
+    return d
+
+
+# --- validity ------------------------------------------------------------------------------------
+
+def validity(card) -> dict[str, Any]:
+    """The range where ``card`` holds, with the reason of each limit.
+
+    Returns
+    -------
+    dict
+        ``rpm_max``, ``s_min_um``, ``s_max_um``, ``temperature_max_C`` (None if unknown) and
+        ``temperature_reason``.
+    """
+    v = card.validity
+    t_max, reason = v.temperature_max_C, "stated in [validity]"
+    if t_max is None and card.powder is not None:
+        mix = mixture(card.powder.materials, card.powder.molar_ratio)
+        t_max, reason = mix["melting_C"], f"melting point of {mix['melting_of']}"
+    return {
+        "rpm_max": min(v.rpm_max or card.mill.rpm_max, card.mill.rpm_max),
+        "s_min_um": v.s_min_um if v.s_min_um is not None else S_MIN_UM_DEFAULT,
+        "s_max_um": v.s_max_um if v.s_max_um is not None else card.simulation.s_max_um,
+        "temperature_max_C": t_max,
+        "temperature_reason": reason,
+    }
+
+
+def run_warnings(card, t_h, temperature_c, s_mean_um) -> list[str]:
+    """Warnings for a run that left the card's validity range (one line each).
+
+    Parameters
+    ----------
+    card : ModelCard
+    t_h, temperature_c, s_mean_um : sequences of float
+        Recorded times, vial temperatures and mean sizes.
+    """
+    val = validity(card)
+    out = []
+    t_max = val["temperature_max_C"]
+    hot = [(t, T) for t, T in zip(t_h, temperature_c) if t_max is not None and T > t_max]
+    if hot:
+        t, T = max(hot, key=lambda x: x[1])
+        out.append(f"{card.card.name}: vial temperature {T:.0f} C at {t:g} h is above the card's maximum "
+                   f"{t_max:g} C ({val['temperature_reason']}): the model does not hold there")
+    for t, s in zip(t_h, s_mean_um):
+        if not (val["s_min_um"] <= s <= val["s_max_um"]):
+            out.append(f"{card.card.name}: mean size {s:.3g} um at {t:g} h is outside the card's "
+                       f"[{val['s_min_um']:g}, {val['s_max_um']:g}] um")
+            break
+    return out
+
+
+# --- the report of `bmctl card show` -------------------------------------------------------------
+
+def report_rpms(card) -> list[float]:
+    """The speeds of the report: the card's rpm x 0.5, 0.75, 1, 1.25, and rpm_max (distinct, <= rpm_max)."""
+    base = card.process.rpm or card.mill.rpm_max / 2
+    rpms = {round(base * f) for f in (0.5, 0.75, 1.0, 1.25)} | {round(card.mill.rpm_max)}
+    return sorted(r for r in rpms if 0 < r <= card.mill.rpm_max)
+
+
+def card_report(card, rpms: list[float] | None = None) -> dict[str, Any]:
+    """Derived quantities a process engineer checks, per rpm, and the card's validity range.
+
+    Parameters
+    ----------
+    card : ModelCard
+    rpms : list of float, optional
+        Sun-disc speeds (default :func:`report_rpms`).
+
+    Returns
+    -------
+    dict
+        ``loading`` (ball and powder masses, fill), ``powder`` (composition and the law of
+        mixtures beside the stated values), ``rows`` (one dict per rpm: ``rpm``, ``v_ms``
+        ball velocity (Burgio), ``collisions_per_s`` f = Z v / l, ``impact_energy_mJ`` mean
+        m v^2 / 2, ``hertz_radius_um``, ``trapped_share``, ``hits_per_particle_per_h``,
+        ``power_W`` dissipated, ``steady_temperature_C`` = T_amb + P tau / C, ``valid``),
+        and ``validity``.
+    """
+    from .moments.physics import plant_hit_rate  # lazy: the kinematics' home may move
+    from .plant.kinematics import kinematics
+
+    mill, mat, th = card.mill, card.material, card.thermal
+    balls_kg = mill.ball_count * mat.impactor_mass_kg
+    vial_m3 = math.pi * mill.vial_radius_m**2 * mill.vial_height_m
+    loading = {
+        "ball_mass_g": mat.impactor_mass_kg * 1e3,
+        "ball_mass_from_geometry_g": ball_mass_kg(mill.ball_diameter_m, mill.ball_density_kg_m3) * 1e3,
+        "balls_total_g": balls_kg * 1e3,
+        "powder_g": balls_kg / mill.ball_to_powder_ratio * 1e3,
+        "ball_to_powder_ratio": mill.ball_to_powder_ratio,
+        "vial_ml": vial_m3 * 1e6,
+        "ball_fill": mill.ball_count * math.pi / 6 * mill.ball_diameter_m**3 / vial_m3,
+    }
+    powder = None
+    if card.powder is not None:
+        mix = mixture(card.powder.materials, card.powder.molar_ratio)
+        powder = {
+            "materials": list(card.powder.materials),
+            "molar_fractions": mix["fractions"],
+            "E_GPa": (mat.elastic_modulus_Pa / 1e9, mix["elastic_modulus_Pa"] / 1e9),
+            "sigma_MPa": (mat.yield_stress_Pa / 1e6, mix["yield_stress_Pa"] / 1e6),
+            "density_kg_m3": (mat.powder_density_kg_m3, mix["powder_density_kg_m3"]),
+            "poisson": mix["poisson"],
+        }
+    val = validity(card)
+    rows = []
+    for rpm in rpms or report_rpms(card):
+        k = kinematics(card, float(rpm))
+        power = k.mean_power_W
+        t_ss = th.ambient_C + power * th.cooling_time_s / th.heat_capacity_J_per_K
+        rows.append({
+            "rpm": float(rpm),
+            "v_ms": k.v_rms,
+            "collisions_per_s": k.frequency,
+            "impact_energy_mJ": 1.5 * k.energy_scale * 1e3,  # mean of Gamma(3/2, theta), eqn (5)
+            "hertz_radius_um": k.contact_radius * 1e6,
+            "trapped_share": k.trapped_fraction,
+            "hits_per_particle_per_h": plant_hit_rate(card, k) * 3600.0,
+            "power_W": power,
+            "steady_temperature_C": t_ss,
+            "valid": rpm <= val["rpm_max"] and (val["temperature_max_C"] is None or t_ss <= val["temperature_max_C"]),
+        })
+    return {"name": card.card.name, "loading": loading, "powder": powder, "rows": rows, "validity": val}
+
+
+# --- bounded work --------------------------------------------------------------------------------
+
+#: plant throughput used to turn work into time: particle impacts per CPU second and CPU seconds
+#: per time step, measured on this project's machine (fan card: 400 rpm, 20,000 particles, 1 h:
+#: 2.8e5 impacts, 551 steps in 0.81 s; 300 rpm, 5,000 particles, 2 h: 8.2e4 impacts, 657 steps
+#: in 0.50 s; a 100 h rest: 6,000 steps in 0.21 s) and rounded towards the slow side
+IMPACTS_PER_CPU_S = 2e5
+STEP_CPU_S = 3e-4
+#: bytes per recorded raster bin (float64 record + float32 output copy) and per simulated particle
+RASTER_BYTES_PER_BIN = 12
+PARTICLE_BYTES = 200
+
+
+def budget() -> dict[str, float]:
+    """The work budget: ``cpu_s`` (env ``BMCTL_BUDGET_CPU_H``, default 24 h) and ``memory_bytes``
+    (env ``BMCTL_BUDGET_MEMORY_GB``, default half of this machine's physical memory)."""
+    def env(name: str, default: float) -> float:
+        text = os.environ.get(name)
+        if text is None:
+            return default
+        try:
+            v = float(text)
+        except ValueError:
+            raise InputError(f"{name}: not a number: {text!r}") from None
+        if not (math.isfinite(v) and v > 0):
+            raise InputError(f"{name}: must be a positive number (got {text})")
+        return v
+
+    try:
+        phys = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
+        phys = 8 * 2**30
+    return {"cpu_s": env("BMCTL_BUDGET_CPU_H", 24.0) * 3600.0,
+            "memory_bytes": env("BMCTL_BUDGET_MEMORY_GB", phys / 2 / 2**30) * 2**30}
+
+
+def simulation_work(card, segments, particles: int, every_h: float, raster: bool = True) -> dict[str, float]:
+    """Estimated work of a plant run: impacts, time steps, records, CPU seconds and memory.
+
+    Parameters
+    ----------
+    card : ModelCard
+    segments : sequence of (hours, rpm)
+    particles : int
+        Simulated particles M.
+    every_h : float
+        Recording interval.
+    raster : bool, optional
+        Whether each record keeps the population raster (``bmctl simulate``) or moments only.
+    """
+    from .moments.physics import plant_hit_rate
+    from .plant.kinematics import kinematics
+
+    sim = card.simulation
+    impacts = steps = 0.0
+    for hours, rpm in segments:
+        seconds = hours * 3600.0
+        rate = plant_hit_rate(card, kinematics(card, float(rpm))) if rpm > 0 else 0.0
+        dt = min(sim.max_step_s, sim.batch_fraction / rate) if rate > 0 else sim.max_step_s
+        impacts += rate * particles * seconds / 2.0
+        steps += seconds / dt
+    total_h = sum(h for h, _ in segments)
+    records = total_h / every_h + len(segments) + 1
+    bins = (sim.s_max_um / 1.0) * 100 if raster else 10  # DS_UM = 1 um, DR = 0.01
+    return {
+        "impacts": impacts,
+        "steps": steps,
+        "records": records,
+        "cpu_s": impacts / IMPACTS_PER_CPU_S + steps * STEP_CPU_S,
+        "memory_bytes": records * bins * RASTER_BYTES_PER_BIN + particles * PARTICLE_BYTES,
+    }
+
+
+def check_work(work: dict[str, float], flags: str) -> None:
+    """Refuse a run whose estimate exceeds :func:`budget`, naming the flags and the limit.
+
+    Parameters
+    ----------
+    work : dict
+        From :func:`simulation_work` (or any dict with ``cpu_s`` and ``memory_bytes``).
+    flags : str
+        What the user can change, e.g. ``"--hours/--particles"``.
+    """
+    b = budget()
+    if work["cpu_s"] > b["cpu_s"]:
+        raise InputError(f"{flags}: the run would take ~{work['cpu_s'] / 3600:.3g} CPU hours "
+                         f"({work.get('impacts', 0):.3g} impacts, {work.get('steps', 0):.3g} steps), over the budget "
+                         f"of {b['cpu_s'] / 3600:g} h (BMCTL_BUDGET_CPU_H)")
+    if work["memory_bytes"] > b["memory_bytes"]:
+        raise InputError(f"{flags}: the run would need ~{work['memory_bytes'] / 2**30:.3g} GiB "
+                         f"({work.get('records', 0):.3g} recorded populations), over the budget of "
+                         f"{b['memory_bytes'] / 2**30:.3g} GiB (BMCTL_BUDGET_MEMORY_GB)")

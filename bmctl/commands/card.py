@@ -1,0 +1,74 @@
+"""Model cards: show what a card implies (derived masses, law of mixtures, kinematics per rpm, validity)."""
+
+from __future__ import annotations
+
+from ._args import float_arg
+
+
+def configure(p):
+    sub = p.add_subparsers(dest="card_command", metavar="ACTION", parser_class=type(p))
+    sub.required = True
+    show = sub.add_parser("show", help="derived quantities a process engineer checks, as a table",
+                          description="Derived quantities of a model card: loading, law of mixtures, and per rpm "
+                                      "ball velocity, collision frequency, impact energy, Hertz radius, trapped "
+                                      "share, hits per particle per hour, dissipated power, steady vial temperature.")
+    show.add_argument("model", metavar="CARD.toml", help="model card")
+    show.add_argument("--rpm", type=_rpm_list, default=None, metavar="R1,R2,...",
+                      help="speeds of the table (default: the card's rpm x 0.5, 0.75, 1, 1.25 and rpm_max)")
+
+
+def _rpm_list(text: str) -> list[float]:
+    parse = float_arg("--rpm", lo=0.0, hi=2000.0, strict=True)
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    if not items or len(items) > 20:
+        from ..errors import InputError
+
+        raise InputError(f"--rpm: expected 1 to 20 comma-separated speeds (got {text!r})")
+    return [parse(t) for t in items]
+
+
+def format_report(rep: dict) -> str:
+    """The report of :func:`bmctl.cards.card_report` as text (one table per section)."""
+    ld, val = rep["loading"], rep["validity"]
+    lines = [f"card {rep['name']}", "", "loading"]
+    lines.append(f"  ball mass          {ld['ball_mass_g']:.4g} g (rho pi d^3/6: {ld['ball_mass_from_geometry_g']:.4g} g)")
+    lines.append(f"  balls, total       {ld['balls_total_g']:.4g} g; fill {ld['ball_fill']:.1%} of a {ld['vial_ml']:.3g} ml vial")
+    lines.append(f"  powder             {ld['powder_g']:.4g} g (ball-to-powder ratio {ld['ball_to_powder_ratio']:.4g})")
+    pw = rep["powder"]
+    if pw is not None:
+        comp = " + ".join(f"{x:.3g} {n}" for n, x in zip(pw["materials"], pw["molar_fractions"]))
+        lines += ["", f"powder (molar fractions {comp}); card value / molar law of mixtures"]
+        lines.append(f"  E                  {pw['E_GPa'][0]:.4g} / {pw['E_GPa'][1]:.4g} GPa")
+        lines.append(f"  yield stress       {pw['sigma_MPa'][0]:.4g} / {pw['sigma_MPa'][1]:.4g} MPa")
+        lines.append(f"  density            {pw['density_kg_m3'][0]:.5g} / {pw['density_kg_m3'][1]:.5g} kg/m^3")
+        lines.append(f"  Poisson ratio      {pw['poisson']:.3g} (reported; not used by the model)")
+    head = ("rpm", "v m/s", "coll./s", "E_imp mJ", "a_H um", "trapped", "hits/p/h", "P W", "T_ss C", "")
+    lines += ["", "per rpm (Burgio kinematics; Hertz radius after Maurice & Courtney)",
+              "  " + "".join(f"{h:>10}" for h in head)]
+    for r in rep["rows"]:
+        cells = (f"{r['rpm']:.0f}", f"{r['v_ms']:.3g}", f"{r['collisions_per_s']:.4g}", f"{r['impact_energy_mJ']:.3g}",
+                 f"{r['hertz_radius_um']:.3g}", f"{r['trapped_share']:.2e}", f"{r['hits_per_particle_per_h']:.3g}",
+                 f"{r['power_W']:.3g}", f"{r['steady_temperature_C']:.0f}", "" if r["valid"] else "outside")
+        lines.append("  " + "".join(f"{c:>10}" for c in cells))
+    t_max = val["temperature_max_C"]
+    lines += ["", "validity",
+              f"  rpm                0 to {val['rpm_max']:g}",
+              f"  sizes              {val['s_min_um']:g} to {val['s_max_um']:g} um",
+              f"  vial temperature   " + ("no stated maximum" if t_max is None
+                                         else f"up to {t_max:g} C ({val['temperature_reason']})")]
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from ..cards import card_report
+    from ..config import load_card
+
+    card = load_card(args.model)
+    if args.rpm is not None:
+        for r in args.rpm:
+            if r > card.mill.rpm_max:
+                from ..errors import InputError
+
+                raise InputError(f"--rpm: {r:g} exceeds the mill's rpm_max {card.mill.rpm_max:g} ({args.model})")
+    print(format_report(card_report(card, args.rpm)))
+    return 0
