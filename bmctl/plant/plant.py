@@ -34,6 +34,8 @@ from .kernels import Kernels, PaperKernels
 from .kinematics import Kinematics, kinematics
 from .population import UM, initial_sample, moments, raster
 
+ENGINES = ("numba", "numpy")  # the compiled event step (default) and the numpy batch code it replicates
+
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 
 
@@ -94,6 +96,12 @@ class Plant:
     kernels : Kernels, optional
         The impact physics the event machinery runs (default: the paper's,
         :class:`bmctl.plant.kernels.PaperKernels`); verification swaps in simple kernels.
+    engine : {"numba", "numpy"}, optional
+        How the events run: ``"numba"`` (default) runs the paper's kernels as one compiled
+        loop per step (:mod:`bmctl.plant._compiled`), ``"numpy"`` as vectorised numpy batches.
+        Both draw the same variates in the same order: a seed gives the same trajectory
+        (docs/performance.md). Other kernels, and subclasses that override the event
+        methods, always run the numpy code.
 
     Examples
     --------
@@ -106,9 +114,12 @@ class Plant:
     """
 
     def __init__(self, card: ModelCard, rng: np.random.Generator, particles: int | None = None,
-                 kernels: Kernels | None = None):
+                 kernels: Kernels | None = None, engine: str = "numba"):
+        if engine not in ENGINES:
+            raise InputError(f"engine: must be one of {', '.join(ENGINES)} (got {engine!r})")
         self.card = card
         self.kernels: Kernels = PaperKernels() if kernels is None else kernels
+        self.engine = engine
         self.rng = rng
         M = int(particles or card.simulation.particles)
         if M < 2:
@@ -261,6 +272,9 @@ class Plant:
         share no slot, so they run at once, and every slot sees its impacts in queue order.
         The physics of an impact is ``self.kernels``.
         """
+        if self._compiled_step():
+            self._impacts_compiled(kin, n, flush)
+            return
         M, rng = self.M, self.rng
         i = rng.integers(0, M, size=n)
         j = (i + rng.integers(1, M, size=n)) % M  # uniform over the others
@@ -275,6 +289,49 @@ class Plant:
             if not flush:
                 break
         self._queue = (i, j, v)
+
+    def _compiled_step(self) -> bool:
+        """Whether the events run compiled: numba engine, the paper's kernels, the event methods as here."""
+        cls = type(self)
+        return (self.engine == "numba" and type(self.kernels) is PaperKernels
+                and cls._impact_round is Plant._impact_round and cls._rebalance is Plant._rebalance)
+
+    def _impacts_compiled(self, kin: Kinematics, n: int, flush: bool) -> None:
+        """:meth:`_impacts` with the paper's kernels as one compiled call (same draws, same results)."""
+        from . import _compiled as cc  # numba is imported on the first compiled step only
+
+        if getattr(self, "_seen", None) is None or self._seen.size != self.M:
+            self._seen = np.zeros(self.M, dtype=np.bool_)
+        self.s = np.ascontiguousarray(self.s, dtype=float)
+        self.r = np.ascontiguousarray(self.r, dtype=float)
+        qi, qj, qv, n_imp, n_bond, n_frac = cc.impacts(self.rng, self.s, self.r, *self._queue, n, flush,
+                                                      self._compiled_params(kin, cc), self._seen)
+        self._queue = (qi, qj, qv)
+        self.counts.impacts += n_imp
+        self.counts.bonds += n_bond
+        self.counts.fractures += n_frac
+
+    def _compiled_params(self, kin: Kinematics, cc) -> np.ndarray:
+        """The float parameters of :func:`bmctl.plant._compiled.impacts`, as PaperKernels.impact computes them."""
+        from .kernels import dissipation_coefficients
+
+        card = self.card
+        st, mat, part = card.stochastic, card.material, card.partition
+        a, b = dissipation_coefficients(st.alpha, st.beta)
+        u_bond, u_frac = thermal.thresholds(mat.bond_threshold_J_per_m, self.temperature_C, self.hardening,
+                                            card.thermal)
+        p = np.empty(cc.N_PARAMS)
+        p[cc.P_THETA] = kin.energy_scale
+        p[cc.P_TRAPPED] = kin.trapped_fraction * self.total_area  # (6)
+        p[cc.P_SQRT_A], p[cc.P_SQRT_B] = math.sqrt(a), math.sqrt(b)
+        p[cc.P_ZETA_B], p[cc.P_XI_A] = st.alpha + 1.0, st.beta + 1.0  # (9)
+        p[cc.P_SIGMA] = self.effective_yield_stress()
+        p[cc.P_U_BOND], p[cc.P_U_FRAC] = u_bond, u_frac
+        p[cc.P_STRAIN_EFF], p[cc.P_MAX_STRAIN] = part.strain_efficiency, part.max_strain
+        p[cc.P_ETA_EQ] = part.equiaxing_efficiency * max(0.0, 1.0 - part.equiaxing_hardening * self.hardening)
+        p[cc.P_MODULUS], p[cc.P_SHARPNESS] = mat.elastic_modulus_Pa, part.threshold_sharpness
+        p[cc.P_GAMMA], p[cc.P_DELTA] = self._gamma, self._delta
+        return p
 
     def _impact_round(self, kin: Kinematics, i: np.ndarray, j: np.ndarray, v: np.ndarray) -> None:
         """Impacts on pairs (i, j) that share no slot (rebalancing slots v included)."""
@@ -405,7 +462,7 @@ def _check_input(rpm: float, hours: float, milling: float, rpm_max: float) -> No
 
 
 def make_plant(card: ModelCard | str | Path, seed: int | None = None, particles: int | None = None,
-               rng: np.random.Generator | None = None) -> Plant:
+               rng: np.random.Generator | None = None, engine: str = "numba") -> Plant:
     """Create a :class:`Plant` from a model card (object or TOML path).
 
     Parameters
@@ -418,6 +475,8 @@ def make_plant(card: ModelCard | str | Path, seed: int | None = None, particles:
         Number of simulated particles M.
     rng : numpy.random.Generator, optional
         Use this generator instead of a new one.
+    engine : {"numba", "numpy"}, optional
+        See :class:`Plant`.
 
     Returns
     -------
@@ -432,7 +491,7 @@ def make_plant(card: ModelCard | str | Path, seed: int | None = None, particles:
     """
     if not isinstance(card, ModelCard):
         card = load_card(card)
-    return Plant(card, rng if rng is not None else np.random.default_rng(seed), particles)
+    return Plant(card, rng if rng is not None else np.random.default_rng(seed), particles, engine=engine)
 
 
 __all__ = ["Plant", "make_plant", "default_card", "Record", "EventCounts", "card_schedule"]
