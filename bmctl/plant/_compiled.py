@@ -25,7 +25,8 @@ from .events import R_MAX
 
 # indices into the float parameter vector (built by Plant._numba_params)
 P_THETA, P_TRAPPED, P_SQRT_A, P_SQRT_B, P_ZETA_B, P_XI_A = 0, 1, 2, 3, 4, 5
-P_SIGMA, P_U_BOND, P_U_FRAC, P_STRAIN_EFF, P_MAX_STRAIN, P_ETA_EQ = 6, 7, 8, 9, 10, 11
+P_SIGMA, P_U_BOND, P_U_FRAC, P_ETA_EQ = 6, 7, 8, 9  # change with temperature and hardening (contiguous)
+P_STRAIN_EFF, P_MAX_STRAIN = 10, 11
 P_MODULUS, P_SHARPNESS, P_GAMMA, P_DELTA = 12, 13, 14, 15
 N_PARAMS = 16
 
@@ -286,3 +287,31 @@ def impacts(rng, s, r, qi, qj, qv, n, flush, p, seen):
         if not flush:
             break
     return i, j, v, n_imp, n_bond, n_frac
+
+
+@njit(cache=True)
+def run_steps(rng, s, r, qi, qj, qv, lam, p, seen):
+    """The time steps of one milling interval (Plant._run): Poisson(lam[k]) new impacts per step, then the flush.
+
+    Parameters
+    ----------
+    rng, s, r, qi, qj, qv, seen
+        As :func:`impacts`.
+    lam : ndarray, shape (K,)
+        Mean number of new impacts of each step.
+    p : ndarray, shape (K + 1, N_PARAMS)
+        Float parameters of each step (temperature and hardening at its start), the last row for the flush.
+
+    Returns
+    -------
+    qi, qj, qv, impacts, bonds, fractures
+    """
+    n_imp, n_bond, n_frac = 0, 0, 0
+    K = lam.size
+    for k in range(K + 1):
+        n = rng.poisson(lam[k]) if k < K else 0
+        qi, qj, qv, a, b, f = impacts(rng, s, r, qi, qj, qv, n, k == K, p[k], seen)
+        n_imp += a
+        n_bond += b
+        n_frac += f
+    return qi, qj, qv, n_imp, n_bond, n_frac

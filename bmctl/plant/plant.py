@@ -247,12 +247,16 @@ class Plant:
         rate = self.hit_rate(kin)
         power = kin.mean_power_W
         th = self.card.thermal
+        compiled = rate > 0 and self._compiled_step()
+        steps = []  # compiled: (mean new impacts, parameters at the step's start) of each step, run at the end
         done = 0.0
         while done < seconds - 1e-9:
             dt = min(sim.max_step_s, seconds - done)
             if rate > 0:
                 dt = min(dt, sim.batch_fraction / rate)
-            if rate > 0:
+            if compiled:
+                steps.append((rate * self.M * dt / 2.0, self._step_params()))
+            elif rate > 0:
                 self._impacts(kin, int(self.rng.poisson(rate * self.M * dt / 2.0)))
             self.temperature_C = thermal.step_temperature(self.temperature_C, power, dt, th)
             self.hardening = thermal.step_hardening(self.hardening, power, self.powder_kg, dt, th)
@@ -260,7 +264,10 @@ class Plant:
             done += dt
             if progress is not None:
                 progress(dt / 3600.0)
-        self._impacts(kin, 0, flush=True)  # impacts still queued belong to this interval
+        if compiled:
+            self._run_compiled(kin, steps)
+        else:
+            self._impacts(kin, 0, flush=True)  # impacts still queued belong to this interval
 
     def _impacts(self, kin: Kinematics, n: int, flush: bool = False) -> None:
         """Queue ``n`` new impacts and process the queue's first round (every round with ``flush``).
@@ -298,37 +305,56 @@ class Plant:
 
     def _impacts_compiled(self, kin: Kinematics, n: int, flush: bool) -> None:
         """:meth:`_impacts` with the paper's kernels as one compiled call (same draws, same results)."""
+        self._run_compiled(kin, [], n_new=n, flush=flush)
+
+    def _run_compiled(self, kin: Kinematics, steps: list, n_new: int = 0, flush: bool = True) -> None:
+        """Run the steps (mean new impacts, :meth:`_step_params`) of :meth:`_run`, then the flush, compiled.
+
+        Without steps: ``n_new`` impacts and one round (every round with ``flush``), as :meth:`_impacts`.
+        """
         from . import _compiled as cc  # numba is imported on the first compiled step only
 
         if getattr(self, "_seen", None) is None or self._seen.size != self.M:
             self._seen = np.zeros(self.M, dtype=np.bool_)
         self.s = np.ascontiguousarray(self.s, dtype=float)
         self.r = np.ascontiguousarray(self.r, dtype=float)
-        qi, qj, qv, n_imp, n_bond, n_frac = cc.impacts(self.rng, self.s, self.r, *self._queue, n, flush,
-                                                      self._compiled_params(kin, cc), self._seen)
+        base = self._static_params(kin, cc)
+        rows = [dyn for _, dyn in steps] + [self._step_params()]
+        p = np.repeat(base[None, :], len(rows), axis=0)
+        p[:, cc.P_SIGMA:cc.P_ETA_EQ + 1] = rows
+        if steps:
+            lam = np.array([m for m, _ in steps])
+            qi, qj, qv, n_imp, n_bond, n_frac = cc.run_steps(self.rng, self.s, self.r, *self._queue, lam, p,
+                                                             self._seen)
+        else:
+            qi, qj, qv, n_imp, n_bond, n_frac = cc.impacts(self.rng, self.s, self.r, *self._queue, n_new, flush,
+                                                           p[0], self._seen)
         self._queue = (qi, qj, qv)
         self.counts.impacts += n_imp
         self.counts.bonds += n_bond
         self.counts.fractures += n_frac
 
-    def _compiled_params(self, kin: Kinematics, cc) -> np.ndarray:
-        """The float parameters of :func:`bmctl.plant._compiled.impacts`, as PaperKernels.impact computes them."""
+    def _step_params(self) -> tuple[float, float, float, float]:
+        """sigma_eff, u_bond, u_frac and the rounding efficiency at the current temperature and hardening."""
+        card = self.card
+        part = card.partition
+        u_bond, u_frac = thermal.thresholds(card.material.bond_threshold_J_per_m, self.temperature_C, self.hardening,
+                                            card.thermal)
+        eta = part.equiaxing_efficiency * max(0.0, 1.0 - part.equiaxing_hardening * self.hardening)
+        return (self.effective_yield_stress(), u_bond, u_frac, eta)
+
+    def _static_params(self, kin: Kinematics, cc) -> np.ndarray:
+        """The float parameters of :func:`bmctl.plant._compiled.impacts` that stay fixed over an interval."""
         from .kernels import dissipation_coefficients
 
-        card = self.card
-        st, mat, part = card.stochastic, card.material, card.partition
+        st, mat, part = self.card.stochastic, self.card.material, self.card.partition
         a, b = dissipation_coefficients(st.alpha, st.beta)
-        u_bond, u_frac = thermal.thresholds(mat.bond_threshold_J_per_m, self.temperature_C, self.hardening,
-                                            card.thermal)
-        p = np.empty(cc.N_PARAMS)
+        p = np.zeros(cc.N_PARAMS)
         p[cc.P_THETA] = kin.energy_scale
         p[cc.P_TRAPPED] = kin.trapped_fraction * self.total_area  # (6)
         p[cc.P_SQRT_A], p[cc.P_SQRT_B] = math.sqrt(a), math.sqrt(b)
         p[cc.P_ZETA_B], p[cc.P_XI_A] = st.alpha + 1.0, st.beta + 1.0  # (9)
-        p[cc.P_SIGMA] = self.effective_yield_stress()
-        p[cc.P_U_BOND], p[cc.P_U_FRAC] = u_bond, u_frac
         p[cc.P_STRAIN_EFF], p[cc.P_MAX_STRAIN] = part.strain_efficiency, part.max_strain
-        p[cc.P_ETA_EQ] = part.equiaxing_efficiency * max(0.0, 1.0 - part.equiaxing_hardening * self.hardening)
         p[cc.P_MODULUS], p[cc.P_SHARPNESS] = mat.elastic_modulus_Pa, part.threshold_sharpness
         p[cc.P_GAMMA], p[cc.P_DELTA] = self._gamma, self._delta
         return p
