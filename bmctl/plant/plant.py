@@ -301,7 +301,8 @@ class Plant:
         """Whether the events run compiled: numba engine, the paper's kernels, the event methods as here."""
         cls = type(self)
         return (self.engine == "numba" and type(self.kernels) is PaperKernels
-                and cls._impact_round is Plant._impact_round and cls._rebalance is Plant._rebalance)
+                and cls._impact_round is Plant._impact_round and cls._rebalance is Plant._rebalance
+                and _compiled_ready())
 
     def _impacts_compiled(self, kin: Kinematics, n: int, flush: bool) -> None:
         """:meth:`_impacts` with the paper's kernels as one compiled call (same draws, same results)."""
@@ -460,6 +461,39 @@ class Plant:
         self.total_area = float(snap["total_area"])
         self.counts = EventCounts(*snap["counts"])
         self.rng.bit_generator.state = snap["rng"]
+
+
+_READY = {"warm": False, "checked": -math.inf}
+_RECHECK_S = 30.0
+
+
+def _compiled_ready() -> bool:
+    """Whether the compiled kernels are in the on-disk cache; if not, compile them in the background.
+
+    Until the cache is warm the numba engine runs the numpy code, which gives the same results:
+    a first run on a fresh install is never slower than the numpy engine (the compile, once,
+    takes a background process; docs/performance.md). Set ``BMCTL_COMPILE=now`` to compile in
+    this process instead.
+    """
+    if _READY["warm"]:
+        return True
+    import os
+    import time
+
+    from . import _compiled as cc
+
+    if os.environ.get("BMCTL_COMPILE", "") == "now":
+        _READY["warm"] = True
+        return True
+    now = time.monotonic()
+    if now - _READY["checked"] < _RECHECK_S:
+        return False
+    _READY["checked"] = now
+    if cc.cache_is_warm():
+        _READY["warm"] = True
+    else:
+        cc.compile_in_background()
+    return _READY["warm"]
 
 
 def _first_round(i: np.ndarray, j: np.ndarray, v: np.ndarray, M: int) -> np.ndarray:
