@@ -323,13 +323,9 @@ class Plant:
         rows = [dyn for _, dyn in steps] + [self._step_params()]
         p = np.repeat(base[None, :], len(rows), axis=0)
         p[:, cc.P_SIGMA:cc.P_ETA_EQ + 1] = rows
-        if steps:
-            lam = np.array([m for m, _ in steps])
-            qi, qj, qv, n_imp, n_bond, n_frac = cc.run_steps(self.rng, self.s, self.r, *self._queue, lam, p,
-                                                             self._seen)
-        else:
-            qi, qj, qv, n_imp, n_bond, n_frac = cc.impacts(self.rng, self.s, self.r, *self._queue, n_new, flush,
-                                                           p[0], self._seen)
+        lam = np.array([m for m, _ in steps], dtype=float)
+        qi, qj, qv, n_imp, n_bond, n_frac = cc.run_steps(self.rng, self.s, self.r, *self._queue, lam, p, self._seen,
+                                                         n_new, flush)
         self._queue = (qi, qj, qv)
         self.counts.impacts += n_imp
         self.counts.bonds += n_bond
