@@ -135,12 +135,13 @@ def _round(rng, s, r, i, j, v, p, seen):
             r_new[q] = rq
             # fracture under the impact load: (20), (17)
             xq = x[q]
-            dc = 2 * sq * math.sqrt(xq * (1 - xq))
             pc = min(max(p[P_DELTA] * sq**2 / (1 - rq) * xq * (1 - xq), 0.0), 1.0)
-            pu = _threshold(dud[q] / max(dc, 1e-300), p[P_U_FRAC], sharp)
-            if u_frac[q] < pc * pu:
-                frac[q] = True
-                n_frac += 1
+            if u_frac[q] < pc:  # else no fracture whatever p_u <= 1: skip (17)
+                dc = 2 * sq * math.sqrt(xq * (1 - xq))
+                pu = _threshold(dud[q] / max(dc, 1e-300), p[P_U_FRAC], sharp)
+                if u_frac[q] < pc * pu:
+                    frac[q] = True
+                    n_frac += 1
 
     # write back: shape change, then fragment 1 in place (order of Plant._impact_round)
     for k in range(n):
@@ -173,10 +174,12 @@ def _round(rng, s, r, i, j, v, p, seen):
         if frac[k] or frac[n + k]:
             continue
         si, sj, ri, rj = s_old[k], s_old[n + k], r_new[k], r_new[n + k]
+        pb = min(max(p[P_GAMMA] * si * sj / ((1 - ri) * (1 - rj)), 0.0), 1.0)  # (15)
+        if u_bond[k] >= pb:  # no bond whatever p_u <= 1: skip (16), (17)
+            continue
         d = 0.75 * si * sj / (si + sj) * math.sqrt(3 * pi * u_in[k] / (p[P_MODULUS] * (si**3.0 + sj**3.0)))  # (16)
         d = min(d, pi / 2 * min(si, sj))
         pu = _threshold((dud[k] + dud[n + k]) / d, p[P_U_BOND], sharp)  # (17)
-        pb = min(max(p[P_GAMMA] * si * sj / ((1 - ri) * (1 - rj)), 0.0), 1.0)  # (15)
         if u_bond[k] < pb * pu:
             bond[k] = True
             sb = math.sqrt(si**2 + sj**2)  # (18), (2)
