@@ -1,11 +1,15 @@
-"""Plant speed: particle-events per second and the real-time factor.
+"""Plant speed: particle-events per second of the numpy and the compiled (numba) engine, side by side.
 
-Run:  python benchmarks/bench_plant.py [--particles 20000] [--hours 12] [--repeat 3]
+Run:  python benchmarks/bench_plant.py [--particles 4000 20000] [--hours 12] [--repeat 1]
+      [--cards alni-1to1-300rpm-lab] [--engines numpy numba]
 
-Prints, for each model card, the best wall time of a full run of the card's recipe
-(one CPU core; numpy runs single-threaded here), the simulated particle-events per
-second (each impact touches two particles) and the real-time factor
-(milling time / wall time).
+Prints, for each model card and particle number M, the CPU time of a full run of the card's
+recipe (one core; numpy runs single-threaded here; CPU seconds, so that a loaded machine
+does not inflate the figures), the simulated particle-events per second (each impact
+touches two particles), the real-time factor (milling time / CPU time) and the ratio of the
+compiled engine's events/s to the numpy engine's. Both engines run the same seed and must
+end in the same state (checked: "same" column). The compiled code is loaded (or compiled
+and cached) before the clock starts.
 """
 
 from __future__ import annotations
@@ -20,29 +24,51 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from bmctl.config import card_schedule, load_card  # noqa: E402
-from bmctl.plant.plant import MODELS_DIR, Plant  # noqa: E402
+from bmctl.plant.plant import ENGINES, MODELS_DIR, Plant  # noqa: E402
 
 CARDS = ["alni-1to1-300rpm-lab", "alni-1to1-400rpm-fan", "alni-1to3-300rpm-hadjiafxenti"]
 
 
+def _run(card, engine: str, particles: int, hours: float, seed: int) -> tuple[float, int, Plant]:
+    plant = Plant(card, np.random.default_rng(seed), particles, engine=engine)
+    t0 = time.process_time()
+    plant.run_schedule(card_schedule(card, hours), record_every_h=1.0)
+    return time.process_time() - t0, 2 * plant.counts.impacts, plant
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--particles", type=int, default=20000)
+    ap.add_argument("--particles", type=int, nargs="+", default=[4000, 20000])
     ap.add_argument("--hours", type=float, default=12.0)
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--cards", nargs="+", default=CARDS[:1], choices=CARDS)
+    ap.add_argument("--engines", nargs="+", default=list(ENGINES[::-1]), choices=ENGINES)
     a = ap.parse_args()
-    print(f"{'card':32s} {'M':>6s} {'hours':>5s} {'wall s':>7s} {'events/s':>10s} {'x real time':>11s}")
-    for name in CARDS:
+    if "numba" in a.engines:  # load or compile the kernel outside the clock
+        from bmctl.plant._compiled import compile_now
+
+        t0 = time.process_time()
+        compile_now()
+        print(f"compiled kernel loaded in {time.process_time() - t0:.2f} CPU s")
+    print(f"{'card':30s} {'M':>6s} {'hours':>5s} {'engine':>6s} {'CPU s':>7s} {'events/s':>10s} "
+          f"{'x real time':>11s} {'ratio':>6s} {'same':>5s}")
+    for name in a.cards:
         card = load_card(MODELS_DIR / f"{name}.toml")
-        best, events = np.inf, 0
-        for k in range(a.repeat):
-            plant = Plant(card, np.random.default_rng(k), a.particles)
-            t0 = time.perf_counter()
-            plant.run_schedule(card_schedule(card, a.hours), record_every_h=1.0)
-            dt = time.perf_counter() - t0
-            if dt < best:
-                best, events = dt, 2 * plant.counts.impacts
-        print(f"{name:32s} {a.particles:6d} {a.hours:5.1f} {best:7.2f} {events / best:10.3g} {a.hours * 3600 / best:11.3g}")
+        for M in a.particles:
+            rates, finals = {}, {}
+            for engine in a.engines:
+                best, events = np.inf, 0
+                for k in range(a.repeat):
+                    dt, ev, plant = _run(card, engine, M, a.hours, k)
+                    if dt < best:
+                        best, events = dt, ev
+                    if k == 0:
+                        finals[engine] = (plant.s.copy(), plant.r.copy())
+                rates[engine] = events / best
+                ratio = rates[engine] / rates[a.engines[0]]
+                same = all(np.array_equal(x, y) for x, y in zip(finals[engine], finals[a.engines[0]]))
+                print(f"{name:30s} {M:6d} {a.hours:5.1f} {engine:>6s} {best:7.2f} {rates[engine]:10.3g} "
+                      f"{a.hours * 3600 / best:11.3g} {ratio:6.2f} {str(same):>5s}", flush=True)
 
 
 if __name__ == "__main__":

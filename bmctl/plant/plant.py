@@ -34,6 +34,8 @@ from .kernels import Kernels, PaperKernels
 from .kinematics import Kinematics, kinematics
 from .population import UM, initial_sample, moments, raster
 
+ENGINES = ("numba", "numpy")  # the compiled event step (default) and the numpy batch code it replicates
+
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
 
 
@@ -94,6 +96,12 @@ class Plant:
     kernels : Kernels, optional
         The impact physics the event machinery runs (default: the paper's,
         :class:`bmctl.plant.kernels.PaperKernels`); verification swaps in simple kernels.
+    engine : {"numba", "numpy"}, optional
+        How the events run: ``"numba"`` (default) runs the paper's kernels as one compiled
+        loop per step (:mod:`bmctl.plant._compiled`), ``"numpy"`` as vectorised numpy batches.
+        Both draw the same variates in the same order: a seed gives the same trajectory
+        (docs/performance.md). Other kernels, and subclasses that override the event
+        methods, always run the numpy code.
 
     Examples
     --------
@@ -106,9 +114,12 @@ class Plant:
     """
 
     def __init__(self, card: ModelCard, rng: np.random.Generator, particles: int | None = None,
-                 kernels: Kernels | None = None):
+                 kernels: Kernels | None = None, engine: str = "numba"):
+        if engine not in ENGINES:
+            raise InputError(f"engine: must be one of {', '.join(ENGINES)} (got {engine!r})")
         self.card = card
         self.kernels: Kernels = PaperKernels() if kernels is None else kernels
+        self.engine = engine
         self.rng = rng
         M = int(particles or card.simulation.particles)
         if M < 2:
@@ -236,12 +247,16 @@ class Plant:
         rate = self.hit_rate(kin)
         power = kin.mean_power_W
         th = self.card.thermal
+        compiled = rate > 0 and self._compiled_step()
+        steps = []  # compiled: (mean new impacts, parameters at the step's start) of each step, run at the end
         done = 0.0
         while done < seconds - 1e-9:
             dt = min(sim.max_step_s, seconds - done)
             if rate > 0:
                 dt = min(dt, sim.batch_fraction / rate)
-            if rate > 0:
+            if compiled:
+                steps.append((rate * self.M * dt / 2.0, self._step_params()))
+            elif rate > 0:
                 self._impacts(kin, int(self.rng.poisson(rate * self.M * dt / 2.0)))
             self.temperature_C = thermal.step_temperature(self.temperature_C, power, dt, th)
             self.hardening = thermal.step_hardening(self.hardening, power, self.powder_kg, dt, th)
@@ -249,7 +264,10 @@ class Plant:
             done += dt
             if progress is not None:
                 progress(dt / 3600.0)
-        self._impacts(kin, 0, flush=True)  # impacts still queued belong to this interval
+        if compiled:
+            self._run_compiled(kin, steps)
+        else:
+            self._impacts(kin, 0, flush=True)  # impacts still queued belong to this interval
 
     def _impacts(self, kin: Kinematics, n: int, flush: bool = False) -> None:
         """Queue ``n`` new impacts and process the queue's first round (every round with ``flush``).
@@ -261,6 +279,9 @@ class Plant:
         share no slot, so they run at once, and every slot sees its impacts in queue order.
         The physics of an impact is ``self.kernels``.
         """
+        if self._compiled_step():
+            self._impacts_compiled(kin, n, flush)
+            return
         M, rng = self.M, self.rng
         i = rng.integers(0, M, size=n)
         j = (i + rng.integers(1, M, size=n)) % M  # uniform over the others
@@ -275,6 +296,65 @@ class Plant:
             if not flush:
                 break
         self._queue = (i, j, v)
+
+    def _compiled_step(self) -> bool:
+        """Whether the events run compiled: numba engine, the paper's kernels, the event methods as here."""
+        cls = type(self)
+        return (self.engine == "numba" and type(self.kernels) is PaperKernels
+                and cls._impact_round is Plant._impact_round and cls._rebalance is Plant._rebalance
+                and _compiled_ready())
+
+    def _impacts_compiled(self, kin: Kinematics, n: int, flush: bool) -> None:
+        """:meth:`_impacts` with the paper's kernels as one compiled call (same draws, same results)."""
+        self._run_compiled(kin, [], n_new=n, flush=flush)
+
+    def _run_compiled(self, kin: Kinematics, steps: list, n_new: int = 0, flush: bool = True) -> None:
+        """Run the steps (mean new impacts, :meth:`_step_params`) of :meth:`_run`, then the flush, compiled.
+
+        Without steps: ``n_new`` impacts and one round (every round with ``flush``), as :meth:`_impacts`.
+        """
+        from . import _compiled as cc  # numba is imported on the first compiled step only
+
+        if getattr(self, "_seen", None) is None or self._seen.size != self.M:
+            self._seen = np.zeros(self.M, dtype=np.bool_)
+        self.s = np.ascontiguousarray(self.s, dtype=float)
+        self.r = np.ascontiguousarray(self.r, dtype=float)
+        base = self._static_params(kin, cc)
+        rows = [dyn for _, dyn in steps] + [self._step_params()]
+        p = np.repeat(base[None, :], len(rows), axis=0)
+        p[:, cc.P_SIGMA:cc.P_ETA_EQ + 1] = rows
+        lam = np.array([m for m, _ in steps], dtype=float)
+        qi, qj, qv, n_imp, n_bond, n_frac = cc.run_steps(self.rng, self.s, self.r, *self._queue, lam, p, self._seen,
+                                                         n_new, flush)
+        self._queue = (qi, qj, qv)
+        self.counts.impacts += n_imp
+        self.counts.bonds += n_bond
+        self.counts.fractures += n_frac
+
+    def _step_params(self) -> tuple[float, float, float, float]:
+        """sigma_eff, u_bond, u_frac and the rounding efficiency at the current temperature and hardening."""
+        card = self.card
+        part = card.partition
+        u_bond, u_frac = thermal.thresholds(card.material.bond_threshold_J_per_m, self.temperature_C, self.hardening,
+                                            card.thermal)
+        eta = part.equiaxing_efficiency * max(0.0, 1.0 - part.equiaxing_hardening * self.hardening)
+        return (self.effective_yield_stress(), u_bond, u_frac, eta)
+
+    def _static_params(self, kin: Kinematics, cc) -> np.ndarray:
+        """The float parameters of :func:`bmctl.plant._compiled.impacts` that stay fixed over an interval."""
+        from .kernels import dissipation_coefficients
+
+        st, mat, part = self.card.stochastic, self.card.material, self.card.partition
+        a, b = dissipation_coefficients(st.alpha, st.beta)
+        p = np.zeros(cc.N_PARAMS)
+        p[cc.P_THETA] = kin.energy_scale
+        p[cc.P_TRAPPED] = kin.trapped_fraction * self.total_area  # (6)
+        p[cc.P_SQRT_A], p[cc.P_SQRT_B] = math.sqrt(a), math.sqrt(b)
+        p[cc.P_ZETA_B], p[cc.P_XI_A] = st.alpha + 1.0, st.beta + 1.0  # (9)
+        p[cc.P_STRAIN_EFF], p[cc.P_MAX_STRAIN] = part.strain_efficiency, part.max_strain
+        p[cc.P_MODULUS], p[cc.P_SHARPNESS] = mat.elastic_modulus_Pa, part.threshold_sharpness
+        p[cc.P_GAMMA], p[cc.P_DELTA] = self._gamma, self._delta
+        return p
 
     def _impact_round(self, kin: Kinematics, i: np.ndarray, j: np.ndarray, v: np.ndarray) -> None:
         """Impacts on pairs (i, j) that share no slot (rebalancing slots v included)."""
@@ -379,6 +459,39 @@ class Plant:
         self.rng.bit_generator.state = snap["rng"]
 
 
+_READY = {"warm": False, "checked": -math.inf}
+_RECHECK_S = 30.0
+
+
+def _compiled_ready() -> bool:
+    """Whether the compiled kernels are in the on-disk cache; if not, compile them in the background.
+
+    Until the cache is warm the numba engine runs the numpy code, which gives the same results:
+    a first run on a fresh install is never slower than the numpy engine (the compile, once,
+    takes a background process; docs/performance.md). Set ``BMCTL_COMPILE=now`` to compile in
+    this process instead.
+    """
+    if _READY["warm"]:
+        return True
+    import os
+    import time
+
+    from . import _compiled as cc
+
+    if os.environ.get("BMCTL_COMPILE", "") == "now":
+        _READY["warm"] = True
+        return True
+    now = time.monotonic()
+    if now - _READY["checked"] < _RECHECK_S:
+        return False
+    _READY["checked"] = now
+    if cc.cache_is_warm():
+        _READY["warm"] = True
+    else:
+        cc.compile_in_background()
+    return _READY["warm"]
+
+
 def _first_round(i: np.ndarray, j: np.ndarray, v: np.ndarray, M: int) -> np.ndarray:
     """Mask of the queued impacts k that come first in the queue for each of i[k], j[k], v[k].
 
@@ -405,7 +518,7 @@ def _check_input(rpm: float, hours: float, milling: float, rpm_max: float) -> No
 
 
 def make_plant(card: ModelCard | str | Path, seed: int | None = None, particles: int | None = None,
-               rng: np.random.Generator | None = None) -> Plant:
+               rng: np.random.Generator | None = None, engine: str = "numba") -> Plant:
     """Create a :class:`Plant` from a model card (object or TOML path).
 
     Parameters
@@ -418,6 +531,8 @@ def make_plant(card: ModelCard | str | Path, seed: int | None = None, particles:
         Number of simulated particles M.
     rng : numpy.random.Generator, optional
         Use this generator instead of a new one.
+    engine : {"numba", "numpy"}, optional
+        See :class:`Plant`.
 
     Returns
     -------
@@ -432,7 +547,7 @@ def make_plant(card: ModelCard | str | Path, seed: int | None = None, particles:
     """
     if not isinstance(card, ModelCard):
         card = load_card(card)
-    return Plant(card, rng if rng is not None else np.random.default_rng(seed), particles)
+    return Plant(card, rng if rng is not None else np.random.default_rng(seed), particles, engine=engine)
 
 
 __all__ = ["Plant", "make_plant", "default_card", "Record", "EventCounts", "card_schedule"]
