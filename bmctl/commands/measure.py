@@ -13,9 +13,11 @@ import argparse
 from pathlib import Path
 
 from ..errors import InputError
-from ..measure.segment import MIN_AREA_PX, check_scale, measure_labels, parse_crop, segment
-from ..measure.tables import ParticleTable, read_table, write_table
 from ._args import output_path
+
+#: default --min-area-px; equals bmctl.measure.segment.MIN_AREA_PX (a test checks), kept here so that
+#: building the parser does not import the image stack
+MIN_AREA_PX = 30
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -35,6 +37,9 @@ def _is_table(path: str) -> bool:
 
 def run(args: argparse.Namespace) -> int:
     """Measure all inputs, print a summary, write ``--out``; bad input raises InputError."""
+    from ..measure.segment import check_scale, measure_labels, parse_crop, segment
+    from ..measure.tables import ParticleTable, read_table, write_table
+
     scale = check_scale(args.um_per_px) if args.um_per_px is not None else None
     if args.min_area_px < 1:
         raise InputError(f"--min-area-px: must be >= 1 (got {args.min_area_px})")
