@@ -523,10 +523,21 @@ def _call_step(model, dt_h: float, substeps: int | None):
 
     n_default, _ = model._integration(float(dt_h))
     n = n_default if substeps is None else int(substeps)
+    # the rate field's derivatives through its 4 x 9 Jacobian (enable_forward off): 1.8x faster warm
+    # solves and 1.7x faster compiles than forward sweeps with 12 directions (docs/performance.md)
+    R = model.rate_function()
+    y, a = ca.SX.sym("y", 4), ca.SX.sym("a", 5)
+    R_jac = ca.Function("moment_rates_jac", [y, a], R.call([y, a]),
+                        {"enable_forward": False, "jac_penalty": 0, "cse": True})
+
+    def rates(yl, T, h, w, bm, fm):
+        v = R_jac(ca.vertcat(*yl[:4]), ca.vertcat(T, h, w, bm, fm))
+        return [v[i] for i in range(4)]
+
     x, u, p = ca.MX.sym("x", 6), ca.MX.sym("u", 2), ca.MX.sym("p", 2)
     s = rkc_stages(model.const.rate_max_per_h, float(dt_h) / n)
     out = eq.step(eq.CA(), model.const, model.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
-                  float(dt_h), n, s, rates=model._casadi_rates())
+                  float(dt_h), n, s, rates=rates)
     return ca.Function("moment_step", [x, u, p], [ca.vertcat(*out)], ["x", "u", "p"], ["x_next"])
 
 
