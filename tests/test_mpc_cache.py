@@ -67,7 +67,7 @@ def test_compiled_and_interpreted_solvers_give_the_same_plans(private_cache, mon
         x, u, out = model.x0(), None, []
         for k in range(5):
             plan = ctrl.plan(x, 0.5 * k, None, u)
-            assert plan.status.ok
+            assert plan.status.success
             out.append(plan.u)
             u = plan.u_apply
             x = model.step(x, u, 0.5)
