@@ -14,3 +14,10 @@ def root():
 
 def card_path(name: str) -> Path:
     return MODELS / f"{name}.toml"
+
+
+@pytest.fixture(autouse=True)
+def _interpreted_mpc(monkeypatch):
+    """Tests run the MPC interpreted (no background gcc, no writes to the user's cache);
+    tests/test_mpc_cache.py turns compilation on where it tests it."""
+    monkeypatch.setenv("BMCTL_MPC_COMPILE", "0")
