@@ -82,11 +82,9 @@ class Experiment:
 
 def _grid(segments: Sequence[tuple[float, float, float]]) -> list[tuple[float, float]]:
     """(hours, rpm, milling) segments -> per-interval (rpm, milling) on the DT_H grid."""
-    out = []
-    for hours, rpm, duty in segments:
-        n = int(round(hours / DT_H))
-        out += [(float(rpm), float(duty))] * n
-    return out
+    from ..schedule import Schedule
+
+    return Schedule.from_pairs(segments).grid(DT_H)
 
 
 def random_schedule(rng: np.random.Generator, rpm_max: float, hours: float = HOURS, rest_p: float = 0.2,
