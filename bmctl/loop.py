@@ -276,6 +276,23 @@ class ClosedLoop:
         set_rng_state(self.sample_rng, state["sample_rng"])
 
 
+def run_interval(mill: Mill | None, estimators: Sequence[Estimator], schedule, t0_h: float,
+                 t1_h: float) -> list[tuple[float, float, float]]:
+    """Open loop over [t0_h, t1_h] of ``schedule``: the mill and every estimator are advanced
+    through the same (rpm, milling, hours) pieces (:meth:`bmctl.schedule.Schedule.inputs_between`),
+    which are returned."""
+    from .schedule import as_schedule
+
+    pieces = as_schedule(schedule).inputs_between(t0_h, t1_h)
+    if mill is not None:
+        for rpm, milling, h in pieces:
+            mill.advance(rpm, h, milling)
+    for est in estimators:
+        for rpm, milling, h in pieces:
+            est.predict((rpm, milling), h)
+    return pieces
+
+
 def record_times(total_h: float, every_h: float) -> np.ndarray:
     """Recording times 0, every_h, ... and the end (h)."""
     times = np.arange(0.0, total_h + TIME_EPS_H, every_h)

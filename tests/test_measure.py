@@ -26,7 +26,7 @@ from bmctl.measure import (
 from bmctl.measure.perimeter import bias_study, perimeter
 from bmctl.measure.segment import segment
 from bmctl.measure.shapes import Shapes, shapes_for
-from bmctl.measure.validate import (
+from bmctl.validation.measure import (
     compare,
     hand_comparison,
     polygon_lengths,

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from bmctl import verify as V
+from bmctl.validation import verify as V
 from bmctl.cli import main
 from bmctl.config import load_card
 from bmctl.plant import kinematics
@@ -138,7 +138,7 @@ class _WithoutReplacement(Plant):
 
 def test_breakage_case_detects_batches_without_replacement(monkeypatch):
     # a particle hit at most once per batch: the unbroken share decays as (1 - rate dt)^k, not exp(-rate t)
-    monkeypatch.setattr(V, "Plant", _WithoutReplacement)
+    monkeypatch.setattr("bmctl.validation.cases.Plant", _WithoutReplacement)
     res = V.evaluate(V.breakage_monodisperse(), (16000,), tuple(range(16)))
     assert res.bias_p < V.BIAS_ALPHA, (res.max_z, res.bias_p)
 

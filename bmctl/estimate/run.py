@@ -1,6 +1,6 @@
 """Run the particle filter over a sequence of samples under a schedule; write the CSV and figure.
 
-Shared by ``bmctl estimate`` and the evidence study (:mod:`bmctl.estimate.study`).
+Shared by ``bmctl estimate`` and the evidence study (:mod:`bmctl.validation.study`).
 """
 
 from __future__ import annotations
