@@ -61,7 +61,7 @@ class Variant:
 
     def filter_settings(self, base: FilterSettings, n_particles: int) -> FilterSettings:
         law = replace(base.law, size_law=self.size_law, **dict(self.law))
-        return replace(base, n_particles=n_particles, law=law, **dict(self.settings))
+        return base.replace(n_particles=n_particles, law=law, **dict(self.settings))
 
 
 #: the ablations of docs/estimation.md: the plain bootstrap filter with the untempered likelihood
