@@ -11,7 +11,7 @@ from bmctl.moments import equations as eq
 from bmctl.moments import make_moment_model
 from bmctl.moments.coeffs import coeffs_path
 
-from .conftest import CARDS, card_path
+from ..conftest import CARDS, card_path
 
 LAB = card_path("alni-1to1-300rpm-lab")
 

@@ -13,7 +13,7 @@ from scipy import stats
 from bmctl.config import card_schedule, load_card
 from bmctl.plant.plant import Plant
 
-from .conftest import CARDS, card_path
+from ..conftest import CARDS, card_path
 
 M = 20000
 SEED = 2024

@@ -19,7 +19,7 @@ from bmctl.plant.kernels import (PopulationKernels, dissipation_coefficients, li
 from bmctl.plant.plant import Plant, _first_round
 from bmctl.plant.reference import ReferencePlant
 
-from .conftest import CARDS, card_path
+from ..conftest import CARDS, card_path
 
 
 @pytest.fixture(scope="module")

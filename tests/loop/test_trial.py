@@ -7,7 +7,7 @@ import pytest
 from bmctl.cli import main
 from bmctl.trial import run_trial, trajectory_header
 
-from .conftest import ROOT
+from ..conftest import ROOT
 
 SMALL = """
 model = "{root}/models/alni-1to1-300rpm-lab.toml"
