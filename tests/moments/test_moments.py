@@ -165,24 +165,25 @@ def test_loglik_is_vectorised_and_prefers_the_true_state(model):
 # --- agreement with the plant ------------------------------------------------------------------
 
 
+#: worst held-out NRMSE per moment allowed for the lab card's model (pinned; identification
+#: measured 0.081, 0.073, 0.202, 0.145 on the shipped coefficients)
+WORST_NRMSE = {"s_mean_um": 0.085, "s_std_um": 0.075, "r_mean": 0.21, "r_std": 0.15}
+
+
 def test_short_case_follows_plant_ensemble(model):
     """2 h at the card's 300 rpm from the card's powder, against 4 seeded plants (M = 2000).
 
     Tolerance per moment and time = 3 standard errors of the ensemble mean (the plant's own
-    spread) plus the model error that identification documents for this card: 3 x its worst
-    held-out NRMSE (``[validation] max`` of models/<card>.moments.toml; a pointwise error is
-    up to ~3x an RMSE) times the trajectory's range. Nothing here is tuned to this case; the
-    first-hours growth transient is the model's weakest region (docs/moments.md, Sec. 6).
+    spread) plus the model error allowed for this card: 3 x a worst held-out NRMSE pinned here
+    (:data:`WORST_NRMSE`, the values identification reported for the shipped coefficients,
+    rounded up; a pointwise error is up to ~3x an RMSE) times the trajectory's range. Nothing
+    here is read from the artefact under test; the first-hours growth transient is the
+    model's weakest region (docs/moments.md, Sec. 6).
     """
-    import tomllib
-
     from bmctl.plant import make_plant
 
     names = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
-    path = coeffs_path(LAB)
-    if not path.exists():
-        pytest.skip("no identified coefficients for the lab card (run bmctl identify)")
-    worst = tomllib.loads(path.read_text())["validation"]["max"]
+    worst = WORST_NRMSE
     runs = []
     for seed in range(4):
         plant = make_plant(LAB, seed=seed, particles=2000)
