@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from ..errors import InputError
+from ..physics.constants import TIME_EPS_H
 from .base import (Plan, Reference, Status, batch_end_h, applied_input, applied_input_guarded, check_p, check_u_prev, check_x,
                    interval_peaks, max_milling_for_ceiling, rpm_window)
 from .config import TARGET_KEYS, LQRConfig, RecipeConfig
@@ -106,7 +107,7 @@ class RecipeController(_Base):
         U = np.array([[self.cfg.rpm, self.milling_fraction(t + k * dt, t + (k + 1) * dt)] for k in range(n)])
         U[U[:, 1] <= 0, 0] = 0.0
         status = Status("recipe", "open-loop", True, 0, 0.0, t_ceiling_c=float("nan"),
-                        reason="batch finished: rest" if t >= self.t_end_h - 1e-9 else "")
+                        reason="batch finished: rest" if t >= self.t_end_h - TIME_EPS_H else "")
         plan = self._plan(x0, t, pp, U, status, self.cfg.round_minutes)
         status.solve_ms = (time.perf_counter() - t0) * 1e3
         return plan
@@ -181,7 +182,7 @@ class LQRController(_Base):
         x0, pp, up, t = self._check(x_est, t_h, self.model, p, u_prev)
         cfg, dt = self.cfg, self.interval_h
         ceiling = cfg.temperature.ceiling_c
-        if t >= self.t_end_h - 1e-9:
+        if t >= self.t_end_h - TIME_EPS_H:
             done = Status("lqr", "batch_done", True, reason="batch finished: rest", t_ceiling_c=ceiling)
             return self._plan(x0, t, pp, np.zeros((1, 2)), done, cfg.round_minutes)
         t0 = time.perf_counter()
