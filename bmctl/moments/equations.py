@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 
 from .numerics import (CA, GH_T, GH_W, GL_W, GL_WH, GL_X, GL_XH, N_S, N_X, NP, Backend,  # noqa: F401
                        backend, node_exps, node_sigmoids, sat, smax, smin)
