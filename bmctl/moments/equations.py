@@ -18,10 +18,9 @@ from __future__ import annotations
 
 import math
 
-
+from ..physics.constants import R_MAX
 from .numerics import (CA, GH_T, GH_W, GL_W, GL_WH, GL_X, GL_XH, N_S, N_X, NP, Backend,  # noqa: F401
                        backend, node_exps, node_sigmoids, sat, smax, smin)
-from ..physics.constants import R_MAX
 from .physics import EXP_RATE, UM, Constants
 
 
