@@ -15,7 +15,7 @@ a micrograph sample every hour through ``bmctl.measure.sampler.micrograph_sample
 filter (N = 1000 particles, default settings) runs the moment model of the unmodified card.
 Variants (same plant trajectory and, for equal n, the same samples): Weibull size law with
 n = 50, 100, 300 measured particles per sample, and the log-normal size law at n = 300.
-20 seeds per scenario. See bmctl/estimate/study.py for what 'truth' means.
+20 seeds per scenario. See bmctl/validation/study.py for what 'truth' means.
 
 Writes to --out: summary.md (the tables quoted in docs/estimation.md), runs.npz (every
 estimate and truth), study.png (parameter trajectories, error vs n, coverage).
@@ -35,7 +35,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from bmctl.config import card_schedule, load_card  # noqa: E402
-from bmctl.estimate import study as S  # noqa: E402
+from bmctl.validation import study as S  # noqa: E402
 
 
 def _sha(path: str) -> str:

@@ -65,7 +65,7 @@ def main() -> None:
             if (out / "summary.json").exists():
                 s = json.loads((out / "summary.json").read_text())
             else:
-                s = run_trial(sc, out, seed=seed, resume=(out / "checkpoint.pkl").exists())
+                s = run_trial(sc, out, seed=seed, resume=(out / "checkpoint.npz").exists())
                 walls.append(time.perf_counter() - t0)
             sums.append(s)
             print(f"{name} seed {seed}: err {s['final_error']} Tmax {s['max_temperature_c']:.1f} "

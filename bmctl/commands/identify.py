@@ -9,17 +9,12 @@ the built-in defaults, so re-running regenerates the file from the current card 
 
 from __future__ import annotations
 
-import math
 import sys
 import time
-from dataclasses import replace
-from datetime import datetime, timezone
 from pathlib import Path
 
 from ..errors import InputError
 from ._args import int_arg, output_path
-
-
 
 
 def configure(p):
@@ -55,92 +50,35 @@ def run(args) -> int:
     from ..config import load_card
     from ..io import write_text
     from ..moments import identify as ident
-    from ..moments.coeffs import toml_text
-    from ..moments.model import default_coeffs, MomentModel
 
     card = load_card(args.model)
     out = _out_path(args)
     figs = output_path(args.figures, "--figures") if args.figures is not None else None
-    particles = args.particles or (2000 if args.quick else 4000)
-    train_seeds = [1000 * args.seed + k for k in ((1,) if args.quick else ident.TRAIN_SEEDS)]
-    valid_seeds = [1000 * args.seed + k for k in ((11, 12) if args.quick else ident.VALID_SEEDS)]
     t0 = time.time()
 
     def log(msg):
         if not args.quiet:
             print(f"[{time.time() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    specs = ident.design(card, args.seed, args.quick, args.random_schedules)
-    vspecs = ident.validation_design(card, args.seed, 4 if args.quick else ident.N_VALID)
-    log(f"{card.card.name}: {len(specs)} training experiments x {len(train_seeds)} seeds, "
-        f"{len(vspecs)} held-out schedules x {len(valid_seeds)} seeds, M={particles}")
-    train = ident.run_experiments(card, specs, train_seeds, particles)
-    log("training experiments done")
-    valid = ident.run_experiments(card, vspecs, valid_seeds, particles)
-    off = ident.run_experiments(card, ident.off_card_design(card), valid_seeds, particles)
-    log("held-out experiments done")
-
-    model0 = MomentModel(card, default_coeffs(card), "defaults")
-    res = ident.fit(model0, train, log=log)
-    model = MomentModel(card, res.coeffs, str(out))
-    _check_finite(args.model, train + valid + off, res.coeffs)
-    tab0 = ident.nrmse_table(model0, valid)
-    tab = ident.nrmse_table(model, valid)
-    tab_train = ident.nrmse_table(model, train)
-    # off-card check: the model told the plant's (gamma, delta) factors, and not told (p = 1)
-    otab = ident.nrmse_table(model, off)
-    otab1 = ident.nrmse_table(model, [replace(e, p=np.ones(2)) for e in off])
-    log("validation done")
-
+    command = (f"bmctl identify {args.model} --seed {args.seed}" + (" --quick" if args.quick else "")
+               + (f" --particles {args.particles}" if args.particles else "")
+               + (f" --random-schedules {args.random_schedules}" if args.random_schedules is not None else ""))
+    res = ident.identify(card, args.seed, args.quick, args.particles, args.random_schedules, source=str(out),
+                         command=command, log=log)
     names = ident.MOMENTS[:5]
-    report = _report(card.card.name, names, tab0, tab, tab_train) + "\n" + _report_off_card(names, otab1, otab)
-    validation = {
-        "definition": "NRMSE = RMSE(model - plant ensemble mean) / range of the plant-mean trajectory "
-                      "(floored at 10 % of its mean), per held-out schedule; mean and max over schedules",
-        "schedules": len(valid), "seeds": valid_seeds, "particles": particles,
-        "mean": {k: round(float(v), 5) for k, v in zip(names, tab["mean"])},
-        "max": {k: round(float(v), 5) for k, v in zip(names, tab["max"])},
-        "defaults_mean": {k: round(float(v), 5) for k, v in zip(names, tab0["mean"])},
-    }
-    validation["off_card"] = _per_run(otab, names[:4])
-    validation["off_card_p1"] = _per_run(otab1, names[:4])
-    meta = {
-        "card": card.card.name,
-        "command": f"bmctl identify {args.model} --seed {args.seed}" + (" --quick" if args.quick else "")
-                   + (f" --particles {args.particles}" if args.particles else "")
-                   + (f" --random-schedules {args.random_schedules}" if args.random_schedules is not None else ""),
-        "date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "experiments": len(train), "train_seeds": train_seeds, "particles": particles,
-        "dt_h": ident.DT_H, "cost_initial": round(res.cost0, 6), "cost_final": round(res.cost, 6),
-        "evaluations": res.nfev, "fit_seconds": round(res.seconds, 1),
-    }
-    text = toml_text(res.coeffs, {"identification": meta, "validation": validation},
-                     header=f"Moment-model coefficients of {card.card.name}, written by `bmctl identify`.\n"
-                            "Re-run the command in [identification] to regenerate; docs/moments.md explains them.")
-    write_text(out, text)
+    report = (_report(card.card.name, names, res.table_defaults, res.table, res.table_train) + "\n"
+              + _report_off_card(names, res.off_card_p1, res.off_card))
+    write_text(out, res.toml)
     print(report)
     if figs is not None:
         from .. import plots
 
         label = f"{card.card.name}: moment model vs plant, held-out schedules"
-        plots.identify_validation(figs / "validation.png", valid, tab["preds"], tab["rows"], label)
-        plots.identify_nrmse(figs / "nrmse.png", tab["rows"], tab0["rows"], label)
+        plots.identify_validation(figs / "validation.png", res.valid, res.table["preds"], res.table["rows"], label)
+        plots.identify_nrmse(figs / "nrmse.png", res.table["rows"], res.table_defaults["rows"], label)
         print(f"wrote {figs / 'validation.png'}, {figs / 'nrmse.png'}")
     print(f"wrote {out} ({time.time() - t0:.0f} s)")
     return 0
-
-
-def _check_finite(model_path, experiments, coeffs) -> None:
-    for e in experiments:
-        if not all(math.isfinite(v) for v in e.Y.ravel()):
-            raise InputError(f"{model_path}: the plant produced non-finite moments in {e.name}")
-    if not all(math.isfinite(v) for v in coeffs.values()):
-        raise InputError(f"{model_path}: identification produced non-finite coefficients")
-
-
-def _per_run(tab, names) -> dict:
-    """{"<run>, <moment>": NRMSE} for the held-out runs of an nrmse_table."""
-    return {f"{n}, {k}": round(float(v), 5) for n, row in zip(tab["names"], tab["rows"]) for k, v in zip(names, row)}
 
 
 def _report_off_card(names, tab0, tab) -> str:
@@ -168,7 +106,7 @@ def _report(name, names, tab0, tab, tab_train) -> str:
     return "\n".join(lines)
 
 
-#: issue 3's validation target: mean NRMSE over the held-out schedules, per moment
+#: the moment model's validation target: mean NRMSE over the held-out schedules, per moment
 TARGET_NRMSE = 0.05
 
 

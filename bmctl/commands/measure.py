@@ -72,6 +72,8 @@ def _overlay_names(results, folder: Path) -> list[Path]:
 
 def run(args: argparse.Namespace) -> int:
     """Measure all inputs, print a summary and warnings, write ``--out`` and what goes beside it."""
+    import numpy as np
+
     from ..io import write_text
     from ..measure.micrograph import measure_micrograph
     from ..measure.overlay import write_overlay

@@ -38,7 +38,7 @@ def default_cards() -> list[Path]:
 
 def run(args) -> int:
     from .. import io
-    from .. import verify as V
+    from ..validation import verify as V
     from ..config import load_card
 
     out = output_path(args.out)

@@ -21,19 +21,20 @@ def configure(p):
 
 
 def run(args) -> int:
-    from ..config import load_card, load_schedule
+    from ..config import load_card
+    from ..schedule import Schedule
     from ..whatif import run_schedule_ensemble, table_rows, write_outputs
 
     out = output_path(args.out)
     card = load_card(args.model)
     scheds = []
     for path in args.schedules:
-        sched = load_schedule(path)
-        for i, seg in enumerate(sched.segment):
+        sched = Schedule.load(path)
+        for i, seg in enumerate(sched.segments):
             if seg.rpm > card.mill.rpm_max:
                 raise InputError(f"{path}: segment[{i}].rpm: {seg.rpm:g} exceeds the mill's rpm_max "
                                  f"{card.mill.rpm_max:g}")
-        scheds.append((sched.name or Path(path).stem, [(s.hours, s.rpm) for s in sched.segment]))
+        scheds.append((sched.name or Path(path).stem, sched.pairs()))
     from ..cards import check_work, simulation_work
 
     work = [simulation_work(card, segs, args.particles, 0.25, raster=False) for _, segs in scheds]

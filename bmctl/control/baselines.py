@@ -16,6 +16,7 @@ import time
 import numpy as np
 
 from ..errors import InputError
+from ..physics.constants import TIME_EPS_H
 from .base import (Plan, Reference, Status, batch_end_h, applied_input, applied_input_guarded, check_p, check_u_prev, check_x,
                    interval_peaks, max_milling_for_ceiling, rpm_window)
 from .config import TARGET_KEYS, LQRConfig, RecipeConfig
@@ -39,6 +40,13 @@ class _Base:
 
     def reset(self) -> None:
         pass
+
+    def get_state(self) -> dict:
+        """Plain-data state for checkpoints (none: the recipe is a function of time)."""
+        return {}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state`."""
 
     def _plan(self, x0, t, pp, U, status, round_minutes=True, ceiling=None) -> Plan:
         dt = self.interval_h
@@ -99,7 +107,7 @@ class RecipeController(_Base):
         U = np.array([[self.cfg.rpm, self.milling_fraction(t + k * dt, t + (k + 1) * dt)] for k in range(n)])
         U[U[:, 1] <= 0, 0] = 0.0
         status = Status("recipe", "open-loop", True, 0, 0.0, t_ceiling_c=float("nan"),
-                        reason="batch finished: rest" if t >= self.t_end_h - 1e-9 else "")
+                        reason="batch finished: rest" if t >= self.t_end_h - TIME_EPS_H else "")
         plan = self._plan(x0, t, pp, U, status, self.cfg.round_minutes)
         status.solve_ms = (time.perf_counter() - t0) * 1e3
         return plan
@@ -128,6 +136,18 @@ class LQRController(_Base):
         self._t_last = None
         self._rpm_last = None
         self._K = None
+
+    def get_state(self) -> dict:
+        """Last state, time, rpm and gain as plain data (the Jacobians are rebuilt)."""
+        return {"x_last": self._x_last, "t_last": self._t_last, "rpm_last": self._rpm_last,
+                "K": None if self._K is None else np.asarray(self._K, dtype=float)}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state`."""
+        self._x_last = None if state["x_last"] is None else np.asarray(state["x_last"], dtype=float)
+        self._t_last = None if state["t_last"] is None else float(state["t_last"])
+        self._rpm_last = None if state["rpm_last"] is None else float(state["rpm_last"])
+        self._K = None if state["K"] is None else np.asarray(state["K"], dtype=float)
 
     def _jacobians(self):
         if self._jac is None:
@@ -162,7 +182,7 @@ class LQRController(_Base):
         x0, pp, up, t = self._check(x_est, t_h, self.model, p, u_prev)
         cfg, dt = self.cfg, self.interval_h
         ceiling = cfg.temperature.ceiling_c
-        if t >= self.t_end_h - 1e-9:
+        if t >= self.t_end_h - TIME_EPS_H:
             done = Status("lqr", "batch_done", True, reason="batch finished: rest", t_ceiling_c=ceiling)
             return self._plan(x0, t, pp, np.zeros((1, 2)), done, cfg.round_minutes)
         t0 = time.perf_counter()

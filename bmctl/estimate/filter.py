@@ -41,19 +41,21 @@ a sample (or reading) arrives.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import Field, field_validator
 
+from ..config import Strict
 from .likelihood import LawSettings, Raster, fit_sample, loglik_raster
 from .resampling import SCHEMES, effective_sample_size, resample
 
 N_MOMENTS = 4  # s_mean, s_std, r_mean, r_std: the log-moment block z
 
 
-@dataclass
-class FilterSettings:
-    """Particle-filter settings (all dimensionless unless suffixed).
+class FilterSettings(Strict):
+    """Particle-filter settings (all dimensionless unless suffixed); a scenario's ``[estimator]`` table.
 
     Attributes
     ----------
@@ -100,41 +102,43 @@ class FilterSettings:
         Noise of a vial-temperature reading.
     """
 
-    n_particles: int = 2000
-    ess_fraction: float = 0.5
+    n_particles: Annotated[int, Field(ge=10)] = 2000
+    ess_fraction: Annotated[float, Field(gt=0, le=1)] = 0.5
     scheme: str = "systematic"
-    process_noise_per_sqrt_h: tuple = (0.15, 0.15, 0.8, 0.8)
+    process_noise_per_sqrt_h: tuple[float, float, float, float] = (0.15, 0.15, 0.8, 0.8)
     adapt: bool = True
     adapt_rate: float = 0.3
-    process_noise_floor: tuple = (0.05, 0.08, 0.2, 0.2)
+    process_noise_floor: tuple[float, float, float, float] = (0.05, 0.08, 0.2, 0.2)
     process_noise_max: float = 1.5
     temperature_noise_c_per_sqrt_h: float = 1.0
     param_prior_log_std: float = 0.4
     param_walk_per_sqrt_h: float = 0.01
     roughening: float = 0.05
     initial_spread: float = 0.02
-    learning_rate: float = 1.0
+    learning_rate: Annotated[float, Field(gt=0, le=1)] = 1.0
     calibrate_learning_rate: bool = True
-    defensive: float = 0.1
-    proposal: str = "guided"
-    law: LawSettings = field(default_factory=LawSettings)
+    defensive: Annotated[float, Field(ge=0, lt=1)] = 0.1
+    proposal: Literal["guided", "bootstrap"] = "guided"
+    law: LawSettings = Field(default_factory=LawSettings)
     sigma_temperature_c: float = 2.0
 
-    def __post_init__(self):
-        if self.n_particles < 10:
-            raise ValueError("n_particles must be >= 10")
-        if not 0 < self.ess_fraction <= 1:
-            raise ValueError("ess_fraction must be in (0, 1]")
-        if self.scheme not in SCHEMES:
-            raise ValueError(f"scheme must be one of {SCHEMES}")
-        if len(self.process_noise_per_sqrt_h) != N_MOMENTS or min(self.process_noise_per_sqrt_h) <= 0:
-            raise ValueError("process_noise_per_sqrt_h: four values > 0")
-        if not 0 < self.learning_rate <= 1:
-            raise ValueError("learning_rate must be in (0, 1]")
-        if not 0 <= self.defensive < 1:
-            raise ValueError("defensive must be in [0, 1)")
-        if self.proposal not in ("guided", "bootstrap"):
-            raise ValueError("proposal must be 'guided' or 'bootstrap'")
+    @field_validator("scheme")
+    @classmethod
+    def _known_scheme(cls, v: str) -> str:
+        if v not in SCHEMES:
+            raise ValueError(f"must be one of {SCHEMES}")
+        return v
+
+    @field_validator("process_noise_per_sqrt_h")
+    @classmethod
+    def _positive_noise(cls, v: tuple) -> tuple:
+        if min(v) <= 0:
+            raise ValueError("four values > 0")
+        return v
+
+    def replace(self, **changes) -> "FilterSettings":
+        """A validated copy with ``changes`` (``law`` may be a LawSettings or a dict of its fields)."""
+        return type(self).model_validate({**self.model_dump(exclude={"law"}), "law": self.law, **changes})
 
 
 @dataclass
@@ -247,6 +251,25 @@ class ParticleFilter:
         self.n_resampled = 0
         self.n_degenerate = 0
         self.last_fit = None
+
+    # --- state ------------------------------------------------------------------------------
+    def get_state(self) -> dict:
+        """The particles, weights, clocks, adapted noise and generator state as plain data."""
+        return {"X": self.X.copy(), "logP": self.logP.copy(), "logw": self.logw.copy(), "t_h": self.t_h,
+                "pending_h": self.pending_h, "q": self.q.copy(), "n_resampled": self.n_resampled,
+                "n_degenerate": self.n_degenerate, "rng": self.rng.bit_generator.state}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state` (the settings and the model are the constructor's)."""
+        self.X = np.array(state["X"], dtype=float)
+        self.logP = np.array(state["logP"], dtype=float)
+        self.logw = np.array(state["logw"], dtype=float)
+        self.t_h = float(state["t_h"])
+        self.pending_h = float(state["pending_h"])
+        self.q = np.array(state["q"], dtype=float)
+        self.n_resampled = int(state["n_resampled"])
+        self.n_degenerate = int(state["n_degenerate"])
+        self.rng.bit_generator.state = state["rng"]
 
     # --- basics -----------------------------------------------------------------------------
     @property

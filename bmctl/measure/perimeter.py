@@ -18,7 +18,7 @@ Crofton is the least biased (|bias| <= 1.3 % from 7 px across up, <= 0.2 % from 
 drift with size) and is the default (:data:`DEFAULT_METHOD`); the others drift from -14 %
 to +5 %.
 
-Run ``python -m bmctl.measure.validate bias`` for the table in ``docs/measurement.md``.
+Run ``python -m bmctl.validation.measure bias`` for the table in ``docs/measurement.md``.
 """
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ NRMSE of a moment on one schedule = RMSE(model - plant mean over the recorded ti
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -39,7 +39,7 @@ TRAIN_FACTORS = ((1.15, 0.85), (0.85, 1.15))
 N_RANDOM_OFF_CARD = 3
 #: plant seeds of the training ensemble (offsets to 1000 x --seed). Four seeds instead of two halve the
 #: variance of the ensemble means the fit chases; on three held-out sets the lab card's r_std fell by
-#: 0.07-0.14 points and no fan entry moved by more than 0.06 (docs/moments.md, Sec. 6, stop 20)
+#: 0.07-0.14 points and no fan entry moved by more than 0.06 (docs/moments.md, Sec. 6)
 TRAIN_SEEDS = (1, 2, 3, 4)
 #: plant seeds of the held-out validation ensemble (offsets to 1000 x --seed)
 VALID_SEEDS = (11, 12, 13)
@@ -82,11 +82,9 @@ class Experiment:
 
 def _grid(segments: Sequence[tuple[float, float, float]]) -> list[tuple[float, float]]:
     """(hours, rpm, milling) segments -> per-interval (rpm, milling) on the DT_H grid."""
-    out = []
-    for hours, rpm, duty in segments:
-        n = int(round(hours / DT_H))
-        out += [(float(rpm), float(duty))] * n
-    return out
+    from ..schedule import Schedule
+
+    return Schedule.from_pairs(segments).grid(DT_H)
 
 
 def random_schedule(rng: np.random.Generator, rpm_max: float, hours: float = HOURS, rest_p: float = 0.2,
@@ -136,7 +134,7 @@ def design(card: ModelCard, seed: int = 0, quick: bool = False, n_random: int | 
         specs.append(Spec(f"random-train-{k}", random_schedule(rng, R)))
     # plants off the card (TRAIN_FACTORS, half the off-card check's +-30 %): the fit sees how the
     # plant answers gamma and delta, which the particle filter estimates through the model
-    # (docs/moments.md, Sec. 6, stop 19); their schedules come from their own stream [seed, 4]
+    # (docs/moments.md, Sec. 6); their schedules come from their own stream [seed, 4]
     grng = np.random.default_rng([seed, 4])
     for g, d in TRAIN_FACTORS:
         specs.append(Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, card.process.rpm, 1.0)]), factors=(g, d)))
@@ -366,3 +364,117 @@ def nrmse_table(model: MomentModel, experiments: Sequence[Experiment]) -> dict:
     rows = np.array([nrmse(P, e.Y) for P, e in zip(preds, experiments)])
     return {"names": [e.name for e in experiments], "rows": rows, "mean": rows.mean(0), "max": rows.max(0),
             "preds": preds}
+
+
+# --- the whole identification (``bmctl identify``) -----------------------------------------------
+
+
+@dataclass
+class Identification:
+    """What :func:`identify` produced: the coefficients, the validation tables and the file text."""
+
+    card_name: str
+    coeffs: dict
+    fit: FitResult
+    valid: list  # held-out experiments
+    table: dict  # nrmse_table of the fitted model on the held-out schedules
+    table_defaults: dict  # ... of the built-in defaults
+    table_train: dict  # ... of the fitted model on the training experiments
+    off_card: dict  # ... on off-card plants, told their factors
+    off_card_p1: dict  # ... not told (p = 1)
+    validation: dict  # the [validation] table of the coefficient file
+    meta: dict  # the [identification] table
+    toml: str  # the coefficient file
+
+
+def _per_run(tab: dict, names) -> dict:
+    """{"<run>, <moment>": NRMSE} for the runs of an nrmse_table."""
+    return {f"{n}, {k}": round(float(v), 5) for n, row in zip(tab["names"], tab["rows"]) for k, v in zip(names, row)}
+
+
+def check_finite(source: str, experiments: Sequence[Experiment], coeffs: dict) -> None:
+    """InputError naming ``source`` when a plant moment or a fitted coefficient is not finite."""
+    from ..errors import InputError
+
+    for e in experiments:
+        if not np.all(np.isfinite(e.Y)):
+            raise InputError(f"{source}: the plant produced non-finite moments in {e.name}")
+    if not all(np.isfinite(v) for v in coeffs.values()):
+        raise InputError(f"{source}: identification produced non-finite coefficients")
+
+
+def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int | None = None,
+             random_schedules: int | None = None, source: str = "", command: str = "",
+             log: Callable[[str], None] | None = None) -> Identification:
+    """Fit the moment model of ``card`` to a design of plant experiments and validate it.
+
+    Parameters
+    ----------
+    card : ModelCard
+        The model card.
+    seed : int, optional
+        Seed of the plant ensembles and the design (seeds are offsets to 1000 x seed).
+    quick : bool, optional
+        Fewer experiments and one training seed.
+    particles : int, optional
+        Simulated particles per plant (default 4000; quick 2000).
+    random_schedules : int, optional
+        Random schedules in the training design (default :data:`N_RANDOM_TRAIN`).
+    source : str, optional
+        Name of the card (and of the coefficient file) in messages and in the model's label.
+    command : str, optional
+        The command line that regenerates the file (recorded in ``[identification]``).
+    log : callable, optional
+        Progress lines.
+    """
+    from datetime import datetime, timezone
+
+    from .model import default_coeffs
+
+    log = log or (lambda msg: None)
+    particles = particles or (2000 if quick else 4000)
+    train_seeds = [1000 * seed + k for k in ((1,) if quick else TRAIN_SEEDS)]
+    valid_seeds = [1000 * seed + k for k in ((11, 12) if quick else VALID_SEEDS)]
+    specs = design(card, seed, quick, random_schedules)
+    vspecs = validation_design(card, seed, 4 if quick else N_VALID)
+    log(f"{card.card.name}: {len(specs)} training experiments x {len(train_seeds)} seeds, "
+        f"{len(vspecs)} held-out schedules x {len(valid_seeds)} seeds, M={particles}")
+    train = run_experiments(card, specs, train_seeds, particles)
+    log("training experiments done")
+    valid = run_experiments(card, vspecs, valid_seeds, particles)
+    off = run_experiments(card, off_card_design(card), valid_seeds, particles)
+    log("held-out experiments done")
+
+    model0 = MomentModel(card, default_coeffs(card), "defaults")
+    res = fit(model0, train, log=log)
+    model = MomentModel(card, res.coeffs, source)
+    check_finite(source, train + valid + off, res.coeffs)
+    tab0, tab, tab_train = nrmse_table(model0, valid), nrmse_table(model, valid), nrmse_table(model, train)
+    # off-card check: the model told the plant's (gamma, delta) factors, and not told (p = 1)
+    otab = nrmse_table(model, off)
+    otab1 = nrmse_table(model, [replace(e, p=np.ones(2)) for e in off])
+    log("validation done")
+
+    names = MOMENTS[:5]
+    validation = {
+        "definition": "NRMSE = RMSE(model - plant ensemble mean) / range of the plant-mean trajectory "
+                      "(floored at 10 % of its mean), per held-out schedule; mean and max over schedules",
+        "schedules": len(valid), "seeds": valid_seeds, "particles": particles,
+        "mean": {k: round(float(v), 5) for k, v in zip(names, tab["mean"])},
+        "max": {k: round(float(v), 5) for k, v in zip(names, tab["max"])},
+        "defaults_mean": {k: round(float(v), 5) for k, v in zip(names, tab0["mean"])},
+        "off_card": _per_run(otab, names[:4]),
+        "off_card_p1": _per_run(otab1, names[:4]),
+    }
+    meta = {
+        "card": card.card.name, "command": command,
+        "date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "experiments": len(train), "train_seeds": train_seeds, "particles": particles,
+        "dt_h": DT_H, "cost_initial": round(res.cost0, 6), "cost_final": round(res.cost, 6),
+        "evaluations": res.nfev, "fit_seconds": round(res.seconds, 1),
+    }
+    text = cf.toml_text(res.coeffs, {"identification": meta, "validation": validation},
+                        header=f"Moment-model coefficients of {card.card.name}, written by `bmctl identify`.\n"
+                               "Re-run the command in [identification] to regenerate; docs/moments.md explains them.")
+    return Identification(card.card.name, res.coeffs, res, valid, tab, tab0, tab_train, otab, otab1, validation,
+                          meta, text)

@@ -1,6 +1,6 @@
 """One collision at a time: the paper's stochastic model read literally (Sec. 3.2-3.4), for verification.
 
-Slow, plain Python; used only by :mod:`bmctl.verify` and the tests. For each collision of
+Slow, plain Python; used only by :mod:`bmctl.validation` and the tests. For each collision of
 the mill (steadily timed, Sec. 3.2): draw U_in > U_out from (5) and one incidence angle psi;
 Delta U = U_in - U_out. Then repeat, while Delta U > 0: pick particle i and a second
 particle j by the population fractions p (uniformly from the sample), and run one impact

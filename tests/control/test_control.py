@@ -16,7 +16,7 @@ from bmctl.control.config import load_controller, parse_target, validate_control
 from bmctl.errors import InputError
 from bmctl.moments.model import make_moment_model
 
-from .conftest import ROOT
+from ..conftest import ROOT
 
 CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
 CTRL = ROOT / "controllers"

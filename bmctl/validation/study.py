@@ -18,7 +18,9 @@ What "truth" means:
   trajectory (least squares in log, on a grid). With a misspecified model the filter can at
   best converge to the latter.
 
-Used by ``benchmarks/pf_study.py`` (full study) and ``tests/test_estimate.py`` (a small one).
+Each sample interval is one open-loop step of :func:`bmctl.loop.run_interval` (the plant and
+every filter through the same schedule pieces). Used by ``benchmarks/pf_study.py`` (full
+study) and the estimation tests (a small one).
 """
 
 from __future__ import annotations
@@ -28,12 +30,13 @@ from typing import Sequence
 
 import numpy as np
 
-from ..config import ModelCard, card_schedule, load_card, with_factors
+from ..config import ModelCard, load_card, with_factors
+from ..loop import run_interval
 from ..plant.plant import Plant
 from ..plant.population import UM
-from .filter import FilterSettings, ParticleFilter
-from .likelihood import LawSettings
-from .run import inputs_between
+from ..estimate.filter import FilterSettings, ParticleFilter
+from ..estimate.likelihood import LawSettings
+from ..schedule import Schedule, as_schedule
 
 MOMENTS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
 
@@ -58,7 +61,7 @@ class Variant:
 
     def filter_settings(self, base: FilterSettings, n_particles: int) -> FilterSettings:
         law = replace(base.law, size_law=self.size_law, **dict(self.law))
-        return replace(base, n_particles=n_particles, law=law, **dict(self.settings))
+        return base.replace(n_particles=n_particles, law=law, **dict(self.settings))
 
 
 #: the ablations of docs/estimation.md: the plain bootstrap filter with the untempered likelihood
@@ -97,7 +100,7 @@ def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cf
     from ..measure.sampler import micrograph_sample
 
     plant = Plant(with_factors(card, *scenario), np.random.default_rng([seed, 0]), cfg.plant_particles)
-    segments = card_schedule(card, cfg.hours)
+    schedule = Schedule.from_card(card, cfg.hours)
     times = np.arange(cfg.every_h, cfg.hours + 1e-9, cfg.every_h)
     filters = {}
     for k, v in enumerate(cfg.variants):
@@ -110,15 +113,12 @@ def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cf
                         "q95": np.zeros((times.size, 8)), "ess": np.zeros(times.size)}
     t_prev = 0.0
     for i, t in enumerate(times):
-        pieces = inputs_between(segments, t_prev, t)
-        for rpm, milling, h in pieces:
-            plant.advance(rpm, h, milling)
+        run_interval(plant, (), schedule, t_prev, t)
         mo = plant.moments()
         out["truth"][i] = [mo[m] for m in MOMENTS] + [mo["temperature_c"], mo["hardening"]]
         tabs = {n: micrograph_sample(plant.s / UM, plant.r, n, g) for n, g in sample_rng.items()}
         for v, pf in filters.items():
-            for rpm, milling, h in pieces:
-                pf.predict((rpm, milling), h)
+            run_interval(None, (pf,), schedule, t_prev, t)
             e = pf.update(tabs[v.n].s_um, tabs[v.n].r)
             rec = out[v.label]
             rec["mean"][i], rec["q05"][i], rec["q95"][i], rec["ess"][i] = e.mean, e.q05, e.q95, e.ess
@@ -181,7 +181,7 @@ def pseudo_true_multipliers(model, truth_mean: np.ndarray, segments, times, grid
     J = np.zeros(P.shape[0])
     t_prev = 0.0
     for i, t in enumerate(times):
-        for rpm, milling, h in inputs_between(segments, t_prev, t):
+        for rpm, milling, h in as_schedule(segments).inputs_between(t_prev, t):
             X = model.step(X, np.array([rpm, milling]), h, P)
         e = np.log(X[:, :2] / truth_mean[i, :2][None, :])
         J += np.sum(e * e, axis=1)
@@ -200,7 +200,7 @@ def law_misfit(card_path: str, scenarios=((1.0, 1.0), (1.3, 0.7), (0.7, 1.3)), t
     :data:`bmctl.estimate.likelihood.LAW_MISFIT`.
     """
     from ..measure.sampler import micrograph_sample
-    from .likelihood import SIZE_LAWS, Raster, fit_sample
+    from ..estimate.likelihood import SIZE_LAWS, Raster, fit_sample
 
     card = load_card(card_path)
     out = []

@@ -8,7 +8,7 @@ from bmctl.errors import InputError
 from bmctl.plant import kinematics, make_plant
 from bmctl.plant.kinematics import ball_velocity
 
-from .conftest import CARDS, card_path
+from ..conftest import CARDS, card_path
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,9 @@ from bmctl.cli import main
 from bmctl.estimate import likelihood as L
 from bmctl.estimate.filter import FilterSettings, ParticleFilter
 from bmctl.estimate.resampling import SCHEMES, effective_sample_size, resample
-from bmctl.estimate import study as S
+from bmctl.validation import study as S
 
-from .conftest import card_path
+from ..conftest import card_path
 
 LAB = str(card_path("alni-1to1-300rpm-lab"))
 

@@ -8,7 +8,7 @@ import pytest
 
 from bmctl.cli import main
 
-from .conftest import card_path
+from ..conftest import card_path
 
 LAB = str(card_path("alni-1to1-300rpm-lab"))
 HEADER = "t_h,s_mean_um,s_std_um,s_mode_um,r_mean,r_std,r_mode,temperature_c,bond_events,fracture_events"

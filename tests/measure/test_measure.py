@@ -26,7 +26,7 @@ from bmctl.measure import (
 from bmctl.measure.perimeter import bias_study, perimeter
 from bmctl.measure.segment import segment
 from bmctl.measure.shapes import Shapes, shapes_for
-from bmctl.measure.validate import (
+from bmctl.validation.measure import (
     compare,
     hand_comparison,
     polygon_lengths,
@@ -35,7 +35,7 @@ from bmctl.measure.validate import (
 )
 from bmctl.plant.events import ellipse_size_aspect
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 AMPIS_PNG = DATA / "ampis_powder_b.png"
 AMPIS_JSON = DATA / "ampis_masks_validation.json"
 SIO2_TIF = DATA / "sio2_sem_12000x.tif"

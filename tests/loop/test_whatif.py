@@ -4,7 +4,7 @@ import csv
 
 from bmctl.cli import main
 
-from .conftest import ROOT, card_path
+from ..conftest import ROOT, card_path
 
 LAB = str(card_path("alni-1to1-300rpm-lab"))
 

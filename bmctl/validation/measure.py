@@ -2,11 +2,11 @@
 
 Used by ``tests/test_measure.py`` and to produce the tables of ``docs/measurement.md``::
 
-    python -m bmctl.measure.validate            # all tables (about two minutes)
-    python -m bmctl.measure.validate bias       # perimeter-estimator bias only
-    python -m bmctl.measure.validate sweep      # resolution sweep only
-    python -m bmctl.measure.validate ampis [PATH_TO_PNG PATH_TO_JSON]
-    python -m bmctl.measure.validate synthetic | sensitivity
+    python -m bmctl.validation.measure            # all tables (about two minutes)
+    python -m bmctl.validation.measure bias       # perimeter-estimator bias only
+    python -m bmctl.validation.measure sweep      # resolution sweep only
+    python -m bmctl.validation.measure ampis [PATH_TO_PNG PATH_TO_JSON]
+    python -m bmctl.validation.measure synthetic | sensitivity
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ import numpy as np
 from skimage import draw
 
 from ..errors import InputError
-from .render import render_micrograph
-from .segment import measure_labels, segment
-from .tables import ParticleTable
+from ..measure.render import render_micrograph
+from ..measure.segment import measure_labels, segment
+from ..measure.tables import ParticleTable
 
 
 def match_labels(found: np.ndarray, ref: np.ndarray, min_iou: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -249,7 +249,7 @@ def hand_comparison(image_path, json_path, min_area_px: int = 30, **segment_kw) 
     """
     import time
 
-    from .segment import load_image
+    from ..measure.segment import load_image
 
     img = load_image(image_path)
     polys = via_polygons(json_path)

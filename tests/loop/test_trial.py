@@ -7,7 +7,7 @@ import pytest
 from bmctl.cli import main
 from bmctl.trial import run_trial, trajectory_header
 
-from .conftest import ROOT
+from ..conftest import ROOT
 
 SMALL = """
 model = "{root}/models/alni-1to1-300rpm-lab.toml"
@@ -60,9 +60,40 @@ def test_trial_outputs_and_resume_identical(small, tmp_path):
     # a row written after the last checkpoint (killed between the two writes) is dropped on resume
     with open(part / "trajectory.csv", "a") as fh:
         fh.write("garbage\n")
+    assert run_trial(small, part, seed=5, resume=True, max_steps=1) == {"interrupted_at_step": 3}
+    # killed mid-write of the next row: the torn row (no newline) is dropped on resume
+    with open(part / "trajectory.csv", "a") as fh:
+        fh.write("3,2,300,0.5,61.")
     run_trial(small, part, seed=5, resume=True)
     strip = lambda lines: [",".join(r.split(",")[:-3]) for r in lines]  # noqa: E731 - drop ms/status/fallback
     assert strip(_rows(part / "trajectory.csv")) == strip(rows)
+    assert not list(part.glob("*.pkl"))
+
+
+def test_checkpoint_is_plain_data(small, tmp_path):
+    import numpy as np
+
+    out = tmp_path / "o"
+    run_trial(small, out, seed=3, max_steps=1)
+    with np.load(out / "checkpoint.npz", allow_pickle=False) as z:  # raises if any entry needs pickle
+        assert all(z[k].dtype != object for k in z.files)
+
+
+@pytest.mark.parametrize("target,content", [
+    ("checkpoint.npz", b"PK\x03\x04 not really a zip"),
+    ("checkpoint.npz", None),  # truncated to half its length
+    ("trial.json", b'{"scenario": "x", "se'),
+])
+def test_resume_refuses_damaged_files_one_line(small, tmp_path, capsys, target, content):
+    out = tmp_path / "o"
+    run_trial(small, out, seed=1, max_steps=1)
+    f = out / target
+    f.write_bytes(f.read_bytes()[: f.stat().st_size // 2] if content is None else content)
+    capsys.readouterr()
+    rc = main(["trial", str(small), "--resume", str(out), "--seed", "1", "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert len(err.strip().splitlines()) == 1 and target in err, err
 
 
 def test_resume_refuses_other_seed(small, tmp_path):
