@@ -36,7 +36,7 @@ from typing import Iterable, Iterator, Sequence
 import numpy as np
 from pydantic import Field
 
-from .config import NonNeg, Pos, Strict, load
+from .config import HOURS, RPM, Strict, load
 from .physics.constants import TIME_EPS_H
 
 #: pieces shorter than this (h) are dropped when a schedule is cut or merged
@@ -46,8 +46,8 @@ PIECE_EPS_H = 1e-12
 class SegmentSpec(Strict):
     """One ``[[segment]]`` table."""
 
-    hours: Pos
-    rpm: NonNeg
+    hours: HOURS
+    rpm: RPM
     milling: float = Field(default=1.0, ge=0.0, le=1.0)
 
 

@@ -11,10 +11,6 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
-
-from ..config import card_schedule, load_card, load_schedule
-from ..io import write_text
 from ._args import float_arg, int_arg, output_path
 
 
@@ -31,15 +27,20 @@ def configure(p):
 
 def run(args) -> int:
     """Simulate to ``--at-h``, compare, print the statistics, write the figure and JSON."""
+    import numpy as np
+
+    from ..config import load_card
+    from ..io import write_text
     from ..measure.compare import compare_figure, predicted_population, two_sample
+    from ..schedule import Schedule
     from ..measure.tables import read_table
 
     table = read_table(args.sample)
     card = load_card(args.model)
     if args.schedule is not None:
-        segments = [(s.hours, s.rpm) for s in load_schedule(args.schedule).segment]
+        segments = Schedule.load(args.schedule).pairs()
     else:
-        segments = card_schedule(card)
+        segments = Schedule.from_card(card).pairs()
     out = output_path(args.out)
     rng = np.random.default_rng(args.seed)
     s_pred, r_pred = predicted_population(card, segments, args.at_h, rng, args.particles)

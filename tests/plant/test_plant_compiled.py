@@ -9,9 +9,9 @@ from bmctl.plant import plant as plant_module
 from bmctl.plant.kernels import constant_agglomeration
 from bmctl.plant.kinematics import kinematics
 from bmctl.plant.plant import Plant
-from bmctl.verify import AuditedPlant
+from bmctl.validation.engine import AuditedPlant
 
-from .conftest import CARDS, card_path
+from tests.conftest import CARDS, card_path
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ from bmctl import cards
 from bmctl.cli import main
 from bmctl.config import load_card
 
-from .conftest import CARDS, card_path
+from tests.conftest import CARDS, card_path
 
 #: the numbers the paper's cards held before cards derived anything (paper Sec. 4.1; densities by
 #: the law of mixtures; 10 x 10 mm steel balls, ratio 10)

@@ -14,7 +14,7 @@ from bmctl.config import load_card
 from bmctl.control.config import load_controller
 from bmctl.errors import InputError
 
-from .conftest import ROOT, card_path
+from tests.conftest import ROOT, card_path
 
 LAB = card_path("alni-1to1-300rpm-lab")
 FAN = card_path("alni-1to1-400rpm-fan")

@@ -15,7 +15,7 @@ from bmctl.measure.micrograph import measure_micrograph
 from bmctl.measure.scale import find_info_bar, find_scale_bar, nearest_125, scale_from_metadata
 from bmctl.measure.segment import segment
 
-DATA = Path(__file__).resolve().parent / "data"
+DATA = Path(__file__).resolve().parents[1] / "data"
 SIO2_TIF = DATA / "sio2_sem_12000x.tif"
 needs_sio2 = pytest.mark.skipif(not SIO2_TIF.exists(), reason="SiO2 image not present")
 

@@ -13,7 +13,7 @@ from bmctl.config import card_schedule, load_card
 from bmctl.measure.compare import predicted_population, truncate_schedule, two_sample
 from bmctl.measure.tables import ParticleTable, write_table
 
-CARD = Path(__file__).resolve().parents[1] / "models" / "alni-1to1-300rpm-lab.toml"
+CARD = Path(__file__).resolve().parents[2] / "models" / "alni-1to1-300rpm-lab.toml"
 
 
 def test_truncate_schedule():

@@ -10,7 +10,7 @@ from bmctl.control import cache, make_controller
 from bmctl.control.config import load_controller
 from bmctl.moments.model import make_moment_model
 
-from .conftest import ROOT, card_path
+from tests.conftest import ROOT, card_path
 
 
 @pytest.fixture

@@ -9,7 +9,7 @@ import pytest
 from bmctl.cli import main
 from bmctl.config import load_card
 
-from .conftest import ROOT
+from tests.conftest import ROOT
 
 DOC = ROOT / "docs" / "own-mill.md"
 
