@@ -80,14 +80,14 @@ def _model_and_controller(sc: Scenario, base: Path):
 
 def build(sc: Scenario, base: Path, seed: int) -> TrialState:
     """Fresh trial state from a scenario and a seed (one SeedSequence spawns every generator)."""
-    from .estimate import FilterSettings, ParticleFilter
+    from .estimate.run import make_estimator
     from .plant.plant import Plant
 
     ss = np.random.SeedSequence(seed)
     g_plant, g_pf, g_sample = (np.random.default_rng(s) for s in ss.spawn(3))
     model, controller = _model_and_controller(sc, base)
     plant = Plant(_plant_card(sc, base), g_plant, sc.plant.particles)
-    pf = ParticleFilter(model, g_pf, FilterSettings(n_particles=sc.estimator.particles))
+    pf = make_estimator(sc.estimator.kind, model, g_pf, n_particles=sc.estimator.particles)
     return TrialState(k=0, plant=plant, pf=pf, controller=controller, sample_rng=g_sample, u_prev=None,
                       est=pf.estimate().as_dict(), next_sample_h=sc.sampling.every_h,
                       stats={"solver_failures": 0, "fallbacks": 0, "energy_J": 0.0, "max_T": plant.temperature_C,
