@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
@@ -39,6 +39,7 @@ class SamplingSpec(Strict):
 
 
 class EstimatorSpec(Strict):
+    kind: Literal["pf", "ukf"] = "pf"  # particle filter or unscented Kalman filter (particles: pf only)
     particles: Annotated[int, Field(ge=50, le=200_000)] = 1000
 
     def filter_settings(self):

@@ -105,7 +105,7 @@ def _ceiling(sc: Scenario, controller) -> float | None:
 
 def build(sc: Scenario, base: Path, seed: int) -> ClosedLoop:
     """Fresh trial loop from a scenario and a seed (one SeedSequence spawns every generator)."""
-    from .estimate import ParticleFilter
+    from .estimate.run import make_estimator
     from .physics.kinematics import kinematics
     from .plant.plant import Plant
 
@@ -114,7 +114,8 @@ def build(sc: Scenario, base: Path, seed: int) -> ClosedLoop:
     model, controller = _model_and_controller(sc, base)
     card = _plant_card(sc, base)
     plant = Plant(card, g_plant, sc.plant.particles)
-    pf = ParticleFilter(model, g_pf, sc.estimator.filter_settings())
+    settings = sc.estimator.filter_settings() if sc.estimator.kind == "pf" else None
+    pf = make_estimator(sc.estimator.kind, model, g_pf, n_particles=sc.estimator.particles, settings=settings)
     sp = sc.sampling
     sensor = MicrographSensor(sp.particles, sp.um_per_px, sp.noise, sp.render)
     cfg = LoopConfig(hours=sc.hours, sample_every_h=sp.every_h, temperature_reading=sp.temperature_reading,

@@ -1,4 +1,4 @@
-"""Particle-filter estimates of the powder's moments and rate multipliers from micrograph samples.
+"""Estimates of the powder's moments and rate multipliers from micrograph samples (particle filter or UKF).
 
 ``bmctl estimate MODEL.toml --samples DIR_OR_FILES --times T1,T2,...`` reads one particle
 table (CSV ``area_um2,perimeter_um`` or ``s_um,r``; or a micrograph with ``--um-per-px``) per
@@ -35,7 +35,10 @@ def configure(p):
                    help="pixel size: measure micrographs instead of reading tables")
     p.add_argument("--out", default="out/estimate/estimate.csv", metavar="FILE.csv", help="estimate table (default out/estimate/estimate.csv)")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
-    p.add_argument("--particles", type=int_arg("--particles", 100, 1_000_000), default=2000, help="filter particles N (default 2000)")
+    p.add_argument("--estimator", choices=("pf", "ukf"), default="pf",
+                   help="particle filter (pf, default) or unscented Kalman filter (ukf); see docs/estimation.md")
+    p.add_argument("--particles", type=int_arg("--particles", 100, 1_000_000), default=2000,
+                   help="filter particles N (default 2000; pf only)")
     p.add_argument("--size-law", choices=("weibull", "lognormal"), default="weibull",
                    help="law of s given (s_mean, s_std) (default weibull; see docs/estimation.md)")
     p.add_argument("--sigma-r", type=float_arg("--sigma-r", lo=0.005), default=None,
@@ -95,6 +98,7 @@ def run(args) -> int:
     from ..estimate.filter import FilterSettings
     from ..estimate.likelihood import LawSettings
     from ..estimate.run import Sample, estimate_rows, plot_estimates, run_filter
+    from ..estimate.ukf import UKFSettings
     from ..io import write_csv
 
     model = make_moment_model(args.model)
@@ -137,7 +141,10 @@ def run(args) -> int:
         law_kw["sigma_r"] = args.sigma_r
     if args.sigma_log_s is not None:
         law_kw["sigma_log_s"] = args.sigma_log_s
-    settings = FilterSettings(n_particles=args.particles, law=LawSettings(**law_kw))
+    if args.estimator == "ukf":
+        settings = UKFSettings(law=LawSettings(**law_kw))
+    else:
+        settings = FilterSettings(n_particles=args.particles, law=LawSettings(**law_kw))
 
     samples = []
     for f, t, temp in zip(files, times, temps):
@@ -148,11 +155,15 @@ def run(args) -> int:
     header, rows = estimate_rows(estimates)
     fig_path = out.with_suffix(".png")
     write_csv(out, header, rows)
-    plot_estimates(fig_path, estimates, samples, title=f"{card.card.name}: particle filter, N={args.particles}, seed {args.seed}")
+    if args.estimator == "ukf":
+        what, health = "unscented Kalman filter", f"covariance repaired {pf.n_repaired}x"
+    else:
+        what = f"particle filter, N={args.particles}, seed {args.seed}"
+        health = f"min ESS {min(e.ess for e in estimates):.0f}, resampled {pf.n_resampled}x"
+    plot_estimates(fig_path, estimates, samples, title=f"{card.card.name}: {what}")
     last = estimates[-1]
     d = last.as_dict()
-    print(f"{card.card.name}: {len(samples)} samples to t = {t_end:g} h, N = {args.particles}, seed {args.seed}; "
-          f"min ESS {min(e.ess for e in estimates):.0f}, resampled {pf.n_resampled}x")
+    print(f"{card.card.name}: {len(samples)} samples to t = {t_end:g} h, {what}; {health}")
     print(f"  at {last.t_h:g} h: s mean {d['s_mean_um']:.1f} um [{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
           f"r mean {d['r_mean']:.3f} [{d['r_mean_q05']:.3f}, {d['r_mean_q95']:.3f}], "
           f"gamma_mult {d['gamma_mult']:.2f} [{d['gamma_mult_q05']:.2f}, {d['gamma_mult_q95']:.2f}], "

@@ -1,4 +1,4 @@
-"""State and parameter estimation from micrograph samples: likelihood, resampling, particle filter.
+"""State and parameter estimation from micrograph samples: likelihood, resampling, particle filter, UKF.
 
 See docs/estimation.md. The filter (:class:`ParticleFilter`) runs the moment model between
 samples and weighs its particles by the likelihood of each measured sample
@@ -10,8 +10,9 @@ adaptive model-discrepancy noise, guided proposal).
 from .filter import Estimate, FilterSettings, ParticleFilter, learning_rates
 from .likelihood import LawSettings, Raster, SampleFit, SampleStats, fit_sample, loglik_raster, loglik_sample
 from .resampling import effective_sample_size, resample
-from .run import Sample, run_filter
+from .run import Sample, make_estimator, run_filter
+from .ukf import UKFEstimator, UKFSettings
 
 __all__ = ["ParticleFilter", "FilterSettings", "Estimate", "learning_rates", "LawSettings", "Raster", "SampleFit",
            "SampleStats", "fit_sample", "loglik_raster", "loglik_sample", "resample", "effective_sample_size",
-           "Sample", "run_filter"]
+           "Sample", "run_filter", "make_estimator", "UKFEstimator", "UKFSettings"]

@@ -1,58 +1,126 @@
-"""Resampling schemes with one uniform signature, reproducible from a Generator.
+"""Resampling schemes with one signature, driven by the run's Generator.
 
-filterpy's ``filterpy.monte_carlo`` schemes draw from numpy's *global* random state. Each
-wrapper here seeds that state from the caller's ``numpy.random.Generator`` for the duration of
-the call and restores it afterwards, so a run's seed fixes its output and no other code's
-global stream is disturbed.
+Every scheme is ``resample(weights, rng) -> indices`` (int array of ``len(weights)``), in the
+style of ``particles.resampling`` (Chopin): all uniforms come from the caller's
+``numpy.random.Generator``; numpy's global random state is never read or written, so two
+filters in one process keep independent, reproducible streams.
 
-Every scheme: ``resample(weights, rng) -> indices`` (int array of len(weights)). The residual
-scheme is filterpy's algorithm with a bug fixed (see :func:`_residual_resample`).
+Schemes (Douc, Cappe & Moulines 2005; Hol, Schon & Gustafsson 2006), with N the number of
+particles and w the normalised weights:
+
+systematic
+    one uniform U; positions (U + i) / N, i = 0..N-1. Counts lie within floor/ceil of N w.
+stratified
+    one uniform per stratum; positions (U_i + i) / N.
+residual
+    floor(N w) deterministic copies, the rest multinomial on the residual N w - floor(N w)
+    (Liu & Chen 1998).
+multinomial
+    N independent uniforms, inverted through the cumulative weights.
+
+All four are unbiased: E[count_i] = N w_i.
 """
 
 from __future__ import annotations
 
-import contextlib
-
 import numpy as np
-from filterpy import monte_carlo as mc
 
-def _residual_resample(weights: np.ndarray) -> np.ndarray:
-    """Residual resampling (Liu & Chen 1998), filterpy's algorithm with its residual fixed.
 
-    filterpy 1.4.5 ``residual_resample`` takes the residual as ``w - floor(N w)`` instead of
-    ``N w - floor(N w)``, which makes the residual draw non-monotone and biased (tests catch
-    it: resampled counts no longer follow the weights). Same draws from numpy's global state.
+def _cumulative(w: np.ndarray) -> np.ndarray:
+    c = np.cumsum(w / w.sum())
+    c[-1] = 1.0  # no index past the end from round-off
+    return c
+
+
+def _invert(w: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """Index j with cum[j-1] <= position < cum[j] for every position in [0, 1)."""
+    return np.minimum(np.searchsorted(_cumulative(w), positions, side="right"), w.size - 1).astype(np.int64)
+
+
+def systematic(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Systematic resampling: one uniform, N evenly spaced positions.
+
+    Parameters
+    ----------
+    weights : ndarray
+        Weights (normalised inside).
+    rng : numpy.random.Generator
+        Source of the uniform.
+
+    Returns
+    -------
+    ndarray of int
     """
     w = np.asarray(weights, dtype=float)
     N = w.size
+    return _invert(w, (rng.random() + np.arange(N)) / N)
+
+
+def stratified(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Stratified resampling: one uniform in each of N equal strata of [0, 1).
+
+    Parameters
+    ----------
+    weights : ndarray
+        Weights (normalised inside).
+    rng : numpy.random.Generator
+        Source of the uniforms.
+
+    Returns
+    -------
+    ndarray of int
+    """
+    w = np.asarray(weights, dtype=float)
+    N = w.size
+    return _invert(w, (rng.random(N) + np.arange(N)) / N)
+
+
+def multinomial(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Multinomial resampling: N independent draws from the weights.
+
+    Parameters
+    ----------
+    weights : ndarray
+        Weights (normalised inside).
+    rng : numpy.random.Generator
+        Source of the uniforms.
+
+    Returns
+    -------
+    ndarray of int
+    """
+    w = np.asarray(weights, dtype=float)
+    return _invert(w, rng.random(w.size))
+
+
+def residual(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Residual resampling: floor(N w) copies, the rest multinomial on the residual.
+
+    Parameters
+    ----------
+    weights : ndarray
+        Weights (normalised inside).
+    rng : numpy.random.Generator
+        Source of the uniforms of the residual draw.
+
+    Returns
+    -------
+    ndarray of int
+    """
+    w = np.asarray(weights, dtype=float)
+    w = w / w.sum()
+    N = w.size
     copies = np.floor(N * w).astype(np.int64)
-    idx = np.repeat(np.arange(N), copies)
+    idx = np.repeat(np.arange(N, dtype=np.int64), copies)
     k = idx.size
     if k >= N:
         return idx[:N]
-    residual = N * w - copies
-    cumulative_sum = np.cumsum(residual / residual.sum())
-    cumulative_sum[-1] = 1.0
-    rest = np.searchsorted(cumulative_sum, np.random.random(N - k))
-    return np.concatenate([idx, rest])
+    rest = N * w - copies
+    return np.concatenate([idx, _invert(rest, rng.random(N - k))])
 
 
-_SCHEMES = {
-    "systematic": mc.systematic_resample,
-    "stratified": mc.stratified_resample,
-    "residual": _residual_resample,
-    "multinomial": mc.multinomial_resample,
-}
-
-
-@contextlib.contextmanager
-def _global_state_from(rng: np.random.Generator):
-    saved = np.random.get_state()
-    np.random.seed(int(rng.integers(0, 2**32 - 1)))
-    try:
-        yield
-    finally:
-        np.random.set_state(saved)
+_SCHEMES = {"systematic": systematic, "stratified": stratified, "residual": residual, "multinomial": multinomial}
+SCHEMES = tuple(_SCHEMES)
 
 
 def resample(weights: np.ndarray, rng: np.random.Generator, scheme: str = "systematic") -> np.ndarray:
@@ -65,7 +133,7 @@ def resample(weights: np.ndarray, rng: np.random.Generator, scheme: str = "syste
     rng : numpy.random.Generator
         The single source of randomness.
     scheme : {"systematic", "stratified", "residual", "multinomial"}
-        filterpy scheme.
+        Resampling scheme.
 
     Returns
     -------
@@ -82,10 +150,7 @@ def resample(weights: np.ndarray, rng: np.random.Generator, scheme: str = "syste
         fn = _SCHEMES[scheme]
     except KeyError:
         raise ValueError(f"unknown resampling scheme {scheme!r}; choose from {sorted(_SCHEMES)}") from None
-    w = np.asarray(weights, dtype=float)
-    with _global_state_from(rng):
-        idx = np.asarray(fn(w), dtype=np.int64)
-    return np.minimum(idx, w.size - 1)
+    return fn(weights, rng)
 
 
 def effective_sample_size(weights: np.ndarray) -> float:
@@ -97,6 +162,3 @@ def effective_sample_size(weights: np.ndarray) -> float:
         Normalised weights (sum 1).
     """
     return float(1.0 / np.sum(np.square(weights)))
-
-
-SCHEMES = tuple(_SCHEMES)

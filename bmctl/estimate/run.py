@@ -1,4 +1,4 @@
-"""Run the particle filter over a sequence of samples under a schedule; write the CSV and figure.
+"""Run an estimator (particle filter or UKF) over a sequence of samples under a schedule; write the CSV and figure.
 
 Shared by ``bmctl estimate`` and the evidence study (:mod:`bmctl.validation.study`).
 """
@@ -12,6 +12,46 @@ from typing import Sequence
 import numpy as np
 
 from .filter import Estimate, FilterSettings, ParticleFilter
+from .ukf import UKFEstimator, UKFSettings
+
+ESTIMATORS = ("pf", "ukf")
+
+
+def make_estimator(kind: str, model, rng: np.random.Generator, n_particles: int | None = None, law=None,
+                   settings=None):
+    """A fresh estimator of the given kind on ``model``.
+
+    Parameters
+    ----------
+    kind : {"pf", "ukf"}
+        Particle filter or unscented Kalman filter.
+    model : MomentModel
+        The estimator's model.
+    rng : numpy.random.Generator
+        The estimator's generator (the UKF draws nothing).
+    n_particles : int, optional
+        Particles of the particle filter (ignored by the UKF).
+    law : LawSettings, optional
+        Measurement laws (default: the settings' default).
+    settings : FilterSettings or UKFSettings, optional
+        Full settings (``n_particles`` and ``law`` then ignored).
+
+    Returns
+    -------
+    ParticleFilter or UKFEstimator
+    """
+    if kind not in ESTIMATORS:
+        raise ValueError(f"estimator kind must be one of {ESTIMATORS} (got {kind!r})")
+    if kind == "ukf":
+        if settings is None:
+            settings = UKFSettings() if law is None else UKFSettings(law=law)
+        return UKFEstimator(model, rng, settings)
+    if settings is None:
+        kw = {} if n_particles is None else {"n_particles": int(n_particles)}
+        if law is not None:
+            kw["law"] = law
+        settings = FilterSettings(**kw)
+    return ParticleFilter(model, rng, settings)
 
 
 @dataclass
@@ -49,8 +89,8 @@ def inputs_between(segments: Sequence[tuple[float, float]], t0: float, t1: float
 
 
 def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float, float]],
-               settings: FilterSettings | None = None, seed: int = 0, max_step_h: float = 1.0,
-               pf: ParticleFilter | None = None) -> tuple[ParticleFilter, list[Estimate]]:
+               settings: FilterSettings | UKFSettings | None = None, seed: int = 0, max_step_h: float = 1.0,
+               pf=None) -> tuple[ParticleFilter | UKFEstimator, list[Estimate]]:
     """Filter the samples in time order; returns the filter and one estimate per sample.
 
     Between samples the filter predicts under the schedule's inputs in pieces of at most
@@ -64,20 +104,22 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
         In increasing time.
     segments : sequence of (hours, rpm)
         The schedule from t = 0 (rpm 0: rest; beyond its end: rest).
-    settings : FilterSettings, optional
+    settings : FilterSettings or UKFSettings, optional
+        Their type picks the estimator (default: the particle filter's defaults).
     seed : int, optional
         Seed of the filter's generator (ignored when ``pf`` is given).
     max_step_h : float, optional
         Longest single predict step.
-    pf : ParticleFilter, optional
+    pf : ParticleFilter or UKFEstimator, optional
         Continue this filter instead of starting a new one.
 
     Returns
     -------
-    (ParticleFilter, list of Estimate)
+    (ParticleFilter or UKFEstimator, list of Estimate)
     """
     if pf is None:
-        pf = ParticleFilter(model, np.random.default_rng(seed), settings)
+        kind = "ukf" if isinstance(settings, UKFSettings) else "pf"
+        pf = make_estimator(kind, model, np.random.default_rng(seed), settings=settings)
     out = []
     for smp in samples:
         for rpm, milling, hours in inputs_between(segments, pf.t_h, smp.t_h):
