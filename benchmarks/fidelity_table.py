@@ -26,8 +26,9 @@ KEYS = ("s_mean_um", "s_std_um", "s_mode_um", "s_mode_area_um", "s_mean_area_um"
         "span", "r_mean", "r_std", "r_mode")
 
 
-def mixture2_bic_gain(x: np.ndarray, iters: int = 300) -> tuple[float, float]:
-    """BIC(one Gaussian) - BIC(two-component Gaussian mixture) of x (> 0 favours two) and the larger weight."""
+def mixture2_bic_gain(x: np.ndarray, iters: int = 300) -> tuple[float, float, float, float]:
+    """BIC(one Gaussian) - BIC(two-component Gaussian mixture) of x (> 0 favours two), the weight of the
+    lower component and the two component means (of x)."""
     n = x.size
     ll1 = stats.norm.logpdf(x, x.mean(), x.std()).sum()
     lo, hi = np.quantile(x, [0.25, 0.75])
@@ -39,7 +40,9 @@ def mixture2_bic_gain(x: np.ndarray, iters: int = 300) -> tuple[float, float]:
         w, m = nk / n, (g * x[:, None]).sum(0) / nk
         s = np.sqrt(np.maximum((g * (x[:, None] - m) ** 2).sum(0) / nk, 1e-6))
     ll2 = np.log((w * stats.norm.pdf(x[:, None], m, s)).sum(1)).sum()
-    return float((-2 * ll1 + 2 * np.log(n)) - (-2 * ll2 + 5 * np.log(n))), float(w.max())
+    lo_k = int(np.argmin(m))
+    return (float((-2 * ll1 + 2 * np.log(n)) - (-2 * ll2 + 5 * np.log(n))), float(w[lo_k]), float(m.min()),
+            float(m.max()))
 
 
 def shape_tests(s_um: np.ndarray, rng: np.random.Generator) -> dict[str, float]:
@@ -48,10 +51,11 @@ def shape_tests(s_um: np.ndarray, rng: np.random.Generator) -> dict[str, float]:
     lx = np.log(x)
     ll_n = stats.norm.logpdf(x, x.mean(), x.std()).sum()
     ll_ln = stats.norm.logpdf(lx, lx.mean(), lx.std()).sum() - lx.sum()
-    bic, wmax = mixture2_bic_gain(lx)
+    bic, w_lo, m_lo, m_hi = mixture2_bic_gain(lx)
     return {"ks_p_normal": stats.kstest(x, "norm", (x.mean(), x.std())).pvalue,
             "ks_p_lognormal": stats.kstest(lx, "norm", (lx.mean(), lx.std())).pvalue,
-            "ll_lognormal_minus_normal": ll_ln - ll_n, "bic_gain_2_components": bic, "major_weight": wmax}
+            "ll_lognormal_minus_normal": ll_ln - ll_n, "bic_gain_2_components": bic,
+            "lower_hump_weight": w_lo, "lower_hump_median_um": np.exp(m_lo), "upper_hump_median_um": np.exp(m_hi)}
 
 
 def run_card(name: str, particles: int, seed: int) -> dict:

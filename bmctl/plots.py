@@ -33,6 +33,22 @@ def pdf_over_time(path: Path, axis: np.ndarray, pdfs: np.ndarray, times_h: Seque
 
 R_LABEL = "irregularity r = 1 − πs/L (0 = round)"
 
+#: axis labels (with units and weighting) of the quantities the package plots
+QUANTITY_LABELS = {
+    "s_mean_um": "mean size s (µm, by number)", "s_std_um": "std of size s (µm, by number)",
+    "s_mode_um": "mode of size s (µm, by number)", "r_mean": "mean irregularity r", "r_std": "std of irregularity r",
+    "r_mode": "mode of irregularity r", "temperature_c": "vial temperature (°C)", "hardening": "hardening h (0-1)",
+    "d10_um": "D10 (µm, by volume)", "d50_um": "D50 (µm, by volume)", "d90_um": "D90 (µm, by volume)",
+    "span": "span (D90 − D10)/D50 (by volume)", "s_mean_area_um": "mean size (µm, by area; Sauter D[3,2])",
+    "s_mode_area_um": "mode of size (µm, by area)", "gamma_mult": "bonding factor γ / γ_card",
+    "delta_mult": "fracture factor δ / δ_card",
+}
+
+
+def quantity_label(key: str) -> str:
+    """Axis label of a moment/state name (units and weighting), or the name itself if unknown."""
+    return QUANTITY_LABELS.get(key, key)
+
 
 def moments_over_time(path: Path, t_h: np.ndarray, cols: dict[str, np.ndarray], title: str) -> None:
     """Size statistics (number- and volume-weighted), irregularity r and vial temperature over time
