@@ -76,7 +76,15 @@ def weighted_quantile(x: np.ndarray, q, weights: np.ndarray | None = None) -> np
 
 
 def weighted_mean(s: np.ndarray, power: int) -> float:
-    """Mean size under the weight s**power: sum s^(p+1) / sum s^p (power 2: Sauter mean D[3,2])."""
+    """Mean size under the weight s**power: sum s^(p+1) / sum s^p (power 2: Sauter mean D[3,2]).
+
+    Parameters
+    ----------
+    s : ndarray
+        Sizes (any unit; the result has the same).
+    power : int
+        0 number, 2 area, 3 volume.
+    """
     s = np.asarray(s, dtype=float)
     w = s**power
     return float((w * s).sum() / w.sum())
@@ -89,6 +97,19 @@ def weighted_mode(s: np.ndarray, power: int, step: float = MODE_STEP_UM, smooth_
     Power 0 is the number-weighted mode of :func:`bmctl.plant.population.moments` (same bins,
     same smoothing); power 2 the area-weighted mode, the size at which a micrograph's area
     fraction peaks. Returns the centre of the highest smoothed bin.
+
+    Parameters
+    ----------
+    s : ndarray
+        Sizes (um with the default bins).
+    power : int
+        0 number, 2 area, 3 volume.
+    step : float
+        Bin width.
+    smooth_bins : float
+        Gaussian smoothing of the histogram, in bins.
+    s_cap : float
+        Largest size binned (beyond it, the last bin).
     """
     s = np.asarray(s, dtype=float)
     hi = float(np.clip(s.max() + 1.0, 2.0, s_cap))
@@ -102,7 +123,12 @@ def weighted_mode(s: np.ndarray, power: int, step: float = MODE_STEP_UM, smooth_
 def dvalues(s: np.ndarray, power: int = 3) -> dict[str, float]:
     """D10, D50, D90 and span = (D90 - D10) / D50 of a sample under the weight s**power (default volume).
 
-    Keys ``d10_um, d50_um, d90_um, span`` (the ``_um`` holds when ``s`` is in micrometres).
+    Parameters
+    ----------
+    s : ndarray
+        Sizes; keys ``d10_um, d50_um, d90_um, span`` (the ``_um`` holds when ``s`` is in micrometres).
+    power : int
+        Weight exponent (3: volume, the laser-diffraction convention).
     """
     s = np.asarray(s, dtype=float)
     d = weighted_quantile(s, list(DVALUE_QUANTILES.values()), s**power)
@@ -113,6 +139,11 @@ def dvalues(s: np.ndarray, power: int = 3) -> dict[str, float]:
 
 def size_stats(s_um: np.ndarray) -> dict[str, float]:
     """Volume-weighted D-values and span, area-weighted mean and mode of a sample of sizes (um).
+
+    Parameters
+    ----------
+    s_um : ndarray
+        Sizes (um).
 
     Returns
     -------
@@ -140,7 +171,12 @@ def _ops(*args: Any):
 def lognormal_params(mean, std):
     """(mu, sigma) of the log-normal with number-weighted mean and std (same unit as s).
 
-    sigma^2 = ln(1 + (std/mean)^2), mu = ln(mean) - sigma^2 / 2. Numpy arrays or casadi symbols.
+    sigma^2 = ln(1 + (std/mean)^2), mu = ln(mean) - sigma^2 / 2.
+
+    Parameters
+    ----------
+    mean, std : array_like or casadi symbol
+        Number-weighted mean and standard deviation (> 0).
     """
     xp = _ops(mean, std)
     var_ln = xp.log(1 + (std / mean) ** 2)
@@ -172,6 +208,11 @@ def lognormal_size_stats(mean, std) -> dict:
     exp(z_0.9 sigma) - exp(z_0.1 sigma) (independent of mu); the area-weighted mean is
     exp(mu + 2.5 sigma^2) (Sauter mean) and the area-weighted mode (density per unit s)
     exp(mu + sigma^2). Works elementwise on numpy arrays and on casadi symbols.
+
+    Parameters
+    ----------
+    mean, std : array_like or casadi symbol
+        Number-weighted mean and standard deviation of the size (um for ``*_um`` keys).
 
     Examples
     --------
