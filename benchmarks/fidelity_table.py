@@ -7,6 +7,7 @@ statistics, temperatures, event rates per milling hour, and distribution-shape t
 mixture in ln s against one component by BIC) on a 3000-particle subsample.
 
     python benchmarks/fidelity_table.py --particles 20000 --seed 2024    # about 1 min on one core
+    python benchmarks/fidelity_table.py --no-equiaxing                   # the paper's shape law alone
 """
 
 from __future__ import annotations
@@ -58,8 +59,17 @@ def shape_tests(s_um: np.ndarray, rng: np.random.Generator) -> dict[str, float]:
             "lower_hump_weight": w_lo, "lower_hump_median_um": np.exp(m_lo), "upper_hump_median_um": np.exp(m_hi)}
 
 
-def run_card(name: str, particles: int, seed: int) -> dict:
+def without_equiaxing(card):
+    """A copy of ``card`` with the equiaxing law switched off (docs/model.md, eqns 11-14)."""
+    d = card.model_dump()
+    d["partition"]["equiaxing_efficiency"] = 0.0
+    return type(card).model_validate(d)
+
+
+def run_card(name: str, particles: int, seed: int, equiaxing: bool = True) -> dict:
     card = load_card(ROOT / "models" / f"{name}.toml")
+    if not equiaxing:
+        card = without_equiaxing(card)
     segments = card_schedule(card, 12.0)
     plant = Plant(card, np.random.default_rng(seed), particles)
     rng = np.random.default_rng(seed + 1)  # subsamples of the shape tests
@@ -75,10 +85,11 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--particles", type=int, default=20000)
     ap.add_argument("--seed", type=int, default=2024)
+    ap.add_argument("--no-equiaxing", action="store_true", help="switch the equiaxing law off on every card")
     a = ap.parse_args(argv)
-    print(f"M = {a.particles}, seed {a.seed}; hourly values t = 0..12 h")
+    print(f"M = {a.particles}, seed {a.seed}; hourly values t = 0..12 h" + (", no equiaxing" if a.no_equiaxing else ""))
     for name in CARDS:
-        res = run_card(name, a.particles, a.seed)
+        res = run_card(name, a.particles, a.seed, not a.no_equiaxing)
         print(f"\n== {name}: bonds {res['bonds_per_h']:.0f} /milling h, fractures {res['fractures_per_h']:.0f} /milling h"
               f" (sample of M)")
         for k, v in res["series"].items():
