@@ -154,6 +154,8 @@ def predicted_csv(d: Design) -> str:
 def design_figure(d: Design, path: Path) -> None:
     from ..io import pyplot, savefig
 
+    from ..plots import quantity_label
+
     plt = pyplot()
 
     t = d.times_h
@@ -171,9 +173,9 @@ def design_figure(d: Design, path: Path) -> None:
                           (axes[1, 0], ("r_mean", "r_std"), "irregularity r = 1 − πs/L (0 = round)")):
         for key in keys:
             i = TARGET_KEYS.index(key)
-            line, = ax.plot(t, d.X[:, i], marker="o", ms=3, label=key)
+            line, = ax.plot(t, d.X[:, i], marker="o", ms=3, label=quantity_label(key))
             if key in d.target:
-                ax.axhline(d.target[key], color=line.get_color(), ls="--", lw=1, label=f"target {key}")
+                ax.axhline(d.target[key], color=line.get_color(), ls="--", lw=1, label=f"target: {quantity_label(key)}")
         ax.set_ylabel(lab)
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
