@@ -229,6 +229,79 @@ def lognormal_size_stats(mean, std) -> dict:
     return out
 
 
-__all__ = ["weighted_quantile", "weighted_mean", "weighted_mode", "dvalues", "size_stats", "lognormal_params",
+# --- closed forms of a Weibull law (numpy or casadi) -------------------------------------------
+#: Abramowitz & Stegun 6.1.35: Gamma(1 + x) on [0, 1], |error| <= 3e-7
+_GAMMA1P = (-0.577191652, 0.988205891, -0.897056937, 0.918206857, -0.756704078, 0.482199394, -0.193527818,
+            0.035868343)
+WEIBULL_K_MIN = 1.0  # shape floor: cv <= 1 (the plant's cv stays below 0.7)
+
+
+def _where(xp, cond, a, b):
+    return xp.if_else(cond, a, b) if xp is not np else np.where(cond, a, b)
+
+
+def _gamma1p(y, xp):
+    """Gamma(1 + y) for y in [0, 3] (polynomial on [0, 1], then Gamma(1 + y) = y Gamma(y))."""
+    def poly(x):
+        acc = 0.0
+        for b in reversed(_GAMMA1P):
+            acc = (acc + b) * x
+        return 1.0 + acc
+
+    return _where(xp, y <= 1, poly(y), _where(xp, y <= 2, y * poly(y - 1), y * (y - 1) * poly(y - 2)))
+
+
+def weibull_params(mean, std):
+    """(k, lambda) of the Weibull law with number-weighted mean and std, in closed form.
+
+    k = max(cv^-1.086, 1) (Justus et al. 1978, J. Appl. Meteor. 17, 350), lambda = mean / Gamma(1 + 1/k).
+    Numpy arrays or casadi symbols.
+
+    Parameters
+    ----------
+    mean, std : array_like or casadi symbol
+        Number-weighted mean and standard deviation (> 0).
+    """
+    xp = _ops(mean, std)
+    k = (std / mean) ** -1.086
+    k = xp.fmax(k, WEIBULL_K_MIN) if xp is not np else np.maximum(k, WEIBULL_K_MIN)
+    return k, mean / _gamma1p(1.0 / k, xp)
+
+
+def weibull_size_stats(mean, std) -> dict:
+    """Closed-form :data:`SIZE_STAT_NAMES` of the Weibull law fitted from number mean and std.
+
+    With u = (s/lambda)^k, s^3 f(s) ds is proportional to u^(3/k) e^(-u) du: the volume-weighted
+    law of u is Gamma(a = 1 + 3/k), so Dq = lambda x_q^(1/k) with x_q its q-quantile, here by the
+    Wilson-Hilferty cube x_q = a (1 - 1/(9a) + z_q / (3 sqrt a))^3. Area-weighted mean
+    lambda Gamma(1 + 3/k) / Gamma(1 + 2/k); area-weighted mode (density per unit s)
+    lambda ((k + 1)/k)^(1/k). Against the exact law (incomplete-gamma inverse, numerical k) the
+    D-values are within 2.2 % for cv <= 1 (tests/test_stats.py). Numpy arrays or casadi symbols.
+
+    Parameters
+    ----------
+    mean, std : array_like or casadi symbol
+        Number-weighted mean and standard deviation of the size (um for ``*_um`` keys).
+    """
+    k, lam = weibull_params(mean, std)
+    xp = _ops(k, lam)
+    a = 1.0 + 3.0 / k
+    out = {}
+    for key, q in DVALUE_QUANTILES.items():
+        x = a * (1.0 - 1.0 / (9.0 * a) + float(ndtri(q)) / (3.0 * xp.sqrt(a))) ** 3
+        out[key] = lam * x ** (1.0 / k)
+    out["span"] = (out["d90_um"] - out["d10_um"]) / out["d50_um"]
+    out["s_mean_area_um"] = lam * _gamma1p(3.0 / k, xp) / _gamma1p(2.0 / k, xp)
+    out["s_mode_area_um"] = lam * ((k + 1.0) / k) ** (1.0 / k)
+    return out
+
+
+#: the law bmctl reads D-values from in the moment model and the particle filter (docs/fidelity.md:
+#: on held-out schedules the Weibull's D50 NRMSE is about half the log-normal's, its D90 a quarter)
+DVALUE_LAW = "weibull"
+law_size_stats = weibull_size_stats
+
+
+__all__ = ["weibull_params", "weibull_size_stats", "law_size_stats", "DVALUE_LAW", "weighted_quantile", "weighted_mean", "weighted_mode", "dvalues", "size_stats", "lognormal_params",
            "lognormal_weighted_quantile", "lognormal_size_stats", "SIZE_STAT_NAMES", "WEIGHT_POWER",
            "DVALUE_QUANTILES"]

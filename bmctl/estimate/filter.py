@@ -161,9 +161,9 @@ class Estimate:
         Measured particles in the sample (0 without one).
     size_stats : dict
         Volume-weighted ``d10_um, d50_um, d90_um, span`` and area-weighted ``s_mean_area_um,
-        s_mode_area_um`` of the particles' size laws (the moment model's log-normal, closed
-        form, :func:`bmctl.stats.lognormal_size_stats`): name -> (weighted mean, q05, q95)
-        over the filter's particles.
+        s_mode_area_um`` of the particles' size laws (closed form of each particle's mean and
+        std, :func:`bmctl.stats.law_size_stats`, as the moment model's ``outputs``): name ->
+        (weighted mean, q05, q95) over the filter's particles.
     """
 
     t_h: float
@@ -198,15 +198,15 @@ def particle_size_stats(model, X: np.ndarray, weights: np.ndarray) -> dict:
     """Weighted mean and 90 % interval over particles of each size statistic of their laws.
 
     The statistics are the moment model's closed forms (``model.outputs``: volume-weighted
-    D-values and span, area-weighted mean and mode of the log-normal size law); a model
-    without them falls back to :func:`bmctl.stats.lognormal_size_stats` of columns 0 and 1.
+    D-values and span, area-weighted mean and mode); a model without them falls back to
+    :func:`bmctl.stats.law_size_stats` of columns 0 and 1 (the same function).
     Returns name -> (mean, q05, q95).
     """
-    from ..stats import SIZE_STAT_NAMES, lognormal_size_stats
+    from ..stats import SIZE_STAT_NAMES, law_size_stats
 
     out = model.outputs(X) if hasattr(model, "outputs") else {}
     if not all(k in out for k in SIZE_STAT_NAMES):
-        out = lognormal_size_stats(X[:, 0], X[:, 1])
+        out = law_size_stats(X[:, 0], X[:, 1])
     V = np.column_stack([np.broadcast_to(out[k], X.shape[:1]) for k in SIZE_STAT_NAMES])
     q = weighted_quantiles(V, weights)
     mean = (weights / weights.sum()) @ V

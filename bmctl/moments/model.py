@@ -20,7 +20,7 @@ from ..config import ModelCard, load_card
 from ..errors import InputError
 from . import coeffs as cf
 from . import equations as eq
-from ..stats import lognormal_size_stats
+from ..stats import law_size_stats
 from .physics import Constants, constants, derived_threshold_laws
 
 STATE_NAMES = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening")
@@ -330,19 +330,20 @@ class MomentModel:
             "r_mean": x[..., 2], "r_std": x[..., 3], "r_mode": r_mode,
             "temperature_c": x[..., 4], "hardening": x[..., 5],
         }
-        # volume-weighted d10/d50/d90/span, area-weighted mean/mode of the log-normal law (bmctl.stats)
+        # volume-weighted d10/d50/d90/span, area-weighted mean/mode in closed form (bmctl.stats.law_size_stats)
         out.update(size_stats_of_state(x))
         return out
 
     def casadi_size_stats(self, x) -> dict:
         """:data:`bmctl.stats.SIZE_STAT_NAMES` of a casadi state (column vector) in closed form.
 
-        The same law as :meth:`outputs` (log-normal from the projected mean and std), as casadi
-        expressions for targets on ``d50_um``, ``d90_um`` or ``span`` in an MPC cost.
+        The same closed form as :meth:`outputs` (:func:`bmctl.stats.law_size_stats` of the
+        projected mean and std), as casadi expressions for targets on ``d50_um``, ``d90_um`` or
+        ``span`` in an MPC cost.
         """
         B = eq.backend("casadi")
         m, sd, _, _ = eq.project(B, _ca_cols(x, 6)[:4])
-        return lognormal_size_stats(m, sd)
+        return law_size_stats(m, sd)
 
     # --- linear analysis -----------------------------------------------------------------------
     def linearize(self, x, u, p=None, dt_h: float | None = None):
@@ -363,12 +364,14 @@ class MomentModel:
 def size_stats_of_state(x) -> dict:
     """Volume-weighted D-values and span, area-weighted mean and mode of states ``(..., >=2)``.
 
-    The size law is the model's closure: log-normal with the projected number mean and std
-    (``equations.project``), read out in closed form by :func:`bmctl.stats.lognormal_size_stats`.
+    Read out in closed form from the projected number mean and std (``equations.project``) by
+    :func:`bmctl.stats.law_size_stats`: a Weibull law of that mean and std (the particle filter's
+    default likelihood law), whose D-values track the plant about twice as closely as the
+    log-normal of the moment closure (docs/fidelity.md).
     """
     x = _arr(x)
     m, sd, _, _ = eq.project(eq.NP, [x[..., 0], x[..., 1], x[..., 2], x[..., 3]])
-    return lognormal_size_stats(m, sd)
+    return law_size_stats(m, sd)
 
 
 def _arr(v) -> np.ndarray:
