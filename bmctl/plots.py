@@ -167,7 +167,8 @@ def size_distributions(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, time
         _log_size_axis(a)
         a.set_xlim(xlo, xhi), a.set_ylim(0, top)
         a.axvline(d50_um[k], color="k", lw=1, ls=":")
-        a.text(d50_um[k], 0.93 * top, f" D50 {d50_um[k]:.0f} µm", fontsize=8, va="top")
+        a.text(d50_um[k], 0.93 * top, f" D50 {d50_um[k]:.0f} µm", fontsize=8, va="top", zorder=5,
+               bbox=dict(facecolor="white", alpha=0.8, lw=0, pad=1))
         b = a.twinx()
         b.plot(s_edges_um[1:], 100 * Q3[k], color="0.25", lw=1.1, ls="--", label="cumulative volume (%)")
         b.set_ylim(0, 105)
