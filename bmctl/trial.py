@@ -347,8 +347,8 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
     ax.set_title("vial temperature"), ax.set_ylabel("vial temperature (°C)"), ax.set_xlabel("t (h)")
     ax.legend(fontsize=8), ax.grid(alpha=0.3)
     ax = axes[1][2]
-    ax.plot(t, data["est_gamma_mult"], label="gamma_mult")
-    ax.plot(t, data["est_delta_mult"], label="delta_mult")
+    ax.plot(t, data["est_gamma_mult"], label=quantity_label("gamma_mult"))
+    ax.plot(t, data["est_delta_mult"], label=quantity_label("delta_mult"))
     ax.fill_between(t, data["est_gamma_mult_q05"], data["est_gamma_mult_q95"], alpha=0.2)
     ax.fill_between(t, data["est_delta_mult_q05"], data["est_delta_mult_q95"], alpha=0.2)
     ax.set_title("estimated bonding γ and fracture δ factors"), ax.set_ylabel("factor relative to the card (1 = card)")
