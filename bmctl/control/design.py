@@ -154,6 +154,8 @@ def predicted_csv(d: Design) -> str:
 def design_figure(d: Design, path: Path) -> None:
     from ..io import pyplot, savefig
 
+    from ..plots import quantity_label
+
     plt = pyplot()
 
     t = d.times_h
@@ -165,15 +167,15 @@ def design_figure(d: Design, path: Path) -> None:
     ax2.bar(t[:-1], d.U[:, 1], width=d.interval_h, align="edge", alpha=0.25, color="tab:gray", label="milling")
     ax2.set_ylim(0, 1.05)
     ax2.set_ylabel("milling fraction")
-    ax.set_title("schedule")
+    ax.set_title("schedule (bars: share of each interval spent milling)")
     ax.grid(alpha=0.3)
-    for ax, keys, lab in ((axes[0, 1], ("s_mean_um", "s_std_um"), "size s (um)"),
-                          (axes[1, 0], ("r_mean", "r_std"), "aspect ratio r")):
+    for ax, keys, lab in ((axes[0, 1], ("s_mean_um", "s_std_um"), "size s (µm, by number)"),
+                          (axes[1, 0], ("r_mean", "r_std"), "irregularity r = 1 − πs/L (0 = round)")):
         for key in keys:
             i = TARGET_KEYS.index(key)
-            line, = ax.plot(t, d.X[:, i], marker="o", ms=3, label=key)
+            line, = ax.plot(t, d.X[:, i], marker="o", ms=3, label=quantity_label(key))
             if key in d.target:
-                ax.axhline(d.target[key], color=line.get_color(), ls="--", lw=1, label=f"target {key}")
+                ax.axhline(d.target[key], color=line.get_color(), ls="--", lw=1, label=f"target: {quantity_label(key)}")
         ax.set_ylabel(lab)
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
@@ -181,7 +183,7 @@ def design_figure(d: Design, path: Path) -> None:
     ax.plot(t, d.X[:, 4], color="tab:red", marker="o", ms=3, label="T at interval ends")
     ax.step(t[:-1], d.t_peak_c, where="post", color="tab:orange", label="peak T per interval")
     ax.axhline(d.ceiling_c, color="k", ls="--", lw=1, label="ceiling")
-    ax.set_ylabel("vial temperature (C)")
+    ax.set_ylabel("vial temperature (°C)")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     for ax in axes[1]:
