@@ -6,7 +6,7 @@ Prints the median and best wall time of ``ParticleFilter.update`` (guided propos
 fit, rastered likelihood, weights, resampling when due) on a state cloud that has already
 been through one hour of milling, and of ``ParticleFilter.predict`` over 1 h and 0.25 h
 (dominated by the moment model's batched step). numpy runs single-threaded here.
-Target (issue 4): update <= 20 ms at N = 2000, n = 300.
+Target: update <= 20 ms at N = 2000, n = 300.
 """
 
 from __future__ import annotations

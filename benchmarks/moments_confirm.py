@@ -8,7 +8,7 @@ Draws N (default 24) random 12 h schedules from a stream that ``bmctl identify``
 ``[seed, 2]``), runs them on plants seeded 21-23 (M = 4000, like identify's validation) and
 prints the mean NRMSE (and its standard error over the schedules) of each coefficient file,
 default: the card's own ``models/<card>.moments.toml``. ``--stream 5 --seeds 31 32 33`` gives the
-fresh set of stop 20. docs/moments.md, Sec. 6, reports both.
+fresh confirmation set. docs/moments.md, Sec. 6, reports both.
 About 1 min of plant runs per card on one core.
 """
 

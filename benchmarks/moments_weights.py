@@ -12,7 +12,7 @@ default 1,1,1,1, which reproduces the shipped fit), it fits the identified coeff
 built-in defaults like ``identify.fit`` does, and with ``--balanced`` adds a warm-started second
 stage whose weights are each moment's in-sample NRMSE over the training runs, divided by their
 mean. Prints, per variant, the mean NRMSE on the held-out schedules, the confirmation set and
-the off-card check. About 2-4 min of fitting per variant. docs/moments.md, Sec. 6 (stop 20),
+the off-card check. About 2-4 min of fitting per variant. docs/moments.md, Sec. 6,
 reports it.
 """
 
@@ -81,9 +81,9 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", type=Path, help="pickle file that keeps the plant runs between calls")
     ap.add_argument("--train-seeds", type=int, nargs="+", default=list(ident.TRAIN_SEEDS),
                     help=f"training plant seeds (default {' '.join(map(str, ident.TRAIN_SEEDS))}; "
-                         "stop 20's table: 1 2)")
+                         "the two-seed table: 1 2)")
     ap.add_argument("--valid-schedules", type=int, default=ident.N_VALID,
-                    help=f"held-out schedules (default {ident.N_VALID}; stop 20's table: 24)")
+                    help=f"held-out schedules (default {ident.N_VALID}; the published table: 24)")
     args = ap.parse_args(argv)
     card = load_card(args.model)
     t0 = time.time()

@@ -41,6 +41,12 @@ class SamplingSpec(Strict):
 class EstimatorSpec(Strict):
     particles: Annotated[int, Field(ge=50, le=200_000)] = 1000
 
+    def filter_settings(self):
+        """The particle filter's settings of this table."""
+        from .estimate import FilterSettings
+
+        return FilterSettings(n_particles=self.particles)
+
 
 class ControllerSpec(Strict):
     config: str  # controllers/*.toml; its `kind` (mpc, lqr, recipe) picks the controller

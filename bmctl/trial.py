@@ -1,35 +1,38 @@
 """Closed-loop trials: plant -> micrograph sampler -> particle filter -> controller -> plant.
 
-Written step by step to disk so that a killed trial loses nothing and resumes:
+A trial is a :class:`bmctl.loop.ClosedLoop` built from a scenario, written step by step to disk
+so that a killed trial loses nothing and resumes:
 
-* ``trajectory.csv`` — one row per control interval, appended and flushed (fsync) each step;
-* ``checkpoint.pkl`` — the full state after the last written row (plant, filter, sampler and
-  controller, their random generators included), replaced atomically each step;
+* ``trajectory.csv`` -- one row per control interval, appended and flushed (fsync) each step;
+* ``checkpoint.npz`` -- the full state after the last written row as plain data (plant, filter,
+  sampler and controller states, their generators' states included; :mod:`bmctl.checkpoint`),
+  replaced atomically each step;
 * ``summary.json`` and figures when the trial ends.
 
-Resuming (``--resume DIR``) truncates ``trajectory.csv`` to the checkpoint's rows and carries on;
-with the same seed the result is identical to an uninterrupted run.
+Resuming (``--resume DIR``) keeps the checkpoint's rows of ``trajectory.csv`` (a torn last row,
+cut mid-write, is dropped) and carries on; with the same seed the result is identical to an
+uninterrupted run. A damaged checkpoint or ``trial.json`` is refused with one line.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import os
-import pickle
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import io
+from .checkpoint import load_state, save_state
 from .config import ModelCard, load_card, with_factors
 from .errors import InputError
+from .loop import ClosedLoop, LoopConfig, StepRecord
 from .scenario import TARGET_KEYS, Scenario, load_scenario, resolve
 
 TRUE_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
 EST_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "gamma_mult", "delta_mult")
+CHECKPOINT = "checkpoint.npz"
 
 
 def trajectory_header() -> list[str]:
@@ -40,18 +43,30 @@ def trajectory_header() -> list[str]:
 
 
 @dataclass
-class TrialState:
-    """Everything a trial needs to carry on after step ``k``."""
+class MicrographSensor:
+    """A micrograph of the plant's powder (:func:`bmctl.measure.sampler.micrograph_sample`):
+    the :class:`bmctl.loop.Sensor` of a simulated trial."""
 
-    k: int
-    plant: object
-    pf: object
-    controller: object
-    sample_rng: np.random.Generator
-    u_prev: tuple[float, float] | None
-    est: dict
-    next_sample_h: float
-    stats: dict = field(default_factory=dict)
+    particles: int
+    um_per_px: float | None
+    noise: float
+    render: bool
+
+    def sample(self, mill, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``(s_um, r)`` of one micrograph's particle table.
+
+        Parameters
+        ----------
+        mill : Plant
+            Its population ``s`` (m) and ``r`` is imaged.
+        rng : numpy.random.Generator
+            The sampler's generator.
+        """
+        from .measure.sampler import micrograph_sample
+
+        tab = micrograph_sample(mill.s * 1e6, mill.r, self.particles, rng, um_per_px=self.um_per_px,
+                                noise=self.noise, render=self.render)
+        return np.asarray(tab.s_um), np.asarray(tab.r)
 
 
 def _plant_card(sc: Scenario, base: Path) -> ModelCard:
@@ -68,103 +83,54 @@ def _model_and_controller(sc: Scenario, base: Path):
     model = make_moment_model(resolve(sc.model, base))
     cfg_path = resolve(sc.controller.config, base)
     cfg = load_controller(cfg_path)
-    if sc.temperature_max_c is not None and hasattr(cfg, "temperature"):
+    if sc.temperature_max_c is not None and "temperature" in type(cfg).model_fields:
         d = cfg.model_dump()
         d["temperature"]["ceiling_c"] = sc.temperature_max_c
         cfg = validate_controller(d, str(cfg_path))
     controller = make_controller(cfg, model)
-    if sc.target and hasattr(controller, "set_target"):
+    if sc.target:
         controller.set_target(dict(sc.target), t_end_h=sc.hours)
     return model, controller
 
 
-def build(sc: Scenario, base: Path, seed: int) -> TrialState:
-    """Fresh trial state from a scenario and a seed (one SeedSequence spawns every generator)."""
-    from .estimate import FilterSettings, ParticleFilter
+def _ceiling(sc: Scenario, controller) -> float | None:
+    """The scenario's ceiling, else the controller config's (a recipe has none)."""
+    if sc.temperature_max_c is not None:
+        return sc.temperature_max_c
+    cfg = controller.cfg
+    if "temperature" not in type(cfg).model_fields:  # a recipe has no temperature table
+        return None
+    return float(cfg.temperature.ceiling_c)
+
+
+def build(sc: Scenario, base: Path, seed: int) -> ClosedLoop:
+    """Fresh trial loop from a scenario and a seed (one SeedSequence spawns every generator)."""
+    from .estimate import ParticleFilter
+    from .physics.kinematics import kinematics
     from .plant.plant import Plant
 
     ss = np.random.SeedSequence(seed)
     g_plant, g_pf, g_sample = (np.random.default_rng(s) for s in ss.spawn(3))
     model, controller = _model_and_controller(sc, base)
-    plant = Plant(_plant_card(sc, base), g_plant, sc.plant.particles)
-    pf = ParticleFilter(model, g_pf, FilterSettings(n_particles=sc.estimator.particles))
-    return TrialState(k=0, plant=plant, pf=pf, controller=controller, sample_rng=g_sample, u_prev=None,
-                      est=pf.estimate().as_dict(), next_sample_h=sc.sampling.every_h,
-                      stats={"solver_failures": 0, "fallbacks": 0, "energy_J": 0.0, "max_T": plant.temperature_C,
-                             "violations": 0, "solve_ms": []})
+    card = _plant_card(sc, base)
+    plant = Plant(card, g_plant, sc.plant.particles)
+    pf = ParticleFilter(model, g_pf, sc.estimator.filter_settings())
+    sp = sc.sampling
+    sensor = MicrographSensor(sp.particles, sp.um_per_px, sp.noise, sp.render)
+    cfg = LoopConfig(hours=sc.hours, sample_every_h=sp.every_h, temperature_reading=sp.temperature_reading,
+                     ceiling_c=_ceiling(sc, controller), power_w=lambda rpm: kinematics(card, rpm).mean_power_W)
+    return ClosedLoop(plant, sensor, pf, controller, g_sample, cfg)
 
 
-def _sample(sc: Scenario, state: TrialState):
-    from .measure.sampler import micrograph_sample
-
-    p = state.plant
-    s_um, r = p.s * 1e6, p.r
-    tab = micrograph_sample(s_um, r, sc.sampling.particles, state.sample_rng, um_per_px=sc.sampling.um_per_px,
-                            noise=sc.sampling.noise, render=sc.sampling.render)
-    return np.asarray(tab.s_um), np.asarray(tab.r)
-
-
-def _x_est(est: dict) -> tuple[np.ndarray, np.ndarray]:
-    x = np.array([est["s_mean_um"], est["s_std_um"], est["r_mean"], est["r_std"], est["temperature_c"],
-                  est.get("hardening", 0.0)])
-    return x, np.array([est.get("gamma_mult", 1.0), est.get("delta_mult", 1.0)])
-
-
-def step(sc: Scenario, state: TrialState, ceiling: float | None) -> list:
-    """Advance the trial by one control interval; returns the trajectory row."""
-    from .plant.kinematics import kinematics
-
-    interval = state.controller.interval_h
-    t_h = state.k * interval
-    dt = min(interval, sc.hours - t_h)
-    x, p = _x_est(state.est)
-    t0 = time.perf_counter()
-    plan = state.controller.plan(x, t_h, p=p, u_prev=state.u_prev)
-    st = plan.status
-    solve_ms = st.solve_ms if st.solve_ms else (time.perf_counter() - t0) * 1e3
-    rpm, milling = (float(v) for v in plan.u_apply)
-    status = st.solver_status
-    fallback = st.fallback != "none"
-    state.stats["solve_ms"].append(solve_ms)
-    state.stats["fallbacks"] += int(fallback)
-    state.stats["solver_failures"] += int(not st.success)
-    if fallback or not st.success:
-        state.stats.setdefault("log", []).append(f"t={t_h:g} h: {st.line()}")
-
-    plant = state.plant
-    card = plant.card
-    # finer plant steps to watch the temperature within the interval
-    n_sub = max(1, int(math.ceil(dt / 0.05)))
-    mill_h = dt * milling
-    for j in range(n_sub):
-        a, b = j * dt / n_sub, (j + 1) * dt / n_sub
-        m = max(0.0, min(b, mill_h) - a) / (b - a)
-        plant.advance(rpm, b - a, milling=m)
-        state.stats["max_T"] = max(state.stats["max_T"], plant.temperature_C)
-        if ceiling is not None and plant.temperature_C > ceiling + 1e-9:
-            state.stats["violations"] += 1
-    state.stats["energy_J"] += kinematics(card, rpm).mean_power_W * mill_h * 3600.0
-    state.pf.predict((rpm, milling), dt)
-    t_new = t_h + dt
-    sampled = 0
-    if t_new >= state.next_sample_h - 1e-9 or t_new >= sc.hours - 1e-9:
-        s_um, r = _sample(sc, state)
-        T_read = plant.temperature_C if sc.sampling.temperature_reading else None
-        est = state.pf.update(s_um, r, temperature_c=T_read)
-        state.next_sample_h += sc.sampling.every_h
-        sampled = 1
-    else:
-        est = state.pf.estimate()
-    state.est = est.as_dict()
-    state.u_prev = (rpm, milling)
-    tm = plant.moments()
-    row = [state.k, t_new, rpm, milling] + [tm[k] for k in TRUE_KEYS]
+def trajectory_row(rec: StepRecord) -> list:
+    """The ``trajectory.csv`` row of one step."""
+    st = rec.status
+    row = [rec.k, rec.t_h, rec.rpm, rec.milling] + [rec.truth[k] for k in TRUE_KEYS]
     for k in EST_KEYS:
-        row += [state.est.get(k, float("nan")), state.est.get(f"{k}_q05", float("nan")),
-                state.est.get(f"{k}_q95", float("nan"))]
-    row += [sampled, state.est.get("ess", float("nan")), solve_ms, status, int(fallback)]
-    state.k += 1
-    return row
+        row += [rec.estimate.get(k, float("nan")), rec.estimate.get(f"{k}_q05", float("nan")),
+                rec.estimate.get(f"{k}_q95", float("nan"))]
+    return row + [rec.sampled, rec.estimate.get("ess", float("nan")), rec.solve_ms, st.solver_status,
+                  int(st.fallback != "none")]
 
 
 def _append_row(path: Path, row: list) -> None:
@@ -175,59 +141,39 @@ def _append_row(path: Path, row: list) -> None:
         os.fsync(fh.fileno())
 
 
-def _picklable(value) -> bool:
-    if _has_casadi(value):
-        return False
+def _read_meta(path: Path) -> dict:
     try:
-        pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL)
-        return True
-    except Exception:  # casadi objects, compiled solvers: rebuilt on resume
-        return False
+        meta = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError(f"--resume: {path} not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        raise InputError(f"{path}: not a bmctl trial record (truncated or damaged)") from None
+    if not isinstance(meta, dict) or not {"scenario", "seed"} <= set(meta):
+        raise InputError(f"{path}: not a bmctl trial record (no scenario and seed)")
+    return meta
 
 
-def _has_casadi(value) -> bool:
-    if type(value).__module__.startswith("casadi"):
-        return True
-    if isinstance(value, dict):
-        return any(_has_casadi(v) for v in value.values())
-    if isinstance(value, (list, tuple)):
-        return any(_has_casadi(v) for v in value)
-    return False
+def _kept_rows(traj: Path, steps: int) -> str:
+    """The header and the first ``steps`` complete rows of ``traj`` (a torn row is dropped)."""
+    lines = [ln for ln in traj.read_text().splitlines(keepends=True) if ln.endswith("\n")]
+    if len(lines) < steps + 1:
+        raise InputError(f"{traj}: {len(lines) - 1} complete rows, the checkpoint needs {steps}")
+    return "".join(lines[: steps + 1])
 
 
-def _save_checkpoint(path: Path, state: TrialState) -> None:
-    """Pickle the trial state; the controller and the moment model travel as their plain data only.
-
-    Compiled casadi functions and solvers are deterministic functions of the scenario, so they
-    are rebuilt on resume; the controller's warm-start data (previous plan, multipliers, ...)
-    is kept.
-    """
-    ctrl, model = state.controller, state.pf.model
-    ctrl_data = {k: v for k, v in vars(ctrl).items() if k != "model" and _picklable(v)}
-    state.controller, state.pf.model = None, None
+def _resume(loop: ClosedLoop, out: Path, scenario_path, seed: int) -> None:
+    ckpt, traj = out / CHECKPOINT, out / "trajectory.csv"
+    meta = _read_meta(out / "trial.json")
+    if meta.get("seed") != seed or meta.get("scenario") != str(Path(scenario_path).resolve()):
+        raise InputError(f"--resume: {out} holds a trial of {meta.get('scenario')} with seed {meta.get('seed')}")
+    if not ckpt.exists():
+        raise InputError(f"--resume: {ckpt} not found")
+    state = load_state(ckpt)
     try:
-        with io.atomic_path(path, suffix=".pkl") as tmp:
-            with open(tmp, "wb") as fh:
-                pickle.dump({"state": state, "controller": ctrl_data}, fh, protocol=pickle.HIGHEST_PROTOCOL)
-    finally:
-        state.controller, state.pf.model = ctrl, model
-
-
-def _load_checkpoint(path: Path, sc: Scenario, base: Path) -> TrialState:
-    with open(path, "rb") as fh:
-        data = pickle.load(fh)
-    state: TrialState = data["state"]
-    model, controller = _model_and_controller(sc, base)
-    vars(controller).update(data["controller"])
-    state.controller, state.pf.model = controller, model
-    return state
-
-
-def _ceiling(sc: Scenario, state: TrialState) -> float | None:
-    if sc.temperature_max_c is not None:
-        return sc.temperature_max_c
-    temp = getattr(getattr(state.controller, "cfg", None), "temperature", None)
-    return None if temp is None else float(temp.ceiling_c)
+        loop.set_state(state)
+    except (KeyError, TypeError, ValueError, IndexError):
+        raise InputError(f"{ckpt}: not a checkpoint of this trial (its state does not fit)") from None
+    io.write_text(traj, _kept_rows(traj, loop.k))
 
 
 def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume: bool = False,
@@ -243,7 +189,7 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
     seed : int
         Seed of the trial (plant, sampler and filter generators are spawned from it).
     resume : bool
-        Carry on from ``out/checkpoint.pkl``.
+        Carry on from ``out/checkpoint.npz``.
     max_steps : int, optional
         Stop after this many steps in this call (tests use it to simulate an interruption).
     progress : callable, optional
@@ -252,63 +198,56 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
     sc = load_scenario(scenario_path)
     base = Path(scenario_path).resolve().parent
     out = Path(out)
-    traj, ckpt = out / "trajectory.csv", out / "checkpoint.pkl"
+    traj, ckpt = out / "trajectory.csv", out / CHECKPOINT
+    if not resume and traj.exists():
+        raise InputError(f"--out: {out} already holds a trial; use --resume or another folder")
+    loop = build(sc, base, seed)
     if resume:
-        if not ckpt.exists():
-            raise InputError(f"--resume: {ckpt} not found")
-        state = _load_checkpoint(ckpt, sc, base)
-        meta = json.loads((out / "trial.json").read_text())
-        if meta.get("seed") != seed or meta.get("scenario") != str(Path(scenario_path).resolve()):
-            raise InputError(f"--resume: {out} holds a trial of {meta.get('scenario')} with seed {meta.get('seed')}")
-        lines = traj.read_text().splitlines(keepends=True)[: state.k + 1]
-        io.write_text(traj, "".join(lines))
+        _resume(loop, out, scenario_path, seed)
     else:
-        if traj.exists():
-            raise InputError(f"--out: {out} already holds a trial; use --resume or another folder")
-        state = build(sc, base, seed)
         out.mkdir(parents=True, exist_ok=True)
         io.write_text(out / "trial.json", json.dumps({"scenario": str(Path(scenario_path).resolve()), "seed": seed}))
         io.write_text(traj, ",".join(trajectory_header()) + "\n")
-        _save_checkpoint(ckpt, state)
-    ceiling = _ceiling(sc, state)
-    K = int(math.ceil(sc.hours / state.controller.interval_h - 1e-9))
+        save_state(ckpt, loop.get_state())
+    K = loop.steps
     done_now = 0
-    while state.k < K:
+    while not loop.done:
         if max_steps is not None and done_now >= max_steps:
-            return {"interrupted_at_step": state.k}
-        row = step(sc, state, ceiling)
-        _append_row(traj, row)
-        _save_checkpoint(ckpt, state)
+            return {"interrupted_at_step": loop.k}
+        _append_row(traj, trajectory_row(loop.step()))
+        save_state(ckpt, loop.get_state())
         done_now += 1
         if progress is not None:
-            progress(state.k, K)
-    summary = summarise(sc, state, ceiling)
+            progress(loop.k, K)
+    summary = summarise(sc, loop)
     io.write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
-    figures(sc, traj, out, ceiling)
+    figures(sc, traj, out, loop.cfg.ceiling_c)
     return summary
 
 
-def summarise(sc: Scenario, state: TrialState, ceiling: float | None) -> dict:
-    tm = state.plant.moments()
+def summarise(sc: Scenario, loop: ClosedLoop) -> dict:
+    """The ``summary.json`` of a finished (or stopped) trial loop."""
+    ceiling = loop.cfg.ceiling_c
+    tm = loop.mill.moments()
     final_true = {k: tm[k] for k in TARGET_KEYS}
     err = {k: abs(final_true[k] - v) / abs(v) for k, v in sc.target.items()}
-    st = state.stats
+    st = loop.stats
     solve = np.array(st["solve_ms"]) if st["solve_ms"] else np.array([0.0])
     return {
         "scenario": sc.scenario.name,
         "target": dict(sc.target),
         "final_true": final_true,
-        "final_estimate": {k: state.est.get(k) for k in EST_KEYS},
+        "final_estimate": {k: loop.est.get(k) for k in EST_KEYS},
         "final_error": err,
         "max_temperature_c": st["max_T"],
         "temperature_ceiling_c": ceiling,
         "temperature_violations": st["violations"],
         "energy_kj": st["energy_J"] / 1e3,
-        "batch_h": min(state.k * state.controller.interval_h, sc.hours),
+        "batch_h": min(loop.k * loop.controller.interval_h, sc.hours),
         "solver_failures": st["solver_failures"],
         "fallbacks": st["fallbacks"],
         "median_solve_ms": float(np.median(solve)),
-        "steps": state.k,
+        "steps": loop.k,
         "solver_log": st.get("log", []),
     }
 

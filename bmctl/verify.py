@@ -1,4 +1,4 @@
-"""Verification of the plant's population Monte Carlo engine (issue 6, docs/verification.md).
+"""Verification of the plant's population Monte Carlo engine (docs/verification.md).
 
 Three groups of checks, each a small pure function of a seed and a sample size:
 

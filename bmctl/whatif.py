@@ -1,4 +1,5 @@
-"""What-if rpm schedules: each schedule on an ensemble of the plant, compared side by side."""
+"""What-if rpm schedules: each schedule on an ensemble of the plant, compared side by side
+(the open loop of :func:`bmctl.loop.run_open_loop`, no feedback)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ import numpy as np
 
 from . import io
 from .config import ModelCard
-from .plant.kinematics import kinematics
+from .loop import run_open_loop
+from .physics.kinematics import kinematics
 from .plant.plant import Plant
+from .schedule import as_schedule
 
 KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
 
@@ -45,7 +48,7 @@ def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[f
         The plant's model card.
     name : str
         Label of the schedule.
-    segments : sequence of (hours, rpm)
+    segments : Schedule or sequence of (hours, rpm)
         The schedule; rpm 0 is a rest.
     seeds : int
         Ensemble size.
@@ -60,19 +63,20 @@ def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[f
     -------
     WhatIfResult
     """
+    segments = as_schedule(segments).pairs()
     hours = sum(h for h, _ in segments)
     traj = {k: [] for k in KEYS}
     fs, fr, peaks = [], [], []
     t_h = None
     for k in range(seeds):
         plant = Plant(card, np.random.default_rng(base_seed + k), particles)
-        recs = plant.run_schedule(segments, every_h)
-        t_h = np.array([r.t_h for r in recs])
+        recs: list[dict] = []
+        t_h = run_open_loop(plant, segments, every_h, lambda t, mill: recs.append(mill.moments()))
         for key in KEYS:
-            traj[key].append([r.temperature_c if key == "temperature_c" else r.moments[key] for r in recs])
+            traj[key].append([m[key] for m in recs])
         fs.append(plant.s * 1e6)
         fr.append(plant.r)
-        peaks.append(max(r.temperature_c for r in recs))
+        peaks.append(max(m["temperature_c"] for m in recs))
     energy = sum(kinematics(card, rpm).mean_power_W * h * 3600 for h, rpm in segments) / 1e3
     return WhatIfResult(name, t_h, {k: np.array(v) for k, v in traj.items()}, np.concatenate(fs), np.concatenate(fr),
                         energy, hours, np.array(peaks))

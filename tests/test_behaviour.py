@@ -1,4 +1,4 @@
-"""The paper's Sec. 4.2 claims, as seeded tests on the three model cards (issue 2, section 6).
+"""The paper's Sec. 4.2 claims, as seeded tests on the three model cards.
 
 (a) mean, std and mode of s rise in the first hours; mean and mode fall again later, peak in 1-6 h;
 (b) for t > 0 the size distribution is fitted better by a log-normal than by a normal;
@@ -54,7 +54,7 @@ def test_a_mode_falls_later(runs, name):
     assert mode[-1] < mode[1:7].max()
 
 
-@pytest.mark.xfail(strict=True, reason="known deviation (docs/calibration.md, issue 2 section 6): the bonding "
+@pytest.mark.xfail(strict=True, reason="known deviation (docs/calibration.md): the bonding "
                    "kernel (15) favours the big particles and fracture (20) halves the 40 um ones, so the mean grows "
                    "through a long tail of welded particles while the number density keeps its peak at 30-40 um; "
                    "the smoothed mode stays at 24-38 um for 1-6 h on every card, never above 42.5 um; weakening fracture "
@@ -87,7 +87,7 @@ def test_c_r_mode_low_mean_and_std_grow_slowly(runs, name):
     assert np.all(np.diff(mean) < 0.2) and np.all(mean < 0.5)
 
 
-@pytest.mark.xfail(strict=True, reason="known deviation (docs/calibration.md, issue 2 section 6): r is made by "
+@pytest.mark.xfail(strict=True, reason="known deviation (docs/calibration.md): r is made by "
                    "bonds and fractures (rates ~ s^2) and removed by rounding (rate ~ 1/s), so when the sizes fall "
                    "after the peak the mean of r falls with them (lab 0.18 -> 0.11 from 6 to 12 h); switching rounding "
                    "off by 12 h on the lab card lets r run away (r mode > 0.4) on the faster-hardening 400 rpm card")

@@ -301,8 +301,8 @@ def test_response_to_gamma_delta_follows_the_plant(model):
     """p = the plant's (gamma, delta) factors act inside eqns (15) and (20), nothing fitted: the
     model told p must follow plants with gamma, delta 30 % off the card. Compared: ln of the
     s_mean ratio (off-card / card) at 1-4 h of the lab recipe, plant ensemble (2 seeds x 3000)
-    against the model. Tolerance 0.08 (measured on the stop-19 coefficients: 0.041 and 0.037;
-    0.07 and 0.13 on the stop-15 ones, when the tolerance was 0.15; the seed noise of a ratio is
+    against the model. Tolerance 0.08 (measured on the shipped coefficients: 0.041 and 0.037;
+    0.07 and 0.13 on an earlier set, when the tolerance was 0.15; the seed noise of a ratio is
     ~0.03). The structure it replaced (p multiplying the averaged rates c_b, c_f) is 0.31 and
     0.06 off: worse on both plants, and outside the tolerance on the first."""
     from bmctl.config import with_factors
@@ -587,8 +587,8 @@ def test_event_rates_follow_the_plants_counts_on_the_recipe(name):
     per particle that the model predicts on the card's recipe (12 h at the process rpm, then a
     0.5-h rest) are compared with a plant's (seed 0, M = 4000), per 0.5-h interval from 2 h on.
     Bound: |ln(model / plant)| <= 0.3 (35 %) per interval, what docs/moments.md (Sec. 6) states
-    for the recipe; measured 2-12 h: -0.12 ... +0.18 on the three cards, seeds 0 and 1 (stop-19
-    coefficients; -0.02 ... +0.23 on the stop-15 ones). The rest
+    for the recipe; measured 2-12 h: -0.12 ... +0.18 on the three cards, seeds 0 and 1 (shipped
+    coefficients; -0.02 ... +0.23 on an earlier set). The rest
     interval records no plant events, and < 1e-4 per particle in the model (its rates are smooth
     at rpm 0)."""
     from bmctl.config import load_card
@@ -622,7 +622,7 @@ def test_event_counts_agree_in_numpy_and_casadi(model):
 
 
 def test_cv_link_coefficients_steepen_the_link_where_r_is_spread():
-    """``r_link_cv_slope`` and ``frac_link_cv_shift`` (docs/moments.md, Sec. 2, stop 19): at 0 the
+    """``r_link_cv_slope`` and ``frac_link_cv_shift`` (docs/moments.md, Sec. 2): at 0 the
     field is the one without them, bit for bit; the fracture one acts on the fracture terms only;
     and the link they set depends on the state's CV of r (two states with the same r_mean)."""
     model = make_moment_model(LAB)

@@ -1,4 +1,4 @@
-"""Verification of the plant's Monte Carlo engine (issue 6): a seeded subset of `bmctl verify`.
+"""Verification of the plant's Monte Carlo engine: a seeded subset of `bmctl verify`.
 
 Tolerances come from Monte Carlo errors: bias z-scores of seed means (|z| < Z_BIAS), rms
 errors within ERROR_FACTOR expected i.i.d. errors, the M^-1/2 slope, KS p-values with
@@ -125,7 +125,7 @@ def test_analytic_case_unbiased_and_error_shrinks_as_m_to_the_minus_half(name):
 
 
 class _WithoutReplacement(Plant):
-    """The engine before issue 6: each batch on pairs drawn without replacement, rebalanced at its end."""
+    """The earlier engine: each batch on pairs drawn without replacement, rebalanced at its end."""
 
     def _impacts(self, kin, n, flush=False):
         n = min(n, self.M // 2)
@@ -155,7 +155,7 @@ def test_loop_energetics_match_the_plant_sampler(cards, name):
 
 
 def test_loop_energetics_detect_uniform_angles(cards, monkeypatch):
-    # the plant's sampler before issue 6 drew psi uniformly: the loop's plastic share is higher
+    # the plant's earlier sampler drew psi uniformly: the loop's plastic share is higher
     from bmctl.plant.kernels import PaperKernels
 
     monkeypatch.setattr(PaperKernels, "sample_psi", lambda self, plant, rng, n: rng.uniform(-np.pi / 2, np.pi / 2, n))

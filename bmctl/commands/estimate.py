@@ -90,7 +90,7 @@ def _read_sample(path: Path, um_per_px: float | None):
 
 
 def run(args) -> int:
-    from ..config import card_schedule, load_schedule
+    from ..schedule import Schedule
     from ..moments.model import make_moment_model
     from ..estimate.filter import FilterSettings
     from ..estimate.likelihood import LawSettings
@@ -118,8 +118,7 @@ def run(args) -> int:
     if args.schedule is not None:
         if args.rpm is not None:
             raise InputError("--schedule: cannot be combined with --rpm")
-        sched = load_schedule(args.schedule)
-        segments = [(s.hours, s.rpm) for s in sched.segment]
+        segments = Schedule.load(args.schedule).pairs()
         for h, rpm in segments:
             if rpm > card.mill.rpm_max:
                 raise InputError(f"{args.schedule}: rpm {rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g}")
@@ -127,7 +126,7 @@ def run(args) -> int:
         if total < t_end - 1e-9:
             raise InputError(f"{args.schedule}: covers {total:g} h, the last sample is at {t_end:g} h")
     else:
-        segments = card_schedule(card, max(card.process.hours, t_end), args.rpm)
+        segments = Schedule.from_card(card, max(card.process.hours, t_end), args.rpm).pairs()
     out = output_path(args.out, folder=False)
     if out.suffix.lower() != ".csv":
         raise InputError(f"--out: expected a .csv file name (got {out})")

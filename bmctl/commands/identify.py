@@ -168,7 +168,7 @@ def _report(name, names, tab0, tab, tab_train) -> str:
     return "\n".join(lines)
 
 
-#: issue 3's validation target: mean NRMSE over the held-out schedules, per moment
+#: the moment model's validation target: mean NRMSE over the held-out schedules, per moment
 TARGET_NRMSE = 0.05
 
 

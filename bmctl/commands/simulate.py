@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 
-from ..config import card_schedule, load_card, load_schedule
+from ..config import load_card
+from ..schedule import Schedule
 from ..errors import InputError
 from ._args import float_arg, int_arg, output_path
 
@@ -31,12 +32,11 @@ def run(args) -> int:
     if args.schedule is not None:
         if args.hours is not None or args.rpm is not None:
             raise InputError("--schedule: cannot be combined with --hours or --rpm")
-        sched = load_schedule(args.schedule)
-        segments = [(s.hours, s.rpm) for s in sched.segment]
+        segments = Schedule.load(args.schedule).pairs()
     else:
         if args.hours == 0:
             raise InputError("--hours: must be > 0 (got 0)")
-        segments = card_schedule(card, args.hours, args.rpm)
+        segments = Schedule.from_card(card, args.hours, args.rpm).pairs()
     for h, rpm in segments:
         if rpm > card.mill.rpm_max:
             src = args.schedule or "--rpm"

@@ -21,19 +21,20 @@ def configure(p):
 
 
 def run(args) -> int:
-    from ..config import load_card, load_schedule
+    from ..config import load_card
+    from ..schedule import Schedule
     from ..whatif import run_schedule_ensemble, table_rows, write_outputs
 
     out = output_path(args.out)
     card = load_card(args.model)
     scheds = []
     for path in args.schedules:
-        sched = load_schedule(path)
-        for i, seg in enumerate(sched.segment):
+        sched = Schedule.load(path)
+        for i, seg in enumerate(sched.segments):
             if seg.rpm > card.mill.rpm_max:
                 raise InputError(f"{path}: segment[{i}].rpm: {seg.rpm:g} exceeds the mill's rpm_max "
                                  f"{card.mill.rpm_max:g}")
-        scheds.append((sched.name or Path(path).stem, [(s.hours, s.rpm) for s in sched.segment]))
+        scheds.append((sched.name or Path(path).stem, sched.pairs()))
     results = [run_schedule_ensemble(card, name, segs, args.seeds, args.particles, args.seed) for name, segs in scheds]
     header, rows = table_rows(results)
     print(f"{'schedule':28s} {'h':>5s} {'kJ':>7s} {'Tpeak':>6s} {'s_mean':>16s} {'s_std':>16s} {'r_mean':>17s}")

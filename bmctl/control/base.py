@@ -250,9 +250,15 @@ class Plan:
         """All planned intervals as applied inputs (N, 2) (see :func:`applied_input`)."""
         return np.array([applied_input(u, self.interval_h, round_minutes, binary) for u in self.u]).reshape(-1, 2)
 
+    def schedule(self, round_minutes: bool = True):
+        """The plan as a :class:`bmctl.schedule.Schedule` (mill, then rest; equal neighbours merged)."""
+        from ..schedule import Schedule
+
+        return Schedule.from_inputs(self.applied(round_minutes), self.interval_h)
+
     def segments(self, round_minutes: bool = True) -> list[tuple[float, float]]:
-        """The plan as a schedule: (hours, rpm) segments, rpm 0 = rest, equal neighbours merged."""
-        return schedule_segments(self.applied(round_minutes), self.interval_h)
+        """The plan as (hours, rpm) segments, rpm 0 = rest (:meth:`schedule`)."""
+        return self.schedule(round_minutes).pairs()
 
 
 def schedule_segments(U: np.ndarray, interval_h: float, rpm_decimals: int = 0) -> list[tuple[float, float]]:
@@ -267,24 +273,9 @@ def schedule_segments(U: np.ndarray, interval_h: float, rpm_decimals: int = 0) -
     rpm_decimals : int, optional
         Rounding of the rpm values in the segments.
     """
-    segs: list[list[float]] = []
+    from ..schedule import Schedule
 
-    def add(hours, rpm):
-        if hours <= 1e-12:
-            return
-        if segs and abs(segs[-1][1] - rpm) < 1e-9:
-            segs[-1][0] += hours
-        else:
-            segs.append([hours, rpm])
-
-    for rpm, m in np.asarray(U, dtype=float).reshape(-1, 2):
-        r = round(float(rpm), rpm_decimals) if rpm_decimals is not None else float(rpm)
-        if m <= 0 or r <= 0:
-            add(interval_h, 0.0)
-        else:
-            add(m * interval_h, r)
-            add((1 - m) * interval_h, 0.0)
-    return [(h, r) for h, r in segs]
+    return Schedule.from_inputs(U, interval_h, rpm_decimals).pairs()
 
 
 class Reference:

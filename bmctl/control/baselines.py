@@ -40,6 +40,13 @@ class _Base:
     def reset(self) -> None:
         pass
 
+    def get_state(self) -> dict:
+        """Plain-data state for checkpoints (none: the recipe is a function of time)."""
+        return {}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state`."""
+
     def _plan(self, x0, t, pp, U, status, round_minutes=True, ceiling=None) -> Plan:
         dt = self.interval_h
         U = np.atleast_2d(np.asarray(U, dtype=float))
@@ -128,6 +135,18 @@ class LQRController(_Base):
         self._t_last = None
         self._rpm_last = None
         self._K = None
+
+    def get_state(self) -> dict:
+        """Last state, time, rpm and gain as plain data (the Jacobians are rebuilt)."""
+        return {"x_last": self._x_last, "t_last": self._t_last, "rpm_last": self._rpm_last,
+                "K": None if self._K is None else np.asarray(self._K, dtype=float)}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state`."""
+        self._x_last = None if state["x_last"] is None else np.asarray(state["x_last"], dtype=float)
+        self._t_last = None if state["t_last"] is None else float(state["t_last"])
+        self._rpm_last = None if state["rpm_last"] is None else float(state["rpm_last"])
+        self._K = None if state["K"] is None else np.asarray(state["K"], dtype=float)
 
     def _jacobians(self):
         if self._jac is None:

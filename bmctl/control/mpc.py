@@ -93,6 +93,28 @@ class MPCController:
         self._prev = None
         self._sticky_exact = False
 
+    def get_state(self) -> dict:
+        """Warm-start and adaptation data as plain data (the solvers are rebuilt from the config)."""
+        prev = None if self._prev is None else {
+            "t_h": self._prev.t_h, "W": self._prev.W, "M": self._prev.M, "lam_x": self._prev.lam_x,
+            "lam_g": self._prev.lam_g}
+        last = None if self._last is None else {"t_h": self._last[0], "x": self._last[1], "p": self._last[2]}
+        return {"prev": prev, "sticky_exact": self._sticky_exact, "gain": self.gain, "bias": self.bias,
+                "rls": self._rls, "last": last}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state`."""
+        pr = state["prev"]
+        self._prev = None if pr is None else _Solution(float(pr["t_h"]), *(np.asarray(pr[k], dtype=float)
+                                                                          for k in ("W", "M", "lam_x", "lam_g")))
+        self._sticky_exact = bool(state["sticky_exact"])
+        self.gain = np.asarray(state["gain"], dtype=float)
+        self.bias = np.asarray(state["bias"], dtype=float)
+        self._rls = np.asarray(state["rls"], dtype=float)
+        la = state["last"]
+        self._last = None if la is None else (float(la["t_h"]), np.asarray(la["x"], dtype=float),
+                                              np.asarray(la["p"], dtype=float))
+
     def plan(self, x_est, t_h: float, p=None, u_prev=None) -> Plan:
         """Solve the MPC problem from ``x_est`` at batch time ``t_h``; see :mod:`bmctl.control.base`."""
         x0 = check_x(x_est)

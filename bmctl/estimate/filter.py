@@ -248,6 +248,25 @@ class ParticleFilter:
         self.n_degenerate = 0
         self.last_fit = None
 
+    # --- state ------------------------------------------------------------------------------
+    def get_state(self) -> dict:
+        """The particles, weights, clocks, adapted noise and generator state as plain data."""
+        return {"X": self.X.copy(), "logP": self.logP.copy(), "logw": self.logw.copy(), "t_h": self.t_h,
+                "pending_h": self.pending_h, "q": self.q.copy(), "n_resampled": self.n_resampled,
+                "n_degenerate": self.n_degenerate, "rng": self.rng.bit_generator.state}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state` (the settings and the model are the constructor's)."""
+        self.X = np.array(state["X"], dtype=float)
+        self.logP = np.array(state["logP"], dtype=float)
+        self.logw = np.array(state["logw"], dtype=float)
+        self.t_h = float(state["t_h"])
+        self.pending_h = float(state["pending_h"])
+        self.q = np.array(state["q"], dtype=float)
+        self.n_resampled = int(state["n_resampled"])
+        self.n_degenerate = int(state["n_degenerate"])
+        self.rng.bit_generator.state = state["rng"]
+
     # --- basics -----------------------------------------------------------------------------
     @property
     def names(self) -> tuple[str, ...]:

@@ -40,18 +40,12 @@ class Sample:
 def inputs_between(segments: Sequence[tuple[float, float]], t0: float, t1: float) -> list[tuple[float, float, float]]:
     """The (rpm, milling, hours) pieces of a (hours, rpm) schedule between t0 and t1.
 
-    Time beyond the end of the schedule is a rest (rpm 0). ``milling`` is 1 for rpm > 0.
+    Time beyond the end of the schedule is a rest (rpm 0). ``milling`` is 1 for rpm > 0
+    (:meth:`bmctl.schedule.Schedule.inputs_between`).
     """
-    out = []
-    start = 0.0
-    for h, rpm in segments:
-        a, b = max(t0, start), min(t1, start + h)
-        if b > a + 1e-12:
-            out.append((float(rpm), 1.0 if rpm > 0 else 0.0, b - a))
-        start += h
-    if t1 > max(t0, start) + 1e-12:
-        out.append((0.0, 0.0, t1 - max(t0, start)))
-    return out
+    from ..schedule import as_schedule
+
+    return as_schedule(segments).inputs_between(t0, t1)
 
 
 def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float, float]],

@@ -365,7 +365,7 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool 
     # the net r a fracture creates depends on the parent's r twice, through its removal and through
     # the fragments' share of its perimeter, and one slope for both processes cannot set it
     # both slopes grow with ln CV^2 of r (`r_link_cv_slope`, `frac_link_cv_shift`): where most particles
-    # are round, r sits on a few large irregular ones and the plant's link is steeper (Sec. 6, stop 19)
+    # are round, r sits on a few large irregular ones and the plant's link is steeper (docs/moments.md, Sec. 6)
     k_cv, k_fcv = q.get("r_link_cv_slope", 0.0), q.get("frac_link_cv_shift", 0.0)
     lncv2 = None if _zero(k_cv) and _zero(k_fcv) else B.log(rho * rho * om / rm)  # ln (r_std / r_mean)^2
     beta = q["r_size_corr"] if _zero(k_cv) else q["r_size_corr"] + k_cv * lncv2

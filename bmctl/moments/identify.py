@@ -39,7 +39,7 @@ TRAIN_FACTORS = ((1.15, 0.85), (0.85, 1.15))
 N_RANDOM_OFF_CARD = 3
 #: plant seeds of the training ensemble (offsets to 1000 x --seed). Four seeds instead of two halve the
 #: variance of the ensemble means the fit chases; on three held-out sets the lab card's r_std fell by
-#: 0.07-0.14 points and no fan entry moved by more than 0.06 (docs/moments.md, Sec. 6, stop 20)
+#: 0.07-0.14 points and no fan entry moved by more than 0.06 (docs/moments.md, Sec. 6)
 TRAIN_SEEDS = (1, 2, 3, 4)
 #: plant seeds of the held-out validation ensemble (offsets to 1000 x --seed)
 VALID_SEEDS = (11, 12, 13)
@@ -82,11 +82,9 @@ class Experiment:
 
 def _grid(segments: Sequence[tuple[float, float, float]]) -> list[tuple[float, float]]:
     """(hours, rpm, milling) segments -> per-interval (rpm, milling) on the DT_H grid."""
-    out = []
-    for hours, rpm, duty in segments:
-        n = int(round(hours / DT_H))
-        out += [(float(rpm), float(duty))] * n
-    return out
+    from ..schedule import Schedule
+
+    return Schedule.from_pairs(segments).grid(DT_H)
 
 
 def random_schedule(rng: np.random.Generator, rpm_max: float, hours: float = HOURS, rest_p: float = 0.2,
@@ -136,7 +134,7 @@ def design(card: ModelCard, seed: int = 0, quick: bool = False, n_random: int | 
         specs.append(Spec(f"random-train-{k}", random_schedule(rng, R)))
     # plants off the card (TRAIN_FACTORS, half the off-card check's +-30 %): the fit sees how the
     # plant answers gamma and delta, which the particle filter estimates through the model
-    # (docs/moments.md, Sec. 6, stop 19); their schedules come from their own stream [seed, 4]
+    # (docs/moments.md, Sec. 6); their schedules come from their own stream [seed, 4]
     grng = np.random.default_rng([seed, 4])
     for g, d in TRAIN_FACTORS:
         specs.append(Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, card.process.rpm, 1.0)]), factors=(g, d)))

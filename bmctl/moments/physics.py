@@ -18,8 +18,8 @@ from functools import lru_cache
 import numpy as np
 
 from ..config import ModelCard
-from ..plant import events as ev
-from ..plant.kinematics import kinematics
+from ..physics import impacts as ev
+from ..physics.kinematics import kinematics
 
 UM = 1e-6
 #: exponents of the exact rpm power laws (Burgio et al. 1991, Maurice & Courtney 1990)
@@ -112,12 +112,8 @@ class Constants:
 
 
 def _impact_angles(rng, alpha: float, beta: float, n: int) -> np.ndarray:
-    """The plant's impact angles (kernels.sample_impact_angles when present, else uniform)."""
-    try:
-        from ..plant.kernels import dissipation_coefficients, sample_impact_angles
-    except ImportError:  # pragma: no cover - older plant
-        return rng.uniform(-np.pi / 2, np.pi / 2, n)
-    return sample_impact_angles(rng, *dissipation_coefficients(alpha, beta), n)
+    """The impact angles the plant's kernels draw (:func:`bmctl.physics.impacts.sample_impact_angles`)."""
+    return ev.sample_impact_angles(rng, *ev.dissipation_coefficients(alpha, beta), n)
 
 
 @lru_cache(maxsize=8)
@@ -176,10 +172,8 @@ def logistic_law(logz: np.ndarray, sharpness: float) -> tuple[float, float]:
 
 
 def plant_hit_rate(card: ModelCard, kin) -> float:
-    """Impacts per particle per second of the plant's own kernels at ``kin`` (asks a 2-particle plant)."""
-    from ..plant import make_plant
-
-    return float(make_plant(card, seed=0, particles=2).hit_rate(kin))
+    """Impacts per particle per second of the plant's paper kernels at ``kin`` (:func:`bmctl.physics.impacts.hit_rate`)."""
+    return float(ev.hit_rate(card.stochastic.alpha, card.stochastic.beta, kin))
 
 
 def initial_area_m2(card: ModelCard) -> float:

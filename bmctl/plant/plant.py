@@ -378,6 +378,23 @@ class Plant:
         self.counts = EventCounts(*snap["counts"])
         self.rng.bit_generator.state = snap["rng"]
 
+    @property
+    def temperature_c(self) -> float:
+        """Vial temperature now (degC); the :class:`bmctl.loop.Mill` reading."""
+        return self.temperature_C
+
+    def get_state(self) -> dict:
+        """The full state as plain data (:meth:`snapshot` plus the queued impacts), for checkpoints."""
+        state = self.snapshot()
+        state["counts"] = list(state["counts"])
+        state["queue"] = [q.copy() for q in self._queue]
+        return state
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state`."""
+        self.restore(state)
+        self._queue = tuple(np.asarray(q, dtype=np.int64) for q in state["queue"])
+
 
 def _first_round(i: np.ndarray, j: np.ndarray, v: np.ndarray, M: int) -> np.ndarray:
     """Mask of the queued impacts k that come first in the queue for each of i[k], j[k], v[k].

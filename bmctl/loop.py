@@ -1,0 +1,306 @@
+"""One loop, four small protocols: mill -> sensor -> estimator -> controller -> mill.
+
+::
+
+    plan = controller.plan(x_est, t_h, p=p, u_prev=u_prev)      # decide
+    mill.advance(rpm, hours, milling)                          # apply (in sub-steps)
+    estimator.predict((rpm, milling), hours)                   # propagate the belief
+    s_um, r = sensor.sample(mill, rng)                         # measure (when due)
+    estimate = estimator.update(s_um, r, temperature_c=...)    # correct
+
+:class:`ClosedLoop` composes these calls one control interval at a time
+(:meth:`ClosedLoop.decide`, :meth:`ClosedLoop.apply`, :meth:`ClosedLoop.observe`, or all three
+in :meth:`ClosedLoop.step`), so that a mill which is a person at a real mill, answering
+``advance`` by running the mill and ``sample`` by taking a micrograph, plugs in unchanged.
+:func:`run_open_loop` runs a :class:`~bmctl.schedule.Schedule` on a mill without feedback
+(``bmctl whatif``). Every object carries its state as plain data (``get_state`` /
+``set_state``), which :mod:`bmctl.checkpoint` writes and reads.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+from .checkpoint import rng_state, set_rng_state
+from .physics.constants import TIME_EPS_H
+
+#: finest plant step within a control interval: the vial temperature is watched at this spacing (h)
+SUBSTEP_H = 0.05
+#: tolerance of the temperature-ceiling check (degC)
+CEILING_EPS_C = 1e-9
+
+
+@runtime_checkable
+class Mill(Protocol):
+    """The plant: a simulator (:class:`bmctl.plant.Plant`) or a person at a real mill."""
+
+    def advance(self, rpm: float, hours: float, milling: float = 1.0) -> None:
+        """Mill at ``rpm`` for ``hours * milling``, then rest for the remainder."""
+
+    def moments(self) -> dict:
+        """Population moments (``s_mean_um``, ``s_std_um``, ``r_mean``, ``r_std``) and ``temperature_c``."""
+
+    @property
+    def temperature_c(self) -> float:
+        """Vial temperature now (degC)."""
+
+    def get_state(self) -> dict:
+        """The full state as plain data."""
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state`."""
+
+
+@runtime_checkable
+class Sensor(Protocol):
+    """A measurement of the mill's powder: sizes (um) and aspect ratios of sampled particles."""
+
+    def sample(self, mill: Mill, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``(s_um, r)`` of one sample (a micrograph's particle table)."""
+
+
+@runtime_checkable
+class Estimator(Protocol):
+    """A belief over the moment-model state and parameters (:class:`bmctl.estimate.ParticleFilter`)."""
+
+    def predict(self, u, dt_h: float) -> None:
+        """Propagate over ``dt_h`` hours under ``u = (rpm, milling)``."""
+
+    def update(self, s_um, r, temperature_c: float | None = None):
+        """Weigh in one sample; returns the estimate (an object with ``as_dict()``)."""
+
+    def estimate(self):
+        """The current estimate without a new measurement."""
+
+    def get_state(self) -> dict:
+        """The full state as plain data."""
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state`."""
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """Plans the input of the next interval from the estimate (:mod:`bmctl.control`)."""
+
+    interval_h: float
+
+    def plan(self, x_est, t_h: float, p=None, u_prev=None):
+        """A :class:`bmctl.control.base.Plan`; ``plan.u_apply`` is (rpm, milling) for ``interval_h``."""
+
+    def get_state(self) -> dict:
+        """Warm-start and adaptation data as plain data (compiled solvers are rebuilt)."""
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state`."""
+
+
+def estimate_vectors(est: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Moment-model state x (6,) and parameter multipliers p (2,) of an estimate dict."""
+    x = np.array([est["s_mean_um"], est["s_std_um"], est["r_mean"], est["r_std"], est["temperature_c"],
+                  est.get("hardening", 0.0)])
+    return x, np.array([est.get("gamma_mult", 1.0), est.get("delta_mult", 1.0)])
+
+
+@dataclass
+class LoopConfig:
+    """What the loop needs beyond its four objects.
+
+    Attributes
+    ----------
+    hours : float
+        Batch length (h).
+    sample_every_h : float
+        Time between samples (h); a sample is also taken at the batch end.
+    temperature_reading : bool
+        The estimator also gets the vial temperature with each sample.
+    ceiling_c : float or None
+        Vial-temperature ceiling whose crossings are counted.
+    power_w : callable or None
+        Mean mill power (W) at an rpm, for the energy tally.
+    """
+
+    hours: float
+    sample_every_h: float
+    temperature_reading: bool = True
+    ceiling_c: float | None = None
+    power_w: Callable[[float], float] | None = None
+
+
+@dataclass
+class StepRecord:
+    """What happened in one control interval."""
+
+    k: int
+    t_h: float  # end of the interval
+    rpm: float
+    milling: float
+    truth: dict
+    estimate: dict
+    sampled: int
+    solve_ms: float
+    status: object
+
+
+@dataclass
+class ClosedLoop:
+    """Mill, sensor, estimator and controller composed one control interval at a time.
+
+    The loop's own state (step, last input, last estimate, next sample time, tallies) and its
+    objects' states travel together through :meth:`get_state` / :meth:`set_state`.
+    """
+
+    mill: Mill
+    sensor: Sensor
+    estimator: Estimator
+    controller: Controller
+    sample_rng: np.random.Generator
+    cfg: LoopConfig
+    k: int = 0
+    u_prev: tuple[float, float] | None = None
+    est: dict = field(default_factory=dict)
+    next_sample_h: float = 0.0
+    stats: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if not self.est:
+            self.est = self.estimator.estimate().as_dict()
+        if not self.next_sample_h:
+            self.next_sample_h = self.cfg.sample_every_h
+        if not self.stats:
+            self.stats = {"solver_failures": 0, "fallbacks": 0, "energy_J": 0.0, "max_T": self.mill.temperature_c,
+                          "violations": 0, "solve_ms": []}
+
+    @property
+    def steps(self) -> int:
+        """Number of control intervals of the batch."""
+        return int(math.ceil(self.cfg.hours / self.controller.interval_h - TIME_EPS_H))
+
+    @property
+    def done(self) -> bool:
+        return self.k >= self.steps
+
+    # --- the three calls of one interval ----------------------------------------------------
+    def decide(self):
+        """The controller's plan at the start of interval ``k`` (tallies solver outcomes)."""
+        t_h = self.k * self.controller.interval_h
+        x, p = estimate_vectors(self.est)
+        t0 = time.perf_counter()
+        plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev)
+        st = plan.status
+        solve_ms = st.solve_ms if st.solve_ms else (time.perf_counter() - t0) * 1e3
+        fallback = st.fallback != "none"
+        self.stats["solve_ms"].append(solve_ms)
+        self.stats["fallbacks"] += int(fallback)
+        self.stats["solver_failures"] += int(not st.success)
+        if fallback or not st.success:
+            self.stats.setdefault("log", []).append(f"t={t_h:g} h: {st.line()}")
+        return plan, solve_ms
+
+    def apply(self, rpm: float, milling: float, dt_h: float) -> None:
+        """Run the mill for ``dt_h`` hours in sub-steps of at most :data:`SUBSTEP_H`, milling
+        first (``milling * dt_h`` hours), watching the vial temperature; propagate the estimator."""
+        n_sub = max(1, int(math.ceil(dt_h / SUBSTEP_H)))
+        mill_h = dt_h * milling
+        ceiling = self.cfg.ceiling_c
+        for j in range(n_sub):
+            a, b = j * dt_h / n_sub, (j + 1) * dt_h / n_sub
+            m = max(0.0, min(b, mill_h) - a) / (b - a)
+            self.mill.advance(rpm, b - a, milling=m)
+            T = self.mill.temperature_c
+            self.stats["max_T"] = max(self.stats["max_T"], T)
+            if ceiling is not None and T > ceiling + CEILING_EPS_C:
+                self.stats["violations"] += 1
+        if self.cfg.power_w is not None:
+            self.stats["energy_J"] += self.cfg.power_w(rpm) * mill_h * 3600.0
+        self.estimator.predict((rpm, milling), dt_h)
+
+    def observe(self, t_h: float) -> int:
+        """Sample and update the estimator when a sample is due at ``t_h`` (or the batch ends);
+        returns 1 if a sample was taken."""
+        sampled = 0
+        if t_h >= self.next_sample_h - TIME_EPS_H or t_h >= self.cfg.hours - TIME_EPS_H:
+            s_um, r = self.sensor.sample(self.mill, self.sample_rng)
+            T_read = self.mill.temperature_c if self.cfg.temperature_reading else None
+            est = self.estimator.update(s_um, r, temperature_c=T_read)
+            self.next_sample_h += self.cfg.sample_every_h
+            sampled = 1
+        else:
+            est = self.estimator.estimate()
+        self.est = est.as_dict()
+        return sampled
+
+    def step(self) -> StepRecord:
+        """One control interval: decide, apply, observe."""
+        interval = self.controller.interval_h
+        t_h = self.k * interval
+        dt = min(interval, self.cfg.hours - t_h)
+        plan, solve_ms = self.decide()
+        rpm, milling = (float(v) for v in plan.u_apply)
+        self.apply(rpm, milling, dt)
+        t_new = t_h + dt
+        sampled = self.observe(t_new)
+        self.u_prev = (rpm, milling)
+        rec = StepRecord(self.k, t_new, rpm, milling, self.mill.moments(), self.est, sampled, solve_ms, plan.status)
+        self.k += 1
+        return rec
+
+    # --- state --------------------------------------------------------------------------------
+    def get_state(self) -> dict:
+        """The loop and its four objects as plain data."""
+        return {
+            "loop": {"k": self.k, "u_prev": None if self.u_prev is None else list(self.u_prev), "est": self.est,
+                     "next_sample_h": self.next_sample_h, "stats": self.stats},
+            "mill": self.mill.get_state(),
+            "estimator": self.estimator.get_state(),
+            "controller": self.controller.get_state(),
+            "sample_rng": rng_state(self.sample_rng),
+        }
+
+    def set_state(self, state: dict) -> None:
+        """Restore :meth:`get_state` output onto freshly built objects."""
+        lp = state["loop"]
+        self.k = int(lp["k"])
+        self.u_prev = None if lp["u_prev"] is None else tuple(float(v) for v in lp["u_prev"])
+        self.est = dict(lp["est"])
+        self.next_sample_h = float(lp["next_sample_h"])
+        self.stats = dict(lp["stats"])
+        self.mill.set_state(state["mill"])
+        self.estimator.set_state(state["estimator"])
+        self.controller.set_state(state["controller"])
+        set_rng_state(self.sample_rng, state["sample_rng"])
+
+
+def record_times(total_h: float, every_h: float) -> np.ndarray:
+    """Recording times 0, every_h, ... and the end (h)."""
+    times = np.arange(0.0, total_h + TIME_EPS_H, every_h)
+    if total_h - times[-1] > TIME_EPS_H:
+        times = np.append(times, total_h)
+    return times
+
+
+def run_open_loop(mill: Mill, segments: Sequence[tuple[float, float]], record_every_h: float,
+                  on_record: Callable[[float, Mill], None]) -> np.ndarray:
+    """Run (hours, rpm) segments on ``mill`` without feedback, calling ``on_record(t_h, mill)`` at
+    every recording time (t = 0 included); returns the recording times (h from the start).
+
+    Each recording interval is cut at the segment boundaries and every piece is one
+    ``advance`` call (the same calls as :meth:`bmctl.plant.Plant.run_schedule`).
+    """
+    total = sum(h for h, _ in segments)
+    times = record_times(total, record_every_h)
+    bounds = np.cumsum([0.0] + [h for h, _ in segments])
+    on_record(float(times[0]), mill)
+    for k in range(1, times.size):
+        a, b = times[k - 1], times[k]
+        for (h, rpm), lo, hi in zip(segments, bounds[:-1], bounds[1:]):
+            x0, x1 = max(a, lo), min(b, hi)
+            if x1 > x0 + 1e-12:
+                mill.advance(rpm, x1 - x0)
+        on_record(float(b), mill)
+    return times
