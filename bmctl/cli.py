@@ -26,6 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "whatif": ("bmctl.commands.whatif", "compare rpm schedules on a plant ensemble"),
     "design": ("bmctl.commands.design", "offline open-loop rpm/rest schedule from the MPC problem"),
     "compare": ("bmctl.commands.compare", "measured particle sample against the plant prediction at a time"),
+    "campaign": ("bmctl.commands.campaign", "run a real mill: log, sample, advise, decide, report (SQLite log)"),
 }
 
 
