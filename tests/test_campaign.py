@@ -122,6 +122,8 @@ def test_late_and_early_samples_equal_on_time(tmp_path):
     assert r["applied"] and [t for t, _ in _states(d)] == [-1.0, 0.25, 1.0]
 
 
+@pytest.mark.slow
+@pytest.mark.slow
 def test_fresh_process_continues_exactly(tmp_path):
     """A campaign continued by new Campaign objects (new processes) equals one kept open."""
     d1, d2 = tmp_path / "one", tmp_path / "many"
@@ -165,7 +167,7 @@ def test_cli_verbs_and_one_line_errors(tmp_path, capsys):
     assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--temperature-c", "41"]) == 0
     csv = tmp_path / "s.csv"
     t = _table(5)
-    csv.write_text("s_um,r\n" + "".join(f"{s!r},{r!r}\n" for s, r in zip(t.s_um, t.r)))
+    csv.write_text("s_um,r\n" + "".join(f"{float(s)!r},{float(r)!r}\n" for s, r in zip(t.s_um, t.r)))
     assert main(["campaign", "sample", d, "--at-h", "0.5", str(csv)]) == 0
     assert main(["campaign", "advise", d]) == 0
     out = capsys.readouterr().out
