@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "design": ("bmctl.commands.design", "offline open-loop rpm/rest schedule from the MPC problem"),
     "compare": ("bmctl.commands.compare", "measured particle sample against the plant prediction at a time"),
     "card": ("bmctl.commands.card", "model cards: derived masses, kinematics and validity (card show)"),
+    "campaign": ("bmctl.commands.campaign", "run a real mill: log, sample, advise, decide, report (SQLite log)"),
 }
 
 

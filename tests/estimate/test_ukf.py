@@ -18,7 +18,7 @@ from bmctl.estimate.resampling import SCHEMES, multinomial, residual, resample, 
 from bmctl.estimate.run import make_estimator
 from bmctl.estimate.ukf import UKFEstimator, UKFSettings, make_pd
 
-from .conftest import ROOT, card_path
+from tests.conftest import ROOT, card_path
 
 LAB = str(card_path("alni-1to1-300rpm-lab"))
 P_TRUE = np.array([1.3, 0.7])  # the mismatch scenario's gamma, delta factors

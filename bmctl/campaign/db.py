@@ -1,0 +1,185 @@
+"""The campaign database: one SQLite file (``DIR/campaign.sqlite``), WAL mode, one transaction per verb.
+
+Tables (schema version :data:`SCHEMA_VERSION`)::
+
+    schema_version(version)
+    meta(key, value)                  JSON values: inputs, target, batch hours, seed, ...
+    actions(id, t0_h, t1_h, hours, rpm, milling, plan_id, deviation, logged_at)
+    temperatures(id, t_h, temperature_c, action_id, logged_at)
+    samples(id, t_h, sources, um_per_px, n, s_median_um, r_median, report, logged_at)
+    particles(sample_id, particle_id, image, x_um, y_um, area_um2, perimeter_um, s_um, r)
+    estimator_states(id, t_h, state, estimate, created_at)   t_h = -1: the prior, before anything
+    plans(id, t_h, rpm, milling, interval_h, advice, controller_state, advise_ms, created_at)
+    decisions(id, plan_id, accepted, rpm, milling, note, created_at)
+
+States are plain data (:func:`pack` / :func:`unpack`): one ``.npz`` image written with
+``numpy.savez`` and read with ``allow_pickle=False`` (the layout of :mod:`bmctl.checkpoint`).
+
+Concurrency: every verb runs in :func:`transaction`, which opens ``BEGIN IMMEDIATE`` (the
+write lock) before reading anything; a second command on the same campaign waits up to
+:data:`LOCK_TIMEOUT_S` and is then refused with one line. Read-only verbs use a deferred
+transaction, a consistent snapshot under WAL. A process killed mid-verb leaves the database
+as of the last commit (SQLite's journal).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as _dt
+import io
+import json
+import sqlite3
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from ..checkpoint import ARRAY_TAG, JSON_KEY, _join, _split
+from ..errors import InputError
+
+DB_NAME = "campaign.sqlite"
+SCHEMA_VERSION = 1
+#: seconds a command waits for another command on the same campaign before it is refused
+LOCK_TIMEOUT_S = 30.0
+
+SCHEMA = """
+CREATE TABLE schema_version (version INTEGER NOT NULL);
+CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE actions (
+    id INTEGER PRIMARY KEY, t0_h REAL NOT NULL, t1_h REAL NOT NULL, hours REAL NOT NULL, rpm REAL NOT NULL,
+    milling REAL NOT NULL, plan_id INTEGER REFERENCES plans(id), deviation TEXT NOT NULL DEFAULT '',
+    logged_at TEXT NOT NULL, CHECK (t1_h > t0_h), CHECK (milling >= 0 AND milling <= 1), CHECK (rpm >= 0));
+CREATE TABLE temperatures (
+    id INTEGER PRIMARY KEY, t_h REAL NOT NULL, temperature_c REAL NOT NULL,
+    action_id INTEGER REFERENCES actions(id), logged_at TEXT NOT NULL);
+CREATE TABLE samples (
+    id INTEGER PRIMARY KEY, t_h REAL NOT NULL, sources TEXT NOT NULL, um_per_px REAL, n INTEGER NOT NULL,
+    s_median_um REAL NOT NULL, r_median REAL NOT NULL, report TEXT NOT NULL, logged_at TEXT NOT NULL);
+CREATE TABLE particles (
+    sample_id INTEGER NOT NULL REFERENCES samples(id), particle_id INTEGER NOT NULL, image TEXT NOT NULL,
+    x_um REAL, y_um REAL, area_um2 REAL NOT NULL, perimeter_um REAL NOT NULL, s_um REAL NOT NULL,
+    r REAL NOT NULL, PRIMARY KEY (sample_id, particle_id));
+CREATE TABLE estimator_states (
+    id INTEGER PRIMARY KEY, t_h REAL NOT NULL, state BLOB NOT NULL, estimate TEXT NOT NULL,
+    created_at TEXT NOT NULL);
+CREATE TABLE plans (
+    id INTEGER PRIMARY KEY, t_h REAL NOT NULL, rpm REAL NOT NULL, milling REAL NOT NULL,
+    interval_h REAL NOT NULL, advice TEXT NOT NULL, controller_state BLOB NOT NULL, advise_ms REAL NOT NULL,
+    created_at TEXT NOT NULL);
+CREATE TABLE decisions (
+    id INTEGER PRIMARY KEY, plan_id INTEGER NOT NULL REFERENCES plans(id), accepted INTEGER NOT NULL,
+    rpm REAL, milling REAL, note TEXT NOT NULL DEFAULT '', created_at TEXT NOT NULL);
+CREATE INDEX particles_by_sample ON particles(sample_id);
+CREATE INDEX states_by_time ON estimator_states(t_h);
+"""
+
+
+def now() -> str:
+    """UTC time stamp (ISO 8601, seconds)."""
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def db_path(folder: str | Path) -> Path:
+    """The database file of a campaign folder."""
+    return Path(folder) / DB_NAME
+
+
+def _connect(path: Path) -> sqlite3.Connection:
+    con = sqlite3.connect(str(path), timeout=LOCK_TIMEOUT_S, isolation_level=None)
+    con.execute("PRAGMA journal_mode=WAL")
+    con.execute("PRAGMA synchronous=FULL")
+    con.execute("PRAGMA foreign_keys=ON")
+    con.execute(f"PRAGMA busy_timeout={int(LOCK_TIMEOUT_S * 1000)}")
+    return con
+
+
+def create(folder: str | Path) -> sqlite3.Connection:
+    """Create a new campaign database (refused when ``folder`` already holds one)."""
+    folder = Path(folder)
+    path = db_path(folder)
+    if path.exists():
+        raise InputError(f"{folder}: already holds a campaign ({path.name}); choose another folder")
+    folder.mkdir(parents=True, exist_ok=True)
+    con = _connect(path)
+    return con
+
+
+def open_db(folder: str | Path) -> sqlite3.Connection:
+    """Open an existing campaign; a missing, foreign or newer database is a one-line InputError."""
+    path = db_path(folder)
+    if not path.exists():
+        raise InputError(f"{folder}: no campaign here ({path.name} not found; start one with `bmctl campaign init`)")
+    try:
+        con = _connect(path)
+        row = con.execute("SELECT version FROM schema_version").fetchone()
+    except sqlite3.DatabaseError as exc:
+        raise InputError(f"{path}: not a bmctl campaign database ({exc})") from None
+    if row is None or row[0] != SCHEMA_VERSION:
+        con.close()
+        raise InputError(f"{path}: campaign schema version {row and row[0]}, this bmctl reads {SCHEMA_VERSION}")
+    return con
+
+
+@contextlib.contextmanager
+def transaction(con: sqlite3.Connection, write: bool = True, where: str = "campaign"):
+    """One verb's transaction: ``BEGIN IMMEDIATE`` (write) or ``BEGIN`` (read); commit on success,
+    roll back on any exception. A campaign locked by another command past the busy timeout is
+    an InputError."""
+    try:
+        con.execute("BEGIN IMMEDIATE" if write else "BEGIN")
+    except sqlite3.OperationalError as exc:
+        if "locked" in str(exc) or "busy" in str(exc):
+            raise InputError(f"{where}: busy: another bmctl campaign command is writing to it "
+                             f"(waited {LOCK_TIMEOUT_S:g} s); try again when it has finished") from None
+        raise
+    try:
+        yield con
+    except BaseException:
+        con.execute("ROLLBACK")
+        raise
+    else:
+        con.execute("COMMIT")
+
+
+def init_schema(con: sqlite3.Connection) -> None:
+    """Create the tables (inside the caller's transaction)."""
+    for stmt in SCHEMA.strip().split(";"):
+        if stmt.strip():
+            con.execute(stmt)
+    con.execute("INSERT INTO schema_version VALUES (?)", (SCHEMA_VERSION,))
+
+
+# --- meta ---------------------------------------------------------------------------------------
+def set_meta(con: sqlite3.Connection, **items) -> None:
+    """Write meta keys (JSON values)."""
+    for k, v in items.items():
+        con.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (k, json.dumps(v)))
+
+
+def get_meta(con: sqlite3.Connection) -> dict:
+    """All meta keys as a dict."""
+    return {k: json.loads(v) for k, v in con.execute("SELECT key, value FROM meta")}
+
+
+# --- plain-data states as BLOBs -----------------------------------------------------------------
+def pack(state: dict) -> bytes:
+    """A plain-data state (nested dicts, lists, numbers, strings, arrays) as ``.npz`` bytes."""
+    arrays: dict[str, np.ndarray] = {}
+    doc = _split(state, "", arrays)
+    buf = io.BytesIO()
+    np.savez(buf, **{JSON_KEY: np.array(json.dumps(doc, allow_nan=True))}, **arrays)
+    return buf.getvalue()
+
+
+def unpack(blob: bytes, where: str = "state") -> dict:
+    """Inverse of :func:`pack` (``allow_pickle=False``); damaged bytes are an InputError."""
+    try:
+        with np.load(io.BytesIO(blob), allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        return _join(json.loads(str(arrays.pop(JSON_KEY))), arrays)
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, json.JSONDecodeError, TypeError) as exc:
+        raise InputError(f"{where}: damaged state ({type(exc).__name__})") from None
+
+
+__all__ = ["ARRAY_TAG", "DB_NAME", "SCHEMA_VERSION", "LOCK_TIMEOUT_S", "create", "open_db", "transaction",
+           "init_schema", "set_meta", "get_meta", "pack", "unpack", "now", "db_path"]

@@ -1,0 +1,688 @@
+"""A campaign: one batch on a real mill, run as a closed loop with a person as the mill.
+
+Verbs (the Python API; ``bmctl campaign <verb>`` calls them)::
+
+    init(DIR, model=CARD, controller=CONFIG, target={"d50_um": 45}, hours=12, temperature_max_c=60)
+    log(DIR, rpm=300, hours=0.5, milling=0.75, temperature_c=41)     # what the mill ran
+    sample(DIR, at_h=2.0, inputs=["a.tif", "b.csv"])                   # measured particles
+    advise(DIR)      # estimate +- 90 %, next action, schedule to the batch end, end state, why
+    decide(DIR, accept=True)  /  decide(DIR, accept=False, rpm=250)
+    status(DIR);  report(DIR)
+
+Each verb is one transaction on ``DIR/campaign.sqlite`` (:mod:`bmctl.campaign.db`).
+
+The estimator's timeline
+    The particle filter's belief is a function of the logged actions and observations only,
+    not of the order in which they were entered. Its *nodes* are the action ends and the
+    observation times up to the logged clock; at each node the filter is propagated over the
+    logged inputs since the previous node (an action cut at a sample time inside it keeps its
+    mill-then-rest order) and then updated with everything observed at that time (samples
+    pooled, the vial-temperature reading with them) or, with nothing observed, read
+    (which applies the deferred process noise). The state after every node is stored. A
+    late observation (at or before the logged clock) removes the nodes from its time on and
+    replays from the node before it, so the result equals the one had it arrived on time; an
+    observation after the clock waits until the log reaches it. With on-time entries
+    (log, then sample at its end) this is exactly the call sequence of ``bmctl trial``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from . import db
+from . import targets as tg
+
+EPS_H = 1e-9
+INPUTS = "inputs"
+#: filter particles propagated to the batch end for the predicted end-state band
+BAND_PARTICLES = 64
+#: relative error of the predicted end median within which a target counts as reached
+REACH_TOL = 0.03
+
+
+# --- helpers -------------------------------------------------------------------------------------
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _finite(v, name: str, lo: float | None = None, hi: float | None = None, strict: bool = False) -> float:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: not a number ({v!r})") from None
+    if not math.isfinite(x):
+        raise InputError(f"{name}: must be a finite number (got {v})")
+    if lo is not None and (x < lo or (strict and x == lo)):
+        raise InputError(f"{name}: must be {'>' if strict else '>='} {lo:g} (got {v})")
+    if hi is not None and x > hi:
+        raise InputError(f"{name}: must be <= {hi:g} (got {v})")
+    return x
+
+
+def _band_indices(w: np.ndarray, n: int) -> np.ndarray:
+    """Deterministic systematic selection of ``n`` particles by weight (no random draw)."""
+    c = np.cumsum(w / w.sum())
+    return np.minimum(np.searchsorted(c, (np.arange(n) + 0.5) / n), w.size - 1)
+
+
+@dataclass
+class Action:
+    id: int
+    t0_h: float
+    t1_h: float
+    hours: float
+    rpm: float
+    milling: float
+
+
+# --- the campaign object ------------------------------------------------------------------------
+class Campaign:
+    """An open campaign: the database, and (built on first use) model, filter, controller, loop.
+
+    A :class:`Campaign` kept across calls (the Python API, a simulated mill) reuses its
+    compiled solvers; the CLI opens one per command.
+
+    Parameters
+    ----------
+    folder : path-like
+        The campaign folder (``campaign.sqlite`` and ``inputs/``).
+    """
+
+    def __init__(self, folder):
+        self.folder = Path(folder)
+        self.con = db.open_db(self.folder)
+        self.meta = db.get_meta(self.con)
+        self._loop = None
+
+    def close(self) -> None:
+        self.con.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # --- objects ---------------------------------------------------------------------------
+    def _input(self, key: str) -> Path:
+        m = self.meta["inputs"][key]
+        p = self.folder / m["file"]
+        if not p.exists() or _sha(p) != m["sha256"]:
+            raise InputError(f"{p}: changed or missing since `campaign init` (the campaign runs on the copy "
+                             f"taken then; sha256 {m['sha256'][:12]}...)")
+        return p
+
+    @property
+    def loop(self):
+        """The :class:`~bmctl.campaign.mill.CampaignLoop` (built once per object)."""
+        if self._loop is None:
+            self._loop = self._build()
+        return self._loop
+
+    def _build(self):
+        from ..control import make_controller
+        from ..control.config import load_controller, validate_controller
+        from ..estimate import FilterSettings, ParticleFilter
+        from ..loop import LoopConfig
+        from ..moments.model import make_moment_model
+        from .mill import CampaignLoop, OperatorMill, RecordedSensor
+
+        m = self.meta
+        card_path = self._input("card")
+        if "moments" in m["inputs"]:
+            self._input("moments")
+        model = make_moment_model(card_path)
+        cfg_path = self._input("controller")
+        cfg = load_controller(cfg_path)
+        ceiling = m["temperature_max_c"]
+        if ceiling is not None and "temperature" in type(cfg).model_fields:
+            d = cfg.model_dump()
+            d["temperature"]["ceiling_c"] = ceiling
+            cfg = validate_controller(d, str(cfg_path))
+        if ceiling is None and "temperature" in type(cfg).model_fields:
+            ceiling = float(cfg.temperature.ceiling_c)
+        controller = make_controller(cfg, model)
+        direct = {k: v for k, v in m["target"].items() if k in tg.TARGET_KEYS}
+        controller.set_target(direct, t_end_h=m["hours"])
+        ss = np.random.SeedSequence(m["seed"])
+        _, g_pf, g_sample = (np.random.default_rng(s) for s in ss.spawn(3))  # as bmctl trial: plant, filter, sampler
+        pf = ParticleFilter(model, g_pf, FilterSettings(n_particles=m["particles"]))
+        lcfg = LoopConfig(hours=m["hours"], sample_every_h=m["hours"], temperature_reading=True, ceiling_c=ceiling)
+        loop = CampaignLoop(OperatorMill(model.card.thermal.ambient_C), RecordedSensor(), pf, controller, g_sample, lcfg)
+        loop.model = model
+        return loop
+
+    # --- reads -----------------------------------------------------------------------------
+    def actions(self) -> list[Action]:
+        return [Action(*r) for r in self.con.execute(
+            "SELECT id, t0_h, t1_h, hours, rpm, milling FROM actions ORDER BY t0_h")]
+
+    def clock_h(self) -> float:
+        r = self.con.execute("SELECT MAX(t1_h) FROM actions").fetchone()[0]
+        return 0.0 if r is None else float(r)
+
+    def _observations(self, upto_h: float) -> dict[float, dict]:
+        """Observations at times <= upto_h: {t: {"s_um", "r", "temperature_c"}}."""
+        obs: dict[float, dict] = {}
+        for sid, t in self.con.execute("SELECT id, t_h FROM samples WHERE t_h <= ? ORDER BY t_h, id",
+                                       (upto_h + EPS_H,)):
+            s, r = self.particles(sid)
+            o = obs.setdefault(float(t), {"s_um": [], "r": [], "temperature_c": None})
+            o["s_um"].append(s)
+            o["r"].append(r)
+        for t, T in self.con.execute("SELECT t_h, temperature_c FROM temperatures WHERE t_h <= ? ORDER BY t_h, id",
+                                     (upto_h + EPS_H,)):
+            o = obs.setdefault(float(t), {"s_um": [], "r": [], "temperature_c": None})
+            o["temperature_c"] = float(T)
+        return obs
+
+    def particles(self, sample_id: int) -> tuple[np.ndarray, np.ndarray]:
+        rows = self.con.execute("SELECT s_um, r FROM particles WHERE sample_id = ? ORDER BY particle_id",
+                                (sample_id,)).fetchall()
+        a = np.array(rows, dtype=float).reshape(-1, 2)
+        return a[:, 0], a[:, 1]
+
+    def last_node(self) -> tuple[int, float, dict]:
+        r = self.con.execute("SELECT id, t_h, estimate FROM estimator_states ORDER BY t_h DESC, id DESC LIMIT 1"
+                             ).fetchone()
+        return int(r[0]), float(r[1]), json.loads(r[2])
+
+    def estimates(self) -> list[tuple[float, dict]]:
+        """(t_h, estimate dict) of every node after the prior."""
+        return [(float(t), json.loads(e)) for t, e in self.con.execute(
+            "SELECT t_h, estimate FROM estimator_states WHERE t_h >= 0 ORDER BY t_h, id")]
+
+    def latest_plan(self):
+        r = self.con.execute("SELECT id, t_h, rpm, milling, interval_h, advice, controller_state FROM plans "
+                             "ORDER BY id DESC LIMIT 1").fetchone()
+        return r
+
+    # --- the estimator's timeline ------------------------------------------------------------
+    def _restore_node(self, node_id: int) -> float:
+        blob, t = self.con.execute("SELECT state, t_h FROM estimator_states WHERE id = ?", (node_id,)).fetchone()
+        state = db.unpack(blob, f"{self.folder}: estimator state {node_id}")
+        lp = self.loop
+        lp.estimator.set_state(state["estimator"])
+        lp.mill.set_state(state["mill"])
+        lp.est = dict(state["est"])
+        return float(t)
+
+    def _write_node(self, t_h: float) -> None:
+        lp = self.loop
+        state = {"estimator": lp.estimator.get_state(), "mill": lp.mill.get_state(), "est": lp.est}
+        est = dict(lp.est)
+        est["t_h"] = t_h
+        self.con.execute("INSERT INTO estimator_states (t_h, state, estimate, created_at) VALUES (?, ?, ?, ?)",
+                         (t_h, db.pack(state), json.dumps(est), db.now()))
+
+    def _pieces(self, acts: list[Action], a: float, b: float) -> list[tuple[float, float, float]]:
+        """(rpm, milling, hours) of the logged inputs between a and b (an action cut keeps mill-then-rest)."""
+        out = []
+        for act in acts:
+            lo, hi = max(a, act.t0_h), min(b, act.t1_h)
+            if hi <= lo + EPS_H:
+                continue
+            if abs(lo - act.t0_h) < EPS_H and abs(hi - act.t1_h) < EPS_H:
+                out.append((act.rpm, act.milling, act.hours))  # the whole action, exactly as logged
+                continue
+            mill_end = act.t0_h + act.milling * act.hours
+            m_h = max(0.0, min(hi, mill_end) - lo)
+            out.append((act.rpm, m_h / (hi - lo), hi - lo))
+        return out
+
+    def _replay(self, invalidate_from_h: float | None = None) -> int:
+        """Bring the stored estimator nodes up to the logged clock; returns the nodes written."""
+        if invalidate_from_h is not None:
+            self.con.execute("DELETE FROM estimator_states WHERE t_h >= ?", (invalidate_from_h - EPS_H,))
+        node_id, t_from, _ = self.last_node()
+        self._restore_node(node_id)
+        clock = self.clock_h()
+        acts = self.actions()
+        obs = self._observations(clock)
+        times = {a.t1_h for a in acts} | set(obs)
+        bounds = sorted(t for t in times if t > t_from + EPS_H and t <= clock + EPS_H)
+        lp, prev, n = self.loop, max(t_from, 0.0), 0
+        for tau in bounds:
+            for rpm, milling, hours in self._pieces(acts, prev, tau):
+                lp.apply(rpm, milling, hours)
+            o = obs.get(tau)
+            if o is not None and o["s_um"]:
+                lp.observe_at(np.concatenate(o["s_um"]), np.concatenate(o["r"]), o["temperature_c"])
+            elif o is not None:
+                lp.observe_at(temperature_c=o["temperature_c"])
+            else:
+                lp.observe_at()
+            self._write_node(tau)
+            prev, n = tau, n + 1
+        return n
+
+
+# --- verbs -----------------------------------------------------------------------------------------
+def init(folder, model, controller, target, hours: float | None = None, temperature_max_c: float | None = None,
+         seed: int = 0, particles: int = 1000) -> dict:
+    """Start a campaign in ``folder``: copy the inputs, write the prior estimator state.
+
+    Parameters
+    ----------
+    folder : path-like
+        New campaign folder (refused if it already holds one).
+    model : path-like
+        Model card (``models/*.toml``); its ``.moments.toml`` coefficients are copied with it.
+    controller : path-like
+        Controller config (``controllers/*.toml``).
+    target : dict or str
+        Target, e.g. ``{"d50_um": 45}`` or ``"s_mean_um=40,r_mean=0.05"`` (:mod:`bmctl.campaign.targets`).
+    hours : float, optional
+        Batch length (default: the card's ``process.hours``).
+    temperature_max_c : float, optional
+        Vial-temperature ceiling (default: the controller config's).
+    seed : int, optional
+        Seed of the filter's generator.
+    particles : int, optional
+        Filter particles.
+
+    Returns
+    -------
+    dict
+        The campaign's meta data.
+    """
+    from ..config import load_card
+    from ..control.config import load_controller
+    from ..moments.coeffs import coeffs_path
+
+    card_p, ctrl_p = Path(model), Path(controller)
+    card = load_card(card_p)
+    cfg = load_controller(ctrl_p)
+    tgt = tg.parse(target) if isinstance(target, str) else {k: _finite(v, f"target: {k}", 0, strict=True)
+                                                            for k, v in dict(target).items()}
+    for k in tgt:
+        if k not in tg.known_keys():
+            raise InputError(f"target: unknown key {k!r} (one of {', '.join(tg.known_keys())})")
+    if not tgt and cfg.kind != "recipe":
+        raise InputError(f"--target: a feedback controller ({cfg.kind}) needs a target")
+    H = float(card.process.hours) if hours is None else _finite(hours, "--hours", 0, strict=True)
+    Tmax = None if temperature_max_c is None else _finite(temperature_max_c, "--temperature-max-c")
+    if int(particles) < 50:
+        raise InputError(f"--particles: must be >= 50 (got {particles})")
+    folder = Path(folder)
+    con = db.create(folder)
+    inp = folder / INPUTS
+    try:
+        inp.mkdir(exist_ok=True)
+        files = {"card": (card_p, inp / card_p.name), "controller": (ctrl_p, inp / f"controller-{ctrl_p.name}")}
+        if coeffs_path(card_p).exists():
+            files["moments"] = (coeffs_path(card_p), coeffs_path(inp / card_p.name))
+        for src, dst in files.values():
+            shutil.copyfile(src, dst)
+        meta = {"inputs": {k: {"source": str(src.resolve()), "file": str(dst.relative_to(folder)),
+                               "sha256": _sha(dst)} for k, (src, dst) in files.items()},
+                "target": tgt, "hours": H, "temperature_max_c": Tmax, "seed": int(seed),
+                "particles": int(particles), "controller_kind": cfg.kind, "created_at": db.now()}
+        with db.transaction(con, where=str(folder)):
+            db.init_schema(con)
+            db.set_meta(con, **meta)
+    finally:
+        con.close()
+    with Campaign(folder) as c, db.transaction(c.con, where=str(folder)):
+        c._write_node(-1.0)  # the prior
+    return meta
+
+
+def _deviation(c: Campaign, t0: float, rpm: float, milling: float, hours: float) -> tuple[int | None, str]:
+    """(plan id, text) comparing a logged action with the advice (and decision) for its start time."""
+    row = c.con.execute("SELECT id, rpm, milling, interval_h FROM plans WHERE abs(t_h - ?) < 1e-6 "
+                        "ORDER BY id DESC LIMIT 1", (t0,)).fetchone()
+    if row is None:
+        return None, ""
+    pid, p_rpm, p_m, p_dt = row
+    dec = c.con.execute("SELECT accepted, rpm, milling FROM decisions WHERE plan_id = ? ORDER BY id DESC LIMIT 1",
+                        (pid,)).fetchone()
+    diffs = []
+    if abs(rpm - p_rpm) > 0.5 and (milling > 0 or p_m > 0):
+        diffs.append(f"rpm {rpm:g} (recommended {p_rpm:g})")
+    if abs(milling * hours - p_m * p_dt) * 60 >= 1.0:
+        diffs.append(f"milling {milling * hours * 60:.0f} min (recommended {p_m * p_dt * 60:.0f})")
+    if abs(hours - p_dt) * 60 >= 1.0:
+        diffs.append(f"interval {hours * 60:.0f} min (recommended {p_dt * 60:.0f})")
+    if not diffs:
+        return pid, ""
+    how = "no decision recorded" if dec is None else ("advice accepted" if dec[0] else "advice rejected")
+    return pid, f"deviation from the recommendation ({how}): " + ", ".join(diffs)
+
+
+def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: float | None = None,
+        from_h: float | None = None, campaign: Campaign | None = None) -> dict:
+    """Record what the mill ran: ``rpm`` for ``milling * hours``, then rest, from ``from_h``
+    (default: the end of the last logged interval); a vial-temperature reading at its end is
+    used by the estimator. Overlaps (time going backwards) and gaps are refused.
+
+    Returns
+    -------
+    dict
+        ``t0_h, t1_h, deviation`` and the new ``estimate``.
+    """
+    rpm = _finite(rpm, "--rpm", 0)
+    hours = _finite(hours, "--hours", 0, strict=True)
+    milling = _finite(milling, "--milling", 0, 1)
+    T = None if temperature_c is None else _finite(temperature_c, "--temperature-c", -50, 400)
+    c = campaign or Campaign(folder)
+    try:
+        with db.transaction(c.con, where=str(folder)):
+            clock = c.clock_h()
+            t0 = clock if from_h is None else _finite(from_h, "--from-h", 0)
+            if t0 < clock - EPS_H:
+                raise InputError(f"--from-h {t0:g}: overlaps the logged interval ending at {clock:g} h "
+                                 "(time going backwards); the log is append-only")
+            if t0 > clock + EPS_H:
+                raise InputError(f"--from-h {t0:g}: leaves a gap after {clock:g} h; log what the mill did from "
+                                 f"{clock:g} h first (a rest is --rpm 0)")
+            t0 = clock
+            t1 = t0 + hours
+            if t1 > c.meta["hours"] + 1e-6:
+                raise InputError(f"--hours {hours:g}: ends at {t1:g} h, after the batch end ({c.meta['hours']:g} h)")
+            pid, dev = _deviation(c, t0, rpm, milling, hours)
+            cur = c.con.execute("INSERT INTO actions (t0_h, t1_h, hours, rpm, milling, plan_id, deviation, logged_at)"
+                                " VALUES (?, ?, ?, ?, ?, ?, ?, ?)", (t0, t1, hours, rpm, milling, pid, dev, db.now()))
+            if T is not None:
+                c.con.execute("INSERT INTO temperatures (t_h, temperature_c, action_id, logged_at) VALUES (?, ?, ?, ?)",
+                              (t1, T, cur.lastrowid, db.now()))
+            c._replay()
+            est = c.last_node()[2]
+    finally:
+        if campaign is None:
+            c.close()
+    return {"t0_h": t0, "t1_h": t1, "deviation": dev, "estimate": est}
+
+
+def _measure(inputs, um_per_px):
+    """Pooled particle table and per-input reports of images and tables (as ``bmctl measure``)."""
+    from ..measure.micrograph import measure_micrograph
+    from ..measure.scale import check_scale
+    from ..measure.tables import ParticleTable, read_table
+
+    scale = check_scale(um_per_px) if um_per_px is not None else None
+    tables, images, xs, ys, reports = [], [], [], [], []
+    for item in inputs:
+        if isinstance(item, ParticleTable):
+            t, name = item, "(table)"
+            x = y = np.full(len(t), np.nan)
+            reports.append({"table": name, "count": len(t)})
+        elif Path(item).suffix.lower() == ".csv":
+            t, name = read_table(item), str(item)
+            x = y = np.full(len(t), np.nan)
+            reports.append({"table": name, "count": len(t)})
+        else:
+            res = measure_micrograph(item, um_per_px=scale)
+            t, name, x, y = res.table, str(item), res.x_um, res.y_um
+            rep = res.report()
+            reports.append(rep)
+        tables.append(t)
+        images += [name] * len(t)
+        xs.append(np.asarray(x, float))
+        ys.append(np.asarray(y, float))
+    table = ParticleTable.concat(tables)
+    if len(table) == 0:
+        raise InputError(f"{inputs[0]}: no particles found (check the scale or the table)")
+    return table, images, np.concatenate(xs), np.concatenate(ys), reports
+
+
+def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign: Campaign | None = None) -> dict:
+    """Measure a sample taken at batch time ``at_h`` (images and/or particle tables, as
+    ``bmctl measure``), store its particles and update the estimator (now if ``at_h`` is
+    logged, else when the log reaches it).
+
+    Returns
+    -------
+    dict
+        ``sample_id, n, s_median_um, r_median, applied`` (False: waits for the log), ``replayed``
+        (estimator nodes recomputed) and ``estimate``.
+    """
+    at_h = _finite(at_h, "--at-h", 0)
+    if not inputs:
+        raise InputError("sample: give at least one image or particle table")
+    table, images, x, y, reports = _measure(list(inputs), um_per_px)  # before the lock: may take seconds
+    c = campaign or Campaign(folder)
+    try:
+        if at_h > c.meta["hours"] + 1e-6:
+            raise InputError(f"--at-h {at_h:g}: after the batch end ({c.meta['hours']:g} h)")
+        with db.transaction(c.con, where=str(folder)):
+            summ = table.summary()
+            srcs = [str(i) if not hasattr(i, "s_um") else "(table)" for i in inputs]
+            cur = c.con.execute("INSERT INTO samples (t_h, sources, um_per_px, n, s_median_um, r_median, report, "
+                                "logged_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                                (at_h, json.dumps(srcs), um_per_px, len(table), summ["s_median_um"],
+                                 summ["r_median"], json.dumps(reports), db.now()))
+            sid = cur.lastrowid
+            rows = [(sid, i + 1, images[i], None if not np.isfinite(x[i]) else float(x[i]),
+                     None if not np.isfinite(y[i]) else float(y[i]), float(table.area_um2[i]),
+                     float(table.perimeter_um[i]), float(table.s_um[i]), float(table.r[i])) for i in range(len(table))]
+            _insert_particles(c.con, rows)
+            clock = c.clock_h()
+            applied = at_h <= clock + EPS_H
+            n = c._replay(invalidate_from_h=at_h) if applied else 0
+            est = c.last_node()[2]
+    finally:
+        if campaign is None:
+            c.close()
+    return {"sample_id": sid, "t_h": at_h, "n": len(table), "s_median_um": summ["s_median_um"],
+            "r_median": summ["r_median"], "applied": applied, "replayed": n, "estimate": est, "clock_h": clock}
+
+
+def _insert_particles(con, rows) -> None:
+    """Insert a sample's particles (a function of its own so that tests can interrupt here)."""
+    con.executemany("INSERT INTO particles VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+
+
+def _schedule(c: Campaign, plan, t_h: float) -> list[dict]:
+    """The plan's applied inputs from ``t_h`` to the batch end (beyond the horizon: its last input held)."""
+    H = c.meta["hours"]
+    dt = plan.interval_h
+    U = plan.applied()
+    if U.shape[0]:
+        U[0] = plan.u_apply
+    rows, t, k = [], t_h, 0
+    while t < H - EPS_H:
+        rpm, m = (float(v) for v in (U[min(k, U.shape[0] - 1)] if U.shape[0] else (0.0, 0.0)))
+        h = min(dt, H - t)
+        mill_min = round(m * dt * 60.0)
+        mill_min = min(mill_min, round(h * 60.0))
+        rows.append({"t0_h": t, "t1_h": t + h, "rpm": rpm if mill_min > 0 else 0.0, "milling": mill_min / (h * 60.0),
+                     "mill_min": mill_min, "rest_min": round(h * 60.0) - mill_min, "planned": k < U.shape[0]})
+        t += h
+        k += 1
+    return rows
+
+
+def _end_band(c: Campaign, sched: list[dict]) -> dict:
+    """Median and 90 % band of the moments at the batch end: filter particles (a deterministic
+    weighted selection) propagated by the moment model under the schedule."""
+    lp = c.loop
+    pf = lp.estimator
+    idx = _band_indices(pf.weights, BAND_PARTICLES)
+    X, P = pf.X[idx].copy(), pf.P[idx].copy()
+    for row in sched:
+        X = np.asarray(lp.model.step(X, np.array([row["rpm"], row["milling"]]), row["t1_h"] - row["t0_h"], P))
+    out = {}
+    names = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
+    vals = {k: X[:, i] for i, k in enumerate(names)}
+    vals["d50_um"] = tg.d50_from_moments(vals["s_mean_um"], vals["s_std_um"])
+    for k, v in vals.items():
+        q = np.quantile(v, [0.05, 0.5, 0.95])
+        out[k] = {"median": float(q[1]), "q05": float(q[0]), "q95": float(q[2])}
+    return out
+
+
+def _why(c: Campaign, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
+    """Per target: reachable by the batch end?  And which constraints bind in the plan."""
+    reach = {}
+    for k, v in c.meta["target"].items():
+        e = end.get(k)
+        if e is None:
+            continue
+        inside = e["q05"] <= v <= e["q95"]
+        reach[k] = bool(inside or abs(e["median"] - v) <= REACH_TOL * abs(v))
+    binding = []
+    cfg = c.loop.controller.cfg
+    if getattr(cfg, "kind", "") == "recipe":
+        return reach, ["open-loop recipe: the schedule is fixed, no constraint is weighed"]
+    U = np.asarray(plan.u, dtype=float)
+    on = U[:, 1] > 1e-3
+    b = getattr(cfg, "bounds", None)
+    if b is not None and on.any():
+        hi = min(b.rpm_max, c.loop.model.rpm_max)
+        if np.any(U[on, 0] >= hi - 1.0):
+            binding.append(f"rpm at its upper bound ({hi:g} rpm)")
+        if np.any(U[on, 0] <= b.rpm_min + 1.0):
+            binding.append(f"rpm at its lower bound ({b.rpm_min:g} rpm)")
+        if b.rpm_step_max is not None and U.shape[0] > 1 and np.any(np.abs(np.diff(U[:, 0])) >= b.rpm_step_max - 1.0):
+            binding.append(f"rpm rate limit ({b.rpm_step_max:g} rpm per interval)")
+        if np.all(U[on, 1] >= b.milling_max - 1e-3) and on.all():
+            binding.append(f"milling share at its maximum ({b.milling_max:g}) throughout")
+    if hasattr(cfg, "temperature") and plan.t_peak_c.size:
+        ceil = plan.status.t_ceiling_c if math.isfinite(plan.status.t_ceiling_c) else cfg.temperature.ceiling_c
+        if float(np.max(plan.t_peak_c)) >= ceil - 0.5:
+            binding.append(f"vial-temperature ceiling ({ceil:g} C)")
+    if not all(reach.values()) and not binding:
+        binding.append("batch time: the target is not reached by the batch end at the planned inputs")
+    return reach, binding
+
+
+def advise(folder, campaign: Campaign | None = None) -> dict:
+    """Recommend the next action from the current estimate.
+
+    Returns
+    -------
+    dict
+        ``t_h``; ``estimate`` (values with ``_q05``/``_q95``); ``target`` and ``controller_target``;
+        ``next`` (rpm, milling share, milling and rest minutes, interval); ``schedule`` to the batch
+        end; ``end`` (median and 90 % band of each moment at the batch end; ``end_nominal``: the
+        controller's own prediction); ``reachable`` per target; ``binding`` constraints;
+        ``solver`` (status line); ``solve_ms``, ``advise_ms``; ``plan_id``.
+    """
+    t_start = time.perf_counter()
+    c = campaign or Campaign(folder)
+    try:
+        with db.transaction(c.con, where=str(folder)):
+            lp = c.loop
+            clock = c.clock_h()
+            _, t_node, est = c.last_node()
+            c._restore_node(c.last_node()[0])
+            prev = c.latest_plan()
+            if prev is not None:
+                lp.controller.set_state(db.unpack(prev[6], f"{folder}: controller state"))
+            ctrl_target = tg.controller_target(c.meta["target"], est)
+            lp.controller.set_target(ctrl_target, t_end_h=c.meta["hours"])
+            acts = c.actions()
+            lp.u_prev = (acts[-1].rpm, acts[-1].milling) if acts else None
+            plan, solve_ms = lp.decide_at(clock)
+            sched = _schedule(c, plan, clock)
+            end = _end_band(c, sched) if sched else {}
+            reach, binding = _why(c, plan, sched, end, ctrl_target)
+            x_end = np.asarray(plan.x[-1], dtype=float)
+            dt = plan.interval_h
+            h_next = min(dt, c.meta["hours"] - clock) if clock < c.meta["hours"] - EPS_H else 0.0
+            mill_min = round(plan.milling * dt * 60.0)
+            advice = {
+                "t_h": clock, "estimate": est, "target": c.meta["target"], "controller_target": ctrl_target,
+                "next": {"rpm": plan.rpm if mill_min > 0 else 0.0, "milling": plan.milling, "interval_h": h_next,
+                         "mill_min": min(mill_min, round(h_next * 60)),
+                         "rest_min": max(0, round(h_next * 60) - mill_min)},
+                "schedule": sched, "end": end,
+                "end_nominal": {"t_h": float(plan.times_h[-1]), "s_mean_um": x_end[0], "s_std_um": x_end[1],
+                                "r_mean": x_end[2], "r_std": x_end[3], "temperature_c": x_end[4]},
+                "reachable": reach, "binding": binding, "solver": plan.status.line(),
+                "solver_ok": bool(plan.status.success), "solve_ms": float(solve_ms),
+                "pending_samples": c.con.execute("SELECT COUNT(*) FROM samples WHERE t_h > ?",
+                                                 (clock + EPS_H,)).fetchone()[0],
+            }
+            advise_ms = (time.perf_counter() - t_start) * 1e3
+            advice["advise_ms"] = advise_ms
+            cur = c.con.execute("INSERT INTO plans (t_h, rpm, milling, interval_h, advice, controller_state, "
+                                "advise_ms, created_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                                (clock, float(plan.u_apply[0]), float(plan.u_apply[1]), dt, json.dumps(advice),
+                                 db.pack(lp.controller.get_state()), advise_ms, db.now()))
+            advice["plan_id"] = cur.lastrowid
+    finally:
+        if campaign is None:
+            c.close()
+    return advice
+
+
+def decide(folder, accept: bool, rpm: float | None = None, milling: float | None = None, note: str = "",
+           campaign: Campaign | None = None) -> dict:
+    """Record the operator's decision on the latest advice (which must be for the logged clock).
+
+    Rejecting may state what will be run instead (``rpm``, ``milling``); what the mill then
+    ran is what :func:`log` records, and a deviation is reported there, not refused.
+    """
+    if accept and (rpm is not None or milling is not None):
+        raise InputError("decide: --rpm/--milling go with --reject (an accepted advice is run as recommended)")
+    rpm = None if rpm is None else _finite(rpm, "--rpm", 0)
+    milling = None if milling is None else _finite(milling, "--milling", 0, 1)
+    c = campaign or Campaign(folder)
+    try:
+        with db.transaction(c.con, where=str(folder)):
+            plan = c.latest_plan()
+            clock = c.clock_h()
+            if plan is None or abs(plan[1] - clock) > 1e-6:
+                raise InputError(f"{folder}: no advice for the logged time {clock:g} h; run `bmctl campaign advise` first")
+            replaced = c.con.execute("SELECT COUNT(*) FROM decisions WHERE plan_id = ?", (plan[0],)).fetchone()[0]
+            c.con.execute("INSERT INTO decisions (plan_id, accepted, rpm, milling, note, created_at) VALUES "
+                          "(?, ?, ?, ?, ?, ?)", (plan[0], int(bool(accept)), rpm if not accept else plan[2],
+                                                 milling if not accept else plan[3], note, db.now()))
+    finally:
+        if campaign is None:
+            c.close()
+    return {"plan_id": plan[0], "t_h": plan[1], "accepted": bool(accept), "recommended_rpm": plan[2],
+            "recommended_milling": plan[3], "rpm": plan[2] if accept else rpm,
+            "milling": plan[3] if accept else milling, "replaces": int(replaced)}
+
+
+def status(folder, campaign: Campaign | None = None) -> dict:
+    """Where the campaign stands: clock, counts, the current estimate, the latest advice and decision."""
+    c = campaign or Campaign(folder)
+    try:
+        with db.transaction(c.con, write=False, where=str(folder)):
+            clock = c.clock_h()
+            n = {t: c.con.execute(f"SELECT COUNT(*) FROM {t}").fetchone()[0]
+                 for t in ("actions", "samples", "particles", "temperatures", "plans", "decisions", "estimator_states")}
+            pending = c.con.execute("SELECT COUNT(*) FROM samples WHERE t_h > ?", (clock + EPS_H,)).fetchone()[0]
+            _, t_node, est = c.last_node()
+            plan = c.latest_plan()
+            dec = None
+            if plan is not None:
+                dec = c.con.execute("SELECT accepted, rpm, milling FROM decisions WHERE plan_id = ? ORDER BY id DESC "
+                                    "LIMIT 1", (plan[0],)).fetchone()
+            devs = [r[0] for r in c.con.execute("SELECT deviation FROM actions WHERE deviation != '' ORDER BY t0_h")]
+    finally:
+        if campaign is None:
+            c.close()
+    return {"folder": str(folder), "clock_h": clock, "hours": c.meta["hours"], "target": c.meta["target"],
+            "counts": n, "pending_samples": pending, "estimate": est if t_node >= 0 else est,
+            "latest_advice": None if plan is None else {"id": plan[0], "t_h": plan[1], "rpm": plan[2],
+                                                        "milling": plan[3], "current": abs(plan[1] - clock) < 1e-6},
+            "decision": None if dec is None else {"accepted": bool(dec[0]), "rpm": dec[1], "milling": dec[2]},
+            "deviations": devs, "db_bytes": db.db_path(folder).stat().st_size}
+
+
+def report(folder, out=None, campaign: Campaign | None = None) -> Path:
+    """Write the self-contained HTML report (default ``DIR/report.html``); returns its path."""
+    from .report import write_report
+
+    c = campaign or Campaign(folder)
+    try:
+        with db.transaction(c.con, write=False, where=str(folder)):
+            path = write_report(c, Path(out) if out else Path(folder) / "report.html")
+    finally:
+        if campaign is None:
+            c.close()
+    return path

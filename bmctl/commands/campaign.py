@@ -1,0 +1,188 @@
+"""Run a real mill as a campaign: log what ran, add measured samples, get and decide on advice.
+
+``bmctl campaign init DIR --model CARD --controller CONFIG --target d50_um=45`` starts one;
+``log``, ``sample``, ``advise``, ``decide``, ``status`` and ``report`` work on it. Everything is
+kept in ``DIR/campaign.sqlite`` (docs/campaign.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from ._args import float_arg, int_arg
+
+
+def configure(parser: argparse.ArgumentParser) -> None:
+    """Add the ``campaign`` sub-verbs."""
+    sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=type(parser))
+    sub.required = True
+    p = sub.add_parser("init", help="start a campaign in DIR")
+    p.add_argument("dir", metavar="DIR")
+    p.add_argument("--model", required=True, metavar="CARD", help="model card (models/*.toml)")
+    p.add_argument("--controller", required=True, metavar="CONFIG", help="controller config (controllers/*.toml)")
+    p.add_argument("--target", required=True, metavar="K=V[,K=V]",
+                   help="target at the batch end, e.g. d50_um=45 or s_mean_um=40,r_mean=0.05")
+    p.add_argument("--hours", type=float_arg("--hours", 0, strict=True), default=None, help="batch length (h); default: the card's")
+    p.add_argument("--temperature-max-c", type=float_arg("--temperature-max-c"), default=None, metavar="C",
+                   help="vial-temperature ceiling (degC); default: the controller's")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the estimator")
+    p.add_argument("--particles", type=int_arg("--particles", 50, 200_000), default=1000, help="filter particles")
+    p = sub.add_parser("log", help="record what the mill ran")
+    p.add_argument("dir", metavar="DIR")
+    p.add_argument("--rpm", required=True, type=float_arg("--rpm", 0), help="sun-disc speed (0: a rest)")
+    p.add_argument("--hours", required=True, type=float_arg("--hours", 0, strict=True), help="length of the interval (h)")
+    p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=1.0,
+                   help="share of the interval spent milling, first (the rest of it is a rest)")
+    p.add_argument("--temperature-c", type=float_arg("--temperature-c"), default=None, metavar="C",
+                   help="vial temperature read at the end of the interval")
+    p.add_argument("--from-h", type=float_arg("--from-h", 0), default=None, metavar="H",
+                   help="start of the interval (default: end of the last one); overlaps and gaps are refused")
+    p = sub.add_parser("sample", help="measure a sample and update the estimate")
+    p.add_argument("dir", metavar="DIR")
+    p.add_argument("--at-h", required=True, type=float_arg("--at-h", 0), metavar="H", help="batch time the sample was taken (h)")
+    p.add_argument("inputs", nargs="+", metavar="IMAGE_OR_TABLE", help="micrographs and/or particle tables (.csv)")
+    p.add_argument("--um-per-px", type=float_arg("--um-per-px", 0, strict=True), default=None, metavar="X",
+                   help="pixel size (overrides the image metadata)")
+    p = sub.add_parser("advise", help="estimate, recommended next action, plan to the batch end, and why")
+    p.add_argument("dir", metavar="DIR")
+    p.add_argument("--json", action="store_true", help="print the advice as JSON")
+    p = sub.add_parser("decide", help="accept or reject the latest advice")
+    p.add_argument("dir", metavar="DIR")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--accept", action="store_true")
+    g.add_argument("--reject", action="store_true")
+    p.add_argument("--rpm", type=float_arg("--rpm", 0), default=None, help="with --reject: what will be run instead")
+    p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=None, help="with --reject: milling share instead")
+    p.add_argument("--note", default="", help="free text kept with the decision")
+    p = sub.add_parser("status", help="where the campaign stands")
+    p.add_argument("dir", metavar="DIR")
+    p.add_argument("--json", action="store_true")
+    p = sub.add_parser("report", help="self-contained HTML report")
+    p.add_argument("dir", metavar="DIR")
+    p.add_argument("--out", default=None, metavar="HTML", help="default DIR/report.html")
+
+
+def _band(est: dict, k: str, fmt: str = "{:.4g}") -> str:
+    v, lo, hi = est.get(k), est.get(f"{k}_q05"), est.get(f"{k}_q95")
+    if v is None:
+        return "n/a"
+    s = fmt.format(v)
+    return s + (f"  [{fmt.format(lo)}, {fmt.format(hi)}]" if lo is not None else "")
+
+
+def _estimate_lines(est: dict) -> list[str]:
+    from ..campaign.targets import d50_from_moments
+
+    lines = [f"  {k:<14} {_band(est, k)}" for k in ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c",
+                                                    "gamma_mult", "delta_mult")]
+    lines.append(f"  {'d50_um':<14} {d50_from_moments(est['s_mean_um'], est['s_std_um']):.4g}"
+                 "  (volume-weighted median of the log-normal law at the mean moments)")
+    return lines
+
+
+def _print_advice(a: dict) -> None:
+    nx = a["next"]
+    print(f"advice at t = {a['t_h']:g} h (plan {a['plan_id']}; {a['solver']}; advise {a['advise_ms']:.0f} ms)")
+    print("estimate (mean [90 % interval]):")
+    print("\n".join(_estimate_lines(a["estimate"])))
+    tgt = ", ".join(f"{k} = {v:g}" for k, v in a["target"].items())
+    ctl = ", ".join(f"{k} = {v:.4g}" for k, v in a["controller_target"].items())
+    print(f"target: {tgt}" + (f"  (controller tracks {ctl})" if ctl != tgt else ""))
+    if nx["interval_h"] <= 0:
+        print("next: batch finished")
+    else:
+        print(f"next: {nx['rpm']:g} rpm, mill {nx['mill_min']} min, rest {nx['rest_min']} min "
+              f"(interval {nx['interval_h'] * 60:.0f} min)")
+    if a["schedule"]:
+        print("planned schedule to the batch end (from the controller's horizon on: its last input held):")
+        for r in a["schedule"]:
+            mark = "" if r["planned"] else "  (held)"
+            print(f"  {r['t0_h']:6.2f}-{r['t1_h']:6.2f} h  {r['rpm']:6.0f} rpm  mill {r['mill_min']:3d} min  "
+                  f"rest {r['rest_min']:3d} min{mark}")
+    if a["end"]:
+        print(f"predicted at the batch end (median [90 % band]):")
+        for k in ("s_mean_um", "s_std_um", "r_mean", "d50_um", "temperature_c"):
+            e = a["end"][k]
+            print(f"  {k:<14} {e['median']:.4g}  [{e['q05']:.4g}, {e['q95']:.4g}]")
+    for k, ok in a["reachable"].items():
+        print(f"why: target {k} = {a['target'][k]:g} is {'reachable' if ok else 'NOT reachable'} by the batch end")
+    print("binding: " + ("; ".join(a["binding"]) if a["binding"] else "no constraint binds"))
+    if a["pending_samples"]:
+        print(f"note: {a['pending_samples']} sample(s) after the logged time wait for the log to reach them")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Dispatch the sub-verb; print what it did."""
+    from .. import campaign as cp
+    from ..campaign import targets as tg
+
+    v, d = args.verb, args.dir
+    if v == "init":
+        meta = cp.init(d, args.model, args.controller, tg.parse(args.target), hours=args.hours,
+                       temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles)
+        print(f"campaign: {d}: {meta['hours']:g} h batch, target "
+              + ", ".join(f"{k} = {x:g}" for k, x in meta["target"].items())
+              + f", controller {meta['controller_kind']}; inputs copied to {d}/inputs")
+    elif v == "log":
+        r = cp.log(d, args.rpm, args.hours, args.milling, args.temperature_c, args.from_h)
+        print(f"logged {r['t0_h']:g}-{r['t1_h']:g} h: {args.rpm:g} rpm, milling {args.milling:g}"
+              + (f", {args.temperature_c:g} C at the end" if args.temperature_c is not None else ""))
+        if r["deviation"]:
+            print(r["deviation"])
+        est = r["estimate"]
+        print(f"estimate at {est['t_h']:g} h: s_mean_um {_band(est, 's_mean_um')}")
+    elif v == "sample":
+        r = cp.sample(d, args.at_h, args.inputs, args.um_per_px)
+        print(f"sample {r['sample_id']} at {r['t_h']:g} h: {r['n']} particles, median s = {r['s_median_um']:.4g} um, "
+              f"median r = {r['r_median']:.3f}")
+        if r["applied"]:
+            est = r["estimate"]
+            print(f"estimate at {est['t_h']:g} h ({r['replayed']} estimator step(s) recomputed):")
+            print("\n".join(_estimate_lines(est)))
+        else:
+            print(f"held: the log reaches {r['clock_h']:g} h; the sample is used when it reaches {r['t_h']:g} h")
+    elif v == "advise":
+        a = cp.advise(d)
+        print(json.dumps(a, indent=2) if args.json else "", end="\n" if args.json else "")
+        if not args.json:
+            _print_advice(a)
+    elif v == "decide":
+        r = cp.decide(d, args.accept, args.rpm, args.milling, args.note)
+        what = "accepted" if r["accepted"] else "rejected"
+        line = f"advice {r['plan_id']} at {r['t_h']:g} h {what} (recommended {r['recommended_rpm']:g} rpm, milling " \
+               f"{r['recommended_milling']:.3g})"
+        instead = []
+        if not r["accepted"] and r["rpm"] is not None:
+            instead.append(f"{r['rpm']:g} rpm")
+        if not r["accepted"] and r["milling"] is not None:
+            instead.append(f"milling {r['milling']:g}")
+        if instead:
+            line += "; instead: " + ", ".join(instead)
+        if r["replaces"]:
+            line += f" (replaces {r['replaces']} earlier decision(s))"
+        print(line + "; log what the mill then ran with `bmctl campaign log`")
+    elif v == "status":
+        s = cp.status(d)
+        if args.json:
+            print(json.dumps(s, indent=2))
+            return 0
+        n = s["counts"]
+        print(f"campaign {d}: logged to {s['clock_h']:g} of {s['hours']:g} h; {n['actions']} actions, {n['samples']} "
+              f"samples ({s['pending_samples']} waiting), {n['particles']} particles, {n['temperatures']} temperature "
+              f"readings, {n['plans']} advices, {n['decisions']} decisions; {s['db_bytes'] / 1e6:.2f} MB")
+        print("target: " + ", ".join(f"{k} = {x:g}" for k, x in s["target"].items()))
+        print(f"estimate at {s['estimate']['t_h']:g} h:" if s["estimate"]["t_h"] >= 0 else "estimate (prior):")
+        print("\n".join(_estimate_lines(s["estimate"])))
+        la = s["latest_advice"]
+        if la:
+            dec = s["decision"]
+            print(f"latest advice: {la['rpm']:g} rpm, milling {la['milling']:.3g} at {la['t_h']:g} h"
+                  + ("" if la["current"] else " (superseded by the log)")
+                  + ("; no decision" if dec is None else f"; {'accepted' if dec['accepted'] else 'rejected'}"))
+        for dv in s["deviations"]:
+            print(dv)
+    elif v == "report":
+        p = cp.report(d, args.out)
+        print(f"report: wrote {p}")
+    return 0

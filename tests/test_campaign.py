@@ -1,0 +1,342 @@
+"""bmctl campaign: SQLite log, estimator timeline, CLI, crash safety, report in a browser, trial equivalence."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sqlite3
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bmctl import campaign as cp
+from bmctl.campaign import db, targets as tg
+from bmctl.cli import main
+from bmctl.errors import InputError
+from bmctl.measure.tables import ParticleTable
+
+ROOT = Path(__file__).resolve().parents[1]
+CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+RECIPE = ROOT / "controllers" / "recipe-300rpm-continuous.toml"
+LQR = ROOT / "controllers" / "lqr-baseline.toml"
+
+
+def _table(seed: int, s_um: float = 45.0, n: int = 150) -> ParticleTable:
+    rng = np.random.default_rng(seed)
+    return ParticleTable.from_size_aspect(rng.lognormal(np.log(s_um), 0.45, n), rng.uniform(0.0, 0.12, n))
+
+
+def _init(d, ctrl=RECIPE, **kw):
+    kw.setdefault("hours", 2.0)
+    kw.setdefault("particles", 100)
+    return cp.init(d, CARD, ctrl, {"d50_um": 45.0}, **kw)
+
+
+def _states(d) -> list[tuple[float, bytes]]:
+    con = sqlite3.connect(str(Path(d) / db.DB_NAME))
+    out = con.execute("SELECT t_h, state FROM estimator_states ORDER BY t_h").fetchall()
+    con.close()
+    return out
+
+
+# --- targets -----------------------------------------------------------------------------------
+def test_d50_law_against_a_lognormal_sample():
+    """Hatch-Choate: the volume-weighted median of a log-normal sample matches the closed form."""
+    rng = np.random.default_rng(3)
+    mean, std = 30.0, 15.0
+    sig2 = np.log1p((std / mean) ** 2)
+    s = rng.lognormal(np.log(mean) - sig2 / 2, np.sqrt(sig2), 400_000)
+    order = np.argsort(s)
+    w = np.cumsum(s[order] ** 3)
+    d50_sample = s[order][np.searchsorted(w, w[-1] / 2)]
+    assert abs(d50_sample / tg.d50_from_moments(mean, std) - 1) < 0.02
+    # the mapping onto s_mean keeps the spread and gives back the D50
+    m = tg.controller_target({"d50_um": 45.0}, {"s_mean_um": 60.0, "s_std_um": 30.0})["s_mean_um"]
+    assert tg.d50_from_moments(m, m * 0.5) == pytest.approx(45.0, rel=1e-12)
+
+
+def test_target_parse_errors():
+    assert tg.parse("d50_um=45,r_mean=0.05") == {"d50_um": 45.0, "r_mean": 0.05}
+    for bad in ("d10_um=3", "d50_um=-1", "d50_um", "d50_um=45,s_mean_um=40", ""):
+        with pytest.raises(InputError):
+            tg.parse(bad)
+
+
+# --- the log -----------------------------------------------------------------------------------
+def test_state_blob_round_trip_without_pickle():
+    state = {"X": np.arange(6.0).reshape(2, 3), "rng": {"state": {"state": 2**100}}, "k": [1, None, "a"]}
+    back = db.unpack(db.pack(state))
+    assert back["X"].tolist() == state["X"].tolist() and back["rng"]["state"]["state"] == 2**100
+    with pytest.raises(InputError):
+        db.unpack(b"garbage")
+
+
+def test_log_refuses_overlap_gap_and_end(tmp_path):
+    d = tmp_path / "c"
+    _init(d)
+    cp.log(d, 300, 0.5)
+    with pytest.raises(InputError, match="backwards"):
+        cp.log(d, 300, 0.5, from_h=0.25)
+    with pytest.raises(InputError, match="gap"):
+        cp.log(d, 300, 0.5, from_h=1.0)
+    with pytest.raises(InputError, match="batch end"):
+        cp.log(d, 300, 2.0)
+    with pytest.raises(InputError, match="already holds"):
+        _init(d)
+    assert cp.status(d)["counts"]["actions"] == 1  # refused logs left nothing behind
+
+
+def test_late_and_early_samples_equal_on_time(tmp_path):
+    """The estimator depends on what was logged and measured, not on the order it was entered."""
+    def on_time(d):
+        _init(d)
+        cp.log(d, 300, 0.5, temperature_c=40.0)
+        cp.sample(d, 0.5, [_table(1)])
+        cp.log(d, 300, 0.25, milling=0.6)
+        cp.log(d, 250, 0.5)
+        cp.sample(d, 1.25, [_table(2)])
+
+    def out_of_order(d):
+        _init(d)
+        cp.sample(d, 1.25, [_table(2)])  # before the log reaches it: held
+        cp.log(d, 300, 0.5, temperature_c=40.0)
+        cp.log(d, 300, 0.25, milling=0.6)
+        cp.sample(d, 0.5, [_table(1)])  # late: replayed from the node before 0.5 h
+        cp.log(d, 250, 0.5)
+
+    on_time(tmp_path / "a")
+    out_of_order(tmp_path / "b")
+    a, b = _states(tmp_path / "a"), _states(tmp_path / "b")
+    assert [t for t, _ in a] == [t for t, _ in b] == [-1.0, 0.5, 0.75, 1.25]
+    assert a[-1][1] == b[-1][1]
+    # a sample inside a logged interval cuts it (mill-then-rest order kept)
+    d = tmp_path / "c"
+    _init(d)
+    cp.log(d, 300, 1.0, milling=0.5)
+    r = cp.sample(d, 0.25, [_table(3)])
+    assert r["applied"] and [t for t, _ in _states(d)] == [-1.0, 0.25, 1.0]
+
+
+@pytest.mark.slow
+@pytest.mark.slow
+def test_fresh_process_continues_exactly(tmp_path):
+    """A campaign continued by new Campaign objects (new processes) equals one kept open."""
+    d1, d2 = tmp_path / "one", tmp_path / "many"
+    _init(d1, ctrl=LQR)
+    _init(d2, ctrl=LQR)
+    with cp.Campaign(d1) as c:
+        for k in range(3):
+            a1 = cp.advise(d1, campaign=c)
+            cp.log(d1, a1["next"]["rpm"], 0.5, a1["next"]["mill_min"] / 30.0, campaign=c)
+            cp.sample(d1, (k + 1) * 0.5, [_table(k)], campaign=c)
+    recs = []
+    for k in range(3):
+        a2 = cp.advise(d2)
+        recs.append(a2["next"])
+        cp.log(d2, a2["next"]["rpm"], 0.5, a2["next"]["mill_min"] / 30.0)
+        cp.sample(d2, (k + 1) * 0.5, [_table(k)])
+    assert _states(d1)[-1][1] == _states(d2)[-1][1]
+    assert cp.advise(d1)["next"] == cp.advise(d2)["next"]
+
+
+def test_second_writer_is_refused_cleanly(tmp_path, monkeypatch):
+    d = tmp_path / "c"
+    _init(d)
+    monkeypatch.setattr(db, "LOCK_TIMEOUT_S", 0.2)
+    holder = sqlite3.connect(str(d / db.DB_NAME), isolation_level=None)
+    holder.execute("BEGIN IMMEDIATE")
+    try:
+        with pytest.raises(InputError, match="busy"):
+            cp.log(d, 300, 0.5)
+        assert cp.status(d)["clock_h"] == 0.0  # readers are not blocked (WAL)
+    finally:
+        holder.execute("ROLLBACK")
+        holder.close()
+    cp.log(d, 300, 0.5)
+
+
+def test_cli_verbs_and_one_line_errors(tmp_path, capsys):
+    d = str(tmp_path / "c")
+    assert main(["campaign", "init", d, "--model", str(CARD), "--controller", str(RECIPE), "--target", "d50_um=45",
+                 "--hours", "2", "--particles", "100", "--temperature-max-c", "60"]) == 0
+    assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--temperature-c", "41"]) == 0
+    csv = tmp_path / "s.csv"
+    t = _table(5)
+    csv.write_text("s_um,r\n" + "".join(f"{float(s)!r},{float(r)!r}\n" for s, r in zip(t.s_um, t.r)))
+    assert main(["campaign", "sample", d, "--at-h", "0.5", str(csv)]) == 0
+    assert main(["campaign", "advise", d]) == 0
+    out = capsys.readouterr().out
+    assert "next: 300 rpm, mill 30 min, rest 0 min" in out and "predicted at the batch end" in out
+    assert main(["campaign", "decide", d, "--reject", "--rpm", "250"]) == 0
+    assert main(["campaign", "log", d, "--rpm", "250", "--hours", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "deviation from the recommendation (advice rejected): rpm 250 (recommended 300)" in out
+    assert main(["campaign", "status", d]) == 0
+    assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--from-h", "0.2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "time going backwards" in err
+    assert main(["campaign", "decide", d, "--accept"]) == 2  # no advice for the logged time
+    assert main(["campaign", "advise", str(tmp_path / "nothing")]) == 2
+
+
+# --- crash safety --------------------------------------------------------------------------------
+SCRIPT = r"""
+import os, sys, json
+import numpy as np
+sys.path.insert(0, {root!r})
+from bmctl import campaign as cp
+from bmctl.campaign import workflow as wf
+from bmctl.measure.tables import ParticleTable
+d, step, crash = sys.argv[1], int(sys.argv[2]), sys.argv[3] == "crash"
+def table(seed):
+    rng = np.random.default_rng(seed)
+    return ParticleTable.from_size_aspect(rng.lognormal(np.log(45.0), 0.45, 150), rng.uniform(0.0, 0.12, 150))
+if crash:
+    orig = wf._insert_particles
+    def boom(con, rows):
+        orig(con, rows)
+        os._exit(3)  # killed between the particle insert and the commit
+    wf._insert_particles = boom
+kind, arg = {plan!r}[step]
+if kind == "init":
+    cp.init(d, {card!r}, {ctrl!r}, {{"d50_um": 45.0}}, hours=2.0, particles=100)
+elif kind == "advise":
+    print(json.dumps(cp.advise(d)["next"]))
+elif kind == "decide":
+    cp.decide(d, True)
+elif kind == "log":
+    a = cp.status(d)["latest_advice"]
+    cp.log(d, a["rpm"], 0.5, a["milling"], temperature_c=40.0 + step)
+elif kind == "sample":
+    inputs = [table(step)] if arg is None else [arg]
+    cp.sample(d, cp.status(d)["clock_h"], inputs, um_per_px=None if arg is None else 1.0)
+"""
+
+
+def _image(path: Path) -> Path:
+    from bmctl.io import pyplot  # noqa: F401  (matplotlib on Agg)
+    from bmctl.measure.render import render_micrograph
+    import matplotlib.image
+
+    m = render_micrograph(np.random.default_rng(7), n=30, shape=(400, 400), s_px=(25.0, 60.0), um_per_px=1.0)
+    matplotlib.image.imsave(path, m.image, cmap="gray", vmin=0, vmax=1)
+    return path
+
+
+@pytest.mark.slow
+def test_crash_mid_sample_leaves_a_consistent_campaign(tmp_path):
+    img = _image(tmp_path / "micrograph.png")
+    plan = [("init", None)]
+    for k in range(3):
+        plan += [("advise", None), ("decide", None), ("log", None), ("sample", str(img) if k == 1 else None)]
+    plan.append(("advise", None))
+    script = tmp_path / "step.py"
+    script.write_text(SCRIPT.format(root=str(ROOT), plan=plan, card=str(CARD), ctrl=str(LQR)))
+    env = dict(os.environ, MPLBACKEND="Agg")
+
+    def run(d, step, crash=False):
+        return subprocess.run([sys.executable, str(script), str(d), str(step), "crash" if crash else "ok"],
+                              capture_output=True, text=True, env=env, timeout=600)
+
+    recs = {}
+    for name in ("clean", "crashed"):
+        d = tmp_path / name
+        recs[name] = []
+        for step, (kind, _) in enumerate(plan):
+            if name == "crashed" and kind == "sample" and step == 8:  # the image sample
+                r = run(d, step, crash=True)
+                assert r.returncode == 3, r.stderr
+                con = sqlite3.connect(str(d / db.DB_NAME))
+                assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+                assert con.execute("SELECT COUNT(*) FROM samples WHERE t_h = 1.0").fetchone()[0] == 0
+                assert con.execute("SELECT COUNT(*) FROM particles WHERE sample_id NOT IN "
+                                   "(SELECT id FROM samples)").fetchone()[0] == 0
+                con.close()
+            r = run(d, step)
+            assert r.returncode == 0, r.stderr
+            if kind == "advise":
+                recs[name].append(json.loads(r.stdout.strip().splitlines()[-1]))
+    assert recs["clean"] == recs["crashed"]
+    assert _states(tmp_path / "clean")[-1][1] == _states(tmp_path / "crashed")[-1][1]
+    assert cp.report(tmp_path / "crashed").stat().st_size > 10_000
+
+
+# --- report in a real browser ----------------------------------------------------------------------
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        p = shutil.which(name)
+        if p:
+            return p
+    return None
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(_chromium() is None, reason="no chromium binary on this machine (Debian: apt-get install chromium)")
+def test_report_loads_in_headless_chromium(tmp_path):
+    d = tmp_path / "c"
+    _init(d)
+    cp.log(d, 300, 0.5, temperature_c=41.0)
+    cp.sample(d, 0.5, [_table(1)])
+    cp.advise(d)
+    cp.decide(d, True)
+    cp.log(d, 300, 0.5, temperature_c=47.0)
+    cp.sample(d, 1.0, [_table(2, 40.0)])
+    page = cp.report(d)
+    text = page.read_text()
+    assert text.count("data:image/png;base64,") == 3 and "http" not in text.replace("http-equiv", "")
+    shot = tmp_path / "shot.png"
+    prof = tempfile.mkdtemp()
+    r = subprocess.run([_chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                        "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={prof}",
+                        "--window-size=1400,2200", f"--screenshot={shot}", "--enable-logging=stderr", "--v=0",
+                        page.as_uri()], capture_output=True, text=True, timeout=180)
+    shutil.rmtree(prof, ignore_errors=True)
+    console = [ln for ln in r.stderr.splitlines() if "CONSOLE" in ln and ("ERROR" in ln or "error" in ln.lower())]
+    assert console == [], console
+    assert shot.exists() and shot.stat().st_size > 20_000
+    from matplotlib.image import imread
+
+    img = imread(shot)
+    assert img.std() > 0.05  # not a blank page: the figures are drawn
+    keep = os.environ.get("BMCTL_KEEP_SCREENSHOT")
+    if keep:
+        shutil.copyfile(shot, keep)
+
+
+# --- a trial is a campaign with a simulated mill -------------------------------------------------------
+@pytest.mark.slow
+def test_trial_as_campaign_gives_the_trial_trajectory(tmp_path):
+    from bmctl.campaign.simulated import run_as_campaign
+    from bmctl.trial import run_trial
+
+    sc = tmp_path / "scenario.toml"
+    sc.write_text(f"""model = "{CARD}"
+hours = 2.0
+target = {{ s_mean_um = 40.0 }}
+[scenario]
+name = "campaign-equivalence"
+description = "LQR, 2 h, samples every hour"
+[plant]
+particles = 400
+[sampling]
+every_h = 1.0
+particles = 120
+[estimator]
+particles = 100
+[controller]
+config = "{LQR}"
+""")
+    summary = run_trial(sc, tmp_path / "trial", seed=11)
+    rows = run_as_campaign(sc, tmp_path / "campaign", seed=11)
+    data = np.genfromtxt(tmp_path / "trial" / "trajectory.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")
+    assert len(rows) == data.size == 4
+    np.testing.assert_allclose([r["rpm"] for r in rows], data["rpm"], rtol=1e-5)
+    np.testing.assert_allclose([r["true"]["s_mean_um"] for r in rows], data["true_s_mean_um"], rtol=1e-5)
+    np.testing.assert_allclose([r["estimate"]["s_mean_um"] for r in rows], data["est_s_mean_um"], rtol=1e-5)
+    for k, v in summary["final_estimate"].items():  # full precision at the end
+        assert rows[-1]["estimate"][k] == v, k
