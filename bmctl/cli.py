@@ -25,6 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "trial": ("bmctl.commands.trial", "closed-loop trial: plant, sampling, estimator, controller"),
     "whatif": ("bmctl.commands.whatif", "compare rpm schedules on a plant ensemble"),
     "design": ("bmctl.commands.design", "offline open-loop rpm/rest schedule from the MPC problem"),
+    "calibrate": ("bmctl.commands.calibrate", "fit card parameters to measured micrograph series (plant as simulator)"),
 }
 
 
