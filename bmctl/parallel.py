@@ -70,7 +70,7 @@ def client_for(scheduler: str | None = None, workers: int | None = None, process
     if n <= 1:
         return None
     cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=processes,
-                                       dashboard_address=None, silence_logs=40)
+                                       dashboard_address=":0", silence_logs=40)
     return distributed.Client(cluster)
 
 
