@@ -71,7 +71,7 @@ def main_case(args):
         row = one(args.seed, client, out=args.out)
     finally:
         close_client(client)
-    print(json.dumps(row, indent=1))
+    print(json.dumps(row, indent=1), flush=True)
     for n in ("gamma", "delta"):
         r = row[n]
         print(f"{n}: x{r['ratio']:.3f} (truth x{ {'gamma': GAMMA_X, 'delta': DELTA_X}[n]}), error {100 * r['rel_err']:+.1f} %, "
@@ -100,15 +100,23 @@ def coverage(args):
 
 
 def four(args):
+    """Local identifiability of alpha, beta, gamma, delta at the truth: one 300 rpm run vs 300 + 400 rpm."""
+    from bmctl.calibrate.fit import local_information
+
+    names = ("alpha", "beta", "gamma", "delta")
+    u_true = np.log([1.0, 1.0, GAMMA_X, DELTA_X])
     client = client_for(None, args.workers)
     try:
         for rpms in ((300.0,), (300.0, 400.0)):
-            row = one(args.seed, client, names=("alpha", "beta", "gamma", "delta"), rpms=rpms,
-                      settings=FitSettings(max_iter=args.iters))
-            print(f"runs at {rpms} rpm: wall {row['wall_s']:.0f} s, {row['plant_runs']} plant runs")
-            for n in ("alpha", "beta", "gamma", "delta"):
-                r = row[n]
-                print(f"  {n}: x{r['ratio']:.3f} 90 % [{r['lo90']:.3f}, {r['hi90']:.3f}] identified {r['identified']}: {r['why']}")
+            hs = [history(1000 * args.seed + k, rpm, f"h{rpm:.0f}") for k, rpm in enumerate(rpms)]
+            t0 = time.perf_counter()
+            info = local_information(load_card(CARD), hs, names, u_true, seed=args.seed, client=client)
+            sd = np.sqrt(np.diag(info["cov_u"]))
+            print(f"runs at {rpms} rpm: {info['plant_runs']} plant runs, {time.perf_counter() - t0:.0f} s; "
+                  f"Fisher eigenvalues {np.round(np.linalg.eigvalsh(info['fisher']), 2).tolist()}")
+            for i, n in enumerate(names):
+                print(f"  {n}: posterior sd of ln {sd[i]:.3f} (90 % x/ {np.exp(1.645 * sd[i]):.2f}); "
+                      f"identified {info['identified'][i]}: {info['why'][i]}", flush=True)
     finally:
         close_client(client)
 

@@ -35,7 +35,7 @@ class FitSettings(Strict):
     particles: Annotated[int, Field(ge=100)] = 2000  # simulated particles per plant run
     replicates: Annotated[int, Field(ge=2)] = 2  # common-random-number seeds per design point
     fd_step: Annotated[float, Field(gt=0, le=1)] = 0.2  # central-difference step in ln(value)
-    max_iter: Annotated[int, Field(ge=1)] = 5
+    max_iter: Annotated[int, Field(ge=1)] = 8
     prior_sd: Annotated[float, Field(gt=0)] = 1.0  # sd of ln(value / card value) in the prior
     bootstrap: Annotated[int, Field(ge=50)] = 400  # resamples for the data's summary covariance
     tol: Annotated[float, Field(gt=0)] = 0.5  # stop when a step is below this many posterior sd (the objective is noisy below)
@@ -64,6 +64,7 @@ class Calibration:
     converged: bool
     plant_runs: int
     iterations: list[dict] = field(default_factory=list)
+    start_choice: dict = field(default_factory=dict)
     sim_var: np.ndarray | None = None
     obs_cov: np.ndarray | None = None
 
@@ -175,7 +176,16 @@ def calibrate(card: ModelCard, histories: Sequence[History], names: Sequence[str
     seeds = [[crn[hi * s.replicates + r] for r in range(s.replicates)] for hi in range(len(histories))]
     ev = _Evaluator(card, names, histories, s, seeds, client, progress)
     P = np.eye(p) / s.prior_sd**2
-    u = np.zeros(p) if start_u is None else np.clip(np.asarray(start_u, float), -3 * s.prior_sd, 3 * s.prior_sd)
+    u = np.zeros(p)
+    start_choice = {"start": "card"}
+    if start_u is not None and np.any(np.asarray(start_u) != 0):
+        cand = np.clip(np.asarray(start_u, float), -3 * s.prior_sd, 3 * s.prior_sd)
+        S0 = ev.run(np.array([u, cand])).mean(axis=1)  # card vs first-stage start, data covariance only
+        W0 = np.linalg.inv(obs_cov + np.diag(1e-12 + 1e-9 * np.diag(obs_cov)))
+        q = [float((y - m) @ W0 @ (y - m)) for m in S0]
+        start_choice = {"start": "first stage" if q[1] < q[0] else "card", "chi2_card": q[0], "chi2_first_stage": q[1]}
+        if q[1] < q[0]:
+            u = cand
     u_start = u.copy()
     sim_vars: list[np.ndarray] = []
     prev = None  # (u, residual, delta) of the last accepted centre
@@ -237,7 +247,55 @@ def calibrate(card: ModelCard, histories: Sequence[History], names: Sequence[str
         lo90=cv * np.exp(u_hat - Z90 * sd), hi90=cv * np.exp(u_hat + Z90 * sd), u=u_hat, cov_u=cov,
         prior_sd=s.prior_sd, chi2=chi2, n_summaries=y.size, fisher=F, identified=identified, why=why,
         converged=converged, plant_runs=ev.runs, iterations=log, sim_var=sim_var, obs_cov=obs_cov,
+        start_choice=start_choice,
     )
+
+
+def local_information(card: ModelCard, histories: Sequence[History], names: Sequence[str], u: np.ndarray,
+                      seed: int = 0, settings: FitSettings | None = None, client=None,
+                      progress: Callable[[int], None] | None = None) -> dict:
+    """Identifiability at one point: Fisher information of the summaries, posterior sd, verdicts.
+
+    One design (2p + 1 points x replicates plant runs per history) at ``u`` = ln(value / card
+    value); no data are needed beyond the histories' schedules, times and sample sizes (their
+    measured samples set the sampling covariance). Answers "which parameters would these
+    experiments identify?" before running them.
+
+    Parameters
+    ----------
+    card : ModelCard
+    histories : sequence of History
+    names : sequence of str
+    u : ndarray
+        Point (ln ratio to the card) to evaluate at, e.g. the truth in a synthetic study.
+    seed : int, optional
+    settings : FitSettings, optional
+    client : distributed.Client, optional
+    progress : callable, optional
+
+    Returns
+    -------
+    dict
+        ``fisher``, ``cov_u``, ``sd_ratio`` (posterior / prior sd), ``identified``, ``why``.
+    """
+    s = settings or FitSettings()
+    names = list(names)
+    root = np.random.SeedSequence(seed)
+    boot_ss, sim_ss = root.spawn(2)
+    y, obs_cov = observed(histories, np.random.default_rng(boot_ss), s.bootstrap)
+    crn = sim_ss.spawn(len(histories) * s.replicates)
+    seeds = [[crn[hi * s.replicates + r] for r in range(s.replicates)] for hi in range(len(histories))]
+    ev = _Evaluator(card, names, histories, s, seeds, client, progress)
+    S = ev.run(_design(np.asarray(u, float), s.fd_step))
+    W = _weight(obs_cov, S.var(axis=1, ddof=1).mean(axis=0), s.replicates)
+    mu = S.mean(axis=1)
+    J = np.stack([(mu[1 + 2 * i] - mu[2 + 2 * i]) / (2 * s.fd_step) for i in range(len(names))], axis=1)
+    F = J.T @ W @ J
+    cov = np.linalg.inv(F + np.eye(len(names)) / s.prior_sd**2)
+    ratio = np.sqrt(np.diag(cov)) / s.prior_sd
+    identified, why = _identifiability(names, F, ratio, s)
+    return {"fisher": F, "cov_u": cov, "sd_ratio": ratio, "identified": identified, "why": why,
+            "plant_runs": ev.runs}
 
 
 def _identifiability(names, F: np.ndarray, ratio: np.ndarray, s: FitSettings) -> tuple[list[bool], list[str]]:
