@@ -110,6 +110,10 @@ def write_json(path: str | Path, data: dict) -> Path:
     return Path(path)
 
 
+def _share(x: np.ndarray) -> np.ndarray:
+    return np.full(x.size, 1.0 / max(x.size, 1))
+
+
 def plot_history(path: str | Path, history: History, model_samples: list, title: str) -> Path:
     """Measured vs calibrated-model histograms at each sample time: size (log axis, µm) and r."""
     plt = io.pyplot()
@@ -120,13 +124,14 @@ def plot_history(path: str | Path, history: History, model_samples: list, title:
     edges_r = np.linspace(0, 1, 41)
     for k, (smp, (s_m, r_m)) in enumerate(zip(history.samples, model_samples)):
         a, b = axes[k]
-        a.hist(smp.s_um, bins=edges_s, density=True, alpha=0.5, color="C0", label=f"measured (n={smp.s_um.size})")
-        a.hist(s_m, bins=edges_s, density=True, histtype="step", lw=1.5, color="C1", label="calibrated model")
+        a.hist(smp.s_um, bins=edges_s, weights=_share(smp.s_um), alpha=0.5, color="C0",
+               label=f"measured (n={smp.s_um.size})")
+        a.hist(s_m, bins=edges_s, weights=_share(s_m), histtype="step", lw=1.5, color="C1", label="calibrated model")
         a.set_xscale("log")
         a.set_xlabel("size s (µm)")
-        a.set_ylabel(f"t = {smp.t_h:g} h\ndensity")
-        b.hist(smp.r, bins=edges_r, density=True, alpha=0.5, color="C0")
-        b.hist(r_m, bins=edges_r, density=True, histtype="step", lw=1.5, color="C1")
+        a.set_ylabel(f"t = {smp.t_h:g} h\nshare of particles")
+        b.hist(smp.r, bins=edges_r, weights=_share(smp.r), alpha=0.5, color="C0")
+        b.hist(r_m, bins=edges_r, weights=_share(r_m), histtype="step", lw=1.5, color="C1")
         b.set_xlabel(IRREGULARITY_LABEL)
         for ax in (a, b):
             ax.grid(alpha=0.3)
