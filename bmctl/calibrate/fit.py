@@ -34,7 +34,7 @@ class FitSettings(Strict):
 
     particles: Annotated[int, Field(ge=100)] = 2000  # simulated particles per plant run
     replicates: Annotated[int, Field(ge=2)] = 2  # common-random-number seeds per design point
-    fd_step: Annotated[float, Field(gt=0, le=1)] = 0.2  # central-difference step in ln(value)
+    fd_step: Annotated[float, Field(gt=0, le=1)] = 0.3  # central-difference step in ln(value)
     max_iter: Annotated[int, Field(ge=1)] = 8
     prior_sd: Annotated[float, Field(gt=0)] = 1.0  # sd of ln(value / card value) in the prior
     bootstrap: Annotated[int, Field(ge=50)] = 400  # resamples for the data's summary covariance
@@ -130,6 +130,27 @@ class _Evaluator:
         return np.array(rows).reshape(len(points), R, -1)
 
 
+def _jacobian_information(S: np.ndarray, W: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Central-difference Jacobian and its Fisher information J'WJ, debiased for simulation noise.
+
+    ``S``: summaries (2p + 1 points, R replicates, n). Each replicate r gives its own Jacobian J_r
+    (common random numbers within a replicate); J is their mean. Noise in J inflates J'WJ by
+    E[dJ' W dJ], estimated from the spread of the J_r and subtracted; the result is projected
+    onto the positive semi-definite matrices. Without this, a parameter the summaries ignore
+    would look identified by its finite-difference noise alone.
+    """
+    p = (S.shape[0] - 1) // 2
+    R = S.shape[1]
+    Jr = np.stack([(S[1 + 2 * i] - S[2 + 2 * i]) / (2 * h) for i in range(p)], axis=2)  # (R, n, p)
+    J = Jr.mean(axis=0)
+    D = Jr - J
+    noise = np.einsum("rki,kl,rlj->ij", D, W, D) / (R * (R - 1))
+    F = J.T @ W @ J - noise
+    lam, vec = np.linalg.eigh(0.5 * (F + F.T))
+    F = (vec * np.maximum(lam, 0.0)) @ vec.T
+    return J, F
+
+
 def _weight(obs_cov: np.ndarray, sim_var: np.ndarray, R: int) -> np.ndarray:
     C = obs_cov + np.diag(sim_var / R)
     C = C + np.diag(1e-12 + 1e-9 * np.diag(C))
@@ -218,8 +239,7 @@ def calibrate(card: ModelCard, histories: Sequence[History], names: Sequence[str
                     on_iteration(entry)
                 continue
         halvings = 0
-        J = np.stack([(mu[1 + 2 * i] - mu[2 + 2 * i]) / (2 * s.fd_step) for i in range(p)], axis=1)
-        F = J.T @ W @ J
+        J, F = _jacobian_information(S, W, s.fd_step)
         H = F + P
         g = J.T @ W @ res - P @ u
         delta = np.linalg.solve(H, g)
@@ -288,9 +308,7 @@ def local_information(card: ModelCard, histories: Sequence[History], names: Sequ
     ev = _Evaluator(card, names, histories, s, seeds, client, progress)
     S = ev.run(_design(np.asarray(u, float), s.fd_step))
     W = _weight(obs_cov, S.var(axis=1, ddof=1).mean(axis=0), s.replicates)
-    mu = S.mean(axis=1)
-    J = np.stack([(mu[1 + 2 * i] - mu[2 + 2 * i]) / (2 * s.fd_step) for i in range(len(names))], axis=1)
-    F = J.T @ W @ J
+    J, F = _jacobian_information(S, W, s.fd_step)
     cov = np.linalg.inv(F + np.eye(len(names)) / s.prior_sd**2)
     ratio = np.sqrt(np.diag(cov)) / s.prior_sd
     identified, why = _identifiability(names, F, ratio, s)
