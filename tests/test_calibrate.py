@@ -240,3 +240,23 @@ def test_fisher_information_is_debiased_for_simulation_noise():
     # half of the noise term must go
     undebiased = n * 2 * 0.5**2 / (R * 4 * h**2)
     assert F_mean[1, 1] < 0.5 * undebiased
+
+
+@pytest.mark.slow
+def test_estimate_write_card(tmp_path):
+    from bmctl.calibrate.synthetic import synthetic_history, write_history
+
+    truth = with_factors(load_card(LAB), 1.4, 0.75)
+    h = synthetic_history(truth, [(2.0, 300.0, 1.0)], [1.0, 2.0], 150, 600, np.random.default_rng(0), name="wb")
+    write_history(h, tmp_path)
+    out = tmp_path / "next.toml"
+    rc = main(["estimate", str(LAB), "--samples", str(tmp_path / "wb-t0.csv"), str(tmp_path / "wb-t1.csv"),
+               "--times", "1,2", "--particles", "200", "--out", str(tmp_path / "est.csv"), "--write-card", str(out)])
+    assert rc == 0
+    card, nxt = load_card(LAB), load_card(out)
+    row = (tmp_path / "est.csv").read_text().splitlines()
+    header, last = row[0].split(","), row[-1].split(",")
+    g = float(last[header.index("gamma_mult")])
+    d = float(last[header.index("delta_mult")])
+    assert nxt.stochastic.gamma_per_um2 == pytest.approx(card.stochastic.gamma_per_um2 * g, rel=1e-4)
+    assert nxt.stochastic.delta_per_um2 == pytest.approx(card.stochastic.delta_per_um2 * d, rel=1e-4)
