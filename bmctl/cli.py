@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "compare": ("bmctl.commands.compare", "measured particle sample against the plant prediction at a time"),
     "card": ("bmctl.commands.card", "model cards: derived masses, kinematics and validity (card show)"),
     "campaign": ("bmctl.commands.campaign", "run a real mill: log, sample, advise, decide, report (SQLite log)"),
+    "calibrate": ("bmctl.commands.calibrate", "fit card parameters to measured micrograph series (plant as simulator)"),
 }
 
 

@@ -45,6 +45,8 @@ def configure(p):
                    help="r measurement noise (default 0.034, the synthetic micrograph path's)")
     p.add_argument("--sigma-log-s", type=float_arg("--sigma-log-s", lo=0.0), default=None,
                    help="ln s measurement noise (default 0.015)")
+    p.add_argument("--write-card", default=None, metavar="OUT.toml",
+                   help="also write the card with gamma, delta set to the last estimate (the next batch's start)")
 
 
 def _parse_list(flag: str, text: str, allow_empty: bool = False) -> list[float | None]:
@@ -134,6 +136,8 @@ def run(args) -> int:
     else:
         segments = Schedule.from_card(card, max(card.process.hours, t_end), args.rpm).pairs()
     out = output_path(args.out, folder=False)
+    if args.write_card is not None:
+        output_path(args.write_card, "--write-card", folder=False)
     if out.suffix.lower() != ".csv":
         raise InputError(f"--out: expected a .csv file name (got {out})")
     law_kw = {"size_law": args.size_law}
@@ -170,4 +174,8 @@ def run(args) -> int:
           f"delta_mult {d['delta_mult']:.2f} [{d['delta_mult_q05']:.2f}, {d['delta_mult_q95']:.2f}]")
     print(f"  wrote {out}")
     print(f"  wrote {fig_path}")
+    if args.write_card is not None:
+        from ..calibrate.writeback import write_estimate_card
+
+        print(f"  wrote {write_estimate_card(args.write_card, card, d, f'{len(samples)} samples to {t_end:g} h')}")
     return 0

@@ -1,0 +1,145 @@
+"""History files: what a mill ran and what was measured at which times.
+
+A history (TOML) names the schedule the mill ran (a schedule file, or inline
+``[[segment]]`` tables with ``hours``, ``rpm``, optional ``milling`` share) and the samples
+taken (``[[sample]]`` with ``t_h`` and either ``table`` = a particle table CSV or ``image``
+= a micrograph measured as ``bmctl measure`` does, with ``um_per_px``). Paths are relative
+to the history file. Every problem is one line naming the file and the field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+from pydantic import Field
+
+from ..config import ModelCard, NonNeg, Pos, Strict, load_schedule, read_toml, validate
+from ..errors import InputError
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
+MIN_PARTICLES = 10
+
+
+class HistorySegment(Strict):
+    hours: Pos
+    rpm: NonNeg
+    milling: Annotated[float, Field(ge=0, le=1)] = 1.0
+
+
+class SampleSpec(Strict):
+    t_h: NonNeg
+    table: str | None = None
+    image: str | None = None
+    um_per_px: Pos | None = None
+
+
+class HistoryFile(Strict):
+    """The TOML schema of a history."""
+
+    name: str = ""
+    schedule: str | None = None
+    segment: list[HistorySegment] | None = None
+    sample: list[SampleSpec] = Field(min_length=1)
+
+
+@dataclass
+class MeasuredSample:
+    """One measured sample: sizes (um) and aspect ratios at ``t_h``."""
+
+    t_h: float
+    s_um: np.ndarray
+    r: np.ndarray
+    source: str
+
+
+@dataclass
+class History:
+    """A run of the mill: (hours, rpm, milling) segments and measured samples in time order."""
+
+    name: str
+    path: str
+    segments: list[tuple[float, float, float]]
+    samples: list[MeasuredSample]
+
+    @property
+    def times_h(self) -> list[float]:
+        return [s.t_h for s in self.samples]
+
+
+def _read_sample(src: str, spec: SampleSpec, base: Path, k: int) -> MeasuredSample:
+    where = f"{src}: sample[{k}]"
+    if (spec.table is None) == (spec.image is None):
+        raise InputError(f"{where}: give exactly one of table or image")
+    if spec.table is not None:
+        from ..measure.tables import read_table
+
+        if spec.um_per_px is not None:
+            raise InputError(f"{where}.um_per_px: only for an image, not a table")
+        tab = read_table(base / spec.table)
+        name = spec.table
+    else:
+        from ..measure.segment import measure_image
+
+        path = base / spec.image
+        if path.suffix.lower() not in IMAGE_SUFFIXES:
+            raise InputError(f"{where}.image: {spec.image}: not an image ({', '.join(IMAGE_SUFFIXES)})")
+        if not path.exists():
+            raise InputError(f"{where}.image: {path}: no such file")
+        if spec.um_per_px is None:
+            raise InputError(f"{where}.um_per_px: required for an image (its pixel size in um)")
+        tab = measure_image(str(path), spec.um_per_px)
+        name = spec.image
+    if len(tab) < MIN_PARTICLES:
+        raise InputError(f"{where}: {name}: {len(tab)} particles, need at least {MIN_PARTICLES}")
+    return MeasuredSample(spec.t_h, np.asarray(tab.s_um, float), np.asarray(tab.r, float), str(base / name))
+
+
+def load_history(path: str | Path, card: ModelCard | None = None) -> History:
+    """Load and check a history file.
+
+    Parameters
+    ----------
+    path : path-like
+        The history TOML.
+    card : ModelCard, optional
+        If given, every rpm must be within the card's ``mill.rpm_max``.
+
+    Returns
+    -------
+    History
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        One line naming the file and the field.
+    """
+    src = str(path)
+    base = Path(path).parent
+    h = validate(HistoryFile, read_toml(path), src)
+    if (h.schedule is None) == (h.segment is None):
+        raise InputError(f"{src}: schedule: give exactly one of schedule = \"FILE.toml\" or [[segment]] tables")
+    if h.schedule is not None:
+        sched = load_schedule(base / h.schedule)
+        segments = [(s.hours, s.rpm, 1.0) for s in sched.segment]
+        seg_src = f"{base / h.schedule}: segment"
+    else:
+        if not h.segment:
+            raise InputError(f"{src}: segment: at least one [[segment]] is needed")
+        segments = [(s.hours, s.rpm, s.milling) for s in h.segment]
+        seg_src = f"{src}: segment"
+    if card is not None:
+        for i, (_, rpm, _) in enumerate(segments):
+            if rpm > card.mill.rpm_max:
+                raise InputError(f"{seg_src}[{i}].rpm: {rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g}")
+    total = sum(s[0] for s in segments)
+    times = [s.t_h for s in h.sample]
+    for k, (a, b) in enumerate(zip(times, times[1:])):
+        if b <= a:
+            raise InputError(f"{src}: sample[{k + 1}].t_h: sample times must increase (got {a:g} then {b:g})")
+    if times[-1] > total + 1e-9:
+        raise InputError(f"{src}: sample[{len(times) - 1}].t_h: {times[-1]:g} h is after the schedule's end ({total:g} h)")
+    samples = [_read_sample(src, spec, base, k) for k, spec in enumerate(h.sample)]
+    return History(h.name or Path(path).stem, src, segments, samples)

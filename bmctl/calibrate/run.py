@@ -1,0 +1,106 @@
+"""The whole calibration: histories in, calibrated card, calibration.json and figures out.
+
+Shared by ``bmctl calibrate`` and ``benchmarks/calibrate_accuracy.py``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..config import ModelCard
+from ..parallel import map_seeded
+from .fit import Calibration, FitSettings, calibrate
+from .history import History
+from .simulate import simulate_task
+
+MODEL_SAMPLE = 5000  # model particles per sample time kept for figures and distances
+
+
+@dataclass
+class CalibrationRun:
+    """A finished calibration and where its outputs went."""
+
+    calibration: Calibration
+    start_info: dict
+    model_samples: list  # per history: list of (s_um, r) per sample time
+    distances: list[dict]
+    paths: list[Path]
+    wall_s: float
+
+
+def model_samples_at(cal: Calibration, card: ModelCard, histories: Sequence[History], settings: FitSettings,
+                     seed: int, client=None) -> list:
+    """Particles of the calibrated plant at each history's sample times (one run per history)."""
+    from .fit import _Evaluator
+
+    ev = _Evaluator(card, cal.names, histories, settings, None, client, None)
+    tasks = [ev.task(cal.u, h, keep=MODEL_SAMPLE) for h in histories]
+    seeds = np.random.SeedSequence(seed).spawn(3)[2].spawn(len(histories))
+    return [o[1] for o in map_seeded(simulate_task, tasks, seeds, client)]
+
+
+def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[History], names: Sequence[str],
+                    out: str | Path | None, seed: int = 0, settings: FitSettings | None = None, client=None,
+                    moment_stage: bool = True, progress: Callable[[int], None] | None = None,
+                    on_iteration: Callable[[dict], None] | None = None) -> CalibrationRun:
+    """Moment-model start, plant fit, final model run, outputs (when ``out`` is given).
+
+    Parameters
+    ----------
+    card : ModelCard
+        Starting card.
+    card_path : path-like
+        Its file (names the outputs; its moment coefficients serve the first stage).
+    histories : sequence of History
+    names : sequence of str
+        Parameters to fit.
+    out : path-like or None
+        Output folder; None writes nothing.
+    seed : int, optional
+    settings : FitSettings, optional
+    client : distributed.Client, optional
+    moment_stage : bool, optional
+        Start gamma and delta from the moment model's maximum likelihood (default True).
+    progress, on_iteration : callable, optional
+        Progress hooks (see :func:`bmctl.calibrate.fit.calibrate`).
+
+    Returns
+    -------
+    CalibrationRun
+    """
+    from . import outputs
+
+    t0 = time.perf_counter()
+    s = settings or FitSettings()
+    names = list(names)
+    start_u, info = None, {}
+    if moment_stage:
+        from .moment_start import moment_start
+
+        start_u, info = moment_start(card_path, histories, names)
+    cal = calibrate(card, histories, names, seed=seed, settings=s, start_u=start_u, client=client,
+                    progress=progress, on_iteration=on_iteration)
+    kept = model_samples_at(cal, card, histories, s, seed, client)
+    dist = outputs.sample_distances(histories, kept)
+    paths: list[Path] = []
+    wall = time.perf_counter() - t0
+    if out is not None:
+        out = Path(out)
+        stem = Path(card_path).stem
+        note = (f"calibrated by bmctl calibrate (seed {seed}) from " + ", ".join(h.path for h in histories)
+                + f": {', '.join(names)}")
+        new = outputs.calibrated_card(card, names, cal.values, note)
+        paths.append(outputs.write_card(out / f"{stem}-calibrated.toml", new,
+                                        header=f"{new.card.name}: {note}\nSee calibration.json next to this file."))
+        meta = {"card": str(card_path), "seed": seed, "settings": s.model_dump(), "moment_stage": info,
+                "wall_s": wall}
+        paths.append(outputs.write_json(out / "calibration.json", outputs.calibration_dict(cal, histories, dist, meta)))
+        for h, k in zip(histories, kept):
+            paths.append(outputs.plot_history(out / f"histograms-{h.name}.png", h, k,
+                                              f"{h.name}: measured vs calibrated {stem}"))
+    return CalibrationRun(cal, info, kept, dist, paths, wall)

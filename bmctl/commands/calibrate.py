@@ -1,0 +1,80 @@
+"""Calibrate a card's parameters to measured micrograph series, the stochastic plant as the simulator.
+
+``bmctl calibrate CARD.toml HISTORY.toml... --params alpha,beta,gamma,delta`` fits the named card
+parameters to the (s, r) samples of one or more histories (what the mill ran and what was
+measured when) and writes ``DIR/<card>-calibrated.toml``, ``DIR/calibration.json`` (estimates,
+90 % intervals, the fit at the optimum, what the data do not identify) and one histogram
+figure per history. Plant runs go through Dask (a local cluster by default, ``--scheduler``
+for a running one). See docs/calibration-from-data.md.
+"""
+
+from __future__ import annotations
+
+from ._args import int_arg, output_path
+
+
+def configure(p):
+    p.add_argument("model", metavar="CARD.toml", help="starting model card (also the mill and the prior centre)")
+    p.add_argument("histories", metavar="HISTORY.toml", nargs="+",
+                   help="schedule (file or [[segment]]) and [[sample]] t_h with table= or image= (+ um_per_px)")
+    p.add_argument("--params", default="alpha,beta,gamma,delta", metavar="P1,P2,...",
+                   help="card parameters to fit: alpha, beta, gamma, delta or section.field (default the four factors)")
+    p.add_argument("--seed", type=int_arg("--seed", 0, 2**31), default=0, help="random seed (default 0)")
+    p.add_argument("--out", default="out/calibrate", metavar="DIR", help="output folder (default out/calibrate)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
+    p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,
+                   help="local Dask worker processes (default: the machine's CPUs; 0 or 1: serial, no Dask)")
+    p.add_argument("--particles", type=int_arg("--particles", 100, 10**6), default=2000,
+                   help="simulated particles per plant run (default 2000)")
+    p.add_argument("--replicates", type=int_arg("--replicates", 2, 64), default=2,
+                   help="common-random-number plant runs per design point (default 2)")
+    p.add_argument("--no-moment-start", action="store_true", help="start from the card, not the moment model's fit")
+
+
+def run(args) -> int:
+    from tqdm import tqdm
+
+    from ..calibrate.fit import FitSettings
+    from ..calibrate.history import load_history
+    from ..calibrate.params import parse_params
+    from ..calibrate.run import run_calibration
+    from ..config import load_card
+    from ..parallel import client_for, close_client
+
+    out = output_path(args.out)
+    card = load_card(args.model)
+    names = parse_params(args.params, card)
+    histories = [load_history(h, card) for h in args.histories]
+    seen = set()
+    for h in histories:
+        if h.name in seen:
+            raise_dup(h)
+        seen.add(h.name)
+    settings = FitSettings(particles=args.particles, replicates=args.replicates)
+    client = client_for(args.scheduler, args.workers)
+    bar = tqdm(desc="plant runs", unit="run", total=None, leave=False)
+    try:
+        res = run_calibration(card, args.model, histories, names, out, seed=args.seed, settings=settings,
+                              client=client, moment_stage=not args.no_moment_start, progress=bar.update,
+                              on_iteration=lambda e: bar.set_postfix(it=e["iteration"], chi2=f"{e['chi2']:.1f}"))
+    finally:
+        bar.close()
+        close_client(client)
+    cal = res.calibration
+    engine = "serial" if client is None else ("scheduler " + args.scheduler if args.scheduler else "local Dask")
+    print(f"{card.card.name}: {len(histories)} histories, {sum(len(h.samples) for h in histories)} samples; "
+          f"{cal.plant_runs} plant runs ({engine}) in {res.wall_s:.0f} s; chi2 {cal.chi2:.1f} on "
+          f"{cal.n_summaries} summaries{'' if cal.converged else ' (not converged)'}")
+    for i, n in enumerate(cal.names):
+        flag = "" if cal.identified[i] else "  NOT IDENTIFIED"
+        print(f"  {n:28s} {cal.values[i]:.4g}  90 % [{cal.lo90[i]:.4g}, {cal.hi90[i]:.4g}]  "
+              f"x{cal.values[i] / cal.card_values[i]:.2f} of the card{flag}")
+    for p in res.paths:
+        print(f"  wrote {p}")
+    return 0
+
+
+def raise_dup(h):
+    from ..errors import InputError
+
+    raise InputError(f"{h.path}: name: history name {h.name!r} is used twice (give each history its own name)")
