@@ -17,7 +17,7 @@ from bmctl.config import load_card, with_factors
 from bmctl.errors import InputError
 from bmctl.parallel import client_for, close_client, ensemble_map, seed_sequences
 
-from .conftest import card_path
+from tests.conftest import card_path
 
 LAB = card_path("alni-1to1-300rpm-lab")
 
@@ -203,7 +203,7 @@ def test_seeded_recovery_of_gamma_delta():
     +-15 % and the truth inside the 90 % intervals (the benchmark checks coverage over many seeds)."""
     import sys
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     from calibrate_accuracy import one
 
     client = client_for(None, 2)

@@ -20,7 +20,7 @@ from bmctl.cli import main
 from bmctl.errors import InputError
 from bmctl.measure.tables import ParticleTable
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
 RECIPE = ROOT / "controllers" / "recipe-300rpm-continuous.toml"
 LQR = ROOT / "controllers" / "lqr-baseline.toml"
