@@ -36,6 +36,9 @@ def test_whatif_bad_input(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
     rc = main(["whatif", LAB, str(ROOT / "scenarios" / "schedule-ramp-rest.toml"), "--seeds", "0"])
     assert rc == 2 and "--seeds" in capsys.readouterr().err
+    rc = main(["whatif", LAB, str(ROOT / "scenarios" / "schedule-ramp-rest.toml"), "--workers", "-1"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--workers" in err and len(err.strip().splitlines()) == 1
 
 
 def _two_thread_workers():
