@@ -35,6 +35,44 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: below this many ensemble members a local cluster is not worth starting
+SMALL_MEMBERS = 4
+#: ... nor below this much estimated CPU work (s): starting worker processes and importing bmctl
+#: in each costs a few seconds
+SMALL_CPU_S = 10.0
+
+
+def auto_workers(members: int, cpu_s: float, workers: int | None = None, scheduler: str | None = None) -> int | None:
+    """Worker count for :func:`client_for` when the user named none.
+
+    Parameters
+    ----------
+    members : int
+        Independent tasks of the ensemble.
+    cpu_s : float
+        Estimated CPU seconds of all of them together.
+    workers, scheduler : optional
+        What the user asked for (``--workers``, ``--scheduler``); either one is kept as given.
+
+    Returns
+    -------
+    int or None
+        ``workers`` when given (None with a scheduler); 0 (serial, in process) for a small ensemble
+        (fewer than :data:`SMALL_MEMBERS` members or under :data:`SMALL_CPU_S` estimated CPU
+        seconds); else the machine's CPUs, at most one per member.
+
+    Examples
+    --------
+    >>> auto_workers(3, 600.0), auto_workers(64, 2.0), auto_workers(64, 600.0, workers=1)
+    (0, 0, 1)
+    """
+    if scheduler is not None or workers is not None:
+        return workers
+    if members < SMALL_MEMBERS or cpu_s < SMALL_CPU_S:
+        return 0
+    return min(default_workers(), members)
+
+
 def client_for(scheduler: str | None = None, workers: int | None = None, processes: bool = True):
     """The engine for ensemble work.
 

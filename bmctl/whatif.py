@@ -38,8 +38,33 @@ class WhatIfResult:
         return a.mean(axis=0), np.percentile(a, 5, axis=0), np.percentile(a, 95, axis=0)
 
 
+@dataclass(frozen=True)
+class _MemberTask:
+    """Plain data of one ensemble member (pickled to Dask workers)."""
+
+    card: ModelCard
+    segments: tuple[tuple[float, float], ...]
+    particles: int
+    every_h: float
+
+
+def _member(task: _MemberTask, rng: np.random.Generator) -> tuple:
+    """One plant of the ensemble: ``task.segments`` open loop on a plant drawn from ``rng``.
+
+    Returns
+    -------
+    tuple
+        (recording times (h), {key: trajectory}, final s (µm), final r, peak temperature (°C)).
+    """
+    plant = Plant(task.card, rng, task.particles)
+    recs: list[dict] = []
+    t_h = run_open_loop(plant, list(task.segments), task.every_h, lambda t, mill: recs.append(mill.moments()))
+    traj = {key: [m[key] for m in recs] for key in KEYS}
+    return t_h, traj, plant.s * 1e6, plant.r, max(m["temperature_c"] for m in recs)
+
+
 def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[float, float]], seeds: int,
-                          particles: int, base_seed: int = 0, every_h: float = 0.25) -> WhatIfResult:
+                          particles: int, base_seed: int = 0, every_h: float = 0.25, client=None) -> WhatIfResult:
     """Run ``segments`` on ``seeds`` plants (seeds base_seed .. base_seed + seeds - 1).
 
     Parameters
@@ -55,31 +80,31 @@ def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[f
     particles : int
         Simulated particles per plant.
     base_seed : int, optional
-        First seed.
+        First seed: plant k draws from ``default_rng(base_seed + k)``.
     every_h : float, optional
         Recording interval (h).
+    client : distributed.Client, optional
+        Dask engine from :func:`bmctl.parallel.client_for`; None runs the plants serially in this
+        process. The result is the same either way.
 
     Returns
     -------
     WhatIfResult
     """
+    from .parallel import map_seeded
+
     segments = as_schedule(segments).pairs()
     hours = sum(h for h, _ in segments)
-    traj = {k: [] for k in KEYS}
-    fs, fr, peaks = [], [], []
-    t_h = None
-    for k in range(seeds):
-        plant = Plant(card, np.random.default_rng(base_seed + k), particles)
-        recs: list[dict] = []
-        t_h = run_open_loop(plant, segments, every_h, lambda t, mill: recs.append(mill.moments()))
-        for key in KEYS:
-            traj[key].append([m[key] for m in recs])
-        fs.append(plant.s * 1e6)
-        fr.append(plant.r)
-        peaks.append(max(m["temperature_c"] for m in recs))
+    task = _MemberTask(card, tuple((float(h), float(rpm)) for h, rpm in segments), int(particles), float(every_h))
+    # SeedSequence(k) seeds the same generator as default_rng(k): the streams of the serial loop
+    members = map_seeded(_member, [task] * seeds, [np.random.SeedSequence(base_seed + k) for k in range(seeds)],
+                         client)
+    t_h = members[-1][0] if members else None
+    traj = {k: np.array([m[1][k] for m in members]) for k in KEYS}
     energy = sum(kinematics(card, rpm).mean_power_W * h * 3600 for h, rpm in segments) / 1e3
-    return WhatIfResult(name, t_h, {k: np.array(v) for k, v in traj.items()}, np.concatenate(fs), np.concatenate(fr),
-                        energy, hours, np.array(peaks))
+    return WhatIfResult(name, t_h, traj, np.concatenate([m[2] for m in members]),
+                        np.concatenate([m[3] for m in members]), energy, hours,
+                        np.array([m[4] for m in members]))
 
 
 def table_rows(results: Sequence[WhatIfResult]) -> tuple[list[str], list[list]]:

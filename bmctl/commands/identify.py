@@ -29,6 +29,10 @@ def configure(p):
                         "entries a little better at 1.5x the time (docs/moments.md, Sec. 6)")
     p.add_argument("--quick", action="store_true", help="fewer experiments, one training seed (about 4x faster)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
+    p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,
+                   help="local Dask worker processes for the plant runs (default: the machine's CPUs; 0 or 1: "
+                        "serial, no Dask); same seed, same coefficients either way")
     p.add_argument("--figures", default=None, metavar="DIR",
                    help="also write validation.png (model vs plant on held-out schedules) and nrmse.png here")
 
@@ -63,8 +67,17 @@ def run(args) -> int:
     command = (f"bmctl identify {args.model} --seed {args.seed}" + (" --quick" if args.quick else "")
                + (f" --particles {args.particles}" if args.particles else "")
                + (f" --random-schedules {args.random_schedules}" if args.random_schedules is not None else ""))
-    res = ident.identify(card, args.seed, args.quick, args.particles, args.random_schedules, source=str(out),
-                         command=command, log=log)
+    from ..parallel import auto_workers, client_for, close_client
+
+    particles = args.particles or (2000 if args.quick else 4000)
+    runs, cpu_s = ident.plant_work(card, ident.design(card, args.seed, args.quick, args.random_schedules),
+                                   1 if args.quick else len(ident.TRAIN_SEEDS), particles)
+    client = client_for(args.scheduler, auto_workers(runs, cpu_s, args.workers, args.scheduler))
+    try:
+        res = ident.identify(card, args.seed, args.quick, args.particles, args.random_schedules, source=str(out),
+                             command=command, log=log, client=client)
+    finally:
+        close_client(client)
     names = ident.MOMENTS[:5]
     report = (_report(card.card.name, names, res.table_defaults, res.table, res.table_train) + "\n"
               + _report_off_card(names, res.off_card_p1, res.off_card))

@@ -8,8 +8,6 @@ from ..errors import InputError
 from ._args import int_arg, output_path
 
 
-
-
 def configure(p):
     p.add_argument("model", metavar="MODEL.toml", help="model card")
     p.add_argument("schedules", metavar="SCHEDULE.toml", nargs="+", help="[[segment]] hours, rpm (rpm 0 = rest)")
@@ -18,6 +16,10 @@ def configure(p):
                    help="simulated particles per plant (default 5000)")
     p.add_argument("--seed", type=int_arg("--seed", 0, 2**31), default=0, help="first seed (default 0)")
     p.add_argument("--out", default="out/whatif", metavar="DIR", help="output folder (default out/whatif)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
+    p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,
+                   help="local Dask worker processes (default: the machine's CPUs for a large ensemble, serial "
+                        "for a small one; 0 or 1: serial, no Dask); same seed, same numbers either way")
 
 
 def run(args) -> int:
@@ -39,7 +41,15 @@ def run(args) -> int:
 
     work = [simulation_work(card, segs, args.particles, 0.25, raster=False) for _, segs in scheds]
     check_work({k: args.seeds * sum(w[k] for w in work) for k in work[0]}, "--seeds/--particles/SCHEDULE.toml")
-    results = [run_schedule_ensemble(card, name, segs, args.seeds, args.particles, args.seed) for name, segs in scheds]
+    from ..parallel import auto_workers, client_for, close_client
+
+    cpu_s = args.seeds * sum(w["cpu_s"] for w in work)
+    client = client_for(args.scheduler, auto_workers(args.seeds, cpu_s, args.workers, args.scheduler))
+    try:
+        results = [run_schedule_ensemble(card, name, segs, args.seeds, args.particles, args.seed, client=client)
+                   for name, segs in scheds]
+    finally:
+        close_client(client)
     header, rows = table_rows(results)
     print(f"{'schedule':28s} {'h':>5s} {'kJ':>7s} {'Tpeak':>6s} {'s_mean':>16s} {'s_std':>16s} {'r_mean':>17s}")
     for r in rows:

@@ -168,43 +168,103 @@ def _plant_states(plant) -> np.ndarray:
     return np.array([m[k] for k in MOMENTS])
 
 
-def run_experiments(card: ModelCard, specs: Sequence[Spec], seeds: Sequence[int], particles: int,
-                    progress: Callable[[str], None] | None = None) -> list[Experiment]:
-    """Run every spec on plants seeded with ``seeds`` (prefixes shared: run once, snapshot, branch)."""
+def plant_work(card: ModelCard, specs: Sequence[Spec], seeds: int, particles: int) -> tuple[int, float]:
+    """(plant runs, estimated CPU seconds) of :func:`run_experiments` (sizes the local cluster)."""
+    from ..cards import simulation_work
+
+    cpu_s = 0.0
+    for spec in specs:
+        segs = [(DT_H * duty, rpm) for rpm, duty in list(spec.prefix) + list(spec.inputs)]
+        cpu_s += simulation_work(card, segs, particles, DT_H, raster=False)["cpu_s"]
+    return len(specs) * seeds, cpu_s * seeds
+
+
+def _seed_runs(task: tuple, rng: np.random.Generator) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every spec of ``task = (card, specs, particles)`` on plants drawn from ``rng``'s state.
+
+    Each plant starts from the state ``rng`` has on entry (common random numbers across specs, as
+    ``make_plant(seed=...)`` gives); a prefix is run once, snapshotted and branched.
+
+    Returns
+    -------
+    list of (trajectory (K + 1, 6), events (K, 2))
+        One per spec, in spec order.
+    """
+    import copy
+
     from ..config import with_factors
     from ..plant import make_plant
 
-    runs: dict[str, list[np.ndarray]] = {s.name: [] for s in specs}
-    events: dict[str, list[np.ndarray]] = {s.name: [] for s in specs}
+    card, specs, particles = task
+    template = copy.deepcopy(rng)  # the seed's initial state; every plant draws from a copy of it
     cards = {f: (card if f == (1.0, 1.0) else with_factors(card, *f)) for f in {tuple(s.factors) for s in specs}}
-    for sd in seeds:
-        prefixes: dict[tuple, dict] = {}
-        for spec in specs:
-            c = cards[tuple(spec.factors)]
-            key = (tuple(spec.factors), tuple(spec.prefix))
-            if key not in prefixes:
-                plant = make_plant(c, seed=int(sd), particles=particles)
-                for rpm, duty in spec.prefix:
-                    plant.advance(rpm, DT_H, duty)
-                prefixes[key] = plant.snapshot()
-            plant = make_plant(c, seed=int(sd), particles=particles)
-            plant.restore(prefixes[key])
-            traj, ev = [_plant_states(plant)], []
-            for rpm, duty in spec.inputs:
-                M, b0, f0 = plant.M, plant.counts.bonds, plant.counts.fractures
-                plant.advance(rpm, DT_H, duty)
-                traj.append(_plant_states(plant))
-                ev.append(((plant.counts.bonds - b0) / M, (plant.counts.fractures - f0) / M))
-            runs[spec.name].append(np.array(traj))
-            events[spec.name].append(np.array(ev).reshape(-1, 2))
-            if progress is not None:
-                progress(f"seed {sd}: {spec.name}")
+    prefixes: dict[tuple, dict] = {}
     out = []
     for spec in specs:
-        A = np.stack(runs[spec.name])
+        c = cards[tuple(spec.factors)]
+        key = (tuple(spec.factors), tuple(spec.prefix))
+        if key not in prefixes:
+            plant = make_plant(c, particles=particles, rng=copy.deepcopy(template))
+            for rpm, duty in spec.prefix:
+                plant.advance(rpm, DT_H, duty)
+            prefixes[key] = plant.snapshot()
+        plant = make_plant(c, particles=particles, rng=copy.deepcopy(template))
+        plant.restore(prefixes[key])
+        traj, ev = [_plant_states(plant)], []
+        for rpm, duty in spec.inputs:
+            M, b0, f0 = plant.M, plant.counts.bonds, plant.counts.fractures
+            plant.advance(rpm, DT_H, duty)
+            traj.append(_plant_states(plant))
+            ev.append(((plant.counts.bonds - b0) / M, (plant.counts.fractures - f0) / M))
+        out.append((np.array(traj), np.array(ev).reshape(-1, 2)))
+    return out
+
+
+def run_experiments(card: ModelCard, specs: Sequence[Spec], seeds: Sequence[int], particles: int,
+                    progress: Callable[[str], None] | None = None, client=None) -> list[Experiment]:
+    """Run every spec on plants seeded with ``seeds`` (prefixes shared: run once, snapshot, branch).
+
+    Parameters
+    ----------
+    card : ModelCard
+        The model card.
+    specs : sequence of Spec
+        The experiments.
+    seeds : sequence of int
+        Plant seeds: every spec runs on a plant drawn from ``default_rng(seed)`` for each seed.
+    particles : int
+        Simulated particles per plant.
+    progress : callable, optional
+        Called with a line ("k/N plant runs") as each run finishes.
+    client : distributed.Client, optional
+        Dask engine from :func:`bmctl.parallel.client_for`; None runs serially in this process.
+        The result is the same either way.
+
+    Returns
+    -------
+    list of Experiment
+        One per spec: ensemble mean and spread over the seeds.
+    """
+    from ..parallel import map_seeded
+
+    seeds = [int(sd) for sd in seeds]
+    # one task per (seed, spec): every plant starts from its seed's initial state, so splitting a
+    # seed's specs over tasks changes no number (a branch re-runs its own prefix) and the ensemble
+    # spreads over as many workers as there are runs
+    tasks = [(card, [spec], int(particles)) for _ in seeds for spec in specs]
+    done = iter(range(1, len(tasks) + 1))
+    report = None if progress is None else (lambda _: progress(f"{next(done)}/{len(tasks)} plant runs"))
+    # SeedSequence(sd) seeds the same generator as default_rng(sd), i.e. make_plant(seed=sd)
+    flat = map_seeded(_seed_runs, tasks, [np.random.SeedSequence(sd) for sd in seeds for _ in specs], client,
+                      report)
+    per_seed = [[r[0] for r in flat[k * len(specs):(k + 1) * len(specs)]] for k in range(len(seeds))]
+    out = []
+    for i, spec in enumerate(specs):
+        A = np.stack([runs[i][0] for runs in per_seed])
         out.append(Experiment(spec.name, np.array(spec.inputs, dtype=float), A.mean(0),
                               A.std(0, ddof=1) if A.shape[0] > 1 else np.zeros_like(A[0]),
-                              p=np.array(spec.factors, dtype=float), events=np.mean(events[spec.name], axis=0)))
+                              p=np.array(spec.factors, dtype=float),
+                              events=np.mean([runs[i][1] for runs in per_seed], axis=0)))
     return out
 
 
@@ -405,7 +465,7 @@ def check_finite(source: str, experiments: Sequence[Experiment], coeffs: dict) -
 
 def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int | None = None,
              random_schedules: int | None = None, source: str = "", command: str = "",
-             log: Callable[[str], None] | None = None) -> Identification:
+             log: Callable[[str], None] | None = None, client=None) -> Identification:
     """Fit the moment model of ``card`` to a design of plant experiments and validate it.
 
     Parameters
@@ -426,6 +486,9 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
         The command line that regenerates the file (recorded in ``[identification]``).
     log : callable, optional
         Progress lines.
+    client : distributed.Client, optional
+        Dask engine of the plant runs (:func:`bmctl.parallel.client_for`); None: serial, in
+        process. The result is the same either way.
     """
     from datetime import datetime, timezone
 
@@ -439,10 +502,10 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
     vspecs = validation_design(card, seed, 4 if quick else N_VALID)
     log(f"{card.card.name}: {len(specs)} training experiments x {len(train_seeds)} seeds, "
         f"{len(vspecs)} held-out schedules x {len(valid_seeds)} seeds, M={particles}")
-    train = run_experiments(card, specs, train_seeds, particles)
+    train = run_experiments(card, specs, train_seeds, particles, client=client)
     log("training experiments done")
-    valid = run_experiments(card, vspecs, valid_seeds, particles)
-    off = run_experiments(card, off_card_design(card), valid_seeds, particles)
+    valid = run_experiments(card, vspecs, valid_seeds, particles, client=client)
+    off = run_experiments(card, off_card_design(card), valid_seeds, particles, client=client)
     log("held-out experiments done")
 
     model0 = MomentModel(card, default_coeffs(card), "defaults")
