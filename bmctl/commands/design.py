@@ -55,6 +55,9 @@ def run(args) -> int:
     out = output_path(args.out)
     model = make_moment_model(args.model)
     hours = args.hours if args.hours is not None else float(model.card.process.hours)
+    from ..cards import check_work, design_work
+
+    check_work(design_work(hours, cfg.interval_h), f"--hours/{path}: interval_h")
 
     d = design_schedule(model, target, hours, cfg)
     st = d.plan.status

@@ -72,12 +72,17 @@ def run(args) -> int:
 
     specs = ident.design(card, args.seed, args.quick, args.random_schedules)
     vspecs = ident.validation_design(card, args.seed, 4 if args.quick else ident.N_VALID)
+    from ..cards import check_work, identify_work
+
+    off_specs = ident.off_card_design(card)
+    check_work(identify_work(card, [(specs, len(train_seeds)), (vspecs, len(valid_seeds)), (off_specs, len(valid_seeds))],
+                             particles, ident.DT_H), "--particles/--random-schedules/--quick")
     log(f"{card.card.name}: {len(specs)} training experiments x {len(train_seeds)} seeds, "
         f"{len(vspecs)} held-out schedules x {len(valid_seeds)} seeds, M={particles}")
     train = ident.run_experiments(card, specs, train_seeds, particles)
     log("training experiments done")
     valid = ident.run_experiments(card, vspecs, valid_seeds, particles)
-    off = ident.run_experiments(card, ident.off_card_design(card), valid_seeds, particles)
+    off = ident.run_experiments(card, off_specs, valid_seeds, particles)
     log("held-out experiments done")
 
     model0 = MomentModel(card, default_coeffs(card), "defaults")
