@@ -39,9 +39,9 @@ def configure(p):
     p.add_argument("--particles", type=int_arg("--particles", 100, 1_000_000), default=2000, help="filter particles N (default 2000)")
     p.add_argument("--size-law", choices=("weibull", "lognormal"), default="weibull",
                    help="law of s given (s_mean, s_std) (default weibull; see docs/estimation.md)")
-    p.add_argument("--sigma-r", type=float_arg("--sigma-r", lo=0.005), default=None,
+    p.add_argument("--sigma-r", type=float_arg("--sigma-r", lo=0.005, hi=1.0), default=None,
                    help="r measurement noise (default 0.034, the synthetic micrograph path's)")
-    p.add_argument("--sigma-log-s", type=float_arg("--sigma-log-s", lo=0.0), default=None,
+    p.add_argument("--sigma-log-s", type=float_arg("--sigma-log-s", lo=0.0, hi=5.0), default=None,
                    help="ln s measurement noise (default 0.015)")
 
 

@@ -196,14 +196,14 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
             if b <= 0:
                 raise InputError(f"{p}: row {lineno}, column perimeter_um: must be > 0 (got {b:g})")
             bound = np.pi * float(size_from_area(a))
-            if not float(aspect_from_perimeter(bound / np.pi, b)) < 1.0:
-                raise InputError(f"{p}: row {lineno}, column perimeter_um: {b:g} is so long for its area that "
-                                 f"r = 1 - pi s / L rounds to 1 (r must be < 1)")
             if b < (1.0 - ISOPERIMETRIC_TOL) * bound:
                 raise InputError(
                     f"{p}: row {lineno}, column perimeter_um: {b:g} is below the isoperimetric bound "
-                    f"pi*s = {bound:.6g} (r = {1 - bound / b:.3f} < 0)"
+                    f"pi*s = {bound:.6g} (r = {1 - bound / b:.3g} < 0)"
                 )
+            if not 1.0 - bound / b < 1.0:
+                raise InputError(f"{p}: row {lineno}, column perimeter_um: {b:g} is so long for its area that "
+                                 f"r = 1 - pi s / L rounds to 1 (r must be < 1)")
         vals.append((a, b))
     if not vals:
         raise InputError(f"{p}: empty particle table (header but no rows)")
