@@ -18,6 +18,7 @@ particle table, a micrograph or a flag -- plus the names an error message about 
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import json
 import math
@@ -230,9 +231,21 @@ def synthetic_micrograph(rng: random.Random, size: int = 96) -> bytes:
     return _png(size, size, raw)
 
 
+@functools.lru_cache(maxsize=1)
+def bomb_tiff() -> bytes:
+    """A ~150 kB zlib-compressed TIFF of 12,000 x 12,000 px (a decompression bomb: 144 Mpx)."""
+    import tifffile
+
+    buf = io.BytesIO()
+    tifffile.imwrite(buf, np.zeros((12_000, 12_000), np.uint8), compression="zlib")
+    return buf.getvalue()
+
+
 def mutate_image(rng: random.Random) -> tuple[bytes, str, str]:
     """(bytes, suffix, label) of a hostile micrograph."""
-    op = rng.choice(["garbage", "tiny", "huge-png", "huge-tiff", "truncated", "ok", "ok", "blank"])
+    op = rng.choice(["garbage", "tiny", "huge-png", "huge-tiff", "truncated", "ok", "ok", "blank", "bomb"])
+    if op == "bomb":
+        return bomb_tiff(), ".tif", op
     if op == "garbage":
         return bytes(rng.getrandbits(8) for _ in range(rng.choice([0, 10, 4000]))), rng.choice([".png", ".tif"]), op
     if op == "tiny":

@@ -80,6 +80,14 @@ def test_measure_refuses_an_absurd_pixel_size(tmp_path, capsys, scale):
     assert not (tmp_path / "m.csv").exists()
 
 
+def test_a_decompression_bomb_is_refused_before_decoding(tmp_path, capsys):
+    img = tmp_path / "bomb.tif"
+    img.write_bytes(fuzzlib.bomb_tiff())
+    assert img.stat().st_size < 2_000_000
+    assert main(["measure", str(img), "--um-per-px", "0.5"]) == 2
+    assert "bomb.tif: image too large (144,000,000 pixels, limit 100,000,000)" in _err(capsys)
+
+
 def test_measure_writes_a_table_its_reader_accepts(tmp_path, capsys):
     from bmctl.measure.tables import read_table
 
