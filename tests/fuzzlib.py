@@ -431,7 +431,8 @@ def _flag_case(rng: random.Random, out: str) -> Case:
         argv = ["identify", card, "--quick", "--quiet", *sum(([k, a] for k, a in args.items()), []),
                 "--out", "@c.moments.toml"]
         env["BMCTL_BUDGET_CPU_H"] = "1e-9"
-    return Case("flags", f"{cmd} {flag} {v!r}", argv, files, [flag, "BMCTL_BUDGET", "a.csv", "b.csv"], env)
+    return Case("flags", f"{cmd} {flag} {v!r}", argv, files, [flag, "BMCTL_BUDGET", "a.csv", "b.csv", "img.png", "s.toml"],
+                env)
 
 
 
