@@ -83,7 +83,6 @@ def _read_sample(path: Path, um_per_px: float | None):
             raise InputError(f"{path}: not a particle table (.csv); give --um-per-px to measure micrographs")
         return read_table(path)
     from ..measure.segment import measure_image
-
     from ..measure.tables import check_table
 
     t = measure_image(str(path), um_per_px)
@@ -98,11 +97,9 @@ def run(args) -> int:
     from ..estimate.filter import FilterSettings
     from ..estimate.likelihood import LawSettings
     from .. import io
-    from ..estimate.run import Sample, collapsed, estimate_rows, plot_estimates, run_filter
-    from ..io import write_csv
-
     from ..config import load_card
-    from ..estimate.run import check_reading, check_sample
+    from ..estimate.run import Sample, check_reading, check_sample, collapsed, estimate_rows, plot_estimates, run_filter
+    from ..io import write_csv
 
     card = load_card(args.model)
     times = _parse_list("--times", args.times)
