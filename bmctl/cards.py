@@ -425,7 +425,7 @@ def design_work(hours: float, interval_h: float) -> dict[str, float]:
     interval_h : float
         The controller's interval.
     """
-    k = max(1.0, math.ceil(hours / interval_h - 1e-9))
+    k = max(1.0, float(math.ceil(min(hours / interval_h, 1e15) - 1e-9)))
     return {"intervals": k, "variables": 9 * k, "cpu_s": DESIGN_CPU_S_PER_INTERVAL * k * max(1.0, k / 24.0),
             "memory_bytes": 9 * k * 9 * k * 8.0}  # a dense KKT block at worst
 

@@ -268,6 +268,18 @@ def test_solver_commands_obey_the_budget_variable(tmp_path, capsys, monkeypatch,
     assert ("--hours" if command == "design" else "--particles") in line
 
 
+def test_design_hours_beyond_a_batch_are_refused(tmp_path, capsys):
+    assert main(["design", str(FAN), "--target", "s_mean_um=30", "--hours", "1e300", "--out", str(tmp_path)]) == 2
+    assert "--hours: 1e+300 h exceeds the longest batch, 1000 h" in _err(capsys)
+
+
+def test_design_work_is_finite_for_any_horizon():
+    from bmctl.cards import design_work
+
+    w = design_work(1e300, 1 / 60)
+    assert all(math.isfinite(v) or v == math.inf for v in w.values()) and w["cpu_s"] > 1e10
+
+
 def test_identify_work_grows_with_its_flags():
     from bmctl.cards import identify_work
     from bmctl.config import load_card

@@ -20,6 +20,8 @@ def _hours(text):
         raise InputError(f"--hours: not a number: {text!r}") from None
     if not math.isfinite(v) or v <= 0:
         raise InputError(f"--hours: must be a finite number > 0 (got {text})")
+    if v > 1000.0:  # the longest batch a card allows (bmctl.config.HOURS)
+        raise InputError(f"--hours: {v:g} h exceeds the longest batch, 1000 h")
     return v
 
 
