@@ -43,6 +43,15 @@ def _card_with(tmp_path: Path, edit) -> Path:
     return p
 
 
+@pytest.mark.parametrize("value", [0.0, 1e-320])
+def test_a_card_that_traps_no_powder_is_refused(tmp_path, capsys, value):
+    def none(d):
+        d["partition"]["coated_fraction"] = value
+    card = _card_with(tmp_path, none)
+    assert main(["card", "show", str(card)]) == 2
+    assert "card.toml: partition.coated_fraction" in _err(capsys)
+
+
 # --- particle tables ------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("value", ["1e308", "1e-320", "5e-324", "1e-300", "2e4"])
