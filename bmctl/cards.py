@@ -409,3 +409,117 @@ def check_work(work: dict[str, float], flags: str) -> None:
         raise InputError(f"{flags}: the run would need ~{work['memory_bytes'] / 2**30:.3g} GiB "
                          f"({work.get('records', 0):.3g} recorded populations), over the budget of "
                          f"{b['memory_bytes'] / 2**30:.3g} GiB (BMCTL_BUDGET_MEMORY_GB)")
+
+
+def design_work(hours: float, interval_h: float) -> dict[str, float]:
+    """Estimated work of ``bmctl design``: one solve over K = ceil(hours / interval_h) intervals.
+
+    The solver's size grows with K (6 states, 2 inputs and a slack per interval) and its cost
+    a little faster than linearly: ~1.5 CPU s per interval up to 24 intervals, measured on
+    this project's machine (12 h at 0.5 h: 33 s), and in proportion to K^2 beyond.
+
+    Parameters
+    ----------
+    hours : float
+        Batch length.
+    interval_h : float
+        The controller's interval.
+    """
+    k = max(1.0, float(math.ceil(min(hours / interval_h, 1e15) - 1e-9)))
+    return {"intervals": k, "variables": 9 * k, "cpu_s": DESIGN_CPU_S_PER_INTERVAL * k * max(1.0, k / 24.0),
+            "memory_bytes": 9 * k * 9 * k * 8.0}  # a dense KKT block at worst
+
+
+#: CPU seconds per design interval (the 12 h / 0.5 h example: 33 s)
+DESIGN_CPU_S_PER_INTERVAL = 1.5
+
+
+def identify_work(card, specs_seeds: list[tuple[list, int]], particles: int, dt_h: float) -> dict[str, float]:
+    """Estimated plant work of ``bmctl identify``: every experiment on every seed.
+
+    Parameters
+    ----------
+    card : ModelCard
+    specs_seeds : list of (specs, number of seeds)
+        Experiment designs (:class:`bmctl.moments.identify.Spec`) and how many seeds run each.
+    particles : int
+        Simulated particles per plant.
+    dt_h : float
+        Length of one (rpm, milling) interval of a spec.
+    """
+    total = {"impacts": 0.0, "steps": 0.0, "records": 0.0, "cpu_s": 0.0, "memory_bytes": 0.0}
+    for specs, seeds in specs_seeds:
+        for spec in specs:
+            segs = []
+            for rpm, duty in list(spec.prefix) + list(spec.inputs):
+                segs += [(dt_h * duty, rpm), (dt_h * (1.0 - duty), 0.0)]
+            w = simulation_work(card, [s for s in segs if s[0] > 0] or [(dt_h, 0.0)], particles, dt_h, raster=False)
+            for k in ("impacts", "steps", "records", "cpu_s"):
+                total[k] += seeds * w[k]
+            total["memory_bytes"] = max(total["memory_bytes"], w["memory_bytes"])
+    return total
+
+
+# --- the vial's temperature ------------------------------------------------------------------------
+
+#: the highest vial temperature any card may reach when it names no powder (tungsten melts at 3422 C)
+TEMPERATURE_CEILING_C = 3500.0
+
+
+def melting_limit(card) -> tuple[float, str]:
+    """The temperature no run may reach: the powder's lowest melting point, else the card's
+    stated ``validity.temperature_max_C``, else :data:`TEMPERATURE_CEILING_C`; with the reason."""
+    if card.powder is not None:
+        mix = mixture(card.powder.materials, card.powder.molar_ratio)
+        return mix["melting_C"], f"the melting point of {mix['melting_of']}"
+    if card.validity.temperature_max_C is not None:
+        return card.validity.temperature_max_C, "the card's validity.temperature_max_C"
+    return TEMPERATURE_CEILING_C, "the highest melting point of any powder bmctl models"
+
+
+def peak_temperature_c(card, segments) -> tuple[float, float]:
+    """Peak vial temperature of a (hours, rpm) schedule from the card's ambient, and when (h).
+
+    The plant heats the vial by the mean dissipated power of its speed (first-order model,
+    docs/model.md Sec. 4): T_ss = T_amb + P tau / C and T(t) = T_ss + (T_0 - T_ss) exp(-t / tau)
+    within a segment, so the peak lies at a segment's end and is known before any run.
+
+    Parameters
+    ----------
+    card : ModelCard
+    segments : sequence of (hours, rpm)
+    """
+    from .plant.kinematics import kinematics
+
+    th = card.thermal
+    T = peak = th.ambient_C
+    t = at = 0.0
+    power = {}
+    for hours, rpm in segments:
+        if rpm not in power:
+            power[rpm] = kinematics(card, float(rpm)).mean_power_W if rpm > 0 else 0.0
+        t_ss = th.ambient_C + power[rpm] * th.cooling_time_s / th.heat_capacity_J_per_K
+        T = t_ss + (T - t_ss) * math.exp(-hours * 3600.0 / th.cooling_time_s)
+        t += hours
+        if T > peak:
+            peak, at = T, t
+    return peak, at
+
+
+def check_melting(card, segments, where: str) -> float:
+    """Refuse a schedule that would heat the vial above :func:`melting_limit` (one line naming
+    ``where``, the peak and the limit); returns the peak temperature.
+
+    Parameters
+    ----------
+    card : ModelCard
+    segments : sequence of (hours, rpm)
+    where : str
+        The file or flags that set the schedule.
+    """
+    peak, at = peak_temperature_c(card, segments)
+    limit, reason = melting_limit(card)
+    if not peak <= limit:
+        raise InputError(f"{where}: the vial would reach {peak:.0f} C at {at:g} h, above {limit:g} C "
+                         f"({reason}; {card.card.name}): no model holds there; lower the rpm or add rests")
+    return peak

@@ -110,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bmctl: error: {where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("bmctl: interrupted", file=sys.stderr)
+        print("bmctl: interrupted (Ctrl-C): no output was left half-written (each file, or the whole set, is "
+              "renamed into place only when complete); a trial can be carried on with --resume DIR", file=sys.stderr)
         return 130
 
 

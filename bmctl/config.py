@@ -145,7 +145,9 @@ class Stochastic(Strict):
 class Partition(Strict):
     """Energy-partition decisions (docs/model.md, eqns 6, 11, 16, 17)."""
 
-    coated_fraction: Frac = 0.2  # share of the powder coating ball/vial surfaces (Maurice & Courtney)
+    # share of the powder coating ball/vial surfaces (Maurice & Courtney); below 1e-4 no powder is
+    # ever trapped in an impact (and the moment model's energy per trapped area divides by it)
+    coated_fraction: Range(1e-4, 1.0) = 0.2
     strain_efficiency: Frac = 0.01  # share of plastic heat (8) that does shape-changing work in (11)
     equiaxing_efficiency: Frac = 0.0  # share of plastic heat that rounds irregular particles (after 13)
     # a: rounding efficiency scales as max(0, 1 - a h) with hardening h in [0, 1) (after 13)

@@ -20,6 +20,8 @@ def _hours(text):
         raise InputError(f"--hours: not a number: {text!r}") from None
     if not math.isfinite(v) or v <= 0:
         raise InputError(f"--hours: must be a finite number > 0 (got {text})")
+    if v > 1000.0:  # the longest batch a card allows (bmctl.config.HOURS)
+        raise InputError(f"--hours: {v:g} h exceeds the longest batch, 1000 h")
     return v
 
 
@@ -55,6 +57,9 @@ def run(args) -> int:
     out = output_path(args.out)
     model = make_moment_model(args.model)
     hours = args.hours if args.hours is not None else float(model.card.process.hours)
+    from ..cards import check_work, design_work
+
+    check_work(design_work(hours, cfg.interval_h), f"--hours/{path}: interval_h")
 
     d = design_schedule(model, target, hours, cfg)
     st = d.plan.status

@@ -10,6 +10,7 @@ interval of every state and parameter at each sample time) and a figure next to 
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from ..errors import InputError, finite_float
@@ -41,9 +42,9 @@ def configure(p):
                    help="filter particles N (default 2000; pf only)")
     p.add_argument("--size-law", choices=("weibull", "lognormal"), default="weibull",
                    help="law of s given (s_mean, s_std) (default weibull; see docs/estimation.md)")
-    p.add_argument("--sigma-r", type=float_arg("--sigma-r", lo=0.005), default=None,
+    p.add_argument("--sigma-r", type=float_arg("--sigma-r", lo=0.005, hi=1.0), default=None,
                    help="r measurement noise (default 0.034, the synthetic micrograph path's)")
-    p.add_argument("--sigma-log-s", type=float_arg("--sigma-log-s", lo=0.0), default=None,
+    p.add_argument("--sigma-log-s", type=float_arg("--sigma-log-s", lo=0.0, hi=5.0), default=None,
                    help="ln s measurement noise (default 0.015)")
     p.add_argument("--write-card", default=None, metavar="OUT.toml",
                    help="also write the card with gamma, delta set to the last estimate (the next batch's start)")
@@ -87,11 +88,12 @@ def _read_sample(path: Path, um_per_px: float | None):
             raise InputError(f"{path}: not a particle table (.csv); give --um-per-px to measure micrographs")
         return read_table(path)
     from ..measure.segment import measure_image
+    from ..measure.tables import check_table
 
     t = measure_image(str(path), um_per_px)
     if len(t) == 0:
         raise InputError(f"{path}: no particles found in the micrograph (check --um-per-px)")
-    return t
+    return check_table(t, str(path))
 
 
 def run(args) -> int:
@@ -99,12 +101,13 @@ def run(args) -> int:
     from ..moments.model import make_moment_model
     from ..estimate.filter import FilterSettings
     from ..estimate.likelihood import LawSettings
-    from ..estimate.run import Sample, estimate_rows, plot_estimates, run_filter
+    from .. import io
+    from ..config import load_card
+    from ..estimate.run import Sample, check_reading, check_sample, collapsed, estimate_rows, plot_estimates, run_filter
     from ..estimate.ukf import UKFSettings
     from ..io import write_csv
 
-    model = make_moment_model(args.model)
-    card = model.card
+    card = load_card(args.model)
     times = _parse_list("--times", args.times)
     if any(t < 0 for t in times):
         raise InputError(f"--times: must be >= 0 (got {min(times):g})")
@@ -120,6 +123,12 @@ def run(args) -> int:
         temps = _parse_list("--temperatures", args.temperatures, allow_empty=True)
         if len(temps) != len(times):
             raise InputError(f"--temperatures: {len(temps)} reading(s) for {len(times)} sample(s)")
+        for temp in temps:
+            check_reading(card, temp, "--temperatures")
+    if args.um_per_px is not None:
+        from ..measure.scale import check_scale
+
+        check_scale(args.um_per_px)
     if args.rpm is not None and args.rpm > card.mill.rpm_max:
         raise InputError(f"--rpm: {args.rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g} ({args.model})")
     t_end = max(times)
@@ -151,20 +160,27 @@ def run(args) -> int:
         settings = FilterSettings(n_particles=args.particles, law=LawSettings(**law_kw))
 
     samples = []
-    for f, t, temp in zip(files, times, temps):
+    for f, t, temp in zip(files, times, temps):  # every input is read before the model is built
         tab = _read_sample(f, args.um_per_px)
-        samples.append(Sample(t, tab.s_um, tab.r, temp, str(f)))
+        samples.append(check_sample(Sample(t, tab.s_um, tab.r, temp, str(f))))
 
+    model = make_moment_model(args.model)
     pf, estimates = run_filter(model, samples, segments, settings, seed=args.seed)
     header, rows = estimate_rows(estimates)
     fig_path = out.with_suffix(".png")
-    write_csv(out, header, rows)
     if args.estimator == "ukf":
         what, health = "unscented Kalman filter", f"covariance repaired {pf.n_repaired}x"
     else:
         what = f"particle filter, N={args.particles}, seed {args.seed}"
         health = f"min ESS {min(e.ess for e in estimates):.0f}, resampled {pf.n_resampled}x"
-    plot_estimates(fig_path, estimates, samples, title=f"{card.card.name}: {what}")
+    with io.output_set():  # the table and its figure, or neither
+        write_csv(out, header, rows)
+        plot_estimates(fig_path, estimates, samples, title=f"{card.card.name}: {what}")
+    for e in estimates:
+        if args.estimator == "pf" and collapsed(e):
+            print(f"bmctl: warning: {e.t_h:g} h: degenerate update: the effective sample size fell to {e.ess:.2g} of "
+                  f"{args.particles}; the 90 % bands at this time are not trustworthy (column 'degenerate' in {out})",
+                  file=sys.stderr)
     last = estimates[-1]
     d = last.as_dict()
     print(f"{card.card.name}: {len(samples)} samples to t = {t_end:g} h, {what}; {health}")

@@ -67,7 +67,15 @@ def run(args) -> int:
     command = (f"bmctl identify {args.model} --seed {args.seed}" + (" --quick" if args.quick else "")
                + (f" --particles {args.particles}" if args.particles else "")
                + (f" --random-schedules {args.random_schedules}" if args.random_schedules is not None else ""))
+    from ..cards import check_work, identify_work
     from ..parallel import auto_workers, client_for, close_client
+
+    n_train, n_valid = (1, 2) if args.quick else (len(ident.TRAIN_SEEDS), len(ident.VALID_SEEDS))
+    specs = ident.design(card, args.seed, args.quick, args.random_schedules)
+    vspecs = ident.validation_design(card, args.seed, 4 if args.quick else ident.N_VALID)
+    check_work(identify_work(card, [(specs, n_train), (vspecs, n_valid), (ident.off_card_design(card), n_valid)],
+                             args.particles or (2000 if args.quick else 4000), ident.DT_H),
+               "--particles/--random-schedules/--quick")
 
     particles = args.particles or (2000 if args.quick else 4000)
     runs, cpu_s = ident.plant_work(card, ident.design(card, args.seed, args.quick, args.random_schedules),

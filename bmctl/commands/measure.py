@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from ..measure.micrograph import measure_micrograph
     from ..measure.overlay import write_overlay
     from ..measure.scale import check_scale
-    from ..measure.tables import ParticleLocations, ParticleTable, read_table, write_table
+    from ..measure.tables import ParticleLocations, ParticleTable, check_table, read_table, write_table
 
     scale = check_scale(args.um_per_px) if args.um_per_px is not None else None
     bar_um = check_scale(args.scale_bar_um, "--scale-bar-um") if args.scale_bar_um is not None else None
@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
             res = measure_micrograph(path, um_per_px=scale, scale_bar_um=bar_um, keep_info_bar=args.keep_info_bar,
                                      min_area_px=args.min_area_px, crop=args.crop, flatten=not args.no_flatten,
                                      dark_particles=args.dark_particles)
-            t, x, y = res.table, res.x_um, res.y_um
+            t, x, y = check_table(res.table, path), res.x_um, res.y_um
             results.append(res)
             reports.append(res.report())
             excl = f", data bar from row {res.info_bar_row} excluded" if res.info_bar_row is not None else ""

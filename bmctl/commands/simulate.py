@@ -45,7 +45,9 @@ def run(args) -> int:
     if args.every is not None and args.every <= 0:
         raise InputError(f"--every: must be > 0 (got {args.every:g})")
     out = output_path(args.out)
-    from ..cards import check_work, run_warnings, simulation_work
+    from ..cards import check_melting, check_work, run_warnings, simulation_work
+
+    check_melting(card, segments, args.schedule or ("--rpm" if args.rpm is not None else f"{args.model}: process.rpm"))
 
     flags = "/".join(f for f, v in (("--hours", args.hours), ("--particles", args.particles), ("--every", args.every),
                                     ("--schedule", args.schedule)) if v is not None) or f"{args.model}: simulation"

@@ -19,6 +19,30 @@ def configure(p):
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+#: CPU seconds of one filter particle per sample and of one feedback solve (docs/estimation.md, docs/control.md)
+FILTER_CPU_S_PER_PARTICLE = 2e-4
+SOLVE_CPU_S = 2.0
+
+
+def _check_trial_work(sc, path):
+    """Refuse a trial whose plant, filter and controller work exceeds the budget; returns the plant's card."""
+    from ..cards import check_work, simulation_work
+    from ..config import load_card
+    from ..control.config import load_controller
+    from ..scenario import resolve
+
+    base = Path(path).resolve().parent
+    card = load_card(resolve(sc.plant.model or sc.model, base))
+    cfg = load_controller(resolve(sc.controller.config, base))
+    work = simulation_work(card, [(sc.hours, card.mill.rpm_max)], sc.plant.particles, sc.sampling.every_h, raster=False)
+    samples = sc.hours / sc.sampling.every_h + 1
+    work["cpu_s"] += samples * sc.estimator.particles * FILTER_CPU_S_PER_PARTICLE
+    if cfg.kind != "recipe":
+        work["cpu_s"] += SOLVE_CPU_S * sc.hours / (getattr(cfg, "interval_h", None) or 0.5)
+    check_work(work, f"{path}: hours/plant.particles/sampling.every_h/estimator.particles")
+    return card
+
+
 def run(args) -> int:
     from ..scenario import load_scenario
     from ..trial import run_trial
@@ -28,6 +52,7 @@ def run(args) -> int:
         raise InputError("--resume: give the trial folder once (--resume DIR), not with a different --out")
     out = output_path(args.resume or args.out or f"out/trial-{sc.scenario.name}-seed{args.seed}",
                       "--resume" if args.resume else "--out")
+    card = _check_trial_work(sc, args.scenario)
     bar = None
     if not args.no_progress:
         from tqdm import tqdm
@@ -43,6 +68,13 @@ def run(args) -> int:
     finally:
         if bar is not None:
             bar.close()
+    from ..cards import validity
+
+    t_max = validity(card)["temperature_max_C"]
+    if t_max is not None and summary["max_temperature_c"] > t_max:
+        print(f"bmctl: warning: {card.card.name}: vial temperature {summary['max_temperature_c']:.0f} C is above the "
+              f"card's maximum {t_max:g} C ({validity(card)['temperature_reason']}): the model does not hold there",
+              file=sys.stderr)
     err = ", ".join(f"{k} {v:.1%}" for k, v in summary["final_error"].items()) or "(no target)"
     print(f"{sc.scenario.name} seed {args.seed}: final error {err}; max T {summary['max_temperature_c']:.1f} C, "
           f"{summary['temperature_violations']} violations; energy {summary['energy_kj']:.0f} kJ; "

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from ..errors import InputError
@@ -37,7 +38,10 @@ def run(args) -> int:
                 raise InputError(f"{path}: segment[{i}].rpm: {seg.rpm:g} exceeds the mill's rpm_max "
                                  f"{card.mill.rpm_max:g}")
         scheds.append((sched.name or Path(path).stem, sched.pairs()))
-    from ..cards import check_work, simulation_work
+    from ..cards import check_melting, check_work, run_warnings, simulation_work
+
+    for (_, segs), path in zip(scheds, args.schedules):
+        check_melting(card, segs, path)
 
     work = [simulation_work(card, segs, args.particles, 0.25, raster=False) for _, segs in scheds]
     check_work({k: args.seeds * sum(w[k] for w in work) for k in work[0]}, "--seeds/--particles/SCHEDULE.toml")
@@ -51,6 +55,9 @@ def run(args) -> int:
     finally:
         close_client(client)
     header, rows = table_rows(results)
+    for res in results:  # the validity range, on the ensemble mean
+        for line in run_warnings(card, res.t_h, res.band("temperature_c")[0], res.band("s_mean_um")[0]):
+            print(f"bmctl: warning: {res.name}: {line}", file=sys.stderr)
     print(f"{'schedule':28s} {'h':>5s} {'kJ':>7s} {'Tpeak':>6s} {'s_mean':>16s} {'s_std':>16s} {'r_mean':>17s}")
     for r in rows:
         print(f"{r[0][:28]:28s} {r[1]:5.1f} {r[2]:7.0f} {r[3]:6.1f} {r[5]:6.1f} [{r[6]:4.0f},{r[7]:4.0f}] "

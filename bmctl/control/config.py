@@ -228,7 +228,7 @@ def validate_controller(data: dict[str, Any], source: str) -> ControllerConfig:
     kind = data.get("kind")
     if kind is None:
         raise InputError(f"{source}: kind: required field is missing (one of {', '.join(KINDS)})")
-    if kind not in KINDS:
+    if not isinstance(kind, str) or kind not in KINDS:
         raise InputError(f"{source}: kind: unknown controller kind {kind!r} (one of {', '.join(KINDS)})")
     cfg = validate(KINDS[kind], data, source)
     for i, r in enumerate(cfg.reference):

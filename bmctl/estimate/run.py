@@ -5,6 +5,7 @@ Shared by ``bmctl estimate`` and the evidence study (:mod:`bmctl.validation.stud
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -77,6 +78,64 @@ class Sample:
     source: str = ""
 
 
+#: an update whose effective sample size falls below this has collapsed onto (about) one particle
+ESS_COLLAPSED = 1.5
+#: the lowest vial-temperature reading accepted (C)
+READING_MIN_C = -50.0
+#: physical range of a measured size (um): 1 nm to 10 mm
+S_RANGE_UM = (1e-3, 1e4)
+
+
+def check_reading(card, temperature_c: float | None, where: str) -> float | None:
+    """Refuse a vial-temperature reading outside [READING_MIN_C, the card's melting limit].
+
+    Parameters
+    ----------
+    card : ModelCard
+    temperature_c : float or None
+        The reading (None: no reading).
+    where : str
+        The flag or file named in the message.
+    """
+    if temperature_c is None:
+        return None
+    from ..cards import melting_limit
+    from ..errors import InputError
+
+    hi, reason = melting_limit(card)
+    if not (math.isfinite(temperature_c) and READING_MIN_C <= temperature_c <= hi):
+        raise InputError(f"{where}: reading {temperature_c:g} C outside [{READING_MIN_C:g}, {hi:g}] C "
+                         f"(-50 C to {reason})")
+    return temperature_c
+
+
+def check_sample(smp: "Sample") -> "Sample":
+    """Refuse a sample with no particles, a size outside S_RANGE_UM or r outside [0, 1); returns it."""
+    from ..errors import InputError
+
+    s, r = np.asarray(smp.s_um, dtype=float), np.asarray(smp.r, dtype=float)
+    where = smp.source or f"sample at {smp.t_h:g} h"
+    if s.size == 0 or s.shape != r.shape:
+        raise InputError(f"{where}: a sample needs one or more particles with one s and one r each")
+    bad_s = ~((s >= S_RANGE_UM[0]) & (s <= S_RANGE_UM[1]))
+    if bad_s.any():
+        k = int(np.argmax(bad_s))
+        raise InputError(f"{where}: particle {k + 1}: s_um = {s[k]:.4g} outside [{S_RANGE_UM[0]:g}, "
+                         f"{S_RANGE_UM[1]:g}] um")
+    bad_r = ~((r >= 0) & (r < 1))
+    if bad_r.any():
+        k = int(np.argmax(bad_r))
+        raise InputError(f"{where}: particle {k + 1}: r = {r[k]:.4g} outside [0, 1)")
+    if smp.temperature_c is not None and not math.isfinite(smp.temperature_c):
+        raise InputError(f"{where}: temperature reading must be finite")
+    return smp
+
+
+def collapsed(est: Estimate) -> bool:
+    """Whether an update was degenerate: every particle impossible, or the ESS collapsed to ~1."""
+    return bool(est.degenerate or est.ess < ESS_COLLAPSED)
+
+
 def inputs_between(segments: Sequence[tuple[float, float]], t0: float, t1: float) -> list[tuple[float, float, float]]:
     """The (rpm, milling, hours) pieces of a (hours, rpm) schedule between t0 and t1.
 
@@ -120,6 +179,9 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
     if pf is None:
         kind = "ukf" if isinstance(settings, UKFSettings) else "pf"
         pf = make_estimator(kind, model, np.random.default_rng(seed), settings=settings)
+    for smp in samples:  # bad input is refused before any work, naming the sample
+        check_sample(smp)
+        check_reading(model.card, smp.temperature_c, smp.source or f"sample at {smp.t_h:g} h")
     out = []
     for smp in samples:
         for rpm, milling, hours in inputs_between(segments, pf.t_h, smp.t_h):
@@ -132,14 +194,16 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
 
 
 def estimate_rows(estimates: Sequence[Estimate]) -> tuple[list[str], list[list]]:
-    """CSV header and rows: t_h, n_measured, ess, resampled, eta_size, eta_shape, then mean/q05/q95."""
+    """CSV header and rows: t_h, n_measured, ess, resampled, degenerate (:func:`collapsed`), eta_size,
+    eta_shape, then mean/q05/q95."""
     names = estimates[0].names
-    header = ["t_h", "n_measured", "ess", "resampled", "eta_size", "eta_shape"]
+    header = ["t_h", "n_measured", "ess", "resampled", "degenerate", "eta_size", "eta_shape"]
     for n in names:
         header += [n, f"{n}_q05", f"{n}_q95"]
     rows = []
     for e in estimates:
-        row = [float(e.t_h), int(e.n_measured), float(e.ess), int(e.resampled), float(e.eta[0]), float(e.eta[1])]
+        row = [float(e.t_h), int(e.n_measured), float(e.ess), int(e.resampled), int(collapsed(e)), float(e.eta[0]),
+               float(e.eta[1])]
         for k in range(len(names)):
             row += [float(e.mean[k]), float(e.q05[k]), float(e.q95[k])]
         rows.append(row)

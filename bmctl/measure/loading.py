@@ -11,6 +11,27 @@ import numpy as np
 from ..errors import InputError
 
 
+#: the largest image read (pixels): a 16-bit SEM frame is <= ~25 Mpx; a small compressed file can
+#: claim billions of pixels and exhaust memory when decoded (a decompression bomb)
+MAX_PIXELS = 100_000_000
+
+
+def image_pixels(path: str) -> int | None:
+    """Pixels the file's header claims (all pages of a TIFF), read without decoding; None if unknown."""
+    try:
+        if path.lower().endswith((".tif", ".tiff")):
+            import tifffile
+
+            with tifffile.TiffFile(path) as tif:
+                return sum(int(np.prod(pg.shape)) for pg in tif.pages)
+        from PIL import Image
+
+        with Image.open(path) as im:
+            return int(im.size[0]) * int(im.size[1]) * max(1, getattr(im, "n_frames", 1))
+    except Exception:  # noqa: BLE001 - unreadable headers are reported by the reader itself
+        return None
+
+
 def load_image(path: str | os.PathLike) -> np.ndarray:
     """Read a micrograph as a 2-D float array in [0, 1] (colour is averaged to gray).
 
@@ -33,6 +54,9 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     from ..io import check_input_file
 
     check_input_file(p)  # a regular file of a sane size (no FIFO, no device)
+    n = image_pixels(p)
+    if n is not None and n > MAX_PIXELS:
+        raise InputError(f"{p}: image too large ({n:,} pixels, limit {MAX_PIXELS:,}); crop or downsample it first")
     try:
         with warnings.catch_warnings():  # imageio warns while probing plugins on junk files
             warnings.simplefilter("ignore")

@@ -35,6 +35,8 @@ from scipy import ndimage as ndi
 
 from ..errors import InputError
 
+#: sane pixel sizes: 0.1 nm (a TEM) to 1 mm (a photograph of a sieve) per px
+UM_PER_PX_RANGE = (1e-4, 1e3)
 MAX_PHYSICAL_UM_PER_PX = 10.0  # larger "pixel sizes" in XResolution are print/screen dpi
 INFO_BAR_SEARCH = 0.35  # share of the image height (from the bottom) searched for a data bar
 INFO_BAR_FLAT_SHARE = 0.5  # a data-bar row: at least this share of its pixels has the modal value
@@ -356,4 +358,7 @@ def check_scale(um_per_px, name: str = "--um-per-px") -> float:
         raise InputError(f"{name}: not a number ({um_per_px!r})") from None
     if not np.isfinite(v) or v <= 0:
         raise InputError(f"{name}: must be a finite number > 0 (got {um_per_px})")
+    lo, hi = UM_PER_PX_RANGE if name != "--scale-bar-um" else (1e-3, 1e5)
+    if not lo <= v <= hi:
+        raise InputError(f"{name}: {v:g} um is outside the sane range [{lo:g}, {hi:g}] um")
     return v

@@ -27,6 +27,8 @@ from ..plant.events import aspect_from_perimeter, perimeter_from_aspect, size_fr
 COLUMNS = ("area_um2", "perimeter_um", "s_um", "r")
 LOCATION_COLUMNS = ("particle_id", "image", "x_um", "y_um")  # written first by `bmctl measure`
 ISOPERIMETRIC_TOL = 0.05  # relative shortfall of L below pi s accepted (and raised to pi s)
+#: physical range of a particle size: 1 nm to 10 mm (a powder particle outside it is a unit or scale error)
+S_MIN_UM, S_MAX_UM = 1e-3, 1e4
 
 
 @dataclass(frozen=True)
@@ -183,6 +185,11 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
         a, b = (_parse(p, lineno, c, row[j]) for c, j in zip(cols, idx))
         if a <= 0:
             raise InputError(f"{p}: row {lineno}, column {cols[0]}: must be > 0 (got {a:g})")
+        s_um = a if cols[0] == "s_um" else float(size_from_area(a))
+        if not S_MIN_UM <= s_um <= S_MAX_UM:
+            got = f"{a:g}" if cols[0] == "s_um" else f"{a:g} um^2, s = {s_um:.3g} um"
+            raise InputError(f"{p}: row {lineno}, column {cols[0]}: size outside the physical range "
+                             f"[{S_MIN_UM:g}, {S_MAX_UM:g}] um, 1 nm to 10 mm (got {got})")
         if cols[1] == "r" and not 0.0 <= b < 1.0:
             raise InputError(f"{p}: row {lineno}, column r: must be in [0, 1) (got {b:g})")
         if cols[1] == "perimeter_um":
@@ -192,8 +199,11 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
             if b < (1.0 - ISOPERIMETRIC_TOL) * bound:
                 raise InputError(
                     f"{p}: row {lineno}, column perimeter_um: {b:g} is below the isoperimetric bound "
-                    f"pi*s = {bound:.6g} (r = {1 - bound / b:.3f} < 0)"
+                    f"pi*s = {bound:.6g} (r = {1 - bound / b:.3g} < 0)"
                 )
+            if not 1.0 - bound / b < 1.0:
+                raise InputError(f"{p}: row {lineno}, column perimeter_um: {b:g} is so long for its area that "
+                                 f"r = 1 - pi s / L rounds to 1 (r must be < 1)")
         vals.append((a, b))
     if not vals:
         raise InputError(f"{p}: empty particle table (header but no rows)")
@@ -201,6 +211,29 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
     if cols == ("s_um", "r"):
         return ParticleTable.from_size_aspect(arr[:, 0], arr[:, 1])
     return ParticleTable.from_area_perimeter(arr[:, 0], arr[:, 1])
+
+
+def check_table(table: ParticleTable, source: str) -> ParticleTable:
+    """Refuse a table with a row outside the physical bounds :func:`read_table` enforces
+    (s in [S_MIN_UM, S_MAX_UM], 0 <= r < 1, everything finite); returns it.
+
+    Parameters
+    ----------
+    table : ParticleTable
+    source : str
+        The input the table came from (named in the message).
+    """
+    for name in COLUMNS:
+        v = getattr(table, name)
+        bad = ~np.isfinite(v) | (v <= 0 if name != "r" else ~((v >= 0) & (v < 1)))
+        if name == "s_um":
+            bad |= ~((v >= S_MIN_UM) & (v <= S_MAX_UM))
+        if np.any(bad):
+            k = int(np.argmax(bad))
+            rng = {"s_um": f"[{S_MIN_UM:g}, {S_MAX_UM:g}] um", "r": "[0, 1)"}.get(name, "> 0")
+            raise InputError(f"{source}: particle {k + 1}: {name} = {v[k]:.4g} outside {rng}: check the scale "
+                             "(--um-per-px, --scale-bar-um)")
+    return table
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,162 @@
+"""Seeded fuzz of the CLI: hostile cards, schedules, scenarios, controllers, tables, images, flags.
+
+Each example is one case of tests/fuzzlib.py run in-process through ``bmctl.cli.main``: it must
+exit 0 with every output within physical bounds, or exit 2 with exactly one stderr line naming
+the file, flag or field -- never a traceback, a hang (a per-case alarm) or an output outside
+physical bounds. Hypothesis draws the case seeds, derandomized, so every run tries the same
+cases; benchmarks/fuzz.py runs thousands of them (docs/reliability.md).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from bmctl.cli import main
+
+from . import fuzzlib
+
+#: per-case limits: CPU seconds (a spinning command; robust to a busy machine) and wall seconds
+#: (a command blocked on a pipe or a lock uses no CPU)
+CASE_CPU_S = 30
+CASE_WALL_S = 600
+
+
+class Hang(BaseException):
+    """The per-case alarm rang: the command did not finish in time."""
+
+
+@contextmanager
+def _limit(cpu_s: float, wall_s: int):
+    def ring(signum, frame):
+        raise Hang(f"no answer within {cpu_s} CPU s or {wall_s} s")
+
+    old = signal.signal(signal.SIGALRM, ring), signal.signal(signal.SIGPROF, ring)
+    signal.setitimer(signal.ITIMER_PROF, cpu_s)
+    signal.alarm(wall_s)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_PROF, 0)
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old[0])
+        signal.signal(signal.SIGPROF, old[1])
+
+
+@contextmanager
+def _env(extra: dict[str, str]):
+    old = {k: os.environ.get(k) for k in extra}
+    os.environ.update(extra)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def run_case(case: fuzzlib.Case, capsys) -> tuple[str, str]:
+    """Run one case in-process; returns (outcome, detail)."""
+    capsys.readouterr()
+    with tempfile.TemporaryDirectory(prefix="bmctl-fuzz-") as tmp:
+        folder = Path(tmp)
+        argv = case.write(folder)
+        try:
+            with _env(case.env), _limit(CASE_CPU_S, CASE_WALL_S):
+                rc = main(argv)
+        except Hang:
+            rc = None
+        except Exception as exc:  # anything escaping main is a traceback to the user
+            cap = capsys.readouterr()
+            return "traceback", f"{type(exc).__name__}: {exc} ({cap.err.strip()[-200:]})"
+        cap = capsys.readouterr()
+        return fuzzlib.classify(case, rc, cap.out, cap.err, folder / "out")
+
+
+def _check(kind: str, seed: int, capsys) -> None:
+    case = fuzzlib.make_case(kind, seed)
+    outcome, detail = run_case(case, capsys)
+    assert outcome in ("clean", "accepted-ok"), f"{kind}#{seed} {case.label}: {outcome}: {detail}"
+
+
+FUZZ = dict(derandomize=True, deadline=None, database=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                                                                   HealthCheck.too_slow])
+SEEDS = st.integers(0, 10**6)
+
+
+@settings(max_examples=14, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_cards(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("card", seed, capsys)
+
+
+@settings(max_examples=6, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_schedules(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("schedule", seed, capsys)
+
+
+@settings(max_examples=6, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_scenarios(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("scenario", seed, capsys)
+
+
+@settings(max_examples=6, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_controllers(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("controller", seed, capsys)
+
+
+@settings(max_examples=8, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_particle_tables(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("table", seed, capsys)
+
+
+@settings(max_examples=8, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_images(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("image", seed, capsys)
+
+
+@settings(max_examples=12, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_flags(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("flags", seed, capsys)
+
+
+# --- the checker itself must be able to fail ------------------------------------------------------
+
+def test_checker_flags_outputs_outside_physical_bounds(tmp_path):
+    (tmp_path / "moments.csv").write_text("t_h,s_mean_um,r_mean,temperature_c\n0,40,0.02,25\n1,0,1.0,2620\n")
+    bad = fuzzlib.check_outputs(tmp_path, fuzzlib.AL_MELTING_C)
+    assert any("s_mean_um" in b for b in bad) and any("r_mean" in b for b in bad)
+    assert any("temperature_c" in b for b in bad)
+    (tmp_path / "moments.csv").write_text("t_h,s_mean_um,r_mean,temperature_c\n0,40,0.02,25\n1,35,0.1,60\n")
+    assert fuzzlib.check_outputs(tmp_path) == []
+
+
+def test_classify_sorts_outcomes(tmp_path):
+    case = fuzzlib.Case("card", "x", [], names=["card.toml"])
+    assert fuzzlib.classify(case, 2, "", "bmctl: error: card.toml: mill.rpm_max: bad\n", tmp_path)[0] == "clean"
+    assert fuzzlib.classify(case, 2, "", "bmctl: error: something failed\n", tmp_path)[0] == "unnamed"
+    assert fuzzlib.classify(case, 2, "", "bmctl: error: card.toml: a\nbmctl: error: b\n", tmp_path)[0] == "unnamed"
+    assert fuzzlib.classify(case, 1, "", "Traceback (most recent call last):\n", tmp_path)[0] == "traceback"
+    assert fuzzlib.classify(case, None, "", "", tmp_path)[0] == "hang"
+    assert fuzzlib.classify(case, 0, "s mean nan um", "", tmp_path)[0] == "accepted-nonsense"
