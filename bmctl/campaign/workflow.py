@@ -40,6 +40,7 @@ import numpy as np
 from ..errors import InputError
 from . import db
 from . import targets as tg
+from .band import propagate
 
 EPS_H = 1e-9
 INPUTS = "inputs"
@@ -508,9 +509,7 @@ def _end_band(c: Campaign, sched: list[dict]) -> dict:
     lp = c.loop
     pf = lp.estimator
     idx = _band_indices(pf.weights, BAND_PARTICLES)
-    X, P = pf.X[idx].copy(), pf.P[idx].copy()
-    for row in sched:
-        X = np.asarray(lp.model.step(X, np.array([row["rpm"], row["milling"]]), row["t1_h"] - row["t0_h"], P))
+    X = propagate(lp.model, pf.X[idx], pf.P[idx], sched)
     out = {}
     names = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
     vals = {k: X[:, i] for i, k in enumerate(names)}
