@@ -41,6 +41,7 @@ from ..errors import InputError
 from . import db
 from . import targets as tg
 from .band import propagate
+from .modelcache import moment_model
 
 EPS_H = 1e-9
 INPUTS = "inputs"
@@ -134,14 +135,13 @@ class Campaign:
         from ..control.config import load_controller, validate_controller
         from ..estimate import FilterSettings, ParticleFilter
         from ..loop import LoopConfig
-        from ..moments.model import make_moment_model
         from .mill import CampaignLoop, OperatorMill, RecordedSensor
 
         m = self.meta
         card_path = self._input("card")
         if "moments" in m["inputs"]:
             self._input("moments")
-        model = make_moment_model(card_path)
+        model = moment_model(card_path)  # constants cached on disk (modelcache)
         cfg_path = self._input("controller")
         cfg = load_controller(cfg_path)
         ceiling = m["temperature_max_c"]
