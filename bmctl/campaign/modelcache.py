@@ -7,7 +7,7 @@ deterministic function of the card, the identified coefficients and the code, so
 stores them as plain numbers (JSON, never code) in bmctl's own cache folder
 (:func:`bmctl.control.cache.cache_dir`), keyed by a SHA-256 of the card bytes, the
 coefficient file's bytes and the source of the modules that compute them. A missing,
-unreadable or foreign entry is rebuilt; nothing from the campaign folder is loaded as a cache.
+unreadable or foreign entry is rebuilt; ``BMCTL_MPC_COMPILE=0`` turns the cache off; nothing from the campaign folder is loaded as a cache.
 """
 
 from __future__ import annotations
@@ -39,6 +39,8 @@ def _key(card_path: Path, coeffs_path: Path | None) -> str:
 def _entry(card_path: Path, coeffs_path: Path | None) -> Path | None:
     from ..control import cache
 
+    if os.environ.get(cache.ENV_SWITCH, "1") == "0":  # no caches at all (tests, debugging)
+        return None
     d = cache.cache_dir()
     return None if d is None else d / f"model-{_key(card_path, coeffs_path)}.json"
 
