@@ -40,6 +40,8 @@ import numpy as np
 from ..errors import InputError
 from . import db
 from . import targets as tg
+from .band import propagate
+from .modelcache import moment_model
 
 EPS_H = 1e-9
 INPUTS = "inputs"
@@ -133,14 +135,13 @@ class Campaign:
         from ..control.config import load_controller, validate_controller
         from ..estimate import FilterSettings, ParticleFilter
         from ..loop import LoopConfig
-        from ..moments.model import make_moment_model
         from .mill import CampaignLoop, OperatorMill, RecordedSensor
 
         m = self.meta
         card_path = self._input("card")
         if "moments" in m["inputs"]:
             self._input("moments")
-        model = make_moment_model(card_path)
+        model = moment_model(card_path)  # constants cached on disk (modelcache)
         cfg_path = self._input("controller")
         cfg = load_controller(cfg_path)
         ceiling = m["temperature_max_c"]
@@ -508,9 +509,7 @@ def _end_band(c: Campaign, sched: list[dict]) -> dict:
     lp = c.loop
     pf = lp.estimator
     idx = _band_indices(pf.weights, BAND_PARTICLES)
-    X, P = pf.X[idx].copy(), pf.P[idx].copy()
-    for row in sched:
-        X = np.asarray(lp.model.step(X, np.array([row["rpm"], row["milling"]]), row["t1_h"] - row["t0_h"], P))
+    X = propagate(lp.model, pf.X[idx], pf.P[idx], sched)
     out = {}
     names = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
     vals = {k: X[:, i] for i, k in enumerate(names)}

@@ -11,7 +11,16 @@ from .filter import Estimate, FilterSettings, ParticleFilter, learning_rates
 from .likelihood import LawSettings, Raster, SampleFit, SampleStats, fit_sample, loglik_raster, loglik_sample
 from .resampling import effective_sample_size, resample
 from .run import Sample, make_estimator, run_filter
-from .ukf import UKFEstimator, UKFSettings
+
+
+def __getattr__(name: str):
+    """``UKFEstimator`` and ``UKFSettings`` on first use: filterpy imports scipy.stats (~1 s)."""
+    if name in ("UKFEstimator", "UKFSettings"):
+        from . import ukf
+
+        return getattr(ukf, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["ParticleFilter", "FilterSettings", "Estimate", "learning_rates", "LawSettings", "Raster", "SampleFit",
            "SampleStats", "fit_sample", "loglik_raster", "loglik_sample", "resample", "effective_sample_size",

@@ -13,7 +13,6 @@ from typing import Sequence
 import numpy as np
 
 from .filter import Estimate, FilterSettings, ParticleFilter
-from .ukf import UKFEstimator, UKFSettings
 
 ESTIMATORS = ("pf", "ukf")
 
@@ -44,6 +43,8 @@ def make_estimator(kind: str, model, rng: np.random.Generator, n_particles: int 
     if kind not in ESTIMATORS:
         raise ValueError(f"estimator kind must be one of {ESTIMATORS} (got {kind!r})")
     if kind == "ukf":
+        from .ukf import UKFEstimator, UKFSettings  # filterpy (scipy.stats) only when a UKF is asked for
+
         if settings is None:
             settings = UKFSettings() if law is None else UKFSettings(law=law)
         return UKFEstimator(model, rng, settings)
@@ -177,6 +178,8 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
     (ParticleFilter or UKFEstimator, list of Estimate)
     """
     if pf is None:
+        from .ukf import UKFSettings
+
         kind = "ukf" if isinstance(settings, UKFSettings) else "pf"
         pf = make_estimator(kind, model, np.random.default_rng(seed), settings=settings)
     for smp in samples:  # bad input is refused before any work, naming the sample
