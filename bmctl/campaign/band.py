@@ -1,7 +1,7 @@
 """Propagation of the end band: filter particles through the moment model under a schedule.
 
 ``advise`` predicts the batch-end state of a weighted selection of filter particles
-(:data:`bmctl.campaign.workflow.BAND_PARTICLES`) under the planned schedule. The moment
+(:data:`bmctl.campaign.advice.BAND_PARTICLES`) under the planned schedule. The moment
 model's numpy step (:meth:`bmctl.moments.model.MomentModel.step`) is batched over the
 particles but pays numpy's per-operation overhead at every RKC stage (~0.13 s CPU per 0.5 h
 interval); a 12 h schedule costs seconds.
@@ -96,7 +96,7 @@ def propagate(model, X: np.ndarray, P: np.ndarray, schedule: list[dict]) -> np.n
     X, P : ndarray
         Particle states and parameter multipliers (one row each).
     schedule : list of dict
-        Rows with ``t0_h, t1_h, rpm, milling`` (:func:`bmctl.campaign.workflow._schedule`).
+        Rows with ``t0_h, t1_h, rpm, milling`` (:func:`bmctl.campaign.advice._schedule`).
 
     Returns
     -------

@@ -40,15 +40,11 @@ import numpy as np
 from ..errors import InputError
 from . import db
 from . import targets as tg
-from .band import propagate
+from .advice import _end_band, _measure, _schedule, _why
 from .modelcache import moment_model
 
 EPS_H = 1e-9
 INPUTS = "inputs"
-#: filter particles propagated to the batch end for the predicted end-state band
-BAND_PARTICLES = 64
-#: relative error of the predicted end median within which a target counts as reached
-REACH_TOL = 0.03
 
 
 # --- helpers -------------------------------------------------------------------------------------
@@ -68,12 +64,6 @@ def _finite(v, name: str, lo: float | None = None, hi: float | None = None, stri
     if hi is not None and x > hi:
         raise InputError(f"{name}: must be <= {hi:g} (got {v})")
     return x
-
-
-def _band_indices(w: np.ndarray, n: int) -> np.ndarray:
-    """Deterministic systematic selection of ``n`` particles by weight (no random draw)."""
-    c = np.cumsum(w / w.sum())
-    return np.minimum(np.searchsorted(c, (np.arange(n) + 0.5) / n), w.size - 1)
 
 
 @dataclass
@@ -404,38 +394,6 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
     return {"t0_h": t0, "t1_h": t1, "deviation": dev, "estimate": est}
 
 
-def _measure(inputs, um_per_px):
-    """Pooled particle table and per-input reports of images and tables (as ``bmctl measure``)."""
-    from ..measure.micrograph import measure_micrograph
-    from ..measure.scale import check_scale
-    from ..measure.tables import ParticleTable, read_table
-
-    scale = check_scale(um_per_px) if um_per_px is not None else None
-    tables, images, xs, ys, reports = [], [], [], [], []
-    for item in inputs:
-        if isinstance(item, ParticleTable):
-            t, name = item, "(table)"
-            x = y = np.full(len(t), np.nan)
-            reports.append({"table": name, "count": len(t)})
-        elif Path(item).suffix.lower() == ".csv":
-            t, name = read_table(item), str(item)
-            x = y = np.full(len(t), np.nan)
-            reports.append({"table": name, "count": len(t)})
-        else:
-            res = measure_micrograph(item, um_per_px=scale)
-            t, name, x, y = res.table, str(item), res.x_um, res.y_um
-            rep = res.report()
-            reports.append(rep)
-        tables.append(t)
-        images += [name] * len(t)
-        xs.append(np.asarray(x, float))
-        ys.append(np.asarray(y, float))
-    table = ParticleTable.concat(tables)
-    if len(table) == 0:
-        raise InputError(f"{inputs[0]}: no particles found (check the scale or the table)")
-    return table, images, np.concatenate(xs), np.concatenate(ys), reports
-
-
 def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign: Campaign | None = None) -> dict:
     """Measure a sample taken at batch time ``at_h`` (images and/or particle tables, as
     ``bmctl measure``), store its particles and update the estimator (now if ``at_h`` is
@@ -481,78 +439,6 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
 def _insert_particles(con, rows) -> None:
     """Insert a sample's particles (a function of its own so that tests can interrupt here)."""
     con.executemany("INSERT INTO particles VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
-
-
-def _schedule(c: Campaign, plan, t_h: float) -> list[dict]:
-    """The plan's applied inputs from ``t_h`` to the batch end (beyond the horizon: its last input held)."""
-    H = c.meta["hours"]
-    dt = plan.interval_h
-    U = plan.applied()
-    if U.shape[0]:
-        U[0] = plan.u_apply
-    rows, t, k = [], t_h, 0
-    while t < H - EPS_H:
-        rpm, m = (float(v) for v in (U[min(k, U.shape[0] - 1)] if U.shape[0] else (0.0, 0.0)))
-        h = min(dt, H - t)
-        mill_min = round(m * dt * 60.0)
-        mill_min = min(mill_min, round(h * 60.0))
-        rows.append({"t0_h": t, "t1_h": t + h, "rpm": rpm if mill_min > 0 else 0.0, "milling": mill_min / (h * 60.0),
-                     "mill_min": mill_min, "rest_min": round(h * 60.0) - mill_min, "planned": k < U.shape[0]})
-        t += h
-        k += 1
-    return rows
-
-
-def _end_band(c: Campaign, sched: list[dict]) -> dict:
-    """Median and 90 % band of the moments at the batch end: filter particles (a deterministic
-    weighted selection) propagated by the moment model under the schedule."""
-    lp = c.loop
-    pf = lp.estimator
-    idx = _band_indices(pf.weights, BAND_PARTICLES)
-    X = propagate(lp.model, pf.X[idx], pf.P[idx], sched)
-    out = {}
-    names = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
-    vals = {k: X[:, i] for i, k in enumerate(names)}
-    vals["d50_um"] = tg.d50_from_moments(vals["s_mean_um"], vals["s_std_um"])
-    for k, v in vals.items():
-        q = np.quantile(v, [0.05, 0.5, 0.95])
-        out[k] = {"median": float(q[1]), "q05": float(q[0]), "q95": float(q[2])}
-    return out
-
-
-def _why(c: Campaign, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
-    """Per target: reachable by the batch end?  And which constraints bind in the plan."""
-    reach = {}
-    for k, v in c.meta["target"].items():
-        e = end.get(k)
-        if e is None:
-            continue
-        inside = e["q05"] <= v <= e["q95"]
-        reach[k] = bool(inside or abs(e["median"] - v) <= REACH_TOL * abs(v))
-    binding = []
-    cfg = c.loop.controller.cfg
-    if getattr(cfg, "kind", "") == "recipe":
-        return reach, ["open-loop recipe: the schedule is fixed, no constraint is weighed"]
-    U = np.asarray(plan.u, dtype=float)
-    on = U[:, 1] > 1e-3
-    b = getattr(cfg, "bounds", None)
-    if b is not None and on.any():
-        hi = min(b.rpm_max, c.loop.model.rpm_max)
-        if np.any(U[on, 0] >= hi - 1.0):
-            binding.append(f"rpm at its upper bound ({hi:g} rpm)")
-        if np.any(U[on, 0] <= b.rpm_min + 1.0):
-            binding.append(f"rpm at its lower bound ({b.rpm_min:g} rpm)")
-        if b.rpm_step_max is not None and U.shape[0] > 1 and np.any(np.abs(np.diff(U[:, 0])) >= b.rpm_step_max - 1.0):
-            binding.append(f"rpm rate limit ({b.rpm_step_max:g} rpm per interval)")
-        if np.all(U[on, 1] >= b.milling_max - 1e-3) and on.all():
-            binding.append(f"milling share at its maximum ({b.milling_max:g}) throughout")
-    if hasattr(cfg, "temperature") and plan.t_peak_c.size:
-        ceil = plan.status.t_ceiling_c if math.isfinite(plan.status.t_ceiling_c) else cfg.temperature.ceiling_c
-        if float(np.max(plan.t_peak_c)) >= ceil - 0.5:
-            binding.append(f"vial-temperature ceiling ({ceil:g} C)")
-    if not all(reach.values()) and not binding:
-        binding.append("batch time: the target is not reached by the batch end at the planned inputs")
-    return reach, binding
 
 
 def advise(folder, campaign: Campaign | None = None) -> dict:
