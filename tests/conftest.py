@@ -1,6 +1,10 @@
+import os
 from pathlib import Path
 
 import pytest
+
+# before any fixture (module-scoped ones included) builds an MPC: interpreted, no gcc, no cache writes
+os.environ["BMCTL_MPC_COMPILE"] = "0"
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "models"
