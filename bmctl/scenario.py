@@ -39,14 +39,38 @@ class SamplingSpec(Strict):
 
 
 class EstimatorSpec(Strict):
+    """``[estimator]``: which estimator, its particles, and optionally every one of its settings
+    (``[estimator.pf]``: :class:`bmctl.estimate.FilterSettings`; ``[estimator.ukf]``:
+    :class:`bmctl.estimate.ukf.UKFSettings`)."""
+
     kind: Literal["pf", "ukf"] = "pf"  # particle filter or unscented Kalman filter (particles: pf only)
     particles: Annotated[int, Field(ge=50, le=200_000)] = 1000
+    pf: dict = {}  # particle-filter settings (validated as FilterSettings; n_particles comes from `particles`)
+    ukf: dict = {}  # UKF settings (validated as UKFSettings)
+
+    @model_validator(mode="after")
+    def _settings_valid(self):
+        from pydantic import ValidationError
+
+        try:
+            self.filter_settings()
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            where = ".".join(str(x) for x in err["loc"])
+            raise ValueError(f"{self.kind}.{where}: {err['msg']}") from None
+        return self
 
     def filter_settings(self):
-        """The particle filter's settings of this table."""
+        """The chosen estimator's settings of this table."""
+        if self.kind == "ukf":
+            from .estimate.ukf import UKFSettings
+
+            return UKFSettings(**self.ukf)
         from .estimate import FilterSettings
 
-        return FilterSettings(n_particles=self.particles)
+        if "n_particles" in self.pf:
+            raise ValueError("pf.n_particles: give the particle count as estimator.particles")
+        return FilterSettings(n_particles=self.particles, **self.pf)
 
 
 class ControllerSpec(Strict):

@@ -114,8 +114,7 @@ def build(sc: Scenario, base: Path, seed: int) -> ClosedLoop:
     model, controller = _model_and_controller(sc, base)
     card = _plant_card(sc, base)
     plant = Plant(card, g_plant, sc.plant.particles)
-    settings = sc.estimator.filter_settings() if sc.estimator.kind == "pf" else None
-    pf = make_estimator(sc.estimator.kind, model, g_pf, n_particles=sc.estimator.particles, settings=settings)
+    pf = make_estimator(sc.estimator.kind, model, g_pf, settings=sc.estimator.filter_settings())
     sp = sc.sampling
     sensor = MicrographSensor(sp.particles, sp.um_per_px, sp.noise, sp.render)
     cfg = LoopConfig(hours=sc.hours, sample_every_h=sp.every_h, temperature_reading=sp.temperature_reading,
