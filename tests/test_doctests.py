@@ -14,7 +14,12 @@ from .conftest import ROOT
 MODULES = sorted(m.name for m in pkgutil.walk_packages(bmctl.__path__, "bmctl.") if not m.name.endswith("__main__"))
 
 
-@pytest.mark.parametrize("name", MODULES)
+#: modules whose examples take over a second (run the model, the filter or draw): full run only
+SLOW = {"bmctl.moments.model", "bmctl.estimate.ukf", "bmctl.plots", "bmctl.simulate", "bmctl.measure.segment",
+        "bmctl.plant._compiled"}
+
+
+@pytest.mark.parametrize("name", [pytest.param(m, marks=pytest.mark.slow) if m in SLOW else m for m in MODULES])
 def test_docstring_examples(name, monkeypatch):
     monkeypatch.chdir(ROOT)  # examples name the shipped files by their repository paths
     mod = importlib.import_module(name)

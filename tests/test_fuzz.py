@@ -92,6 +92,7 @@ FUZZ = dict(derandomize=True, deadline=None, database=None, suppress_health_chec
 SEEDS = st.integers(0, 10**6)
 
 
+@pytest.mark.slow
 @settings(max_examples=14, **FUZZ)
 @given(seed=SEEDS)
 def test_fuzz_cards(seed, capsys, monkeypatch):
@@ -106,6 +107,7 @@ def test_fuzz_schedules(seed, capsys, monkeypatch):
     _check("schedule", seed, capsys)
 
 
+@pytest.mark.slow
 @settings(max_examples=6, **FUZZ)
 @given(seed=SEEDS)
 def test_fuzz_scenarios(seed, capsys, monkeypatch):
@@ -113,6 +115,7 @@ def test_fuzz_scenarios(seed, capsys, monkeypatch):
     _check("scenario", seed, capsys)
 
 
+@pytest.mark.slow
 @settings(max_examples=6, **FUZZ)
 @given(seed=SEEDS)
 def test_fuzz_controllers(seed, capsys, monkeypatch):
@@ -120,6 +123,7 @@ def test_fuzz_controllers(seed, capsys, monkeypatch):
     _check("controller", seed, capsys)
 
 
+@pytest.mark.slow
 @settings(max_examples=8, **FUZZ)
 @given(seed=SEEDS)
 def test_fuzz_particle_tables(seed, capsys, monkeypatch):
@@ -127,6 +131,7 @@ def test_fuzz_particle_tables(seed, capsys, monkeypatch):
     _check("table", seed, capsys)
 
 
+@pytest.mark.slow
 @settings(max_examples=8, **FUZZ)
 @given(seed=SEEDS)
 def test_fuzz_images(seed, capsys, monkeypatch):
@@ -134,6 +139,7 @@ def test_fuzz_images(seed, capsys, monkeypatch):
     _check("image", seed, capsys)
 
 
+@pytest.mark.slow
 @settings(max_examples=12, **FUZZ)
 @given(seed=SEEDS)
 def test_fuzz_flags(seed, capsys, monkeypatch):

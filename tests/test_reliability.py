@@ -54,7 +54,7 @@ def test_a_card_that_traps_no_powder_is_refused(tmp_path, capsys, value):
 
 # --- particle tables ------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("value", ["1e308", "1e-320", "5e-324", "1e-300", "2e4"])
+@pytest.mark.parametrize("value", [pytest.param("1e308", marks=pytest.mark.slow), "1e-320", "5e-324", "1e-300", "2e4"])
 @pytest.mark.parametrize("command", ["measure", "estimate"])
 def test_table_sizes_outside_physics_are_refused(tmp_path, capsys, value, command):
     rows = _sample()
@@ -89,6 +89,7 @@ def test_measure_refuses_an_absurd_pixel_size(tmp_path, capsys, scale):
     assert not (tmp_path / "m.csv").exists()
 
 
+@pytest.mark.slow
 def test_a_decompression_bomb_is_refused_before_decoding(tmp_path, capsys):
     img = tmp_path / "bomb.tif"
     img.write_bytes(fuzzlib.bomb_tiff())
@@ -97,6 +98,7 @@ def test_a_decompression_bomb_is_refused_before_decoding(tmp_path, capsys):
     assert "bomb.tif: image too large (144,000,000 pixels, limit 100,000,000)" in _err(capsys)
 
 
+@pytest.mark.slow
 def test_measure_writes_a_table_its_reader_accepts(tmp_path, capsys):
     from bmctl.measure.tables import read_table
 
@@ -148,6 +150,7 @@ def test_collapsed_update_is_flagged_in_the_table():
     assert [r[k] for r in rows] == [0, 1]
 
 
+@pytest.mark.slow
 def test_estimate_warns_when_the_filter_collapses(tmp_path, capsys, monkeypatch):
     """The CLI's reporting path: a filter whose second update collapsed onto one particle."""
     from bmctl.estimate import run as est_run
@@ -187,6 +190,7 @@ def test_peak_temperature_is_the_first_order_solution():
     assert peak_temperature_c(card, [(0.5, 400.0), (1.0, 0.0)]) == pytest.approx((want, 0.5), rel=1e-12)
 
 
+@pytest.mark.slow
 def test_simulate_records_the_predicted_temperature(tmp_path, capsys):
     from bmctl.cards import peak_temperature_c
     from bmctl.config import load_card
@@ -215,6 +219,7 @@ def test_a_run_above_the_melting_point_stops(tmp_path, capsys, command):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_whatif_warns_outside_the_validity_range(tmp_path, capsys):
     def cool(d):
         d["validity"] = {"temperature_max_C": 30.0}
@@ -246,6 +251,7 @@ def test_ctrl_c_in_the_plant_exits_130_and_leaves_no_output(tmp_path, capsys, mo
     assert not out.exists() or not any(out.iterdir())
 
 
+@pytest.mark.slow
 def test_ctrl_c_while_writing_leaves_no_half_output_set(tmp_path, capsys, monkeypatch):
     from bmctl import plots
 

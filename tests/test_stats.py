@@ -85,6 +85,7 @@ def test_closed_form_accepts_casadi_symbols():
     np.testing.assert_allclose(got, want, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_population_npz_names_weightings_and_loads_without_pickle(tmp_path):
     from bmctl.plant import default_card
     from bmctl import io
@@ -144,6 +145,7 @@ def test_weibull_closed_form_accepts_casadi_symbols():
                                    rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_moment_model_and_filter_report_the_same_dvalues():
     """The filter's size statistics are the moment model's closed form over its particles."""
     from bmctl.estimate import FilterSettings, ParticleFilter

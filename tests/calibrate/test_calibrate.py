@@ -48,6 +48,7 @@ def clusters():
         close_client(c)
 
 
+@pytest.mark.slow
 def test_one_and_two_workers_give_identical_results(clusters):
     serial = ensemble_map(_plant_task, TASKS, 11)
     one, two = (ensemble_map(_plant_task, TASKS, 11, c) for c in clusters)
@@ -99,6 +100,7 @@ table = "t2.csv"
 """
 
 
+@pytest.mark.slow
 def test_history_loads(tmp_path):
     h = load_history(_history(tmp_path, GOOD), load_card(LAB))
     assert h.times_h == [1.0, 2.0] and h.segments == [(3.0, 300.0, 1.0)]

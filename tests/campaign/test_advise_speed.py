@@ -30,6 +30,7 @@ def private_cache(tmp_path, monkeypatch):
     return tmp_path / "cache" / "bmctl" / "mpc"
 
 
+@pytest.mark.slow
 def test_cached_model_equals_a_fresh_build(tmp_path, private_cache):
     """The model restored from the cache has the same attributes, constants, coefficients and steps;
     a damaged entry is rebuilt."""

@@ -91,6 +91,7 @@ def test_log_refuses_overlap_gap_and_end(tmp_path):
     assert cp.status(d)["counts"]["actions"] == 1  # refused logs left nothing behind
 
 
+@pytest.mark.slow
 def test_late_and_early_samples_equal_on_time(tmp_path):
     """The estimator depends on what was logged and measured, not on the order it was entered."""
     def on_time(d):
@@ -160,6 +161,7 @@ def test_second_writer_is_refused_cleanly(tmp_path, monkeypatch):
     cp.log(d, 300, 0.5)
 
 
+@pytest.mark.slow
 def test_cli_verbs_and_one_line_errors(tmp_path, capsys):
     d = str(tmp_path / "c")
     assert main(["campaign", "init", d, "--model", str(CARD), "--controller", str(RECIPE), "--target", "d50_um=45",

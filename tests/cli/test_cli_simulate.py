@@ -21,6 +21,7 @@ def run(args, capsys):
     return rc, out, err
 
 
+@pytest.mark.slow
 def test_simulate_writes_outputs_and_same_seed_is_identical(tmp_path, capsys):
     a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
     for d, seed in ((a, 7), (b, 7), (c, 8)):
@@ -42,6 +43,7 @@ def test_simulate_writes_outputs_and_same_seed_is_identical(tmp_path, capsys):
         assert (a / png).read_bytes()[:4] == b"\x89PNG"
 
 
+@pytest.mark.slow
 def test_schedule_file_with_rest(tmp_path, capsys):
     sched = tmp_path / "s.toml"
     sched.write_text("[[segment]]\nhours = 1\nrpm = 400\n[[segment]]\nhours = 1\nrpm = 0\n")
@@ -112,6 +114,7 @@ def test_bad_schedule(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_failed_rerun_keeps_previous_outputs(tmp_path, capsys):
     out = tmp_path / "o"
     rc, _, _ = run(["simulate", LAB, "--hours", "1", "--particles", "300", "--out", str(out), "--no-progress"], capsys)
@@ -127,7 +130,7 @@ def test_failed_rerun_keeps_previous_outputs(tmp_path, capsys):
 @pytest.mark.parametrize("command", [
     ["simulate", LAB], ["whatif", LAB, str(card_path("alni-1to1-300rpm-lab").parent.parent / "scenarios"
                                            / "schedule-lab-300rpm-12h.toml")],
-    ["linearize", LAB], ["verify", "--quick"], ["identify", LAB, "--quick"],
+    ["linearize", LAB], pytest.param(["verify", "--quick"], marks=pytest.mark.slow), ["identify", LAB, "--quick"],
 ])
 def test_unwritable_out_fails_before_any_work(tmp_path, capsys, command):
     """An --out below a file (a typo, a read-only place) is reported at once: one line, exit 2, nothing made."""

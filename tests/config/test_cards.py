@@ -44,6 +44,7 @@ def _old_format(text: str) -> str:
     return "".join(out)
 
 
+@pytest.mark.slow
 def test_old_format_card_loads_and_simulates_identically(tmp_path, capsys):
     src = card_path("alni-1to1-400rpm-fan")
     old = tmp_path / "old.toml"

@@ -36,6 +36,7 @@ def test_doc_card_derives_masses_and_law_of_mixtures(tmp_path):
     assert card.mill.ball_density_kg_m3 == 7900 and card.mill.ball_modulus_Pa == 200e9
 
 
+@pytest.mark.slow
 def test_doc_card_shows_and_simulates(tmp_path, capsys):
     p = doc_card(tmp_path)
     assert main(["card", "show", str(p)]) == 0

@@ -139,6 +139,7 @@ def test_unbounded_simulate_flags_are_refused(tmp_path, capsys, flags, needle):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_estimate_times_beyond_a_batch_are_refused(tmp_path, capsys):
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"
     for p in (a, b):
@@ -198,6 +199,7 @@ def test_a_late_write_failure_leaves_no_half_set_and_names_the_real_file(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.txt"]  # no a, b, nor temporary files
 
 
+@pytest.mark.slow
 def test_simulate_with_an_output_name_that_is_a_folder_writes_nothing(tmp_path, capsys):
     out = tmp_path / "o"
     (out / "moments.png").mkdir(parents=True)
@@ -207,6 +209,7 @@ def test_simulate_with_an_output_name_that_is_a_folder_writes_nothing(tmp_path, 
     assert sorted(p.name for p in out.iterdir()) == ["moments.png"]
 
 
+@pytest.mark.slow
 def test_run_leaving_the_validity_range_warns(tmp_path, capsys):
     p = mutated(tmp_path, LAB, "[validity]" if "[validity]" in LAB.read_text() else "[stochastic]",
                 "[validity]\ntemperature_max_C = 30.0\n\n[stochastic]")

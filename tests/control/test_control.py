@@ -73,6 +73,7 @@ def reach(model):
     return target, closed_loop(model, ctrl, 2.0)
 
 
+@pytest.mark.slow
 def test_mpc_reaches_a_reachable_target(reach):
     target, (x, plans, U, X) = reach
     assert all(p.status.fallback == "none" for p in plans), [p.status.line() for p in plans]
@@ -80,6 +81,7 @@ def test_mpc_reaches_a_reachable_target(reach):
     assert x[2] == pytest.approx(target["r_mean"], rel=0.05)
 
 
+@pytest.mark.slow
 def test_mpc_bounds_rate_limits_and_minutes(reach):
     _, (x, plans, U, X) = reach
     check_rpm_limits(U, 100.0, 500.0, 100.0)
@@ -93,6 +95,7 @@ def test_mpc_bounds_rate_limits_and_minutes(reach):
         assert p.x.shape == (p.u.shape[0] + 1, 6) and p.t_peak_c.shape == (p.u.shape[0],)
 
 
+@pytest.mark.slow
 def test_expanded_warm_solver_gives_the_same_plans(model):
     # expand = "warm" only changes how casadi evaluates the NLP (SX instead of MX), not the problem
     Xs = model.simulate(model.x0(), [[350.0, 0.8]] * 3, DT)
@@ -110,6 +113,7 @@ def test_expanded_warm_solver_gives_the_same_plans(model):
     assert xb[0] == pytest.approx(xa[0], rel=0.005)
 
 
+@pytest.mark.slow
 def test_adaptive_gain_learns_a_slower_plant_and_reaches_the_target(model):
     # "plant" = the moment model with half its particle-moment changes per interval; the adaptive
     # MPC's gains must learn ~0.5 and its final error must be well below the plain MPC's
@@ -136,6 +140,7 @@ def test_adaptive_gain_learns_a_slower_plant_and_reaches_the_target(model):
     assert finals[True] < 0.5 * finals[False], finals
 
 
+@pytest.mark.slow
 def test_offset_free_bias_reduces_the_error_of_a_mismatched_model(model):
     # "plant" = the moment model told gamma x1.5, delta x0.6 (about the mismatch that x1.3, x0.7
     # gave before p acted inside eqns 15 and 20); the controller's model has (1, 1). Like a trial, the controller sees the true state every 2nd interval (a
@@ -163,6 +168,7 @@ def test_offset_free_bias_reduces_the_error_of_a_mismatched_model(model):
     assert finals["bias"] < 0.5 * finals["none"], finals
 
 
+@pytest.mark.slow
 def test_mpc_rate_limit_from_last_applied_rpm(model):
     Xs = model.simulate(model.x0(), [[480.0, 1.0]] * 2, DT)
     ctrl = make_controller(mpc_cfg(horizon=2, batch_hours=1.0, temperature={"ceiling_c": 200.0}), model,
@@ -172,6 +178,7 @@ def test_mpc_rate_limit_from_last_applied_rpm(model):
     assert 100.0 - 1e-6 <= plan.u[0, 0] <= 250.0 + 1e-6
 
 
+@pytest.mark.slow
 def test_mpc_respects_the_temperature_ceiling(model):
     # target from a hot schedule (400 rpm continuous, peak ~ 120 C); rpm >= 400 and a 60 C ceiling:
     # not reachable, the MPC mills as long as the ceiling allows
@@ -192,6 +199,7 @@ def test_mpc_respects_the_temperature_ceiling(model):
     assert max(peaks) > ceiling - 10.0
 
 
+@pytest.mark.slow
 def test_peak_temperature_matches_the_model_step(model):
     x = model.x0().copy()
     x[4] = 40.0
@@ -203,6 +211,7 @@ def test_peak_temperature_matches_the_model_step(model):
 # --- fallback ----------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_fallback_rest_when_max_iter_is_zero(model):
     ctrl = make_controller(mpc_cfg(horizon=2, solver={"max_iter": 0}), model, {"s_mean_um": 50.0})
     plan = ctrl.plan(model.x0(), 0.0)
@@ -214,6 +223,7 @@ def test_fallback_rest_when_max_iter_is_zero(model):
     assert "fallback rest" in st.line()
 
 
+@pytest.mark.slow
 def test_fallback_shifted_plan_on_injected_infeasibility(model):
     # a truly hard ceiling (slack_max_c = 0) below ambient is infeasible: even a rest starts at 25 C
     ctrl = make_controller(mpc_cfg(horizon=3, batch_hours=3.0, temperature={"ceiling_c": 80.0, "slack_max_c": 0.0},
@@ -252,6 +262,7 @@ def test_applied_input_rounds_milling_to_whole_minutes():
         assert abs(u[1] * 40 - round(u[1] * 40)) < 1e-9
 
 
+@pytest.mark.slow
 def test_rounding_never_pushes_over_the_ceiling(model):
     x = model.x0().copy()
     # a milling share whose peak is just at the ceiling: rounding up would exceed it
@@ -262,6 +273,7 @@ def test_rounding_never_pushes_over_the_ceiling(model):
         assert abs(a[1] * 30 - round(a[1] * 30)) < 1e-9
 
 
+@pytest.mark.slow
 def test_binary_mode_gives_on_off_inputs_and_reports_the_loss(model):
     ctrl = make_controller(mpc_cfg(horizon=3, batch_hours=1.5, onoff={"mode": "binary"},
                                    temperature={"ceiling_c": 70.0}),
@@ -281,6 +293,7 @@ def test_schedule_segments_mill_then_rest():
 # --- references ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_time_varying_reference_per_interval(model):
     ref = Reference([(0.0, {"s_mean_um": 60.0}), (1.0, {"s_mean_um": 45.0, "r_mean": 0.05})])
     assert ref.at(0.5) == {"s_mean_um": 60.0} and ref.at(1.0)["s_mean_um"] == 45.0
@@ -296,6 +309,7 @@ def test_time_varying_reference_per_interval(model):
     assert Reference.from_config(cfg).at(3.0) == {"s_mean_um": 30.0}
 
 
+@pytest.mark.slow
 def test_batch_end_inside_the_horizon(model):
     ctrl = make_controller(mpc_cfg(horizon=4, batch_hours=1.25), model, {"s_mean_um": 50.0})
     data = ctrl._problem_data(model.x0(), 0.0, model.p0(), None)
@@ -308,6 +322,7 @@ def test_batch_end_inside_the_horizon(model):
 # --- baselines ---------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_recipe_controllers(model):
     c = make_controller(CTRL / "recipe-400rpm-30-10.toml", model)
     assert c.interval_h == pytest.approx(40 / 60)
@@ -320,6 +335,7 @@ def test_recipe_controllers(model):
     assert np.allclose(x, model.simulate(model.x0(), [[300.0, 1.0]] * 4, DT)[-1], rtol=1e-6)
 
 
+@pytest.mark.slow
 def test_lqr_baseline_bounds_rate_and_temperature_guard(model):
     cfg = load_controller(CTRL / "lqr-baseline.toml")
     cfg = cfg.model_copy(update={"batch_hours": 3.0,  # rpm >= 400: the 60 C guard must act
@@ -338,6 +354,7 @@ def test_lqr_baseline_bounds_rate_and_temperature_guard(model):
 # --- configs and the CLI -----------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_shipped_controller_files_load(model):
     for f in sorted(CTRL.glob("*.toml")):
         make_controller(f, model)
@@ -394,6 +411,7 @@ def test_design_bad_input_one_line_exit_2(tmp_path, capsys, case):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_design_writes_a_schedule_simulate_reads(tmp_path, capsys, model):
     out = tmp_path / "d"
     Xs = model.simulate(model.x0(), [[300.0, 1.0]] * 2, DT)

@@ -81,6 +81,7 @@ def test_raster_size_cells_match_scipy_cdf(size_law):
         np.testing.assert_allclose(got[k][ok], ref[ok], rtol=1e-6, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_raster_shape_cells_match_noisy_beta_integral():
     """P(cell) = int Beta(r) [Phi((hi-r)/s) - Phi((lo-r)/s)] dr, and P(r_meas = 0) = int Beta(r) Phi(-r/s) dr.
 
@@ -165,6 +166,7 @@ def test_resampling_reproducible_and_leaves_global_state(scheme):
 
 
 # --- filter ----------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_filter_short_run_is_healthy_and_covers_truth(model):
     """Plant truth (lab card, M = 2000), 4 hourly samples of 300 particles, N = 500 filter particles."""
     from bmctl.config import load_card
@@ -184,6 +186,7 @@ def test_filter_short_run_is_healthy_and_covers_truth(model):
     assert np.all(np.abs(np.log(rec["mean"][-1, :4] / tr)) < 0.25)
 
 
+@pytest.mark.slow
 def test_filter_update_guards(model):
     pf = ParticleFilter(model, np.random.default_rng(0), FilterSettings(n_particles=200))
     pf.predict((300.0, 1.0), 1.0)
@@ -196,6 +199,7 @@ def test_filter_update_guards(model):
     assert np.all(np.isfinite(est.mean)) and pf.pending_h == 0.0
 
 
+@pytest.mark.slow
 def test_small_coverage_study(model):
     """3 seeds x 2 off-card scenarios x 6 hourly samples (n = 300): 36 (run, time) pairs per moment.
 
@@ -229,6 +233,7 @@ def _write_samples(folder, n_samples=2, n=200, seed=0):
     return paths
 
 
+@pytest.mark.slow
 def test_cli_estimate_writes_csv_and_figure(tmp_path, capsys):
     _write_samples(tmp_path / "samples")
     out = tmp_path / "res" / "estimate.csv"

@@ -114,6 +114,7 @@ def _pf_run(model, pf, rng_data, steps):
         pf.update(s, r)
 
 
+@pytest.mark.slow
 def test_two_particle_filters_do_not_disturb_each_other(model):
     """Interleaved and separate runs give identical particles; numpy's global state is untouched."""
     st = FilterSettings(n_particles=100, ess_fraction=1.0)  # resample at every update
@@ -194,6 +195,7 @@ def test_ukf_tracks_moments_and_factors(model, truth_path):
     assert np.all(np.mean(p_err, axis=0) < 0.15), np.mean(p_err, axis=0)  # gamma, delta learnt from 1.0 start
 
 
+@pytest.mark.slow
 def test_ukf_state_round_trip_continues_identically(model, truth_path):
     rng = np.random.default_rng(3)
     data = [(draw_sample(x, 100, rng), float(x[4])) for x in truth_path[:6]]
@@ -250,6 +252,7 @@ def test_make_pd_repairs_and_keeps():
     assert np.allclose(P, 0.5 * (bad + bad.T), atol=1e-6)
 
 
+@pytest.mark.slow
 def test_ukf_keeps_bounds_and_repairs_under_extreme_input(model):
     f = UKFEstimator(model, settings=UKFSettings(param_prior_log_std=3.0))
     for _ in range(5):
@@ -307,6 +310,7 @@ def test_trial_runs_and_resumes_on_the_ukf(tmp_path):
         assert ra == rb
 
 
+@pytest.mark.slow
 def test_cli_estimate_ukf(tmp_path, capsys, model):
     from bmctl.measure.tables import ParticleTable, write_table
 

@@ -10,6 +10,7 @@ from bmctl.loop import Controller, Estimator, Mill
 from ..conftest import ROOT, card_path
 
 
+@pytest.mark.slow
 def test_round_trip_restores_generators_exactly(tmp_path):
     from bmctl.plant import make_plant
 
@@ -36,6 +37,7 @@ def test_objects_are_not_plain_data(tmp_path):
         save_state(tmp_path / "c.npz", {"x": object()})
 
 
+@pytest.mark.slow
 def test_protocols_fit_the_shipped_objects():
     from bmctl.control import make_controller
     from bmctl.estimate import FilterSettings, ParticleFilter

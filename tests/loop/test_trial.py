@@ -42,6 +42,7 @@ def _rows(path):
     return path.read_text().splitlines()
 
 
+@pytest.mark.slow
 def test_trial_outputs_and_resume_identical(small, tmp_path):
     full = tmp_path / "full"
     summary = run_trial(small, full, seed=5)
@@ -70,6 +71,7 @@ def test_trial_outputs_and_resume_identical(small, tmp_path):
     assert not list(part.glob("*.pkl"))
 
 
+@pytest.mark.slow
 def test_checkpoint_is_plain_data(small, tmp_path):
     import numpy as np
 
@@ -79,6 +81,7 @@ def test_checkpoint_is_plain_data(small, tmp_path):
         assert all(z[k].dtype != object for k in z.files)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("target,content", [
     ("checkpoint.npz", b"PK\x03\x04 not really a zip"),
     ("checkpoint.npz", None),  # truncated to half its length
@@ -96,6 +99,7 @@ def test_resume_refuses_damaged_files_one_line(small, tmp_path, capsys, target, 
     assert len(err.strip().splitlines()) == 1 and target in err, err
 
 
+@pytest.mark.slow
 def test_resume_refuses_other_seed(small, tmp_path):
     out = tmp_path / "o"
     run_trial(small, out, seed=1, max_steps=1)

@@ -2,6 +2,8 @@
 
 import csv
 
+import pytest
+
 from bmctl.cli import main
 
 from ..conftest import ROOT, card_path
@@ -9,6 +11,7 @@ from ..conftest import ROOT, card_path
 LAB = str(card_path("alni-1to1-300rpm-lab"))
 
 
+@pytest.mark.slow
 def test_whatif_compares_schedules(tmp_path, capsys):
     a = tmp_path / "a.toml"
     a.write_text('name = "hot"\n[[segment]]\nhours = 2\nrpm = 400\n')
@@ -48,6 +51,7 @@ def _two_thread_workers():
                                silence_logs=40))
 
 
+@pytest.mark.slow
 def test_whatif_same_numbers_serial_and_on_two_workers(tmp_path, capsys):
     """--workers 0 (serial, in process) and a 2-worker Dask cluster write the same CSV, digit for digit."""
     from bmctl import io
@@ -70,6 +74,7 @@ def test_whatif_same_numbers_serial_and_on_two_workers(tmp_path, capsys):
     assert (tmp_path / "dask.csv").read_text() == (tmp_path / "serial" / "whatif.csv").read_text()
 
 
+@pytest.mark.slow
 def test_whatif_member_k_is_the_plant_seeded_base_seed_plus_k():
     """The ensemble keeps its streams: member k is the plant drawn from default_rng(base_seed + k),
     run open loop (the definition the outputs had before the ensemble ran on Dask)."""

@@ -113,6 +113,7 @@ def test_render_is_seeded_and_ignores_global_rng():
     assert not np.array_equal(a.image, c.image)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "s_px, s_tol, r_tol",
     [
@@ -178,6 +179,7 @@ def ampis():
     return hand_comparison(AMPIS_PNG, AMPIS_JSON)
 
 
+@pytest.mark.slow
 def test_real_powder_against_hand_outlines(ampis):
     # Measured (docs/measurement.md, 5.3): 146 of 191 interior outlines matched (IoU > 0.5) =
     # 0.76, precision 0.58 (satellites split off, small unlabelled particles); matched
@@ -194,6 +196,7 @@ def test_real_powder_against_hand_outlines(ampis):
     assert summ["r_mae"] <= 0.03
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not SIO2_TIF.exists(), reason="SiO2 image not present")
 def test_real_sio2_with_info_bar_cropped():
     # hard case: no ground truth; checks the crop path and plausible numbers only
@@ -287,6 +290,7 @@ def test_sampler_resolution_loss_and_section():
         micrograph_sample(np.full(10, 1.0), np.full(10, 0.0), 5, np.random.default_rng(0), um_per_px=1.0)
 
 
+@pytest.mark.slow
 def test_sampler_render_path_goes_through_segmentation():
     s, r = _population(np.random.default_rng(0), 2000)
     t = micrograph_sample(s, r, 60, np.random.default_rng(6), render=True, um_per_px=2.0)
@@ -328,6 +332,7 @@ def png_image(tmp_path_factory):
     return p
 
 
+@pytest.mark.slow
 def test_cli_measures_image_and_passes_tables_through(capsys, tmp_path, png_image):
     out = tmp_path / "particles.csv"
     rc, stdout, err = _cli(capsys, ["measure", str(png_image), "--um-per-px", "0.5", "--out", str(out)])

@@ -103,6 +103,7 @@ def _image_with_data_bar(seed=5):
     return m, img
 
 
+@pytest.mark.slow
 def test_data_bar_excluded_and_scale_bar_read():
     m, img = _image_with_data_bar()
     assert find_info_bar(img) == 300
@@ -129,6 +130,7 @@ def test_array_without_scale_is_an_input_error():
 
 # --- command line ---------------------------------------------------------------------------------
 
+@pytest.mark.slow
 @needs_sio2
 def test_cli_sio2_without_scale_or_crop(capsys, tmp_path):
     # Without --um-per-px and --crop: scale from the metadata, data bar excluded. With the bar
@@ -163,6 +165,7 @@ def test_cli_no_scale_one_line_exit_2(capsys, tmp_path):
     assert not (tmp_path / "o.csv").exists()
 
 
+@pytest.mark.slow
 def test_cli_overlay_columns_and_ids(capsys, tmp_path):
     from skimage import io
 
@@ -194,6 +197,7 @@ def test_clean_image_has_no_warnings():
     assert [w.code for w in measure_micrograph(m.image, um_per_px=1.0).warnings] == []
 
 
+@pytest.mark.slow
 def test_small_particles_and_border_cuts_warn(capsys, tmp_path):
     small = render_micrograph(np.random.default_rng(6), n=120, shape=(256, 256), s_px=(6, 9))
     codes = {w.code for w in measure_micrograph(small.image, um_per_px=1.0, min_area_px=15).warnings}

@@ -1,6 +1,7 @@
 """Identification's plant runs on Dask: same numbers serially and on workers, seeds kept."""
 
 import numpy as np
+import pytest
 
 from bmctl.config import load_card
 from bmctl.moments import identify as ident
@@ -18,6 +19,7 @@ def _specs(card):
             ident.Spec("off", [(300.0, 1.0)] * 2, factors=(1.3, 0.7))]
 
 
+@pytest.mark.slow
 def test_run_experiments_same_numbers_serial_and_on_two_workers():
     from distributed import Client, LocalCluster
 

@@ -36,6 +36,7 @@ def _states(model, n=6, seed=3):
 # --- one definition, numpy and casadi -------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_numpy_and_casadi_agree(model):
     import casadi as ca
 
@@ -72,6 +73,7 @@ def test_batched_step_equals_single_steps(model):
     np.testing.assert_allclose(sim[-1], x, rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_casadi_jacobian_matches_finite_differences(model):
     import casadi as ca
 
@@ -259,6 +261,7 @@ def test_size_shape_link_has_the_plants_sign(name):
     assert beta > 0, beta
 
 
+@pytest.mark.slow
 def test_identification_recovers_known_coefficients(model):
     """``identify.fit`` (casadi with the coefficients as symbols, exact Jacobian, bounded least
     squares) recovers coefficients that generated the data, from the built-in defaults: the
@@ -298,6 +301,7 @@ def test_residual_scales_sit_between_own_and_common_range():
     assert np.allclose(sc[1], 20.0)
 
 
+@pytest.mark.slow
 def test_response_to_gamma_delta_follows_the_plant(model):
     """p = the plant's (gamma, delta) factors act inside eqns (15) and (20), nothing fitted: the
     model told p must follow plants with gamma, delta 30 % off the card. Compared: ln of the
@@ -344,6 +348,7 @@ def test_response_to_gamma_delta_follows_the_plant(model):
 # --- linear analysis ---------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_linearize_gives_statespace(model):
     import control
 
@@ -356,6 +361,7 @@ def test_linearize_gives_statespace(model):
     assert sys_c.A[4, 4] == pytest.approx(-1 / model.const.cooling_time_h)
 
 
+@pytest.mark.slow
 def test_linearize_command(tmp_path, capsys):
     assert main(["linearize", str(LAB), "--at-hours", "2", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
@@ -376,6 +382,7 @@ def test_bad_coefficient_file_is_an_input_error(tmp_path):
         make_moment_model(LAB, coeffs=bad)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CARDS)
 def test_every_card_builds_and_runs(name):
     m = make_moment_model(card_path(name))
@@ -499,6 +506,7 @@ def test_fast_forms_equal_the_textbook_forms():
         np.testing.assert_allclose(sg, sigmoid(a + k * t), rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_identify_figures_show_best_median_and_worst(tmp_path):
     """The validation figure picks its schedules by the mean NRMSE of the particle moments (and writes PNGs)."""
     from bmctl import plots
@@ -582,6 +590,7 @@ def test_event_counts_balance_the_particle_number(model):
     assert np.all(C[[0, 2, 3]] > 0.01) and np.all(C[1] < 1e-4)  # rest: none (the rates are smoothed at rpm 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CARDS)
 def test_event_rates_follow_the_plants_counts_on_the_recipe(name):
     """The fit sees moments only, never the plant's event counts: here the bonds and fractures

@@ -15,6 +15,7 @@ from bmctl.physics.kinematics import abs_diff_mean, kinematics, loss_ratio_mean
 from ..conftest import ROOT, card_path
 
 
+@pytest.mark.slow
 def test_pinned_quadrature_constants_recompute():
     assert abs_diff_mean() == pytest.approx(C.MEAN_ABS_DIFF_GAMMA15, rel=1e-13)
     assert loss_ratio_mean() == pytest.approx(C.MEAN_LOSS_RATIO, rel=1e-13)
@@ -50,11 +51,13 @@ def _run(code: str) -> str:
     return subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True).stdout
 
 
+@pytest.mark.slow
 def test_moments_and_estimate_do_not_import_the_plant():
     out = _run("import bmctl.moments, bmctl.estimate, sys; print([m for m in sys.modules if m.startswith('bmctl.plant')])")
     assert out.strip() == "[]"
 
 
+@pytest.mark.slow
 def test_plant_import_does_not_integrate():
     out = _run("import bmctl.plant, sys; print('scipy.integrate' in sys.modules)")
     assert out.strip() == "False"

@@ -18,6 +18,9 @@ from ..conftest import CARDS, card_path
 M = 20000
 SEED = 2024
 
+#: every test reads the 12 h runs of the module fixture (about 15 s under load): full run only
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def runs():

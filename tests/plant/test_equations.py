@@ -109,6 +109,7 @@ def test_eq5_energy_sampler_ks_against_gamma():
     assert integrate.quad(pdf5, 0, np.inf)[0] == pytest.approx(1.0, rel=1e-6)
 
 
+@pytest.mark.slow
 def test_eq5_weighted_sampler_matches_loop_weighting():
     rng = np.random.default_rng(2)
     u_in, u_out = ev.sample_impact_energies(rng, 1.0, 20000, weighted=True)

@@ -59,6 +59,7 @@ def test_discrete_smoluchowski_solver_against_constant_kernel_closed_form():
         np.testing.assert_allclose(ci[:40], nu**2 * (1 - nu) ** (k[:40] - 1), rtol=1e-6, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_kernel15_reference_is_converged():
     taus = (2.0, 4.0, 7.0)
     a, lost = V.smoluchowski_discrete(V.kernel15_matrix(600), taus)
@@ -113,6 +114,7 @@ def test_population_kernels_refuse_probabilities_above_one(cards):
 
 # --- analytic cases -------------------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(V.CASES))
 def test_analytic_case_unbiased_and_error_shrinks_as_m_to_the_minus_half(name):
     res = V.evaluate(V.CASES[name](), (1000, 4000, 16000), tuple(range(100, 108)))
@@ -136,6 +138,7 @@ class _WithoutReplacement(Plant):
         self._impact_round(kin, idx[:n], idx[n:], v)
 
 
+@pytest.mark.slow
 def test_breakage_case_detects_batches_without_replacement(monkeypatch):
     # a particle hit at most once per batch: the unbroken share decays as (1 - rate dt)^k, not exp(-rate t)
     monkeypatch.setattr("bmctl.validation.cases.Plant", _WithoutReplacement)
@@ -145,6 +148,7 @@ def test_breakage_case_detects_batches_without_replacement(monkeypatch):
 
 # --- the loop, the reference, bookkeeping --------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CARDS)
 def test_loop_energetics_match_the_plant_sampler(cards, name):
     card = cards[name]
@@ -154,6 +158,7 @@ def test_loop_energetics_match_the_plant_sampler(cards, name):
     assert 0.3 < e.overshoot < 1.0  # (1 + CV^2) / 2 impacts past the budget per collision
 
 
+@pytest.mark.slow
 def test_loop_energetics_detect_uniform_angles(cards, monkeypatch):
     # the plant's earlier sampler drew psi uniformly: the loop's plastic share is higher
     from bmctl.plant.kernels import PaperKernels
@@ -164,6 +169,7 @@ def test_loop_energetics_detect_uniform_angles(cards, monkeypatch):
     assert e.z()["plastic"] > V.Z_BIAS
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CARDS)
 def test_plant_agrees_with_one_collision_reference(cards, name):
     res = V.compare_reference(cards[name], 0.25, 400, range(10))
@@ -182,6 +188,7 @@ def test_reference_spends_each_collisions_energy(cards):
     assert ref.M == 400 - ref.counts.bonds + ref.counts.fractures
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CARDS)
 def test_long_run_bookkeeping(cards, name):
     b = V.bookkeeping(cards[name], 1000, 3, scale=0.25)  # 12 h with rests and rpm_max
@@ -190,6 +197,7 @@ def test_long_run_bookkeeping(cards, name):
 
 # --- the command ------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_cli_verify_writes_table_and_figures(tmp_path, capsys, monkeypatch):
     tiny = V.Settings(sizes=(300, 600), seeds=2, ref_particles=200, ref_hours=0.05, ref_seeds=3, collisions=200,
                       book_particles=300, book_scale=0.02)
