@@ -3,6 +3,7 @@
 Run:  python benchmarks/bench_control.py [--controller controllers/mpc-default.toml] [--hours 4]
                                         [--card alni-1to1-300rpm-lab] [--scenario all]
       python benchmarks/bench_control.py --compare s_mean_um=30,r_mean=0.05   (all controllers, 12 h)
+      python benchmarks/bench_control.py --compiled   (interpreted vs compiled warm solver, side by side)
 
 For each scenario the MPC drives the moment model itself (no plant noise) toward a target
 taken from the model's own trajectory under a known schedule (reachable), or from a hotter
@@ -98,6 +99,45 @@ def compare(model, target: dict) -> None:
               f"{interval_peaks(model, X, U, dt).max():7.1f} {np.median(ms[1:] or ms):9.0f} {fb:9d}")
 
 
+def compiled_vs_interpreted(model, cfg_path: str, hours: float) -> None:
+    """Warm-solver build (s) and warm-solve CPU (ms), interpreted and compiled, in one run.
+
+    The compiled library is built first if it is not cached (that compile is not timed here);
+    the timed build is then what every later process pays: load from the cache.
+    """
+    from bmctl.control import cache
+
+    rows = {}
+    for mode in ("0", "wait", "1"):  # interpreted; compile if missing (untimed); cached build (timed)
+        os.environ[cache.ENV_SWITCH] = mode
+        cfg = load_controller(cfg_path).model_copy(update={"batch_hours": hours})
+        rpm, mill, _ = SCENARIOS["reachable-350rpm"]
+        K = int(round(hours / cfg.interval_h))
+        Xs = model.simulate(model.x0(), [[rpm, mill]] * K, cfg.interval_h)
+        ctrl = make_controller(cfg, model, {"s_mean_um": float(Xs[-1, 0]), "r_mean": float(Xs[-1, 2])})
+        ctrl.plan(model.x0(), 0.0, None, None)  # cold solve (exact Hessian, interpreted in both)
+        t0 = time.perf_counter()
+        ctrl._solver(True)
+        build_s = time.perf_counter() - t0
+        if mode == "wait":
+            continue
+        x, u, cpu, U = model.x0(), None, [], []
+        for k in range(K):
+            plan = ctrl.plan(x, k * cfg.interval_h, None, u)
+            if k:
+                cpu.append(plan.status.solve_cpu_ms)
+            U.append(plan.u[0])
+            u = plan.u_apply
+            x = model.step(x, u, cfg.interval_h)
+        rows["interpreted" if mode == "0" else "compiled"] = (build_s, float(np.median(cpu)), np.array(U))
+    (bi, ci, Ui), (bc, cc, Uc) = rows["interpreted"], rows["compiled"]
+    print(f"load average {os.getloadavg()[0]:.1f}")
+    print(f"warm solver build: interpreted {bi:.1f} s, compiled (cached) {bc:.2f} s, ratio {bi / bc:.1f}x")
+    print(f"warm solve CPU median: interpreted {ci:.0f} ms, compiled {cc:.0f} ms, ratio {ci / cc:.1f}x")
+    print(f"first-move plans: max |rpm| difference {np.max(np.abs(Ui[:, 0] - Uc[:, 0])):.2g}, "
+          f"max milling difference {np.max(np.abs(Ui[:, 1] - Uc[:, 1])):.2g}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--controller", default=os.path.join(ROOT, "controllers", "mpc-default.toml"))
@@ -106,8 +146,12 @@ def main() -> None:
     ap.add_argument("--scenario", default="all", choices=["all", *SCENARIOS])
     ap.add_argument("--compare", default=None, metavar="K=V,...",
                     help="instead: run every shipped controller over the batch toward this target")
+    ap.add_argument("--compiled", action="store_true", help="instead: interpreted vs compiled warm solver")
     a = ap.parse_args()
     model = make_moment_model(os.path.join(ROOT, "models", f"{a.card}.toml"))
+    if a.compiled:
+        compiled_vs_interpreted(model, a.controller, a.hours)
+        return
     if a.compare:
         from bmctl.control import parse_target
 

@@ -39,7 +39,17 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser(available: dict[str, object] | None = None) -> argparse.ArgumentParser:
-    """Build the top-level parser with the subcommands whose modules import."""
+    """Build the top-level parser; each subcommand's arguments are added only when its module is given.
+
+    Parameters
+    ----------
+    available : dict, optional
+        Subcommand name -> imported module (``configure``, ``run``). Subcommands not in it are
+        listed in ``bmctl --help`` from :data:`COMMANDS` without importing their module;
+        ``None`` imports every subcommand (see :func:`_modules`).
+    """
+    if available is None:
+        available = _modules()
     parser = _Parser(prog="bmctl", description="Closed-loop control and optimisation of ball milling.")
     from . import __version__
 
@@ -47,8 +57,9 @@ def build_parser(available: dict[str, object] | None = None) -> argparse.Argumen
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for name, (modname, help_) in COMMANDS.items():
-        mod = (available or {}).get(name)
+        mod = available.get(name)
         if mod is None:
+            sub.add_parser(name, help=help_, description=help_)
             continue
         p = sub.add_parser(name, help=help_, description=(mod.__doc__ or help_).strip().splitlines()[0])
         mod.configure(p)
@@ -56,9 +67,12 @@ def build_parser(available: dict[str, object] | None = None) -> argparse.Argumen
     return parser
 
 
-def _modules() -> dict[str, object]:
+def _modules(names=None) -> dict[str, object]:
+    """Import the subcommand modules named (all when ``None``) that exist."""
     mods = {}
     for name, (modname, _) in COMMANDS.items():
+        if names is not None and name not in names:
+            continue
         try:
             mods[name] = importlib.import_module(modname)
         except ModuleNotFoundError as exc:
@@ -67,10 +81,23 @@ def _modules() -> dict[str, object]:
     return mods
 
 
+def _chosen(argv: list[str]) -> list[str]:
+    """The subcommand named on the command line (the first word that is not an option), if any.
+
+    Only that subcommand's module is imported to build the parser, so ``bmctl --help`` and
+    ``bmctl simulate ...`` do not pay for importing the other eight.
+    """
+    for word in argv:
+        if not word.startswith("-"):
+            return [word] if word in COMMANDS else []
+    return []
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status (0 ok, 2 bad input)."""
     try:
-        parser = build_parser(_modules())
+        argv = sys.argv[1:] if argv is None else list(argv)
+        parser = build_parser(_modules(_chosen(argv)))
         args = parser.parse_args(argv)
         return int(args._run(args) or 0)
     except InputError as exc:

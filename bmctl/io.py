@@ -24,8 +24,6 @@ import tempfile
 from pathlib import Path
 from typing import Iterable, Sequence
 
-import numpy as np
-
 from .errors import InputError
 
 #: default size limit of an input file (micrographs and tables are far smaller)
@@ -203,6 +201,8 @@ def csv_text(header: Sequence[str], rows: Iterable[Sequence], fmt: str = "{:.6g}
     fmt : str, optional
         Format for floats.
     """
+    import numpy as np  # here, not at module level: the CLI imports bmctl.io without numpy
+
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
@@ -218,6 +218,8 @@ def write_csv(path: str | os.PathLike, header: Sequence[str], rows: Iterable[Seq
 
 def savez(path: str | os.PathLike, **arrays) -> None:
     """Save arrays to a compressed ``.npz`` atomically."""
+    import numpy as np
+
     with atomic_path(path, suffix=".npz") as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **arrays)

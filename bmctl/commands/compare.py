@@ -11,10 +11,6 @@ from __future__ import annotations
 
 import json
 
-import numpy as np
-
-from ..config import card_schedule, load_card, load_schedule
-from ..io import write_text
 from ._args import float_arg, int_arg, output_path
 
 
@@ -31,6 +27,10 @@ def configure(p):
 
 def run(args) -> int:
     """Simulate to ``--at-h``, compare, print the statistics, write the figure and JSON."""
+    import numpy as np  # here, not at module level: building the CLI parser imports no numerical stack
+
+    from ..config import card_schedule, load_card, load_schedule
+    from ..io import write_text
     from ..measure.compare import compare_figure, predicted_population, two_sample
     from ..measure.tables import read_table
 

@@ -16,8 +16,6 @@ from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import InputError
 from ._args import int_arg, output_path
 
@@ -52,6 +50,8 @@ def _out_path(args) -> Path:
 
 
 def run(args) -> int:
+    import numpy as np
+
     from ..config import load_card
     from ..io import write_text
     from ..moments import identify as ident

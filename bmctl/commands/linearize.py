@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from ..errors import InputError
 from ._args import output_path
 
@@ -32,6 +30,8 @@ def configure(p):
 
 
 def run(args) -> int:
+    import numpy as np
+
     from ..config import load_card
     from ..io import savefig
     from ..moments import make_moment_model

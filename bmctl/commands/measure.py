@@ -18,15 +18,12 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from ..errors import InputError
-from ..io import write_text
-from ..measure.micrograph import measure_micrograph
-from ..measure.overlay import write_overlay
-from ..measure.scale import check_scale
-from ..measure.tables import ParticleLocations, ParticleTable, read_table, write_table
 from ._args import output_path
+
+#: default --min-area-px; equals bmctl.measure.segment.MIN_AREA_PX (a test checks), kept here so that
+#: building the parser does not import the image stack
+MIN_AREA_PX = 30
 
 
 def _min_area(text: str):
@@ -75,6 +72,14 @@ def _overlay_names(results, folder: Path) -> list[Path]:
 
 def run(args: argparse.Namespace) -> int:
     """Measure all inputs, print a summary and warnings, write ``--out`` and what goes beside it."""
+    import numpy as np  # here, not at module level: building the CLI parser imports no numerical stack
+
+    from ..io import write_text
+    from ..measure.micrograph import measure_micrograph
+    from ..measure.overlay import write_overlay
+    from ..measure.scale import check_scale
+    from ..measure.tables import ParticleLocations, ParticleTable, read_table, write_table
+
     scale = check_scale(args.um_per_px) if args.um_per_px is not None else None
     bar_um = check_scale(args.scale_bar_um, "--scale-bar-um") if args.scale_bar_um is not None else None
     if args.out:

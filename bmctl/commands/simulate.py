@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 
-from ..config import card_schedule, load_card, load_schedule
 from ..errors import InputError
 from ._args import float_arg, int_arg, output_path
 
@@ -26,6 +25,7 @@ def configure(p):
 
 
 def run(args) -> int:
+    from ..config import card_schedule, load_card, load_schedule
     from ..simulate import simulate, write_outputs
 
     card = load_card(args.model)

@@ -73,6 +73,8 @@ class MPCController:
         self._prev: _Solution | None = None
         self._sticky_exact = False
         self._nlp = None
+        self._nlp_c = None  # the NLP with the rate field as a called function (compiled solvers)
+        self._pending: dict = {}  # solver key -> (library path, options) while gcc runs
         self.adaptive = cfg.adaptation.mode != "none"
         self.gain = np.ones(4)  # prediction gain per particle moment (Adaptation, mode "gain")
         self.bias = np.zeros(4)  # additive prediction bias per interval (Adaptation, mode "bias")
@@ -234,13 +236,17 @@ class MPCController:
 
     # --- NLP ---------------------------------------------------------------------------------
     def _build(self):
+        self._nlp = self._nlp_dict(self.model.casadi_step(self.interval_h, self.cfg.solver.substeps))
+
+    def _nlp_dict(self, F, keep: bool = True) -> dict:
+        """The NLP ``{x, p, f, g}`` with ``F`` as the interval step (``keep``: also the cost function,
+        sizes and Gauss-Newton Hessian on ``self``)."""
         import casadi as ca
 
         from ..moments import equations as eq
 
         cfg, N, dt, m = self.cfg, self.N, self.interval_h, self.model
         c = m.const
-        F = m.casadi_step(dt, cfg.solver.substeps)
         W = ca.MX.sym("w", N)
         M = ca.MX.sym("m", N)
         Z = ca.MX.sym("z", 6, N)
@@ -273,7 +279,9 @@ class MPCController:
         gT = Tpk.T - S
         g = ca.vertcat(ca.vec(defect), ca.diff(W), gT)
         V = ca.vertcat(W, M, ca.vec(Z), S)
-        self._nlp = {"x": V, "p": P, "f": J, "g": g}
+        nlp = {"x": V, "p": P, "f": J, "g": g}
+        if not keep:
+            return nlp
         self._J = ca.Function("J", [V, P], [J])
         self._nv, self._ng = V.shape[0], g.shape[0]
         # Gauss-Newton Hessian of the Lagrangian: the cost's and the temperature rows' curvature, the
@@ -287,6 +295,7 @@ class MPCController:
         self._hess = ca.Function("nlp_hess_l", {"x": V, "p": P, "lam_f": lf, "lam_g": lg,
                                                 "triu_hess_gamma_x_x": ca.triu(H)},
                                  ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
+        return nlp
 
     def _solver(self, warm: bool, hessian: str | None = None):
         import casadi as ca
@@ -317,8 +326,65 @@ class MPCController:
                 opts.update({"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-6,
                              "ipopt.warm_start_slack_bound_push": 1e-6, "ipopt.warm_start_mult_bound_push": 1e-6,
                              "ipopt.mu_init": 1e-4})
-            self._solvers[key] = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp, opts)
+            compiled = self._compiled_solver(key, opts) if hessian != "exact" else None
+            if compiled is None:
+                compiled = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp, opts)
+            self._solvers[key] = compiled
+        elif key in self._pending:  # a background compile may have finished: switch to it
+            self._upgrade(key)
         return self._solvers[key]
+
+    def _compiled_solver(self, key, opts: dict):
+        """The solver for ``key`` from bmctl's cache of compiled NLPs (:mod:`bmctl.control.cache`), or None.
+
+        A missing library is compiled (in the background unless ``BMCTL_MPC_COMPILE=wait``); the
+        caller then builds the interpreted solver, which :meth:`_upgrade` replaces once gcc is done.
+        The compiled NLP evaluates the same equations (the step with the rate field as a called
+        function instead of inlined), so plans agree to solver tolerance (tests/test_control.py).
+        """
+        from . import cache
+
+        if not cache.enabled():
+            return None
+        path = self._library(key, opts)
+        if path is None:
+            return None
+        lib_opts = {k: v for k, v in opts.items() if k not in ("expand", "hess_lag")}
+        if not cache.ready(path):
+            import casadi as ca
+
+            gen = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp_c, {**lib_opts, **(
+                {"hess_lag": opts["hess_lag"]} if "hess_lag" in opts else {})})
+            cache.start_compile(gen, path, wait=cache.wait_for_compile())
+            if not cache.ready(path):
+                self._pending[key] = (path, lib_opts)
+                return None
+        return cache.load(path, f"mpc_{key[0]}", lib_opts)
+
+    def _library(self, key, opts: dict):
+        """Cache path of the compiled NLP for solver ``key`` (builds the call-based NLP on first use)."""
+        import casadi as ca
+
+        from . import cache
+
+        if self._nlp_c is None:
+            self._nlp_c = self._nlp_dict(_call_step(self.model, self.interval_h, self.cfg.solver.substeps), keep=False)
+        nlp = self._nlp_c
+        fns = [ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])]
+        if "hess_lag" in opts:
+            fns.append(opts["hess_lag"])
+        tag = f"{key[0]}-{key[1]}-it{opts['ipopt.max_iter']}"
+        return cache.library_path(cache.solver_key(fns, tag), prefix=f"mpc-{key[0]}")
+
+    def _upgrade(self, key) -> None:
+        from . import cache
+
+        path, lib_opts = self._pending[key]
+        if cache.ready(path):
+            del self._pending[key]
+            solver = cache.load(path, f"mpc_{key[0]}", lib_opts)
+            if solver is not None:
+                self._solvers[key] = solver
 
     def _can_warm(self, t: float) -> bool:
         if not self.cfg.solver.warm_start or self._prev is None:
@@ -443,6 +509,25 @@ class MPCController:
         u_apply = applied_input_guarded(self.model, x0, U[0], dt, self.cfg.temperature.ceiling_c, on.round_minutes,
                                         on.mode == "binary")
         return Plan(t, dt, U, X, np.asarray(Tpk, dtype=float), u_apply, status)
+
+
+def _call_step(model, dt_h: float, substeps: int | None):
+    """The model's interval step as an MX function that *calls* the rate field at every RKC stage
+    (``MomentModel.casadi_step`` inlines it). Same equations; its generated C stays small (the rate
+    field and its derivatives once, not once per stage), so it compiles in seconds to minutes
+    instead of not at all."""
+    import casadi as ca
+
+    from ..moments import equations as eq
+    from ..moments.model import _ca_cols, rkc_stages
+
+    n_default, _ = model._integration(float(dt_h))
+    n = n_default if substeps is None else int(substeps)
+    x, u, p = ca.MX.sym("x", 6), ca.MX.sym("u", 2), ca.MX.sym("p", 2)
+    s = rkc_stages(model.const.rate_max_per_h, float(dt_h) / n)
+    out = eq.step(eq.CA(), model.const, model.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
+                  float(dt_h), n, s, rates=model._casadi_rates())
+    return ca.Function("moment_step", [x, u, p], [ca.vertcat(*out)], ["x", "u", "p"], ["x_next"])
 
 
 def _shift(v: np.ndarray, s: int, block: int = 1) -> np.ndarray:

@@ -1,0 +1,78 @@
+"""Compiled MPC solvers: the cache key, a corrupt library, and compiled == interpreted plans."""
+
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from bmctl.control import cache, make_controller
+from bmctl.control.config import load_controller
+from bmctl.moments.model import make_moment_model
+
+from .conftest import ROOT, card_path
+
+
+@pytest.fixture
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    return tmp_path / "xdg" / "bmctl" / "mpc"
+
+
+def _controller(model, hours=4.0):
+    cfg = load_controller(ROOT / "controllers" / "mpc-default.toml")
+    cfg = cfg.model_copy(update={"batch_hours": hours})
+    X = model.simulate(model.x0(), [[350.0, 0.8]] * 8, 0.5)
+    return make_controller(cfg, model, {"s_mean_um": float(X[-1, 0]), "r_mean": float(X[-1, 2])})
+
+
+def _library(ctrl):
+    ctrl._build()
+    return ctrl._library(("warm", "limited-memory"), {"ipopt.max_iter": 100})
+
+
+def test_cache_key_changes_with_the_coefficients(private_cache):
+    model = make_moment_model(card_path("alni-1to1-300rpm-lab"))
+    a = _library(_controller(model))
+    assert a == _library(_controller(model))  # same NLP, same file
+    assert a.parent == private_cache
+    key = next(k for k, v in model.coeffs.items() if isinstance(v, float) and v != 0.0)
+    other = make_moment_model(card_path("alni-1to1-300rpm-lab"), coeffs={**model.coeffs, key: model.coeffs[key] * 1.01})
+    assert _library(_controller(other)) != a
+
+
+def test_corrupt_library_is_ignored_and_removed(private_cache, capsys):
+    private_cache.mkdir(parents=True)
+    bad = private_cache / "mpc-warm-0123456789abcdef01234567.so"
+    bad.write_bytes(b"not a shared library")
+    assert cache.load(bad, "mpc_warm", {"print_time": False}) is None
+    assert not bad.exists()  # the next process rebuilds it
+    assert "did not load" in capsys.readouterr().err
+
+
+def test_a_shared_cache_folder_is_refused(private_cache):
+    private_cache.mkdir(parents=True)
+    os.chmod(private_cache, 0o777)
+    assert cache.cache_dir() is None
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+def test_compiled_and_interpreted_solvers_give_the_same_plans(private_cache, monkeypatch):
+    model = make_moment_model(card_path("alni-1to1-300rpm-lab"))
+    plans = {}
+    for mode in ("0", "wait"):
+        monkeypatch.setenv(cache.ENV_SWITCH, mode)
+        ctrl = _controller(model)
+        x, u, out = model.x0(), None, []
+        for k in range(5):
+            plan = ctrl.plan(x, 0.5 * k, None, u)
+            assert plan.status.ok
+            out.append(plan.u)
+            u = plan.u_apply
+            x = model.step(x, u, 0.5)
+        plans[mode] = np.array(out)
+    assert any(private_cache.glob("mpc-warm-*.so"))
+    # IPOPT tol 1e-4 (scaled): rpm within 0.1, milling fraction within 1e-3
+    np.testing.assert_allclose(plans["wait"][..., 0], plans["0"][..., 0], atol=0.1)
+    np.testing.assert_allclose(plans["wait"][..., 1], plans["0"][..., 1], atol=1e-3)
