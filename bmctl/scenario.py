@@ -10,7 +10,7 @@ from pydantic import Field, model_validator
 from .config import HOURS, NonNeg, Pos, Range, Strict, load
 from .errors import InputError
 
-TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
+TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "d90_um", "span")  # = control.config.TARGET_KEYS
 
 
 class ScenarioInfo(Strict):
@@ -53,7 +53,7 @@ class Scenario(Strict):
     model: str  # the controller's and estimator's model card
     hours: HOURS = 12.0
     temperature_max_c: Range(0.0, 4000.0, lo_open=True) | None = None  # vial ceiling: overrides the controller's, counts violations
-    target: dict[str, Annotated[float, Field(gt=0)]] = {}
+    target: dict[str, Annotated[float, Field(gt=0)] | tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]]] = {}  # a number or a window [lo, hi]
     plant: PlantSpec = PlantSpec()
     sampling: SamplingSpec = SamplingSpec()
     estimator: EstimatorSpec = EstimatorSpec()

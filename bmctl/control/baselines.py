@@ -18,7 +18,8 @@ import numpy as np
 from ..errors import InputError
 from .base import (Plan, Reference, Status, batch_end_h, applied_input, applied_input_guarded, check_p, check_u_prev, check_x,
                    interval_peaks, max_milling_for_ceiling, rpm_window)
-from .config import TARGET_KEYS, LQRConfig, RecipeConfig
+from .config import TARGET_KEYS, LQRConfig, RecipeConfig, target_centre
+from .mill import MillGuard
 from .mpc import ERR_FLOOR, X_SCALE
 
 
@@ -30,6 +31,7 @@ class _Base:
         self.model = model
         self.t_end_h = float(cfg.batch_hours if cfg.batch_hours is not None else model.card.process.hours)
         self.reference = Reference.from_config(cfg) if reference is None else Reference.make(reference)
+        self.guard = MillGuard(cfg.mill, cfg.interval_h or 0.5)
 
     def set_target(self, target, t_end_h: float | None = None) -> None:
         """As :meth:`bmctl.control.mpc.MPCController.set_target`."""
@@ -50,6 +52,12 @@ class _Base:
             ua = applied_input(U[0], dt, round_minutes)
         else:
             ua = applied_input_guarded(self.model, x0, U[0], dt, ceiling, round_minutes)
+        if self.guard.active() and self.kind != "recipe":
+            self.guard.interval_h = dt
+            m_cap = 1.0 if ceiling is None else max_milling_for_ceiling(self.model, x0[4], max(ua[0], 1.0), dt, ceiling)
+            ua, note = self.guard.enforce(ua, t, self.model.rpm_max, min(m_cap, float(U[0, 1]) + 1e-9))
+            if note:
+                status.reason = (status.reason + "; " if status.reason else "") + note
         return Plan(t, dt, U, X, Tpk, ua, status)
 
     @staticmethod
@@ -128,6 +136,8 @@ class LQRController(_Base):
         self._t_last = None
         self._rpm_last = None
         self._K = None
+        if hasattr(self, "guard"):
+            self.guard.reset()
 
     def _jacobians(self):
         if self._jac is None:
@@ -181,9 +191,12 @@ class LQRController(_Base):
         if key is None or key not in d:
             status.reason = "no target on the tracked moment: holding rpm"
         else:
-            scale = max(abs(d[key]), ERR_FLOOR[key])
+            ref = target_centre(d[key])
+            scale = max(abs(ref), ERR_FLOOR[key])
             i = TARGET_KEYS.index(key)
-            e = (x0[i] - d[key]) / scale
+            if i >= 4:
+                raise InputError(f"lqr: track: {key} is not a state of the moment model (track a moment)")
+            e = (x0[i] - ref) / scale
             consecutive = self._t_last is not None and abs(t - self._t_last - dt) < 1e-6
             dxs = (x0 - self._x_last) / X_SCALE if consecutive and self._x_last is not None else np.zeros(6)
             try:
@@ -200,6 +213,12 @@ class LQRController(_Base):
             if K is not None:
                 dw = float(-(K @ np.concatenate([dxs, [e]]))[0])
                 rpm = float(np.clip(rpm_prev + dw * self.rpm_scale, lo, hi))
+        if cfg.ceiling_mode == "clip":  # keep milling, clip rpm to the highest that keeps the ceiling
+            rpm_ok = _max_rpm_for_ceiling(self.model, x0[4], m_nom, dt, ceiling, lo, rpm)
+            if rpm_ok < rpm - 1e-9:
+                status.reason = (status.reason + "; " if status.reason else "") + \
+                    f"ceiling clip: rpm {rpm:.0f} -> {rpm_ok:.0f}"
+                rpm = rpm_ok
         m_cap = max_milling_for_ceiling(self.model, x0[4], rpm, dt, ceiling)
         milling = min(m_nom, m_cap)
         if milling < m_nom - 1e-9:
@@ -208,3 +227,21 @@ class LQRController(_Base):
         self._x_last, self._t_last, self._rpm_last = x0.copy(), t, rpm
         status.solve_ms = (time.perf_counter() - t0) * 1e3
         return self._plan(x0, t, pp, np.array([[rpm, milling]]), status, cfg.round_minutes, ceiling)
+
+
+def _max_rpm_for_ceiling(model, T0: float, milling: float, dt_h: float, ceiling_c: float, lo: float,
+                         hi: float) -> float:
+    """Highest rpm in [lo, hi] whose peak temperature with ``milling`` stays <= the ceiling (bisection;
+    ``lo`` when none does: the guard then lowers the milling fraction)."""
+    def ok(r):
+        return max_milling_for_ceiling(model, T0, r, dt_h, ceiling_c) >= milling - 1e-9
+
+    if ok(hi):
+        return float(hi)
+    if not ok(lo):
+        return float(lo)
+    a, b = float(lo), float(hi)
+    for _ in range(30):
+        m = 0.5 * (a + b)
+        a, b = (m, b) if ok(m) else (a, m)
+    return a
