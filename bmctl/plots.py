@@ -31,25 +31,230 @@ def pdf_over_time(path: Path, axis: np.ndarray, pdfs: np.ndarray, times_h: Seque
     savefig(fig, path, dpi=120, bbox_inches="tight")
 
 
+R_LABEL = "irregularity r = 1 − πs/L (0 = round)"
+
+#: axis labels (with units and weighting) of the quantities the package plots
+QUANTITY_LABELS = {
+    "s_mean_um": "mean size s (µm, by number)", "s_std_um": "std of size s (µm, by number)",
+    "s_mode_um": "mode of size s (µm, by number)", "r_mean": "mean irregularity r", "r_std": "std of irregularity r",
+    "r_mode": "mode of irregularity r", "temperature_c": "vial temperature (°C)", "hardening": "hardening h (0-1)",
+    "d10_um": "D10 (µm, by volume)", "d50_um": "D50 (µm, by volume)", "d90_um": "D90 (µm, by volume)",
+    "span": "span (D90 − D10)/D50 (by volume)", "s_mean_area_um": "mean size (µm, by area; Sauter D[3,2])",
+    "s_mode_area_um": "mode of size (µm, by area)", "gamma_mult": "bonding factor γ / γ_card",
+    "delta_mult": "fracture factor δ / δ_card",
+}
+
+
+def quantity_label(key: str) -> str:
+    """Axis label of a moment/state name (units and weighting), or the name itself if unknown."""
+    return QUANTITY_LABELS.get(key, key)
+
+
 def moments_over_time(path: Path, t_h: np.ndarray, cols: dict[str, np.ndarray], title: str) -> None:
-    """Mean, std and mode of s and r, and vial temperature, over time (Fig. 12 analogue)."""
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    """Size statistics (number- and volume-weighted), irregularity r and vial temperature over time
+    (Fig. 12 analogue)."""
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     ax = axes[0]
-    for key, lab in (("s_mean_um", "mean s"), ("s_std_um", "std s"), ("s_mode_um", "mode s*")):
-        ax.plot(t_h, cols[key], marker="o", ms=3, label=lab)
-    ax.set_xlabel("t (h)"), ax.set_ylabel("size s (um)"), ax.legend(), ax.grid(alpha=0.3)
+    if "d50_um" in cols:
+        ax.fill_between(t_h, cols["d10_um"], cols["d90_um"], color="tab:orange", alpha=0.18, lw=0,
+                        label="D10–D90 (by volume)")
+        ax.plot(t_h, cols["d50_um"], color="tab:orange", marker="s", ms=3, label="D50 (by volume)")
+    if "s_mode_area_um" in cols:
+        ax.plot(t_h, cols["s_mode_area_um"], color="tab:green", marker="^", ms=3, ls="--", label="mode (by area)")
+    for key, lab, c in (("s_mean_um", "mean (by number)", "tab:blue"), ("s_std_um", "std (by number)", "tab:purple"),
+                        ("s_mode_um", "mode (by number)", "0.35")):
+        ax.plot(t_h, cols[key], marker="o", ms=3, label=lab, color=c)
+    ax.set_xlabel("milling time t (h)"), ax.set_ylabel("particle size s (µm)")
+    ax.set_title("particle size"), ax.legend(fontsize=7), ax.grid(alpha=0.3)
     ax = axes[1]
-    for key, lab in (("r_mean", "mean r"), ("r_std", "std r"), ("r_mode", "mode r*")):
+    for key, lab in (("r_mean", "mean r"), ("r_std", "std r"), ("r_mode", "mode r")):
         ax.plot(t_h, cols[key], marker="o", ms=3, label=lab)
-    ax.set_xlabel("t (h)"), ax.set_ylabel("aspect ratio r"), ax.legend(), ax.grid(alpha=0.3)
+    ax.set_xlabel("milling time t (h)"), ax.set_ylabel(R_LABEL), ax.set_title("particle shape (by number)")
+    ax.legend(fontsize=8), ax.grid(alpha=0.3)
     ax = axes[2]
-    ax.plot(t_h, cols["temperature_c"], color="tab:red", marker="o", ms=3)
-    ax.set_xlabel("t (h)"), ax.set_ylabel("vial temperature (°C)"), ax.grid(alpha=0.3)
+    ax.plot(t_h, cols["temperature_c"], color="tab:red", marker="o", ms=3, label="vial wall")
+    ax.set_xlabel("milling time t (h)"), ax.set_ylabel("vial temperature (°C)"), ax.set_title("temperature")
+    ax.legend(fontsize=8), ax.grid(alpha=0.3)
     fig.suptitle(title)
     savefig(fig, path, dpi=120, bbox_inches="tight")
 
 
-_MOMENT_LABELS = {"s_mean_um": "mean s (um)", "s_std_um": "std s (um)", "r_mean": "mean r", "r_std": "std r"}
+def log_size_bins(s_edges_um: np.ndarray, per_decade: int = 20, s_min_um: float = 1.0) -> np.ndarray:
+    """Edges of log-spaced size bins made of whole raster bins (indices into ``s_edges_um``).
+
+    Returns increasing indices k such that bin j spans raster bins k[j] .. k[j+1] - 1; every
+    log bin holds at least one 1-µm raster bin, so rebinning is exact.
+    """
+    lo = max(s_min_um, float(s_edges_um[1]))
+    target = np.exp(np.arange(np.log(lo), np.log(s_edges_um[-1]), np.log(10) / per_decade))
+    k = np.unique(np.searchsorted(s_edges_um, target))
+    return np.unique(np.concatenate([[0], k[(k > 0) & (k < s_edges_um.size - 1)], [s_edges_um.size - 1]]))
+
+
+def size_densities(s_edges_um: np.ndarray, p_s: np.ndarray, per_decade: int = 20):
+    """Number and volume densities per ln s on log bins, from number fractions on the 1-µm raster.
+
+    Parameters
+    ----------
+    s_edges_um : ndarray, (n + 1,)
+        Raster edges (µm).
+    p_s : ndarray, (..., n)
+        Number fractions per raster bin.
+
+    Returns
+    -------
+    centres_um, edges_um, q0, q3, Q3
+        Geometric bin centres and edges (µm) of the log bins; number density q0 and volume
+        density q3 per unit ln s on them, (..., nb); cumulative volume fraction Q3 at the raster's
+        upper edges, (..., n). Volume weights use each raster bin's centre (s^3).
+    """
+    k = log_size_bins(s_edges_um, per_decade)
+    c = 0.5 * (s_edges_um[1:] + s_edges_um[:-1])
+    pv = p_s * c**3
+    pv = pv / np.maximum(pv.sum(axis=-1, keepdims=True), 1e-300)
+    edges = s_edges_um[k]
+    edges = np.where(edges <= 0, 0.5 * s_edges_um[1], edges)
+    dln = np.diff(np.log(edges))
+    q0 = np.add.reduceat(p_s, k[:-1], axis=-1) / dln
+    q3 = np.add.reduceat(pv, k[:-1], axis=-1) / dln
+    return np.sqrt(edges[1:] * edges[:-1]), edges, q0, q3, np.cumsum(pv, axis=-1)
+
+
+def pick_times(times_h: Sequence[float], n: int = 6) -> list[int]:
+    """Indices of up to ``n`` recorded times: the start, then geometrically spaced to the end
+    (milling changes the powder fastest early: 0, 1, 2, 4, 8, 12 h for an hourly 12-h run)."""
+    m = len(times_h)
+    if m <= n:
+        return list(range(m))
+    k = np.unique(np.round(np.geomspace(1, m - 1, n - 1)).astype(int))
+    return [0, *k.tolist()]
+
+
+SIZE_TICKS_UM = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
+
+
+def _log_size_axis(ax, axis: str = "x") -> None:
+    """Log size axis with plain µm tick labels (1, 2, 5, 10, 20, ...)."""
+    from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
+
+    a = ax.xaxis if axis == "x" else ax.yaxis
+    a.set_major_locator(FixedLocator(SIZE_TICKS_UM))
+    a.set_major_formatter(ScalarFormatter())
+    a.set_minor_formatter(NullFormatter())
+
+
+def size_distributions(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, times_h: Sequence[float],
+                       d50_um: Sequence[float], title: str, n_panels: int = 6) -> None:
+    """Small multiples of the size distribution at selected times on a log size axis.
+
+    Each panel: number density per ln s (bars, left axis), volume density per ln s (orange line,
+    left axis), the cumulative volume fraction (dashed, right axis) and D50 (by volume) marked.
+    """
+    cen, edges, q0, q3, Q3 = size_densities(s_edges_um, p_s)
+    idx = pick_times(times_h, n_panels)
+    ncol = 3
+    nrow = int(np.ceil(len(idx) / ncol))
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.3 * ncol, 3.2 * nrow), sharex=True, squeeze=False)
+    peak = max(q0[idx].max(), q3[idx].max())
+    nz = np.nonzero(q0[idx].max(axis=0) + q3[idx].max(axis=0) > 1e-3 * peak)[0]
+    xlo, xhi = edges[max(nz[0] - 1, 0)], edges[min(nz[-1] + 2, edges.size - 1)]
+    for a, k in zip(axes.flat, idx):
+        top = 1.15 * max(q0[k].max(), q3[k].max())
+        a.bar(edges[:-1], q0[k], width=np.diff(edges), align="edge", color="tab:blue", alpha=0.45,
+              label="number density per ln s")
+        a.step(edges[:-1], q3[k], where="post", color="tab:orange", lw=1.6, label="volume density per ln s")
+        a.set_xscale("log")
+        _log_size_axis(a)
+        a.set_xlim(xlo, xhi), a.set_ylim(0, top)
+        a.axvline(d50_um[k], color="k", lw=1, ls=":")
+        a.text(d50_um[k], 0.93 * top, f" D50 {d50_um[k]:.0f} µm", fontsize=8, va="top", zorder=5,
+               bbox=dict(facecolor="white", alpha=0.8, lw=0, pad=1))
+        b = a.twinx()
+        b.plot(s_edges_um[1:], 100 * Q3[k], color="0.25", lw=1.1, ls="--", label="cumulative volume (%)")
+        b.set_ylim(0, 105)
+        if list(axes.flat).index(a) % ncol == ncol - 1:
+            b.set_ylabel("cumulative volume (%)")
+        else:
+            b.tick_params(right=False, labelright=False)
+        a.set_title(f"t = {times_h[k]:g} h", fontsize=10)
+        a.grid(alpha=0.3, which="both")
+    for a in axes.flat[len(idx):]:
+        a.set_visible(False)
+    for a in axes[:, 0]:
+        a.set_ylabel("density per unit ln s")
+    for a in axes[-1]:
+        a.set_xlabel("particle size s (µm, log scale)")
+    h1, l1 = axes[0, 0].get_legend_handles_labels()
+    fig.legend(h1 + [plt.Line2D([], [], color="0.25", ls="--"), plt.Line2D([], [], color="k", ls=":")],
+               l1 + ["cumulative volume fraction (right axis)", "D50: half the volume in smaller particles"],
+               loc="lower center", ncol=4, fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.01))
+    fig.suptitle(title)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    savefig(fig, path, dpi=120)
+
+
+def size_heatmap(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, times_h: Sequence[float],
+                 cols: dict[str, np.ndarray], title: str) -> None:
+    """Time–size heat maps of number and volume density per ln s (Fig. 9a analogue), log size axis.
+
+    The number map carries the number-weighted mean; the volume map D10, D50 and D90.
+    """
+    cen, edges, q0, q3, _ = size_densities(s_edges_um, p_s)
+    t = np.asarray(times_h, dtype=float)
+    dt = np.diff(t).min() if t.size > 1 else 1.0
+    t_edges = np.concatenate([[t[0] - dt / 2], 0.5 * (t[1:] + t[:-1]), [t[-1] + dt / 2]])
+    nz = np.nonzero(q0.max(axis=0) + q3.max(axis=0) > 1e-2 * max(q0.max(), q3.max()))[0]
+    ylo, yhi = edges[max(nz[0] - 1, 0)], edges[min(nz[-1] + 2, edges.size - 1)]
+    fig, axes = plt.subplots(1, 2, figsize=(12.5, 4.6), sharey=True)
+    for ax, q, lab, lines in (
+            (axes[0], q0, "by number", (("s_mean_um", "mean (by number)", "w", "-"),
+                                        ("s_mode_um", "mode (by number)", "w", ":"))),
+            (axes[1], q3, "by volume", (("d10_um", "D10", "w", ":"), ("d50_um", "D50", "w", "-"),
+                                        ("d90_um", "D90", "w", "--")))):
+        vmax = q[1:].max() if q.shape[0] > 1 else q.max()  # the narrow starting powder would wash out the rest
+        im = ax.pcolormesh(t_edges, edges, q.T, cmap="magma", shading="flat", vmin=0, vmax=vmax)
+        for key, name, c, ls in lines:
+            if key in cols:
+                ax.plot(t, cols[key], color=c, ls=ls, lw=1.4, label=name)
+        ax.set_yscale("log"), ax.set_ylim(ylo, yhi)
+        _log_size_axis(ax, "y")
+        ax.set_xlabel("milling time t (h)")
+        ax.set_title(f"size distribution {lab}")
+        ax.legend(fontsize=8, loc="upper right", facecolor="0.3", labelcolor="w", framealpha=0.6)
+        fig.colorbar(im, ax=ax, extend="max", label=f"density per unit ln s ({lab}; t = 0 clipped)")
+    axes[0].set_ylabel("particle size s (µm, log scale)")
+    fig.suptitle(title)
+    savefig(fig, path, dpi=120, bbox_inches="tight")
+
+
+def irregularity_distributions(path: Path, r_edges: np.ndarray, p_r: np.ndarray, times_h: Sequence[float],
+                               title: str, n_curves: int = 5) -> None:
+    """Distribution of the irregularity r at selected times: density on a log axis and cumulative fraction."""
+    idx = pick_times(times_h, n_curves)
+    w = np.diff(r_edges)
+    c = 0.5 * (r_edges[1:] + r_edges[:-1])
+    cum = np.cumsum(p_r, axis=-1)
+    hi = float(r_edges[min(np.searchsorted(cum[idx].min(axis=0), 0.999) + 2, r_edges.size - 1)])
+    cmap = plt.get_cmap("viridis")
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    for j, k in enumerate(idx):
+        col = cmap(j / max(len(idx) - 1, 1))
+        axes[0].step(c, np.where(p_r[k] > 0, p_r[k] / w, np.nan), where="mid", color=col, lw=1.3,
+                     label=f"t = {times_h[k]:g} h")
+        axes[1].plot(r_edges[1:], 100 * cum[k], color=col, lw=1.5, label=f"t = {times_h[k]:g} h")
+    axes[0].set_yscale("log")
+    axes[0].set_ylabel("number density per unit r (log scale)")
+    axes[0].set_title("density (bins of 0.01)")
+    axes[1].set_ylabel("particles with smaller r (%)")
+    axes[1].set_title("cumulative fraction by number")
+    for ax in axes:
+        ax.set_xlim(0, hi), ax.set_xlabel(R_LABEL), ax.grid(alpha=0.3, which="both"), ax.legend(fontsize=8)
+    fig.suptitle(title)
+    savefig(fig, path, dpi=120, bbox_inches="tight")
+
+
+_MOMENT_LABELS = {"s_mean_um": "mean s (µm)", "s_std_um": "std s (µm)", "r_mean": "mean irregularity r",
+                  "r_std": "std irregularity r"}
 
 
 def identify_validation(path: Path, experiments: Sequence, preds: Sequence[np.ndarray], rows: np.ndarray,

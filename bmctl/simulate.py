@@ -12,9 +12,23 @@ from . import io, plots
 from .config import ModelCard
 from .plant.plant import Plant, Record
 from .plant.population import DR, DS_UM, MOMENT_NAMES, raster_edges
+from .stats import SIZE_STAT_NAMES
 
+# number-weighted moments, then (appended) volume-weighted d10/d50/d90/span and area-weighted mean/mode
 MOMENTS_HEADER = ("t_h", "s_mean_um", "s_std_um", "s_mode_um", "r_mean", "r_std", "r_mode",
-                  "temperature_c", "bond_events", "fracture_events")
+                  "temperature_c", "bond_events", "fracture_events", *SIZE_STAT_NAMES)
+
+#: population.npz: name -> (dimensions, unit, meaning and weighting); stored in the file as string arrays
+POPULATION_VARIABLES = {
+    "p": ("t, s, r", "1", "number fraction of particles per (s, r) raster bin (weight 1 per particle); sums to 1"),
+    "p_volume": ("t, s, r", "1", "volume fraction per (s, r) raster bin (weight s^3, s at the bin centre); sums to 1"),
+    "p_area": ("t, s, r", "1", "projected-area fraction per (s, r) raster bin (weight s^2, s at the bin centre)"),
+    "t_h": ("t", "h", "recorded times"),
+    "s_edges_um": ("s+1", "um", "size-bin edges (1 um raster)"),
+    "s_centers_um": ("s", "um", "size-bin centres"),
+    "r_edges": ("r+1", "1", "irregularity-bin edges, r = 1 - pi s / L (0 = round), raster 0.01"),
+    "r_centers": ("r", "1", "irregularity-bin centres"),
+}
 
 
 @dataclass
@@ -73,31 +87,63 @@ def simulate(card: ModelCard, segments: Sequence[tuple[float, float]], seed: int
     return SimulationResult(card, records)
 
 
+def population_arrays(res: SimulationResult) -> dict[str, np.ndarray]:
+    """The arrays of population.npz: rasters by number, area and volume, axes, and metadata.
+
+    Metadata are plain string arrays (loadable with ``allow_pickle=False``): ``variables``,
+    ``dims``, ``units`` and ``meaning`` list every data array, and ``weighting`` names the
+    weight of each raster.
+    """
+    s_edges, r_edges = raster_edges(res.card.simulation.s_max_um)
+    s_c = 0.5 * (s_edges[1:] + s_edges[:-1])
+    p = np.stack([r.p for r in res.records])
+    out = {"p": p.astype(np.float32)}
+    for key, power in (("p_area", 2), ("p_volume", 3)):
+        pw = p * (s_c**power)[None, :, None]
+        out[key] = (pw / pw.sum(axis=(1, 2), keepdims=True)).astype(np.float32)
+    out.update(t_h=res.column("t_h"), s_edges_um=s_edges, s_centers_um=s_c, r_edges=r_edges,
+               r_centers=0.5 * (r_edges[1:] + r_edges[:-1]))
+    names = list(POPULATION_VARIABLES)
+    out.update(variables=np.array(names), dims=np.array([POPULATION_VARIABLES[k][0] for k in names]),
+               units=np.array([POPULATION_VARIABLES[k][1] for k in names]),
+               meaning=np.array([POPULATION_VARIABLES[k][2] for k in names]),
+               weighting=np.array(["p: number (s^0)", "p_area: area (s^2)", "p_volume: volume (s^3)"]),
+               card=np.array(res.card.card.name))
+    return out
+
+
 def write_outputs(res: SimulationResult, out: Path) -> list[Path]:
-    """Write moments.csv, population.npz and three PNG figures into ``out`` (each file atomically)."""
+    """Write moments.csv, population.npz and four PNG figures into ``out`` (each file atomically).
+
+    Figures: ``size_pdf.png`` (small multiples of the size distribution by number and by
+    volume on a log size axis, cumulative volume, D50), ``size_heatmap.png`` (time-size maps,
+    Fig. 9a analogue), ``aspect_pdf.png`` (irregularity r), ``moments.png`` (Fig. 12 analogue).
+    """
     out = Path(out)
     rows = []
     for r in res.records:
-        rows.append([r.t_h, *(r.moments[k] for k in MOMENT_NAMES), r.temperature_c, r.bonds, r.fractures])
+        rows.append([r.t_h, *(r.moments[k] for k in MOMENT_NAMES), r.temperature_c, r.bonds, r.fractures,
+                     *(r.moments[k] for k in SIZE_STAT_NAMES)])
     paths = [out / "moments.csv", out / "population.npz", out / "size_pdf.png", out / "aspect_pdf.png",
-             out / "moments.png"]
+             out / "moments.png", out / "size_heatmap.png"]
     io.write_csv(paths[0], MOMENTS_HEADER, rows)
-    s_edges, r_edges = raster_edges(res.card.simulation.s_max_um)
-    p = np.stack([r.p for r in res.records]).astype(np.float32)
-    t_h = res.column("t_h")
-    io.savez(paths[1], p=p, t_h=t_h, s_edges_um=s_edges, r_edges=r_edges,
-             s_centers_um=0.5 * (s_edges[1:] + s_edges[:-1]), r_centers=0.5 * (r_edges[1:] + r_edges[:-1]))
-    ps = p.sum(axis=2)
-    pr = p.sum(axis=1)
-    smax = float(np.percentile(np.concatenate([res.column("s_mean_um") + 4 * res.column("s_std_um")]), 100))
+    arrays = population_arrays(res)
+    io.savez(paths[1], **arrays)
+    p = arrays["p"].astype(float)
+    ps, pr = p.sum(axis=2), p.sum(axis=1)
+    t_h = arrays["t_h"]
+    s_edges = arrays["s_edges_um"]
     name = res.card.card.name
-    plots.pdf_over_time(paths[2], 0.5 * (s_edges[1:] + s_edges[:-1]), ps, t_h, "size s (um), bins of 1 um",
-                        f"{name}: size pdf over time", xmax=min(smax, res.card.simulation.s_max_um))
-    plots.pdf_over_time(paths[3], 0.5 * (r_edges[1:] + r_edges[:-1]), pr, t_h, "aspect ratio r, bins of 0.01",
-                        f"{name}: aspect-ratio pdf over time", xmax=1.0)
     cols = {k: res.column(k) for k in MOMENTS_HEADER}
-    plots.moments_over_time(paths[4], t_h, cols, f"{name}: moments over time")
+    plots.size_distributions(paths[2], s_edges, ps, t_h, cols["d50_um"],
+                             f"{name}: particle size distribution at selected milling times")
+    plots.irregularity_distributions(paths[3], arrays["r_edges"], pr, t_h,
+                                     f"{name}: particle irregularity r at selected milling times")
+    plots.moments_over_time(paths[4], t_h, cols, f"{name}: size, shape and temperature over milling time")
+    plots.size_heatmap(paths[5], s_edges, ps, t_h, cols,
+                       f"{name}: size distribution over milling time (colour: density per ln s)")
     return paths
 
 
-__all__ = ["simulate", "write_outputs", "SimulationResult", "MOMENTS_HEADER", "DS_UM", "DR"]
+__all__ = ["simulate", "write_outputs", "population_arrays", "SimulationResult", "MOMENTS_HEADER",
+           "POPULATION_VARIABLES", "DS_UM", "DR"]

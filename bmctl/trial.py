@@ -330,6 +330,8 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
 
     plt = pyplot()
 
+    from .plots import quantity_label
+
     data = np.genfromtxt(traj, delimiter=",", names=True, dtype=None, encoding="utf-8")
     t = np.atleast_1d(data["t_h"])
     fig, axes = plt.subplots(2, 3, figsize=(14, 7))
@@ -343,7 +345,7 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
             lo_, hi_ = target_bounds(sc.target[k])
             ax.axhspan(lo_, hi_, color="C3", alpha=0.2) if hi_ > lo_ else ax.axhline(lo_, color="C3", ls="--",
                                                                                    label="target")
-        ax.set_title(k), ax.set_xlabel("t (h)"), ax.grid(alpha=0.3)
+        ax.set_title(quantity_label(k)), ax.set_xlabel("t (h)"), ax.set_ylabel(quantity_label(k)), ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)
     ax = axes[1][0]
     ax.step(t, data["rpm"], where="pre", color="C2")
@@ -357,13 +359,15 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
     ax.plot(t, data["est_temperature_c"], "C0--", label="estimate")
     if ceiling is not None:
         ax.axhline(ceiling, color="k", ls=":", label="ceiling")
-    ax.set_title("vial temperature (°C)"), ax.set_xlabel("t (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
+    ax.set_title("vial temperature"), ax.set_ylabel("vial temperature (°C)"), ax.set_xlabel("t (h)")
+    ax.legend(fontsize=8), ax.grid(alpha=0.3)
     ax = axes[1][2]
-    ax.plot(t, data["est_gamma_mult"], label="gamma_mult")
-    ax.plot(t, data["est_delta_mult"], label="delta_mult")
+    ax.plot(t, data["est_gamma_mult"], label=quantity_label("gamma_mult"))
+    ax.plot(t, data["est_delta_mult"], label=quantity_label("delta_mult"))
     ax.fill_between(t, data["est_gamma_mult_q05"], data["est_gamma_mult_q95"], alpha=0.2)
     ax.fill_between(t, data["est_delta_mult_q05"], data["est_delta_mult_q95"], alpha=0.2)
-    ax.set_title("estimated gamma, delta factors"), ax.set_xlabel("t (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
+    ax.set_title("estimated bonding γ and fracture δ factors"), ax.set_ylabel("factor relative to the card (1 = card)")
+    ax.set_xlabel("t (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
     fig.suptitle(f"{sc.scenario.name}: {sc.scenario.description}")
     fig.tight_layout()
     io.savefig(fig, out / "trial.png", dpi=110)

@@ -97,6 +97,8 @@ def write_outputs(results: Sequence[WhatIfResult], out: Path) -> list[Path]:
     """whatif.csv (table), whatif_moments.png (bands over time), whatif_final.png (final pdfs)."""
     from .io import pyplot
 
+    from . import plots
+
     plt = pyplot()
 
     out = Path(out)
@@ -109,7 +111,8 @@ def write_outputs(results: Sequence[WhatIfResult], out: Path) -> list[Path]:
             m, lo, hi = res.band(key)
             ax.plot(res.t_h, m, color=f"C{i}", label=res.name)
             ax.fill_between(res.t_h, lo, hi, color=f"C{i}", alpha=0.2)
-            ax.set_title(key), ax.set_xlabel("t (h)"), ax.grid(alpha=0.3)
+            ax.set_title(plots.quantity_label(key), fontsize=9), ax.set_xlabel("milling time t (h)"), ax.grid(alpha=0.3)
+            ax.set_ylabel(plots.quantity_label(key), fontsize=8)
     axes[0].legend(fontsize=8)
     fig.suptitle("what-if schedules: ensemble mean and 90 % band")
     fig.tight_layout()
@@ -120,8 +123,10 @@ def write_outputs(results: Sequence[WhatIfResult], out: Path) -> list[Path]:
         axes[0].hist(res.final_s_um, bins=np.arange(0, smax + 2, 2), density=True, histtype="step", color=f"C{i}",
                      label=res.name)
         axes[1].hist(res.final_r, bins=np.linspace(0, 1, 51), density=True, histtype="step", color=f"C{i}")
-    axes[0].set_xlabel("final size s (um)"), axes[1].set_xlabel("final aspect ratio r")
-    axes[0].set_ylabel("pdf"), axes[0].legend(fontsize=8)
+    axes[0].set_xlabel("final size s (µm)"), axes[1].set_xlabel(f"final {plots.R_LABEL}")
+    axes[0].set_ylabel("probability density per µm (by number)"), axes[0].legend(fontsize=8)
+    axes[1].set_ylabel("probability density per unit r (by number)")
+    fig.suptitle("what-if schedules: size and irregularity of the particles at the end (all seeds pooled)")
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()

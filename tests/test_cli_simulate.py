@@ -11,7 +11,8 @@ from bmctl.cli import main
 from .conftest import card_path
 
 LAB = str(card_path("alni-1to1-300rpm-lab"))
-HEADER = "t_h,s_mean_um,s_std_um,s_mode_um,r_mean,r_std,r_mode,temperature_c,bond_events,fracture_events"
+HEADER = ("t_h,s_mean_um,s_std_um,s_mode_um,r_mean,r_std,r_mode,temperature_c,bond_events,fracture_events,"
+          "d10_um,d50_um,d90_um,span,s_mean_area_um,s_mode_area_um")
 
 
 def run(args, capsys):
@@ -37,7 +38,7 @@ def test_simulate_writes_outputs_and_same_seed_is_identical(tmp_path, capsys):
     assert pop["p"].shape == (4, pop["s_edges_um"].size - 1, pop["r_edges"].size - 1)
     np.testing.assert_allclose(pop["p"].sum(axis=(1, 2)), 1.0, rtol=1e-5)
     assert np.diff(pop["s_edges_um"])[0] == pytest.approx(1.0) and np.diff(pop["r_edges"])[0] == pytest.approx(0.01)
-    for png in ("size_pdf.png", "aspect_pdf.png", "moments.png"):
+    for png in ("size_pdf.png", "aspect_pdf.png", "moments.png", "size_heatmap.png"):
         assert (a / png).read_bytes()[:4] == b"\x89PNG"
 
 

@@ -168,6 +168,8 @@ def design_figure(d: Design, path: Path) -> None:
     from .config import target_bounds
     from .outputs import output_values
 
+    from ..plots import quantity_label
+
     plt = pyplot()
     t = d.times_h
     fig, axes = plt.subplots(2, 2, figsize=(11, 6.5), sharex=True)

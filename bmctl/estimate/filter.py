@@ -159,6 +159,11 @@ class Estimate:
         Learning rates of the size and shape blocks (NaN without a sample).
     n_measured : int
         Measured particles in the sample (0 without one).
+    size_stats : dict
+        Volume-weighted ``d10_um, d50_um, d90_um, span`` and area-weighted ``s_mean_area_um,
+        s_mode_area_um`` of the particles' size laws (closed form of each particle's mean and
+        std, :func:`bmctl.stats.law_size_stats`, as the moment model's ``outputs``): name ->
+        (weighted mean, q05, q95) over the filter's particles.
     """
 
     t_h: float
@@ -171,19 +176,41 @@ class Estimate:
     degenerate: bool = False
     eta: tuple = (float("nan"), float("nan"))
     n_measured: int = 0
+    size_stats: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, float]:
-        """Flat dict: t_h, ess, and <name>, <name>_q05, <name>_q95 for every state and parameter."""
+        """Flat dict: t_h, ess, and <name>, <name>_q05, <name>_q95 for every state, parameter and size statistic."""
         d = {"t_h": self.t_h, "ess": self.ess}
         for k, n in enumerate(self.names):
             d[n] = float(self.mean[k])
             d[f"{n}_q05"] = float(self.q05[k])
             d[f"{n}_q95"] = float(self.q95[k])
+        for n, (m, lo, hi) in self.size_stats.items():
+            d[n], d[f"{n}_q05"], d[f"{n}_q95"] = float(m), float(lo), float(hi)
         return d
 
     def interval(self, name: str) -> tuple[float, float]:
         k = self.names.index(name)
         return float(self.q05[k]), float(self.q95[k])
+
+
+def particle_size_stats(model, X: np.ndarray, weights: np.ndarray) -> dict:
+    """Weighted mean and 90 % interval over particles of each size statistic of their laws.
+
+    The statistics are the moment model's closed forms (``model.outputs``: volume-weighted
+    D-values and span, area-weighted mean and mode); a model without them falls back to
+    :func:`bmctl.stats.law_size_stats` of columns 0 and 1 (the same function).
+    Returns name -> (mean, q05, q95).
+    """
+    from ..stats import SIZE_STAT_NAMES, law_size_stats
+
+    out = model.outputs(X) if hasattr(model, "outputs") else {}
+    if not all(k in out for k in SIZE_STAT_NAMES):
+        out = law_size_stats(X[:, 0], X[:, 1])
+    V = np.column_stack([np.broadcast_to(out[k], X.shape[:1]) for k in SIZE_STAT_NAMES])
+    q = weighted_quantiles(V, weights)
+    mean = (weights / weights.sum()) @ V
+    return {k: (float(mean[j]), float(q[0, j]), float(q[1, j])) for j, k in enumerate(SIZE_STAT_NAMES)}
 
 
 def weighted_quantiles(values: np.ndarray, weights: np.ndarray, qs=(0.05, 0.95)) -> np.ndarray:
@@ -447,7 +474,8 @@ class ParticleFilter:
         w = self.weights
         V = np.hstack([self.X, self.P])
         q = weighted_quantiles(V, w)
-        return Estimate(self.t_h, self.names, w @ V, q[0], q[1], effective_sample_size(w))
+        return Estimate(self.t_h, self.names, w @ V, q[0], q[1], effective_sample_size(w),
+                        size_stats=particle_size_stats(self.model, self.X, w))
 
     def estimate(self) -> Estimate:
         """Weighted mean and 90 % interval of every state and parameter (deferred noise applied)."""

@@ -115,6 +115,8 @@ def plot_estimates(path: str | Path, estimates: Sequence[Estimate], samples: Seq
     """Mean and 90 % band of every state and parameter over time; the raw sample moments as dots."""
     from ..io import pyplot, savefig
 
+    from ..plots import quantity_label
+
     plt = pyplot()
 
     names = estimates[0].names
@@ -139,7 +141,7 @@ def plot_estimates(path: str | Path, estimates: Sequence[Estimate], samples: Seq
             ax.plot(t, raw[name], ls="none", marker="x", color="k", ms=4, label="sample moment")
         if truth and name in truth:
             ax.plot(truth.get("t_h", t), truth[name], color="tab:red", lw=1.0, label="truth")
-        ax.set_title(name, fontsize=9)
+        ax.set_title(quantity_label(name), fontsize=8)
         ax.set_xlabel("t (h)", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
@@ -148,7 +150,8 @@ def plot_estimates(path: str | Path, estimates: Sequence[Estimate], samples: Seq
     ax = axes.flat[len(names)] if len(names) < nrow * ncol else None
     if ax is not None:
         ax.plot(t, [e.ess for e in estimates], marker="o", ms=3, color="tab:green")
-        ax.set_title("ESS after update", fontsize=9)
+        ax.set_title("effective sample size after update", fontsize=8)
+        ax.set_ylabel("particles", fontsize=8)
         ax.set_xlabel("t (h)", fontsize=8)
         ax.grid(alpha=0.3)
     for extra in list(axes.flat)[len(names) + 1:]:

@@ -132,6 +132,8 @@ def step_figure(model, x, u, p=None, hours: float = 4.0, frac: float = 0.1):
 
     plt = pyplot()
 
+    from ..plots import quantity_label
+
     sys_ = linearize(model, x, u, p)
     t = np.linspace(0.0, hours, 161)
     steps = [(0, frac * model.rpm_max, f"rpm +{frac * model.rpm_max:g}"), (1, -frac, f"milling -{frac:g}")]
@@ -148,12 +150,12 @@ def step_figure(model, x, u, p=None, hours: float = 4.0, frac: float = 0.1):
             ax = axes[row, col]
             ax.plot(t, resp.outputs[row], label="linear")
             ax.plot(t, nl[:, i], "--", label="nonlinear")
-            ax.set_ylabel(f"d {name}")
+            ax.set_ylabel(f"Δ {quantity_label(name)}", fontsize=7)
             if row == 0:
                 ax.set_title(f"step {label}")
             if row == len(OUTPUT_IDX) - 1:
                 ax.set_xlabel("time (h)")
     axes[0, 0].legend()
-    fig.suptitle(f"{model.card.card.name}: step responses at rpm {u[0]:g}, s_mean {x[0]:.1f} um")
+    fig.suptitle(f"{model.card.card.name}: moment-model step responses at rpm {u[0]:g}, s_mean {x[0]:.1f} µm")
     fig.tight_layout()
     return fig

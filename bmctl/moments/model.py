@@ -20,6 +20,7 @@ from ..config import ModelCard, load_card
 from ..errors import InputError
 from . import coeffs as cf
 from . import equations as eq
+from ..stats import law_size_stats
 from .physics import Constants, constants, derived_threshold_laws
 
 STATE_NAMES = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening")
@@ -324,11 +325,25 @@ class MomentModel:
         x = _arr(x)
         sig, mu, a, b = self.distribution_params(x)
         r_mode = np.where((a > 1) & (b > 1), (a - 1) / np.maximum(a + b - 2, 1e-12), np.where(a <= 1, 0.0, 1.0))
-        return {
+        out = {
             "s_mean_um": x[..., 0], "s_std_um": x[..., 1], "s_mode_um": np.exp(mu - sig**2),
             "r_mean": x[..., 2], "r_std": x[..., 3], "r_mode": r_mode,
             "temperature_c": x[..., 4], "hardening": x[..., 5],
         }
+        # volume-weighted d10/d50/d90/span, area-weighted mean/mode in closed form (bmctl.stats.law_size_stats)
+        out.update(size_stats_of_state(x))
+        return out
+
+    def casadi_size_stats(self, x) -> dict:
+        """:data:`bmctl.stats.SIZE_STAT_NAMES` of a casadi state (column vector) in closed form.
+
+        The same closed form as :meth:`outputs` (:func:`bmctl.stats.law_size_stats` of the
+        projected mean and std), as casadi expressions for targets on ``d50_um``, ``d90_um`` or
+        ``span`` in an MPC cost.
+        """
+        B = eq.backend("casadi")
+        m, sd, _, _ = eq.project(B, _ca_cols(x, 6)[:4])
+        return law_size_stats(m, sd)
 
     # --- linear analysis -----------------------------------------------------------------------
     def linearize(self, x, u, p=None, dt_h: float | None = None):
@@ -344,6 +359,19 @@ class MomentModel:
 
     def __repr__(self) -> str:
         return f"MomentModel({self.card.card.name!r}, coeffs={self.coeffs_source!r})"
+
+
+def size_stats_of_state(x) -> dict:
+    """Volume-weighted D-values and span, area-weighted mean and mode of states ``(..., >=2)``.
+
+    Read out in closed form from the projected number mean and std (``equations.project``) by
+    :func:`bmctl.stats.law_size_stats`: a Weibull law of that mean and std (the particle filter's
+    default likelihood law), whose D-values track the plant about twice as closely as the
+    log-normal of the moment closure (docs/fidelity.md).
+    """
+    x = _arr(x)
+    m, sd, _, _ = eq.project(eq.NP, [x[..., 0], x[..., 1], x[..., 2], x[..., 3]])
+    return law_size_stats(m, sd)
 
 
 def _arr(v) -> np.ndarray:

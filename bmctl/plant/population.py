@@ -11,12 +11,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from ..stats import SIZE_STAT_NAMES, size_stats
+
 UM = 1e-6  # metres per micrometre
 DS_UM = 1.0  # paper's stochastic raster: Delta s = 1 um
 DR = 0.01  # Delta r = 0.01
 MODE_SMOOTH_BINS = 2.0  # Gaussian smoothing (in raster bins) before taking the mode
 
-MOMENT_NAMES = ("s_mean_um", "s_std_um", "s_mode_um", "r_mean", "r_std", "r_mode")
+MOMENT_NAMES = ("s_mean_um", "s_std_um", "s_mode_um", "r_mean", "r_std", "r_mode")  # number-weighted
+WEIGHTED_NAMES = SIZE_STAT_NAMES  # d10/d50/d90/span by volume, mean/mode by area (bmctl.stats)
 
 
 def raster_edges(s_max_um: float = 1000.0) -> tuple[np.ndarray, np.ndarray]:
@@ -45,13 +48,16 @@ def _mode(values: np.ndarray, step: float, lo: float, hi: float) -> float:
 
 
 def moments(s_m: np.ndarray, r: np.ndarray, s_cap_um: float = 1e4) -> dict[str, float]:
-    """Number-weighted mean, std and mode of s (um) and r.
+    """Number-weighted mean, std and mode of s (um) and r, plus weighted size statistics.
 
     The mode is the centre of the most populated raster bin after a Gaussian
     smoothing of ``MODE_SMOOTH_BINS`` bins (the raw 1-um raster is too noisy for M ~ 1e4).
+    The keys of :data:`MOMENT_NAMES` are number-weighted; those of :data:`SIZE_STAT_NAMES`
+    are volume-weighted D-values and span, and the area-weighted mean and mode
+    (:func:`bmctl.stats.size_stats`).
     """
     s_um = s_m / UM
-    return {
+    out = {
         "s_mean_um": float(s_um.mean()),
         "s_std_um": float(s_um.std()),
         "s_mode_um": float(_mode(s_um, DS_UM, 0.0, float(np.clip(s_um.max() + 1.0, 2.0, s_cap_um)))),
@@ -59,6 +65,8 @@ def moments(s_m: np.ndarray, r: np.ndarray, s_cap_um: float = 1e4) -> dict[str, 
         "r_std": float(r.std()),
         "r_mode": float(_mode(r, DR, 0.0, 1.0)),
     }
+    out.update(size_stats(s_um))
+    return out
 
 
 def initial_sample(rng: np.random.Generator, n: int, s_mean_um: float, s_std_um: float, r_mean: float):

@@ -1,0 +1,103 @@
+"""Numbers behind docs/fidelity.md: the paper's Sec. 4.2 claims measured on the three cards.
+
+Runs each shipped card for 12 h (its own recipe: continuous, or 30 min / 10 min at 400 rpm),
+recording hourly, and prints number-, area- and volume-weighted size statistics, r
+statistics, temperatures, event rates per milling hour, and distribution-shape tests
+(Kolmogorov-Smirnov against a fitted normal and log-normal, and a two-component Gaussian
+mixture in ln s against one component by BIC) on a 3000-particle subsample.
+
+    python benchmarks/fidelity_table.py --particles 20000 --seed 2024    # about 1 min on one core
+    python benchmarks/fidelity_table.py --no-equiaxing                   # the paper's shape law alone
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from bmctl.config import card_schedule, load_card
+from bmctl.plant.plant import Plant
+
+ROOT = Path(__file__).resolve().parents[1]
+CARDS = ("alni-1to1-300rpm-lab", "alni-1to1-400rpm-fan", "alni-1to3-300rpm-hadjiafxenti")
+KEYS = ("s_mean_um", "s_std_um", "s_mode_um", "s_mode_area_um", "s_mean_area_um", "d10_um", "d50_um", "d90_um",
+        "span", "r_mean", "r_std", "r_mode")
+
+
+def mixture2_bic_gain(x: np.ndarray, iters: int = 300) -> tuple[float, float, float, float]:
+    """BIC(one Gaussian) - BIC(two-component Gaussian mixture) of x (> 0 favours two), the weight of the
+    lower component and the two component means (of x)."""
+    n = x.size
+    ll1 = stats.norm.logpdf(x, x.mean(), x.std()).sum()
+    lo, hi = np.quantile(x, [0.25, 0.75])
+    w, m, s = np.array([0.5, 0.5]), np.array([lo, hi]), np.array([x.std(), x.std()]) / 2
+    for _ in range(iters):  # EM
+        d = w * stats.norm.pdf(x[:, None], m, s)
+        g = d / d.sum(1, keepdims=True)
+        nk = g.sum(0)
+        w, m = nk / n, (g * x[:, None]).sum(0) / nk
+        s = np.sqrt(np.maximum((g * (x[:, None] - m) ** 2).sum(0) / nk, 1e-6))
+    ll2 = np.log((w * stats.norm.pdf(x[:, None], m, s)).sum(1)).sum()
+    lo_k = int(np.argmin(m))
+    return (float((-2 * ll1 + 2 * np.log(n)) - (-2 * ll2 + 5 * np.log(n))), float(w[lo_k]), float(m.min()),
+            float(m.max()))
+
+
+def shape_tests(s_um: np.ndarray, rng: np.random.Generator) -> dict[str, float]:
+    """KS p-values (normal, log-normal), log-likelihood gain of log-normal over normal, mixture BIC gain."""
+    x = rng.choice(s_um, 3000, replace=False)
+    lx = np.log(x)
+    ll_n = stats.norm.logpdf(x, x.mean(), x.std()).sum()
+    ll_ln = stats.norm.logpdf(lx, lx.mean(), lx.std()).sum() - lx.sum()
+    bic, w_lo, m_lo, m_hi = mixture2_bic_gain(lx)
+    return {"ks_p_normal": stats.kstest(x, "norm", (x.mean(), x.std())).pvalue,
+            "ks_p_lognormal": stats.kstest(lx, "norm", (lx.mean(), lx.std())).pvalue,
+            "ll_lognormal_minus_normal": ll_ln - ll_n, "bic_gain_2_components": bic,
+            "lower_hump_weight": w_lo, "lower_hump_median_um": np.exp(m_lo), "upper_hump_median_um": np.exp(m_hi)}
+
+
+def without_equiaxing(card):
+    """A copy of ``card`` with the equiaxing law switched off (docs/model.md, eqns 11-14)."""
+    d = card.model_dump()
+    d["partition"]["equiaxing_efficiency"] = 0.0
+    return type(card).model_validate(d)
+
+
+def run_card(name: str, particles: int, seed: int, equiaxing: bool = True) -> dict:
+    card = load_card(ROOT / "models" / f"{name}.toml")
+    if not equiaxing:
+        card = without_equiaxing(card)
+    segments = card_schedule(card, 12.0)
+    plant = Plant(card, np.random.default_rng(seed), particles)
+    rng = np.random.default_rng(seed + 1)  # subsamples of the shape tests
+    tests: list[dict] = []
+    recs = plant.run_schedule(segments, 1.0, on_record=lambda p: tests.append(shape_tests(p.s * 1e6, rng)))
+    milling_h = sum(h for h, rpm in segments if rpm > 0)
+    return {"series": {k: np.array([r.moments[k] for r in recs]) for k in KEYS},
+            "temperature_c": np.array([r.temperature_c for r in recs]), "tests": tests,
+            "bonds_per_h": plant.counts.bonds / milling_h, "fractures_per_h": plant.counts.fractures / milling_h}
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--particles", type=int, default=20000)
+    ap.add_argument("--seed", type=int, default=2024)
+    ap.add_argument("--no-equiaxing", action="store_true", help="switch the equiaxing law off on every card")
+    a = ap.parse_args(argv)
+    print(f"M = {a.particles}, seed {a.seed}; hourly values t = 0..12 h" + (", no equiaxing" if a.no_equiaxing else ""))
+    for name in CARDS:
+        res = run_card(name, a.particles, a.seed, not a.no_equiaxing)
+        print(f"\n== {name}: bonds {res['bonds_per_h']:.0f} /milling h, fractures {res['fractures_per_h']:.0f} /milling h"
+              f" (sample of M)")
+        for k, v in res["series"].items():
+            print(f"  {k:16s}" + " ".join(f"{x:7.3g}" for x in v))
+        print(f"  {'temperature_c':16s}" + " ".join(f"{x:7.3g}" for x in res["temperature_c"]))
+        for k in res["tests"][1]:
+            print(f"  {k:26s}" + " ".join(f"{t[k]:8.2g}" for t in res["tests"][1:]))
+
+
+if __name__ == "__main__":
+    main()
