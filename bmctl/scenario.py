@@ -53,7 +53,7 @@ class Scenario(Strict):
     model: str  # the controller's and estimator's model card
     hours: HOURS = 12.0
     temperature_max_c: Range(0.0, 4000.0, lo_open=True) | None = None  # vial ceiling: overrides the controller's, counts violations
-    target: dict[str, Annotated[float, Field(gt=0)] | tuple[Annotated[float, Field(gt=0)], Annotated[float, Field(gt=0)]]] = {}  # a number or a window [lo, hi]
+    target: dict[str, Annotated[float, Field(gt=0)] | list[Annotated[float, Field(gt=0)]]] = {}  # a number or a window [lo, hi]
     plant: PlantSpec = PlantSpec()
     sampling: SamplingSpec = SamplingSpec()
     estimator: EstimatorSpec = EstimatorSpec()
@@ -64,6 +64,11 @@ class Scenario(Strict):
         for k in self.target:
             if k not in TARGET_KEYS:
                 raise ValueError(f"target.{k}: unknown target; choose from {', '.join(TARGET_KEYS)}")
+            v = self.target[k]
+            if isinstance(v, list):
+                if len(v) != 2 or v[0] > v[1]:
+                    raise ValueError(f"target.{k}: a window is [lo, hi] with lo <= hi (got {v})")
+                self.target[k] = (float(v[0]), float(v[1])) if v[1] > v[0] else float(v[0])
         return self
 
 

@@ -81,7 +81,7 @@ def check_target_dict(d, source: str) -> dict:
     return out
 
 
-TargetValue = Union[float, tuple[float, float]]
+TargetValue = Union[float, list[float]]
 
 
 class Target(Strict):

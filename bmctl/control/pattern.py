@@ -36,6 +36,7 @@ from .mill import count_switches
 from .outputs import ERR_FLOOR, output_dict, output_values, relative_error
 
 GRID_H = 0.5  # longest step of the design's moment grid (h)
+STARTS = 3  # start points of the relaxed solve (relax-round)
 
 
 @dataclass
@@ -60,6 +61,8 @@ class PatternResult:
     status: str
     slack_c: float = 0.0
     seg_states: list = field(default_factory=list)
+
+    active: list = field(default_factory=list)  # limits active at the solution (see PatternDesigner.active)
 
     @property
     def switches(self) -> int:
@@ -154,6 +157,7 @@ class PatternDesigner:
              + wt.rpm_move * ca.sumsqr(ca.diff(n * self.step / c.rpm_max)))
         V = ca.vertcat(n, f, k, y, sl)
         self.nlp = {"x": V, "f": J, "g": ca.vertcat(*g)}
+        self._g = ca.Function("g", [V], [self.nlp["g"]])
         self.lbg, self.ubg = np.array(lbg, float), np.array(ubg, float)
         self._xend = ca.Function("xend", [V], [x])
 
@@ -170,12 +174,19 @@ class PatternDesigner:
 
     def _opts(self, it=300):
         return {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": it,
-                "ipopt.tol": 1e-6, "ipopt.hessian_approximation": "limited-memory"}
+                "ipopt.tol": 1e-6, "ipopt.hessian_approximation": "limited-memory", "expand": True}
 
-    def _guess(self):
+    def _guess(self, which: int = 0):
+        """Start points: 0 the card's rpm, 3/4 duty, one cycle; 1 the top rpm in the most short cycles
+        (the cool-burst corner); 2 mid rpm, half duty."""
         P = self.P
-        r0 = float(np.clip(self.model.card.process.rpm, self.rpm_lo, self.rpm_hi))
-        return np.concatenate([np.full(P, r0 / self.step), np.full(P, 0.75), np.full(P, 1.0), np.full(P, 0.5),
+        if which == 1:
+            r0, f0, k0 = self.rpm_hi, 0.25, float(self.k_max)
+        elif which == 2:
+            r0, f0, k0 = 0.5 * (self.rpm_lo + self.rpm_hi), 0.5, max(1.0, 0.5 * self.k_max)
+        else:
+            r0, f0, k0 = float(np.clip(self.model.card.process.rpm, self.rpm_lo, self.rpm_hi)), 0.75, 1.0
+        return np.concatenate([np.full(P, r0 / self.step), np.full(P, f0), np.full(P, k0), np.full(P, 0.5),
                                np.zeros(P)])
 
     # --- solves --------------------------------------------------------------------------------
@@ -198,8 +209,12 @@ class PatternDesigner:
             V[2 * P:4 * P] = np.round(V[2 * P:4 * P])
         else:
             s = ca.nlpsol("design_relaxed", "ipopt", self.nlp, self._opts())
-            r = s(x0=self._guess(), lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
-            V = np.asarray(r["x"], float).ravel()
+            best = None
+            for which in range(STARTS):  # the relaxation is non-convex (welding hump): a few starts
+                r = s(x0=self._guess(which), lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
+                if best is None or float(r["f"]) < float(best["f"]):
+                    best = r
+            V = np.asarray(best["x"], float).ravel()
             Vr = self._round(V)
             lb2, ub2 = lbx.copy(), ubx.copy()
             for sl in (slice(0, P), slice(2 * P, 4 * P)):
@@ -276,6 +291,29 @@ class PatternDesigner:
                 mh += h
         return x, peak, energy, mh, states
 
+    def active(self, V, tol_c: float = 0.5, tol_min: float = 0.5) -> list[str]:
+        """Limits active at a solution: temperature ceiling, rpm max, minimum milling period, minimum rest,
+        switch budget, batch time (every phase milling throughout)."""
+        P, mill = self.P, self.cfg.mill
+        g = np.asarray(self._g(V), float).ravel()
+        ceil = self.cfg.temperature.ceiling_c
+        out = []
+        rows = g[:5 * P].reshape(P, 5)
+        if np.any(rows[:, 0] >= ceil - tol_c) or np.any(rows[:, 1] >= -tol_c):
+            out.append("temperature ceiling")
+        if np.any(V[:P] * self.step >= self.rpm_hi - 1e-6):
+            out.append("rpm max")
+        y = V[3 * P:4 * P] > 0.5
+        if mill.min_mill_min and np.any(rows[:, 2] <= tol_min):
+            out.append(f"minimum milling period ({mill.min_mill_min:g} min)")
+        if mill.min_rest_min and np.any(y & (rows[:, 3] <= tol_min)):
+            out.append(f"minimum rest ({mill.min_rest_min:g} min)")
+        if mill.max_switches is not None and g[5 * P] >= mill.max_switches - 1:
+            out.append(f"switch budget ({mill.max_switches})")
+        if np.all(V[P:2 * P] >= 0.99):
+            out.append("batch time")
+        return out
+
     def _result(self, V, solve_s, method, status) -> PatternResult:
         P = self.P
         segs = self.segments(V)
@@ -285,4 +323,4 @@ class PatternDesigner:
         cost = float(np.asarray(__import__("casadi").Function("J", [self.nlp["x"]], [self.nlp["f"]])(V)).ravel()[0])
         return PatternResult(self.hours, V[:P] * self.step, V[P:2 * P].copy(), V[2 * P:3 * P].copy(),
                              V[3 * P:4 * P].copy(), segs, x, peak, energy, mh, err, outs, solve_s, cost, method,
-                             status, float(np.max(V[4 * P:], initial=0.0)), states)
+                             status, float(np.max(V[4 * P:], initial=0.0)), states, self.active(V))

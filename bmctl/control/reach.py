@@ -3,9 +3,9 @@
 :func:`reachability` solves the phase-pattern design (:mod:`bmctl.control.pattern`) for the
 smallest target error alone (no energy or time cost) over the whole batch. When that error
 exceeds the tolerance the target is out of reach; the answer names the closest reachable
-outputs and the constraints active at that optimum: the temperature ceiling (a peak within
-1 degC of it), the rpm maximum (a phase at it) and the batch time (every phase milling
-continuously: more hours would be needed).
+outputs and the limits active at that optimum (:meth:`PatternDesigner.active`): the
+temperature ceiling, the rpm maximum, the minimum milling period or rest, the switch budget
+and the batch time (every phase milling throughout: more hours would be needed).
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ class Reach:
     closest : dict
         Target quantities at that optimum (moments and D-values).
     binding : list of str
-        Active limits: "temperature ceiling", "rpm max", "batch time" (empty when reachable).
+        Active limits, e.g. "temperature ceiling", "rpm max", "minimum milling period (5 min)",
+        "switch budget (36)", "batch time" (empty when reachable).
     """
 
     reachable: bool
@@ -69,11 +70,5 @@ def reachability(model, target: dict, hours: float, cfg, p=None, result=None) ->
         r = result
     if r.error <= tol:
         return Reach(True, r.error, r.outputs, [])
-    binding = []
-    if r.peak_c >= cfg.temperature.ceiling_c - 1.0:
-        binding.append("temperature ceiling")
-    if np.any(r.rpm >= d.rpm_hi - d.step + 1e-9):
-        binding.append("rpm max")
-    if np.all((r.interrupted < 0.5) | (r.duty >= 0.99)):
-        binding.append("batch time")
+    binding = list(r.active)
     return Reach(False, r.error, r.outputs, binding)
