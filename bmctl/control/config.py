@@ -152,7 +152,7 @@ class Objective(Strict):
     phases: Annotated[int, Field(ge=1, le=12)] = 4  # schedule phases (each one rpm and one mill/rest pattern)
     integer_method: Literal["relax-round", "bonmin"] = "relax-round"
     #: batch lengths tried by min_time / min_energy and the trade-off table (fractions of --hours)
-    sweep: list[Annotated[float, Field(gt=0, le=1)]] = [0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 1.0]
+    sweep: list[Annotated[float, Field(gt=0, le=1)]] = [0.25, 0.5, 0.75, 1.0]
 
 
 class ReferencePoint(Target):

@@ -108,7 +108,7 @@ class PatternDesigner:
         m, c, cfg, P = self.model, self.model.const, self.cfg, self.P
         mill = cfg.mill
         dtg = self.L / self.n_sub
-        F = m.casadi_step(dtg)
+        F = m.casadi_step(dtg, cfg.solver.substeps)  # the MPC's prediction accuracy; reported numbers are re-simulated
         n = ca.MX.sym("n", P)  # rpm / step
         f = ca.MX.sym("f", P)  # duty
         k = ca.MX.sym("k", P)  # cycles
