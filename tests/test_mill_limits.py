@@ -73,3 +73,20 @@ def test_design_unreachable_target_is_explained(tmp_path):
     r = _design(["--target", "s_mean_um=5", "--hours", "2"], tmp_path)
     assert r.returncode == 0, r.stderr
     assert "warning: target out of reach" in r.stdout and "binding:" in r.stdout
+
+
+@pytest.mark.slow
+def test_min_time_design_is_shorter_than_the_batch_and_within_tolerance():
+    """The target is the model's own state after 1 h of continuous 300 rpm, so a 2 h batch is
+    longer than needed: min_time must pick a shorter batch that ends within the tolerance."""
+    from bmctl.control import load_controller
+    from bmctl.control.design import design_schedule
+    from bmctl.moments.model import make_moment_model
+
+    model = make_moment_model(ROOT / "models/alni-1to1-300rpm-lab.toml")
+    cfg = load_controller(ROOT / "controllers/mpc-default.toml")
+    x1 = model.simulate(model.x0(), [[300.0, 1.0]] * 2, 0.5)[-1]
+    d = design_schedule(model, {"s_mean_um": float(x1[0])}, 2.0, cfg, objective="min_time")
+    assert d.result.error <= cfg.objective.tolerance
+    assert d.hours < 2.0 - 1e-9
+    assert len(d.pareto) == len(cfg.objective.sweep)
