@@ -159,6 +159,12 @@ class MPCController:
         if "retried" in res:
             status.reason = (f"warm {self.cfg.solver.hessian} solve: {res['retried']}; retried with the exact Hessian"
                              " (kept until reset)")
+        if self.guard.active():
+            res, extra_ms, note = self._dwell_round(data, res)
+            W, M = res["W"], res["M"]
+            status.solve_ms += extra_ms
+            if note:
+                status.reason = (status.reason + "; " if status.reason else "") + note
         self._prev = _Solution(t, W, M, res["lam_x"], res["lam_g"])
         binary = self.cfg.onoff.mode == "binary"
         if binary:
@@ -499,6 +505,41 @@ class MPCController:
                 "Z": V[2 * N:8 * N].reshape(N, 6), "S": V[8 * N:9 * N].copy(),
                 "lam_x": np.asarray(sol["lam_x"], dtype=float).ravel(),
                 "lam_g": np.asarray(sol["lam_g"], dtype=float).ravel()}
+
+    # --- mill limits ---------------------------------------------------------------------------
+    def _dwell_round(self, data: dict, res: dict):
+        """Round the first interval's milling time onto the dwell limits with a re-solve.
+
+        A planned milling period shorter than ``min_mill_min`` (or a rest shorter than
+        ``min_rest_min``) has two neighbours the mill can run: none / the minimum. Each is fixed
+        in turn as the first interval's milling and the NLP re-solved (warm solver); the lower
+        cost wins (relax-and-round with a re-solve on the decision applied now). Returns
+        (solution, extra ms, note)."""
+        mill, N = self.guard.mill, self.N
+        dt_min = self.interval_h * 60.0
+        a = float(res["M"][0]) * dt_min
+        lo_mill, lo_rest = max(mill.min_mill_min, 0.0), max(mill.min_rest_min, 0.0)
+        if 0.5 < a < lo_mill - 0.5:
+            cands = [0.0, lo_mill / dt_min]
+        elif 0.5 < dt_min - a < lo_rest - 0.5:
+            cands = [1.0, 1.0 - lo_rest / dt_min]
+        else:
+            return res, 0.0, ""
+        cands = [c for c in cands if data["m_lb"][0] - 1e-9 <= c <= data["m_ub"][0] + 1e-9] or [0.0]
+        t0 = time.perf_counter()
+        best = None
+        for c in cands:
+            lbx, ubx = data["lbx"].copy(), data["ubx"].copy()
+            lbx[N], ubx[N] = c, c
+            M0 = res["M"].copy()
+            M0[0] = c
+            r = self._solve(data, warm=True, W=res["W"], M=M0, lbx=lbx, ubx=ubx)
+            if r["ok"] and (best is None or r["f"] < best["f"]):
+                best = r
+        ms = (time.perf_counter() - t0) * 1e3
+        if best is None:
+            return res, ms, "dwell re-solve failed: nearest rounding"
+        return best, ms, f"dwell: milling {a:.1f} -> {best['M'][0] * dt_min:.0f} min (re-solved)"
 
     # --- on/off --------------------------------------------------------------------------------
     def _binary(self, data: dict, res: dict):
