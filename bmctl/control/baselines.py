@@ -54,8 +54,15 @@ class _Base:
             ua = applied_input_guarded(self.model, x0, U[0], dt, ceiling, round_minutes)
         if self.guard.active() and self.kind != "recipe":
             self.guard.interval_h = dt
-            m_cap = 1.0 if ceiling is None else max_milling_for_ceiling(self.model, x0[4], max(ua[0], 1.0), dt, ceiling)
-            ua, note = self.guard.enforce(ua, t, self.model.rpm_max, min(m_cap, float(U[0, 1]) + 1e-9))
+            from .mill import round_rpm
+
+            # rpm onto the dial: never above a clipped rpm; the milling cap from the rounded rpm
+            rpm_cap = self.model.rpm_max
+            if getattr(self.cfg, "ceiling_mode", "guard") == "clip" and ua[0] > 0:
+                rpm_cap = min(rpm_cap, float(ua[0]))
+            r = round_rpm(max(ua[0], 1.0), self.guard.mill, rpm_cap) if ua[0] > 0 else 1.0
+            m_cap = 1.0 if ceiling is None else max_milling_for_ceiling(self.model, x0[4], max(r, 1.0), dt, ceiling)
+            ua, note = self.guard.enforce(ua, t, rpm_cap, min(m_cap, float(U[0, 1]) + 1e-9))
             if note:
                 status.reason = (status.reason + "; " if status.reason else "") + note
         return Plan(t, dt, U, X, Tpk, ua, status)

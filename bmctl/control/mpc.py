@@ -608,8 +608,11 @@ class MPCController:
             ceil = self.cfg.temperature.ceiling_c
             rpm_cap = self.rpm_hi
             T0s = [x0[4]] + [xs[4] for xs, _ in (self._scen or [])]
+            from .mill import round_rpm
+
+            r_dial = round_rpm(max(u_apply[0], 1.0), self.guard.mill, rpm_cap)  # the milling cap at the dial's rpm
             m_cap = min([float(np.clip((self.t_end_h - t) / dt, 0.0, 1.0))] + [
-                max_milling_for_ceiling(self.model, T0, max(u_apply[0], 1.0), dt, ceil) for T0 in T0s])
+                max_milling_for_ceiling(self.model, T0, r_dial, dt, ceil) for T0 in T0s])
             u_apply, note = self.guard.enforce(u_apply, t, rpm_cap, m_cap)
             if note:
                 status.reason = (status.reason + "; " if status.reason else "") + note
