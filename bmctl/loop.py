@@ -191,7 +191,13 @@ class ClosedLoop:
         t_h = self.k * self.controller.interval_h
         x, p = estimate_vectors(self.est)
         t0 = time.perf_counter()
-        plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev)
+        if getattr(self.controller, "n_scen", 1) > 1:  # scenario MPC: the filter's spread as further scenarios
+            from .control.robust import filter_scenarios
+
+            plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev,
+                                        scenarios=filter_scenarios(self.est, self.controller.n_scen - 1))
+        else:
+            plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev)
         st = plan.status
         solve_ms = st.solve_ms if st.solve_ms else (time.perf_counter() - t0) * 1e3
         fallback = st.fallback != "none"

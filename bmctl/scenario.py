@@ -10,7 +10,7 @@ from pydantic import Field, model_validator
 from .config import HOURS, NonNeg, Pos, Range, Strict, load
 from .errors import InputError
 
-TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
+TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "d90_um", "span")  # = control.config.TARGET_KEYS
 
 
 class ScenarioInfo(Strict):
@@ -84,7 +84,7 @@ class Scenario(Strict):
     model: str  # the controller's and estimator's model card
     hours: HOURS = 12.0
     temperature_max_c: Range(0.0, 4000.0, lo_open=True) | None = None  # vial ceiling: overrides the controller's, counts violations
-    target: dict[str, Annotated[float, Field(gt=0)]] = {}
+    target: dict[str, Annotated[float, Field(gt=0)] | list[Annotated[float, Field(gt=0)]]] = {}  # a number or a window [lo, hi]
     plant: PlantSpec = PlantSpec()
     sampling: SamplingSpec = SamplingSpec()
     estimator: EstimatorSpec = EstimatorSpec()
@@ -95,6 +95,11 @@ class Scenario(Strict):
         for k in self.target:
             if k not in TARGET_KEYS:
                 raise ValueError(f"target.{k}: unknown target; choose from {', '.join(TARGET_KEYS)}")
+            v = self.target[k]
+            if isinstance(v, list):
+                if len(v) != 2 or v[0] > v[1]:
+                    raise ValueError(f"target.{k}: a window is [lo, hi] with lo <= hi (got {v})")
+                self.target[k] = (float(v[0]), float(v[1])) if v[1] > v[0] else float(v[0])
         return self
 
 

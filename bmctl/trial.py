@@ -228,9 +228,14 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
 def summarise(sc: Scenario, loop: ClosedLoop) -> dict:
     """The ``summary.json`` of a finished (or stopped) trial loop."""
     ceiling = loop.cfg.ceiling_c
+    from .control.outputs import relative_error
+    from .stats import dvalues
+
     tm = loop.mill.moments()
-    final_true = {k: tm[k] for k in TARGET_KEYS}
-    err = {k: abs(final_true[k] - v) / abs(v) for k, v in sc.target.items()}
+    final_true = {k: tm[k] for k in TARGET_KEYS if k in tm}
+    if any(k not in final_true for k in sc.target):  # volume-weighted D-values of the plant's population
+        final_true.update({k: v for k, v in dvalues(loop.mill.s * 1e6).items() if k in TARGET_KEYS})
+    err = {k: relative_error(final_true[k], v) for k, v in sc.target.items()}
     st = loop.stats
     solve = np.array(st["solve_ms"]) if st["solve_ms"] else np.array([0.0])
     return {
@@ -268,7 +273,11 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
         ax.plot(t, data[f"est_{k}"], "C0-", label="estimate")
         ax.fill_between(t, data[f"est_{k}_q05"], data[f"est_{k}_q95"], color="C0", alpha=0.25, label="90 % band")
         if k in sc.target:
-            ax.axhline(sc.target[k], color="C3", ls="--", label="target")
+            from .control.config import target_bounds
+
+            lo_, hi_ = target_bounds(sc.target[k])
+            ax.axhspan(lo_, hi_, color="C3", alpha=0.2) if hi_ > lo_ else ax.axhline(lo_, color="C3", ls="--",
+                                                                                   label="target")
         ax.set_title(quantity_label(k)), ax.set_xlabel("t (h)"), ax.set_ylabel(quantity_label(k)), ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)
     ax = axes[1][0]

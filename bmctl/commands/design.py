@@ -28,8 +28,11 @@ def _hours(text):
 def configure(p):
     p.add_argument("model", metavar="MODEL.toml", help="model card (see models/)")
     p.add_argument("--target", required=True, metavar="K=V,...",
-                   help="target moments at the batch end, e.g. s_mean_um=25,r_mean=0.05 "
-                        "(keys: s_mean_um, s_std_um, r_mean, r_std)")
+                   help="target at the batch end, e.g. s_mean_um=25,r_mean=0.05 or a window d50_um=40:50 "
+                        "(keys: s_mean_um, s_std_um, r_mean, r_std, d50_um, d90_um, span)")
+    p.add_argument("--objective", choices=("target", "min_time", "min_energy"), default=None,
+                   help="target: error + energy/time weights; min_time / min_energy: shortest or cheapest batch "
+                        "within the tolerance (default: the controller's [objective] kind)")
     p.add_argument("--hours", type=_hours, default=None, help="batch length in h (default: the card's)")
     p.add_argument("--controller", default=None, metavar="FILE.toml",
                    help=f"MPC controller file (default {DEFAULT_CONTROLLER})")
@@ -61,21 +64,22 @@ def run(args) -> int:
 
     check_work(design_work(hours, cfg.interval_h), f"--hours/{path}: interval_h")
 
-    d = design_schedule(model, target, hours, cfg)
-    st = d.plan.status
-    if st.fallback != "none":
-        print(f"bmctl design: no schedule: {st.reason}", file=sys.stderr)
-        return 1
+    d = design_schedule(model, target, hours, cfg, objective=args.objective)
+    if not d.reach.reachable:  # said up front, before the schedule; exit status stays 0
+        print(f"warning: {d.reach.line(target)}")
     paths = write_design(d, out)
-    last = d.X[-1]
-    got = ", ".join(f"{k} {last[['s_mean_um', 's_std_um', 'r_mean', 'r_std'].index(k)]:.4g} (target {v:g})"
-                    for k, v in target.items())
+    from ..control.config import format_target
+
+    r = d.result
+    got = ", ".join(f"{k} {r.outputs[k]:.4g} (target {format_target(v)})" for k, v in target.items())
     n = len(d.segments)
-    print(f"{d.card_name}: {hours:g} h, {n} segment{'s' if n != 1 else ''}, {d.milling_h:.2f} h milling, "
-          f"{d.energy_kWh:.3f} kWh; predicted {got}; peak T {d.t_peak_c.max():.1f} C "
-          f"(ceiling {d.ceiling_c:g} C); {st.solver_status}, {st.iterations} it, {st.solve_ms / 1e3:.1f} s")
-    if st.slack_max_c > 0.05:
-        print(f"  warning: temperature ceiling exceeded by up to {st.slack_max_c:.2f} C (slack)")
+    print(f"{d.card_name}: {d.hours:g} h ({d.objective}), {n} segment{'s' if n != 1 else ''}, {r.switches} switches, "
+          f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} C "
+          f"(ceiling {d.ceiling_c:g} C); {r.method} {r.status}, {r.solve_s:.1f} s")
+    if d.pareto:
+        from ..control.design import pareto_table
+
+        print(pareto_table(d))
     for p_ in paths:
         print(f"  wrote {p_}")
     return 0

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..moments import equations as eq
-from .config import TARGET_KEYS, Target
+from .config import TARGET_KEYS, Target, check_target_dict
 
 #: returned by Status.fallback
 FALLBACKS = ("none", "shifted", "rest")
@@ -291,13 +291,7 @@ class Reference:
     """
 
     def __init__(self, points: Sequence[tuple[float, Mapping[str, float]]] = ()):
-        pts = sorted(((float(t), dict(d)) for t, d in points), key=lambda p: p[0])
-        for t, d in pts:
-            for k, v in d.items():
-                if k not in TARGET_KEYS:
-                    raise InputError(f"target: unknown moment {k!r} (one of {', '.join(TARGET_KEYS)})")
-                if not math.isfinite(float(v)):
-                    raise InputError(f"target: {k}: must be a finite number (got {v})")
+        pts = sorted(((float(t), check_target_dict(dict(d), "target")) for t, d in points), key=lambda p: p[0])
         self.points = pts
 
     @classmethod
@@ -310,7 +304,7 @@ class Reference:
         if isinstance(target, Target):
             return cls([(0.0, target.as_dict())])
         if isinstance(target, Mapping):
-            return cls([(0.0, {k: float(v) for k, v in target.items()})])
+            return cls([(0.0, dict(target))])
         if callable(target):
             return _CallableReference(target)
         return cls(list(target))
@@ -349,11 +343,7 @@ class _CallableReference(Reference):
         self.points = []
 
     def at(self, t_h: float) -> dict[str, float]:
-        d = {k: float(v) for k, v in dict(self.fn(t_h) or {}).items()}
-        for k in d:
-            if k not in TARGET_KEYS:
-                raise InputError(f"target: unknown moment {k!r} (one of {', '.join(TARGET_KEYS)})")
-        return d
+        return check_target_dict(dict(self.fn(t_h) or {}), "target")
 
     def keys(self) -> list[str]:
         return list(TARGET_KEYS)

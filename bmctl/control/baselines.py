@@ -19,7 +19,8 @@ from ..errors import InputError
 from ..physics.constants import TIME_EPS_H
 from .base import (Plan, Reference, Status, batch_end_h, applied_input, applied_input_guarded, check_p, check_u_prev, check_x,
                    interval_peaks, max_milling_for_ceiling, rpm_window)
-from .config import TARGET_KEYS, LQRConfig, RecipeConfig
+from .config import TARGET_KEYS, LQRConfig, RecipeConfig, target_centre
+from .mill import MillGuard
 from .mpc import ERR_FLOOR, X_SCALE
 
 
@@ -31,6 +32,7 @@ class _Base:
         self.model = model
         self.t_end_h = float(cfg.batch_hours if cfg.batch_hours is not None else model.card.process.hours)
         self.reference = Reference.from_config(cfg) if reference is None else Reference.make(reference)
+        self.guard = MillGuard(cfg.mill, cfg.interval_h or 0.5)
 
     def set_target(self, target, t_end_h: float | None = None) -> None:
         """As :meth:`bmctl.control.mpc.MPCController.set_target`."""
@@ -42,11 +44,13 @@ class _Base:
         pass
 
     def get_state(self) -> dict:
-        """Plain-data state for checkpoints (none: the recipe is a function of time)."""
-        return {}
+        """Plain-data state for checkpoints: the mill-limit guard's (the recipe is a function of time)."""
+        return {"guard": self.guard.get_state()}
 
     def set_state(self, state: dict) -> None:
         """Restore a state from :meth:`get_state`."""
+        if "guard" in state:
+            self.guard.set_state(state["guard"])
 
     def _plan(self, x0, t, pp, U, status, round_minutes=True, ceiling=None) -> Plan:
         dt = self.interval_h
@@ -58,6 +62,19 @@ class _Base:
             ua = applied_input(U[0], dt, round_minutes)
         else:
             ua = applied_input_guarded(self.model, x0, U[0], dt, ceiling, round_minutes)
+        if self.guard.active() and self.kind != "recipe":
+            self.guard.interval_h = dt
+            from .mill import round_rpm
+
+            # rpm onto the dial: never above a clipped rpm; the milling cap from the rounded rpm
+            rpm_cap = self.model.rpm_max
+            if getattr(self.cfg, "ceiling_mode", "guard") == "clip" and ua[0] > 0:
+                rpm_cap = min(rpm_cap, float(ua[0]))
+            r = round_rpm(max(ua[0], 1.0), self.guard.mill, rpm_cap) if ua[0] > 0 else 1.0
+            m_cap = 1.0 if ceiling is None else max_milling_for_ceiling(self.model, x0[4], max(r, 1.0), dt, ceiling)
+            ua, note = self.guard.enforce(ua, t, rpm_cap, min(m_cap, float(U[0, 1]) + 1e-9))
+            if note:
+                status.reason = (status.reason + "; " if status.reason else "") + note
         return Plan(t, dt, U, X, Tpk, ua, status)
 
     @staticmethod
@@ -136,14 +153,18 @@ class LQRController(_Base):
         self._t_last = None
         self._rpm_last = None
         self._K = None
+        if hasattr(self, "guard"):
+            self.guard.reset()
 
     def get_state(self) -> dict:
         """Last state, time, rpm and gain as plain data (the Jacobians are rebuilt)."""
         return {"x_last": self._x_last, "t_last": self._t_last, "rpm_last": self._rpm_last,
-                "K": None if self._K is None else np.asarray(self._K, dtype=float)}
+                "K": None if self._K is None else np.asarray(self._K, dtype=float), "guard": self.guard.get_state()}
 
     def set_state(self, state: dict) -> None:
         """Restore a state from :meth:`get_state`."""
+        if "guard" in state:
+            self.guard.set_state(state["guard"])
         self._x_last = None if state["x_last"] is None else np.asarray(state["x_last"], dtype=float)
         self._t_last = None if state["t_last"] is None else float(state["t_last"])
         self._rpm_last = None if state["rpm_last"] is None else float(state["rpm_last"])
@@ -201,9 +222,12 @@ class LQRController(_Base):
         if key is None or key not in d:
             status.reason = "no target on the tracked moment: holding rpm"
         else:
-            scale = max(abs(d[key]), ERR_FLOOR[key])
+            ref = target_centre(d[key])
+            scale = max(abs(ref), ERR_FLOOR[key])
             i = TARGET_KEYS.index(key)
-            e = (x0[i] - d[key]) / scale
+            if i >= 4:
+                raise InputError(f"lqr: track: {key} is not a state of the moment model (track a moment)")
+            e = (x0[i] - ref) / scale
             consecutive = self._t_last is not None and abs(t - self._t_last - dt) < 1e-6
             dxs = (x0 - self._x_last) / X_SCALE if consecutive and self._x_last is not None else np.zeros(6)
             try:
@@ -220,6 +244,12 @@ class LQRController(_Base):
             if K is not None:
                 dw = float(-(K @ np.concatenate([dxs, [e]]))[0])
                 rpm = float(np.clip(rpm_prev + dw * self.rpm_scale, lo, hi))
+        if cfg.ceiling_mode == "clip":  # keep milling, clip rpm to the highest that keeps the ceiling
+            rpm_ok = _max_rpm_for_ceiling(self.model, x0[4], m_nom, dt, ceiling, lo, rpm)
+            if rpm_ok < rpm - 1e-9:
+                status.reason = (status.reason + "; " if status.reason else "") + \
+                    f"ceiling clip: rpm {rpm:.0f} -> {rpm_ok:.0f}"
+                rpm = rpm_ok
         m_cap = max_milling_for_ceiling(self.model, x0[4], rpm, dt, ceiling)
         milling = min(m_nom, m_cap)
         if milling < m_nom - 1e-9:
@@ -228,3 +258,21 @@ class LQRController(_Base):
         self._x_last, self._t_last, self._rpm_last = x0.copy(), t, rpm
         status.solve_ms = (time.perf_counter() - t0) * 1e3
         return self._plan(x0, t, pp, np.array([[rpm, milling]]), status, cfg.round_minutes, ceiling)
+
+
+def _max_rpm_for_ceiling(model, T0: float, milling: float, dt_h: float, ceiling_c: float, lo: float,
+                         hi: float) -> float:
+    """Highest rpm in [lo, hi] whose peak temperature with ``milling`` stays <= the ceiling (bisection;
+    ``lo`` when none does: the guard then lowers the milling fraction)."""
+    def ok(r):
+        return max_milling_for_ceiling(model, T0, r, dt_h, ceiling_c) >= milling - 1e-9
+
+    if ok(hi):
+        return float(hi)
+    if not ok(lo):
+        return float(lo)
+    a, b = float(lo), float(hi)
+    for _ in range(30):
+        m = 0.5 * (a + b)
+        a, b = (m, b) if ok(m) else (a, m)
+    return a

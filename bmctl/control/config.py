@@ -22,19 +22,137 @@ from ..config import Finite, Frac, NonNeg, Pos, Range, Strict, read_toml, valida
 from ..errors import InputError, finite_float
 
 #: moments a target may name (state components 0..3 of the moment model)
-TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
+MOMENT_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
+#: volume-weighted D-values (laser-diffraction convention) of the size law of (s_mean, s_std)
+DVALUE_KEYS = ("d50_um", "d90_um", "span")
+#: everything a target may name: the moments, then the D-values (outputs of the moment model)
+TARGET_KEYS = MOMENT_KEYS + DVALUE_KEYS
+#: allowed range of each target key (open interval)
+TARGET_RANGE = {"s_mean_um": (0.0, 1e5), "s_std_um": (0.0, 1e5), "r_mean": (0.0, 1.0), "r_std": (0.0, 0.5),
+                "d50_um": (0.0, 1e5), "d90_um": (0.0, 1e5), "span": (0.0, 100.0)}
+
+
+def target_value(key: str, value, source: str):
+    """A validated target value: a number (point) or a window [lo, hi] (returned as a float or a (lo, hi) tuple)."""
+    lo_ok, hi_ok = TARGET_RANGE[key]
+
+    def one(v):
+        x = finite_float(v, f"{source}: {key}")
+        if not (lo_ok < x < hi_ok):
+            raise InputError(f"{source}: {key}: must be in ({lo_ok:g}, {hi_ok:g}) (got {x:g})")
+        return x
+
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise InputError(f"{source}: {key}: a window is [lo, hi] (got {len(value)} values)")
+        lo, hi = one(value[0]), one(value[1])
+        if lo > hi:
+            raise InputError(f"{source}: {key}: window [{lo:g}, {hi:g}] has lo > hi")
+        return (lo, hi) if hi > lo else lo
+    return one(value)
+
+
+def target_bounds(value) -> tuple[float, float]:
+    """(lo, hi) of a target value (a point has lo = hi)."""
+    if isinstance(value, (tuple, list)):
+        return float(value[0]), float(value[1])
+    return float(value), float(value)
+
+
+def target_centre(value) -> float:
+    lo, hi = target_bounds(value)
+    return 0.5 * (lo + hi)
+
+
+def format_target(value) -> str:
+    lo, hi = target_bounds(value)
+    return f"{lo:g}" if lo == hi else f"[{lo:g}, {hi:g}]"
+
+
+def check_target_dict(d, source: str) -> dict:
+    """Validate {key: value or [lo, hi]}; returns {key: float or (lo, hi)}."""
+    if not isinstance(d, dict):
+        raise InputError(f"{source}: expected a table of targets")
+    out = {}
+    for k, v in d.items():
+        if k not in TARGET_KEYS:
+            raise InputError(f"{source}: unknown target {k!r} (one of {', '.join(TARGET_KEYS)})")
+        out[k] = target_value(k, v, source)
+    return out
+
+
+TargetValue = Union[float, list[float]]
 
 
 class Target(Strict):
-    """A target on any subset of the four micrograph moments (absent = not controlled)."""
+    """A target on any subset of the micrograph moments and the volume-weighted D-values (absent = not
+    controlled). Each is a number (a point) or ``[lo, hi]`` (a window: no cost inside it)."""
 
-    s_mean_um: Pos | None = None
-    s_std_um: Pos | None = None
-    r_mean: Annotated[float, Field(gt=0, lt=1)] | None = None
-    r_std: Annotated[float, Field(gt=0, lt=0.5)] | None = None
+    s_mean_um: TargetValue | None = None
+    s_std_um: TargetValue | None = None
+    r_mean: TargetValue | None = None
+    r_std: TargetValue | None = None
+    d50_um: TargetValue | None = None
+    d90_um: TargetValue | None = None
+    span: TargetValue | None = None
 
-    def as_dict(self) -> dict[str, float]:
-        return {k: float(v) for k, v in self.model_dump().items() if k in TARGET_KEYS and v is not None}
+    @model_validator(mode="after")
+    def _values(self):
+        for k in TARGET_KEYS:
+            v = getattr(self, k)
+            if v is not None:
+                try:
+                    target_value(k, v, "target")
+                except InputError as exc:
+                    raise ValueError(str(exc).split(": ", 2)[-1]) from None
+        return self
+
+    def as_dict(self) -> dict:
+        return {k: target_value(k, v, "target") for k, v in self.model_dump().items()
+                if k in TARGET_KEYS and v is not None}
+
+
+class Mill(Strict):
+    """What the mill can do (enforced in ``bmctl design``, in the MPC's applied plans and in trials).
+
+    Each milling period lasts at least ``min_mill_min`` and each rest at least ``min_rest_min``
+    (minutes; 0 = no limit); a batch has at most ``max_switches`` on/off transitions (none = no
+    limit); while milling, rpm >= ``rpm_min_milling`` and rpm is a multiple of ``rpm_step``.
+    """
+
+    min_mill_min: NonNeg = 0.0
+    min_rest_min: NonNeg = 0.0
+    max_switches: Annotated[int, Field(ge=0)] | None = None
+    rpm_min_milling: NonNeg = 0.0
+    rpm_step: Pos | None = None
+
+
+class Robust(Strict):
+    """Scenario MPC on the particle filter's spread (docs/control.md).
+
+    ``mode = "scenario"``: the plan is shared by ``scenarios`` predictions -- the estimate and
+    (gamma, delta) at the filter's 5 %/95 % quantiles (with the 95 % vial temperature); the
+    tracking cost is their mean and the temperature ceiling holds for each.
+    """
+
+    mode: Literal["nominal", "scenario"] = "nominal"
+    scenarios: Annotated[int, Field(ge=2, le=5)] = 3
+
+
+class Objective(Strict):
+    """What ``bmctl design`` optimises (docs/control.md).
+
+    * ``"target"``: the target error plus the energy and time weights (as the MPC);
+    * ``"min_time"``: the shortest batch whose final error is within ``tolerance``;
+    * ``"min_energy"``: the least dissipated energy among batches within ``tolerance``.
+    """
+
+    kind: Literal["target", "min_time", "min_energy"] = "target"
+    tolerance: Annotated[float, Field(gt=0, lt=1)] = 0.02  # relative error outside a window / off a point
+    phases: Annotated[int, Field(ge=1, le=12)] = 4  # schedule phases (each one rpm and one mill/rest pattern)
+    integer_method: Literal["relax-round", "bonmin"] = "relax-round"
+    #: batch lengths tried by min_time / min_energy and the trade-off table (fractions of --hours)
+    sweep: list[Annotated[float, Field(gt=0, le=1)]] = [0.25, 0.5, 0.75, 1.0]
 
 
 class ReferencePoint(Target):
@@ -158,6 +276,7 @@ class _Common(Strict):
     batch_hours: Pos | None = None  # batch length; default: the model card's process.hours
     target: Target = Target()
     reference: list[ReferencePoint] = []
+    mill: Mill = Mill()
 
 
 class MPCConfig(_Common):
@@ -171,12 +290,14 @@ class MPCConfig(_Common):
     solver: Solver = Solver()
     onoff: OnOff = OnOff()
     adaptation: Adaptation = Adaptation()
+    robust: Robust = Robust()
+    objective: Objective = Objective()
 
 
 class LQRTuning(Strict):
     """Velocity-form LQR on rpm with integral action on one moment (re-linearised every interval)."""
 
-    track: Literal["s_mean_um", "s_std_um", "r_mean", "r_std"] | None = None  # default: first target key
+    track: Literal["s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "d90_um", "span"] | None = None  # default: first target key
     q_error: Pos = 1.0  # on the integrated relative error of the tracked moment
     q_dx: NonNeg = 1e-3  # on the state increments (scaled)
     r_du: Pos = 1.0  # on the rpm increments (rpm / rpm_max)
@@ -190,6 +311,9 @@ class LQRConfig(_Common):
     temperature: Temperature = Temperature()  # only ceiling_c is used (the guard)
     lqr: LQRTuning = LQRTuning()
     round_minutes: bool = True
+    #: "guard": the milling fraction is lowered so the predicted peak stays under the ceiling (as before);
+    #: "clip": milling stays at its nominal value and rpm is clipped to the highest that keeps the ceiling
+    ceiling_mode: Literal["guard", "clip"] = "guard"
 
 
 class RecipeConfig(_Common):
@@ -251,28 +375,35 @@ def load_controller(path: str | Path) -> ControllerConfig:
     return validate_controller(read_toml(path), str(path))
 
 
-def parse_target(text: str, source: str = "--target") -> dict[str, float]:
-    """Parse ``"s_mean_um=25,r_mean=0.05"`` into a validated target dict.
+def parse_target(text: str, source: str = "--target") -> dict:
+    """Parse ``"s_mean_um=25,r_mean=0.05"`` (points) or ``"d50_um=40:50"`` (a window) into a target dict.
 
     Parameters
     ----------
     text : str
-        Comma-separated ``moment=value`` pairs.
+        Comma-separated ``key=value`` or ``key=lo:hi`` pairs; keys from :data:`TARGET_KEYS`.
     source : str, optional
         Flag or file named in error messages.
+
+    Returns
+    -------
+    dict
+        {key: float (point) or (lo, hi) (window)}.
     """
-    out: dict[str, float] = {}
+    out: dict = {}
     items = [t.strip() for t in str(text).split(",") if t.strip()]
     if not items:
-        raise InputError(f"{source}: empty target (expected e.g. s_mean_um=25,r_mean=0.05)")
+        raise InputError(f"{source}: empty target (expected e.g. s_mean_um=25,r_mean=0.05 or d50_um=40:50)")
     for item in items:
         if "=" not in item:
             raise InputError(f"{source}: expected key=value, got {item!r}")
         k, v = (s.strip() for s in item.split("=", 1))
         if k not in TARGET_KEYS:
-            raise InputError(f"{source}: unknown moment {k!r} (one of {', '.join(TARGET_KEYS)})")
+            raise InputError(f"{source}: unknown target {k!r} (one of {', '.join(TARGET_KEYS)})")
         if k in out:
             raise InputError(f"{source}: {k} given twice")
-        out[k] = finite_float(v, f"{source}: {k}")
-    validate(Target, out, source)
+        parts = [p.strip() for p in v.split(":")]
+        if len(parts) > 2:
+            raise InputError(f"{source}: {k}: expected a number or lo:hi (got {v!r})")
+        out[k] = target_value(k, parts if len(parts) == 2 else parts[0], source)
     return out

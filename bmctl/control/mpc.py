@@ -27,14 +27,16 @@ import numpy as np
 from ..errors import InputError
 from .base import (Plan, Reference, Status, batch_end_h, applied_input_guarded, check_p, check_u_prev, check_x,
                    interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
-from .config import TARGET_KEYS, MPCConfig
+from .config import DVALUE_KEYS, TARGET_KEYS, MPCConfig, target_bounds, target_centre
+from .mill import MillGuard
+from .outputs import ERR_FLOOR, output_values
 
 #: IPOPT outcomes whose iterate is used; anything else triggers the fallback
 ACCEPTED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 #: state scaling of the shooting variables (s_mean, s_std um; r_mean, r_std; T degC; h)
 X_SCALE = np.array([50.0, 30.0, 0.1, 0.1, 100.0, 1.0])
-#: floors of the relative-error scales (|ref| below them is treated as the floor)
-ERR_FLOOR = {"s_mean_um": 1.0, "s_std_um": 1.0, "r_mean": 0.005, "r_std": 0.005}
+#: number of target quantities (moments, then D-values) carried per interval in the NLP's parameters
+NY = len(TARGET_KEYS)
 
 
 @dataclass
@@ -68,7 +70,10 @@ class MPCController:
         self.reference = Reference.from_config(cfg) if reference is None else Reference.make(reference)
         self.rpm_scale = float(model.const.rpm_max)  # w = rpm / rpm_scale inside the NLP
         self.rpm_hi = min(cfg.bounds.rpm_max, model.rpm_max)
-        self.rpm_lo = min(cfg.bounds.rpm_min, self.rpm_hi)
+        self.rpm_lo = min(max(cfg.bounds.rpm_min, cfg.mill.rpm_min_milling), self.rpm_hi)
+        self.guard = MillGuard(cfg.mill, self.interval_h)
+        self.n_scen = cfg.robust.scenarios if cfg.robust.mode == "scenario" else 1
+        self._scen = None  # extra scenarios [(x0, p), ...] of the current call
         self._solvers: dict[str, object] = {}
         self._prev: _Solution | None = None
         self._sticky_exact = False
@@ -86,14 +91,23 @@ class MPCController:
         """Set the target: a dict {moment: value} (constant), a list of (from_h, dict)
         (piecewise constant, time-varying), a callable t_h -> dict, or a Reference.
         ``t_end_h`` moves the batch end (the terminal cost and the last milling interval)."""
-        self.reference = Reference.make(target)
+        ref = Reference.make(target)
+        if self._dvalues(ref) != self._dvalues(self.reference):  # D-values enter the NLP: rebuild it
+            self._nlp = self._nlp_c = None
+            self._solvers, self._pending, self._prev = {}, {}, None
+        self.reference = ref
         if t_end_h is not None:
             self.t_end_h = batch_end_h(t_end_h)
+
+    @staticmethod
+    def _dvalues(ref) -> bool:
+        return any(k in DVALUE_KEYS for k in ref.keys())
 
     def reset(self) -> None:
         """Forget the previous plan (no warm start, no shifted fallback); Gauss-Newton is tried again."""
         self._prev = None
         self._sticky_exact = False
+        self.guard.reset()
 
     def get_state(self) -> dict:
         """Warm-start and adaptation data as plain data (the solvers are rebuilt from the config)."""
@@ -102,7 +116,7 @@ class MPCController:
             "lam_g": self._prev.lam_g}
         last = None if self._last is None else {"t_h": self._last[0], "x": self._last[1], "p": self._last[2]}
         return {"prev": prev, "sticky_exact": self._sticky_exact, "gain": self.gain, "bias": self.bias,
-                "rls": self._rls, "last": last}
+                "rls": self._rls, "last": last, "guard": self.guard.get_state()}
 
     def set_state(self, state: dict) -> None:
         """Restore a state from :meth:`get_state`."""
@@ -113,14 +127,23 @@ class MPCController:
         self.gain = np.asarray(state["gain"], dtype=float)
         self.bias = np.asarray(state["bias"], dtype=float)
         self._rls = np.asarray(state["rls"], dtype=float)
+        if "guard" in state:
+            self.guard.set_state(state["guard"])
         la = state["last"]
         self._last = None if la is None else (float(la["t_h"]), np.asarray(la["x"], dtype=float),
                                               np.asarray(la["p"], dtype=float))
 
-    def plan(self, x_est, t_h: float, p=None, u_prev=None) -> Plan:
-        """Solve the MPC problem from ``x_est`` at batch time ``t_h``; see :mod:`bmctl.control.base`."""
+    def plan(self, x_est, t_h: float, p=None, u_prev=None, scenarios=None) -> Plan:
+        """Solve the MPC problem from ``x_est`` at batch time ``t_h``; see :mod:`bmctl.control.base`.
+
+        ``scenarios`` (scenario MPC, ``[robust] mode = "scenario"``): further (x, p) pairs the plan must
+        also serve, e.g. :func:`bmctl.control.robust.filter_scenarios`; default: copies of (x_est, p)."""
         x0 = check_x(x_est)
         pp = check_p(self.model, p)
+        if self.n_scen > 1:
+            sc = list(scenarios or [])[: self.n_scen - 1]
+            sc += [(x0, pp)] * (self.n_scen - 1 - len(sc))
+            self._scen = [(check_x(a), check_p(self.model, b)) for a, b in sc]
         up = check_u_prev(u_prev)
         t = float(t_h)
         if not math.isfinite(t) or t < 0:
@@ -160,6 +183,12 @@ class MPCController:
         if "retried" in res:
             status.reason = (f"warm {self.cfg.solver.hessian} solve: {res['retried']}; retried with the exact Hessian"
                              " (kept until reset)")
+        if self.guard.active():
+            res, extra_ms, note = self._dwell_round(data, res)
+            W, M = res["W"], res["M"]
+            status.solve_ms += extra_ms
+            if note:
+                status.reason = (status.reason + "; " if status.reason else "") + note
         self._prev = _Solution(t, W, M, res["lam_x"], res["lam_g"])
         binary = self.cfg.onoff.mode == "binary"
         if binary:
@@ -219,8 +248,9 @@ class MPCController:
         m_ub = np.minimum(cfg.bounds.milling_max, frac)
         m_lb = np.minimum(cfg.bounds.milling_min, m_ub)
         k_end = int(min(N, math.ceil((self.t_end_h - t) / dt - 1e-9)))
-        ref = np.zeros((4, N))
-        q = np.zeros((4, N))
+        ref_lo = np.zeros((NY, N))
+        ref_hi = np.zeros((NY, N))
+        q = np.zeros((NY, N))
         wts = cfg.weights
         for k in range(N):
             if k + 1 > k_end:
@@ -229,30 +259,33 @@ class MPCController:
             d = self.reference.at(tt)
             for i, key in enumerate(TARGET_KEYS):
                 if key in d:
-                    sc = max(abs(d[key]), ERR_FLOOR[key])
-                    ref[i, k] = d[key]
-                    q[i, k] += wts.stage * dt * getattr(wts, key) / sc**2
-            if k + 1 == k_end:
-                for i, key in enumerate(TARGET_KEYS):
-                    if key in d:
-                        sc = max(abs(d[key]), ERR_FLOOR[key])
-                        q[i, k] += wts.terminal * getattr(wts, key) / sc**2
+                    sc = max(abs(target_centre(d[key])), ERR_FLOOR[key])
+                    ref_lo[i, k], ref_hi[i, k] = target_bounds(d[key])
+                    wk = getattr(wts, key, 1.0)
+                    q[i, k] += wts.stage * dt * wk / sc**2
+                    if k + 1 == k_end:
+                        q[i, k] += wts.terminal * wk / sc**2
         lo, hi, _ = rpm_window(cfg.bounds, self.model.rpm_max, up)
         has_prev = up is not None and up[0] > 0 and up[1] > 0
-        P = np.concatenate([x0, pp, ref.T.ravel(), q.T.ravel(),
+        P = np.concatenate([x0, pp, ref_lo.T.ravel(), ref_hi.T.ravel(), q.T.ravel(),
                             [up[0] / self.rpm_scale if has_prev else 0.0, 1.0 if has_prev else 0.0]]
                            + ([self.bias if self.cfg.adaptation.mode == "bias" else self.gain]
-                              if self.adaptive else []))
+                              if self.adaptive else [])
+                           + [np.concatenate([a, b]) for a, b in (self._scen or [])[: self.n_scen - 1]])
         sc = self.rpm_scale
         w_lb = np.full(N, self.rpm_lo / sc)
         w_ub = np.full(N, self.rpm_hi / sc)
         w_lb[0], w_ub[0] = lo / sc, hi / sc
         smax = np.inf if cfg.temperature.slack_max_c is None else cfg.temperature.slack_max_c
-        lbx = np.concatenate([w_lb, m_lb, np.full(6 * N, -np.inf), np.zeros(N)])
-        ubx = np.concatenate([w_ub, m_ub, np.full(6 * N, np.inf), np.full(N, smax)])
+        ne = self.n_scen - 1
+        lbx = np.concatenate([w_lb, m_lb, np.full(6 * N, -np.inf), np.zeros(N), np.full(6 * N * ne, -np.inf)])
+        ubx = np.concatenate([w_ub, m_ub, np.full(6 * N, np.inf), np.full(N, smax), np.full(6 * N * ne, np.inf)])
         step = np.inf if cfg.bounds.rpm_step_max is None else cfg.bounds.rpm_step_max / sc
-        lbg = np.concatenate([np.zeros(6 * N), np.full(N - 1, -step), np.full(N, -np.inf)])
-        ubg = np.concatenate([np.zeros(6 * N), np.full(N - 1, step), np.full(N, cfg.temperature.ceiling_c)])
+        ceil = cfg.temperature.ceiling_c
+        lbg = np.concatenate([np.zeros(6 * N), np.full(N - 1, -step), np.full(N, -np.inf),
+                              np.tile(np.concatenate([np.zeros(6 * N), np.full(N, -np.inf)]), ne)])
+        ubg = np.concatenate([np.zeros(6 * N), np.full(N - 1, step), np.full(N, ceil),
+                              np.tile(np.concatenate([np.zeros(6 * N), np.full(N, ceil)]), ne)])
         return {"x0": x0, "p": pp, "up": up, "t": t, "P": P, "lbx": lbx, "ubx": ubx, "lbg": lbg, "ubg": ubg,
                 "w_lo": lo, "w_hi": hi, "m_ub": m_ub, "m_lb": m_lb, "k_end": k_end}
 
@@ -273,34 +306,57 @@ class MPCController:
         M = ca.MX.sym("m", N)
         Z = ca.MX.sym("z", 6, N)
         S = ca.MX.sym("s", N)
-        P = ca.MX.sym("P", 6 + 2 + 8 * N + 2 + (4 if self.adaptive else 0))
+        ne = self.n_scen - 1
+        na = 4 if self.adaptive else 0
+        o = 8 + 3 * NY * N  # offset of w_prev
+        P = ca.MX.sym("P", o + 2 + na + 8 * ne)
         x0, pp = P[0:6], P[6:8]
-        ref = ca.reshape(P[8:8 + 4 * N], 4, N)
-        q = ca.reshape(P[8 + 4 * N:8 + 8 * N], 4, N)
-        w_prev, has_prev = P[8 + 8 * N], P[9 + 8 * N]
+        lo = ca.reshape(P[8:8 + NY * N], NY, N)
+        hi = ca.reshape(P[8 + NY * N:8 + 2 * NY * N], NY, N)
+        q = ca.reshape(P[8 + 2 * NY * N:o], NY, N)
+        w_prev, has_prev = P[o], P[o + 1]
         D = ca.DM(X_SCALE)
-        X = ca.repmat(D, 1, N) * Z
-        Xprev = ca.horzcat(x0, X[:, :-1])
         U = ca.vertcat(W.T * self.rpm_scale, M.T)
-        Xn = F.map(N)(Xprev, U, ca.repmat(pp, 1, N))
-        if self.adaptive and cfg.adaptation.mode == "gain":  # corrected particle moments (T, h are exact)
-            G = ca.vertcat(P[10 + 8 * N:14 + 8 * N], 1.0, 1.0)
-            Xn = Xprev + ca.repmat(G, 1, N) * (Xn - Xprev)
-        elif self.adaptive:  # "bias": offset-free prediction
-            Xn = Xn + ca.repmat(ca.vertcat(P[10 + 8 * N:14 + 8 * N], 0.0, 0.0), 1, N)
-        defect = (Xn - X) / ca.repmat(D, 1, N)
-        Tpk, _ = eq.thermal_exact(eq.CA(), c, Xprev[4, :], Xprev[5, :], W.T, M.T * dt)
-        E = X[0:4, :] - ref
+        Fm = F.map(N)
+        keys = [k for k in TARGET_KEYS if k not in DVALUE_KEYS or self._dvalues(self.reference)]
+        rows = [TARGET_KEYS.index(k) for k in keys]
+
+        def predict(Zs, xs0, ps):
+            """Scaled shooting states -> (states, defects, peak T per interval, tracking cost)."""
+            X = ca.repmat(D, 1, N) * Zs
+            Xprev = ca.horzcat(xs0, X[:, :-1])
+            Xn = Fm(Xprev, U, ca.repmat(ps, 1, N))
+            if self.adaptive and cfg.adaptation.mode == "gain":  # corrected particle moments (T, h are exact)
+                G = ca.vertcat(P[o + 2:o + 6], 1.0, 1.0)
+                Xn = Xprev + ca.repmat(G, 1, N) * (Xn - Xprev)
+            elif self.adaptive:  # "bias": offset-free prediction
+                Xn = Xn + ca.repmat(ca.vertcat(P[o + 2:o + 6], 0.0, 0.0), 1, N)
+            defect = (Xn - X) / ca.repmat(D, 1, N)
+            Tpk, _ = eq.thermal_exact(eq.CA(), c, Xprev[4, :], Xprev[5, :], W.T, M.T * dt)
+            Y = ca.vertcat(*output_values(X, keys))
+            Lo, Hi, Q = (ca.vertcat(*[A[i, :] for i in rows]) for A in (lo, hi, q))
+            # squared distance outside the window [lo, hi] (a point: lo = hi); C1-smooth
+            E = ca.fmax(Y - Hi, 0) + ca.fmin(Y - Lo, 0)
+            return defect, Tpk, ca.sum1(ca.sum2(Q * E * E))
+
+        defect, Tpk, J_track = predict(Z, x0, pp)
+        Zx = [ca.MX.sym(f"z{j + 1}", 6, N) for j in range(ne)]
+        extra_g = []
+        for j, Zj in enumerate(Zx):
+            b = o + 2 + na + 8 * j
+            dj, Tj, Jj = predict(Zj, P[b:b + 6], P[b + 6:b + 8])
+            J_track = J_track + Jj
+            extra_g += [ca.vec(dj), Tj.T - S]
+        J_track = J_track / (ne + 1)
         wt = cfg.weights
-        J_track = ca.sum1(ca.sum2(q * E * E))
         J_energy = wt.energy_per_kWh * c.power_max_W / 1000.0 * dt * ca.sum1(W * W * W * M)
         J_time = wt.time_per_h * dt * ca.sum1(M)
         J_move = wt.rpm_move * (has_prev * (W[0] - w_prev) ** 2 + ca.sumsqr(ca.diff(W)))
         J_slack = cfg.temperature.slack_weight * ca.sum1(S) + cfg.temperature.slack_weight_quad * ca.sumsqr(S)
         J = J_track + J_energy + J_time + J_move + J_slack
         gT = Tpk.T - S
-        g = ca.vertcat(ca.vec(defect), ca.diff(W), gT)
-        V = ca.vertcat(W, M, ca.vec(Z), S)
+        g = ca.vertcat(ca.vec(defect), ca.diff(W), gT, *extra_g)
+        V = ca.vertcat(W, M, ca.vec(Z), S, *[ca.vec(Zj) for Zj in Zx])
         nlp = {"x": V, "p": P, "f": J, "g": g}
         if not keep:
             return nlp
@@ -310,7 +366,7 @@ class MPCController:
         # dynamics' curvature dropped, plus a proximal term on the scaled inputs (cheap to build)
         lf = ca.MX.sym("lam_f")
         lg = ca.MX.sym("lam_g", g.shape[0])
-        H = ca.hessian(lf * J + ca.dot(lg[g.shape[0] - N:], gT), V)[0]
+        H = ca.hessian(lf * J + ca.dot(lg[7 * N - 1:8 * N - 1], gT), V)[0]
         reg = np.zeros(V.shape[0])
         reg[:2 * N] = cfg.solver.gn_regularization
         H = H + lf * ca.diag(ca.DM(reg))
@@ -423,12 +479,13 @@ class MPCController:
             s = int(round((data["t"] - self._prev.t_h) / self.interval_h))
             W = _shift(self._prev.W, s)
             M = _shift(self._prev.M, s)
+            ne = self.n_scen - 1
             lam_x = np.concatenate([_shift(self._prev.lam_x[:N], s), _shift(self._prev.lam_x[N:2 * N], s),
                                     _shift(self._prev.lam_x[2 * N:8 * N], s, 6),
-                                    _shift(self._prev.lam_x[8 * N:], s)])
+                                    _shift(self._prev.lam_x[8 * N:9 * N], s), np.zeros(6 * N * ne)])
             lam_g = np.concatenate([_shift(self._prev.lam_g[:6 * N], s, 6),
                                     _shift(self._prev.lam_g[6 * N:7 * N - 1], s),
-                                    _shift(self._prev.lam_g[7 * N - 1:], s)])
+                                    _shift(self._prev.lam_g[7 * N - 1:8 * N - 1], s), np.zeros(7 * N * ne)])
         elif W is None:
             up = data["up"]
             r0 = up[0] if up is not None and up[0] > 0 else self.model.card.process.rpm
@@ -444,8 +501,14 @@ class MPCController:
         U = np.column_stack([W * self.rpm_scale, M])
         X = self._predict(data["x0"], U, data["p"])
         Tpk = peak_temperature(self.model, X[:-1, 4], X[:-1, 5], U[:, 0], U[:, 1], self.interval_h)
-        S = np.clip(Tpk - self.cfg.temperature.ceiling_c, 0.0, data["ubx"][8 * N:])
-        V = np.concatenate([W, M, (X[1:] / X_SCALE).ravel(), S])
+        extra = []
+        for xs, ps in (self._scen or [])[: self.n_scen - 1]:
+            Xs = self._predict(xs, U, ps)
+            extra.append((Xs[1:] / X_SCALE).ravel())
+            Tpk = np.maximum(Tpk, peak_temperature(self.model, Xs[:-1, 4], Xs[:-1, 5], U[:, 0], U[:, 1],
+                                                   self.interval_h))
+        S = np.clip(Tpk - self.cfg.temperature.ceiling_c, 0.0, data["ubx"][8 * N:9 * N])
+        V = np.concatenate([W, M, (X[1:] / X_SCALE).ravel(), S] + extra)
         return V, lam_x, lam_g
 
     def _solve(self, data: dict, warm: bool, W=None, M=None, lbx=None, ubx=None, hessian=None) -> dict:
@@ -463,9 +526,44 @@ class MPCController:
         ok = status in ACCEPTED and np.all(np.isfinite(V))
         return {"ok": bool(ok), "status": status, "iter": int(st.get("iter_count", 0)), "V": V,
                 "f": float(sol["f"]), "W": V[:N].copy(), "M": V[N:2 * N].copy(),
-                "Z": V[2 * N:8 * N].reshape(N, 6), "S": V[8 * N:].copy(),
+                "Z": V[2 * N:8 * N].reshape(N, 6), "S": V[8 * N:9 * N].copy(),
                 "lam_x": np.asarray(sol["lam_x"], dtype=float).ravel(),
                 "lam_g": np.asarray(sol["lam_g"], dtype=float).ravel()}
+
+    # --- mill limits ---------------------------------------------------------------------------
+    def _dwell_round(self, data: dict, res: dict):
+        """Round the first interval's milling time onto the dwell limits with a re-solve.
+
+        A planned milling period shorter than ``min_mill_min`` (or a rest shorter than
+        ``min_rest_min``) has two neighbours the mill can run: none / the minimum. Each is fixed
+        in turn as the first interval's milling and the NLP re-solved (warm solver); the lower
+        cost wins (relax-and-round with a re-solve on the decision applied now). Returns
+        (solution, extra ms, note)."""
+        mill, N = self.guard.mill, self.N
+        dt_min = self.interval_h * 60.0
+        a = float(res["M"][0]) * dt_min
+        lo_mill, lo_rest = max(mill.min_mill_min, 0.0), max(mill.min_rest_min, 0.0)
+        if 0.5 < a < lo_mill - 0.5:
+            cands = [0.0, lo_mill / dt_min]
+        elif 0.5 < dt_min - a < lo_rest - 0.5:
+            cands = [1.0, 1.0 - lo_rest / dt_min]
+        else:
+            return res, 0.0, ""
+        cands = [c for c in cands if data["m_lb"][0] - 1e-9 <= c <= data["m_ub"][0] + 1e-9] or [0.0]
+        t0 = time.perf_counter()
+        best = None
+        for c in cands:
+            lbx, ubx = data["lbx"].copy(), data["ubx"].copy()
+            lbx[N], ubx[N] = c, c
+            M0 = res["M"].copy()
+            M0[0] = c
+            r = self._solve(data, warm=True, W=res["W"], M=M0, lbx=lbx, ubx=ubx)
+            if r["ok"] and (best is None or r["f"] < best["f"]):
+                best = r
+        ms = (time.perf_counter() - t0) * 1e3
+        if best is None:
+            return res, ms, "dwell re-solve failed: nearest rounding"
+        return best, ms, f"dwell: milling {a:.1f} -> {best['M'][0] * dt_min:.0f} min (re-solved)"
 
     # --- on/off --------------------------------------------------------------------------------
     def _binary(self, data: dict, res: dict):
@@ -530,6 +628,18 @@ class MPCController:
         on = self.cfg.onoff
         u_apply = applied_input_guarded(self.model, x0, U[0], dt, self.cfg.temperature.ceiling_c, on.round_minutes,
                                         on.mode == "binary")
+        if self.guard.active():
+            ceil = self.cfg.temperature.ceiling_c
+            rpm_cap = self.rpm_hi
+            T0s = [x0[4]] + [xs[4] for xs, _ in (self._scen or [])]
+            from .mill import round_rpm
+
+            r_dial = round_rpm(max(u_apply[0], 1.0), self.guard.mill, rpm_cap)  # the milling cap at the dial's rpm
+            m_cap = min([float(np.clip((self.t_end_h - t) / dt, 0.0, 1.0))] + [
+                max_milling_for_ceiling(self.model, T0, r_dial, dt, ceil) for T0 in T0s])
+            u_apply, note = self.guard.enforce(u_apply, t, rpm_cap, m_cap)
+            if note:
+                status.reason = (status.reason + "; " if status.reason else "") + note
         return Plan(t, dt, U, X, np.asarray(Tpk, dtype=float), u_apply, status)
 
 

@@ -299,10 +299,13 @@ def test_time_varying_reference_per_interval(model):
     assert ref.at(0.5) == {"s_mean_um": 60.0} and ref.at(1.0)["s_mean_um"] == 45.0
     ctrl = make_controller(mpc_cfg(horizon=4, batch_hours=2.0), model, ref)
     data = ctrl._problem_data(model.x0(), 0.0, model.p0(), None)
-    refs = data["P"][8:8 + 16].reshape(4, 4)  # per interval: (s_mean, s_std, r_mean, r_std)
-    assert refs[0, 0] == 60.0 and refs[1, 0] == 45.0 and refs[3, 0] == 45.0
-    q = data["P"][8 + 16:8 + 32].reshape(4, 4)
+    ny, n = 7, 4  # per interval: (s_mean, s_std, r_mean, r_std, d50, d90, span) lo, then hi, then weights
+    lo = data["P"][8:8 + ny * n].reshape(n, ny)
+    hi = data["P"][8 + ny * n:8 + 2 * ny * n].reshape(n, ny)
+    assert lo[0, 0] == 60.0 and lo[1, 0] == 45.0 and lo[3, 0] == 45.0 and np.array_equal(lo, hi)  # points
+    q = data["P"][8 + 2 * ny * n:8 + 3 * ny * n].reshape(n, ny)
     assert q[0, 2] == 0.0 and q[1, 2] > 0.0  # r_mean enters once the reference names it
+
     assert q[3, 0] > 10 * q[2, 0]  # terminal weight at the batch end
     cfg = validate_controller({"kind": "mpc", "target": {"s_mean_um": 40.0},
                                "reference": [{"from_h": 2.0, "s_mean_um": 30.0}]}, "t")
@@ -425,8 +428,17 @@ def test_design_writes_a_schedule_simulate_reads(tmp_path, capsys, model):
     assert all(s.rpm <= 500 for s in sched.segment)
     assert all(abs(s.hours * 60 - round(s.hours * 60)) < 1e-6 for s in sched.segment)
     rows = (out / "predicted.csv").read_text().splitlines()
-    assert rows[0].startswith("t_h,rpm,milling,t_peak_c,s_mean_um") and len(rows) == 1 + 3
+    assert rows[0].startswith("t_h,rpm,milling,t_peak_c,s_mean_um") and len(rows) >= 1 + 2  # one row per segment end
     assert (out / "design.png").stat().st_size > 1000
     s_final = float(rows[-1].split(",")[4])
     assert s_final == pytest.approx(Xs[-1, 0], rel=0.03)
     assert math.isfinite(s_final)
+
+
+def test_window_target_has_lo_below_hi_and_no_cost_inside(model):
+    ctrl = make_controller(mpc_cfg(horizon=2, batch_hours=1.0), model, {"d50_um": (40.0, 50.0)})
+    data = ctrl._problem_data(model.x0(), 0.0, model.p0(), None)
+    ny, n = 7, 2
+    lo = data["P"][8:8 + ny * n].reshape(n, ny)
+    hi = data["P"][8 + ny * n:8 + 2 * ny * n].reshape(n, ny)
+    assert lo[-1, 4] == 40.0 and hi[-1, 4] == 50.0
