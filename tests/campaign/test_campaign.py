@@ -55,8 +55,10 @@ def test_d50_law_against_a_lognormal_sample():
     w = np.cumsum(s[order] ** 3)
     d50_sample = s[order][np.searchsorted(w, w[-1] / 2)]
     assert abs(d50_sample / tg.d50_from_moments(mean, std) - 1) < 0.02
-    # the mapping onto s_mean keeps the spread and gives back the D50
-    m = tg.controller_target({"d50_um": 45.0}, {"s_mean_um": 60.0, "s_std_um": 30.0})["s_mean_um"]
+    # the controller takes a D50 target as it is (its objective reads D50 from the size law)
+    assert tg.controller_target({"d50_um": 45.0}, {"s_mean_um": 60.0, "s_std_um": 30.0}) == {"d50_um": 45.0}
+    # the fallback mapping onto s_mean (for a controller without D50 targets) keeps the spread
+    m = tg.TARGETS["d50_um"][0](45.0, {"s_mean_um": 60.0, "s_std_um": 30.0})["s_mean_um"]
     assert tg.d50_from_moments(m, m * 0.5) == pytest.approx(45.0, rel=1e-12)
 
 
