@@ -28,6 +28,7 @@ from ..errors import InputError
 from .base import (Plan, Reference, Status, batch_end_h, applied_input_guarded, check_p, check_u_prev, check_x,
                    interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
 from .config import DVALUE_KEYS, TARGET_KEYS, MPCConfig, target_bounds, target_centre
+from .compiled import CompiledSolvers
 from .mill import MillGuard
 from .outputs import ERR_FLOOR, output_values
 
@@ -48,7 +49,7 @@ class _Solution:
     lam_g: np.ndarray
 
 
-class MPCController:
+class MPCController(CompiledSolvers):
     """Receding-horizon MPC on the moment model. Build with :func:`bmctl.control.make_controller`.
 
     Parameters
@@ -412,58 +413,6 @@ class MPCController:
             self._upgrade(key)
         return self._solvers[key]
 
-    def _compiled_solver(self, key, opts: dict):
-        """The solver for ``key`` from bmctl's cache of compiled NLPs (:mod:`bmctl.control.cache`), or None.
-
-        A missing library is compiled (in the background unless ``BMCTL_MPC_COMPILE=wait``); the
-        caller then builds the interpreted solver, which :meth:`_upgrade` replaces once gcc is done.
-        The compiled NLP evaluates the same equations (the step with the rate field as a called
-        function instead of inlined), so plans agree to solver tolerance (tests/test_control.py).
-        """
-        from . import cache
-
-        if not cache.enabled():
-            return None
-        path = self._library(key, opts)
-        if path is None:
-            return None
-        lib_opts = {k: v for k, v in opts.items() if k not in ("expand", "hess_lag")}
-        if not cache.ready(path):
-            import casadi as ca
-
-            gen = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp_c, {**lib_opts, **(
-                {"hess_lag": opts["hess_lag"]} if "hess_lag" in opts else {})})
-            cache.start_compile(gen, path, wait=cache.wait_for_compile())
-            if not cache.ready(path):
-                self._pending[key] = (path, lib_opts)
-                return None
-        return cache.load(path, f"mpc_{key[0]}", lib_opts)
-
-    def _library(self, key, opts: dict):
-        """Cache path of the compiled NLP for solver ``key`` (builds the call-based NLP on first use)."""
-        import casadi as ca
-
-        from . import cache
-
-        if self._nlp_c is None:
-            self._nlp_c = self._nlp_dict(_call_step(self.model, self.interval_h, self.cfg.solver.substeps), keep=False)
-        nlp = self._nlp_c
-        fns = [ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])]
-        if "hess_lag" in opts:
-            fns.append(opts["hess_lag"])
-        tag = f"{key[0]}-{key[1]}-it{opts['ipopt.max_iter']}"
-        return cache.library_path(cache.solver_key(fns, tag), prefix=f"mpc-{key[0]}")
-
-    def _upgrade(self, key) -> None:
-        from . import cache
-
-        path, lib_opts = self._pending[key]
-        if cache.ready(path):
-            del self._pending[key]
-            solver = cache.load(path, f"mpc_{key[0]}", lib_opts)
-            if solver is not None:
-                self._solvers[key] = solver
-
     def _can_warm(self, t: float) -> bool:
         if not self.cfg.solver.warm_start or self._prev is None:
             return False
@@ -641,36 +590,6 @@ class MPCController:
             if note:
                 status.reason = (status.reason + "; " if status.reason else "") + note
         return Plan(t, dt, U, X, np.asarray(Tpk, dtype=float), u_apply, status)
-
-
-def _call_step(model, dt_h: float, substeps: int | None):
-    """The model's interval step as an MX function that *calls* the rate field at every RKC stage
-    (``MomentModel.casadi_step`` inlines it). Same equations; its generated C stays small (the rate
-    field and its derivatives once, not once per stage), so it compiles in seconds to minutes
-    instead of not at all."""
-    import casadi as ca
-
-    from ..moments import equations as eq
-    from ..moments.model import _ca_cols, rkc_stages
-
-    n_default, _ = model._integration(float(dt_h))
-    n = n_default if substeps is None else int(substeps)
-    # the rate field's derivatives through its 4 x 9 Jacobian (enable_forward off): 1.8x faster warm
-    # solves and 1.7x faster compiles than forward sweeps with 12 directions (docs/performance.md)
-    R = model.rate_function()
-    y, a = ca.SX.sym("y", 4), ca.SX.sym("a", 5)
-    R_jac = ca.Function("moment_rates_jac", [y, a], R.call([y, a]),
-                        {"enable_forward": False, "jac_penalty": 0, "cse": True})
-
-    def rates(yl, T, h, w, bm, fm):
-        v = R_jac(ca.vertcat(*yl[:4]), ca.vertcat(T, h, w, bm, fm))
-        return [v[i] for i in range(4)]
-
-    x, u, p = ca.MX.sym("x", 6), ca.MX.sym("u", 2), ca.MX.sym("p", 2)
-    s = rkc_stages(model.const.rate_max_per_h, float(dt_h) / n)
-    out = eq.step(eq.CA(), model.const, model.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
-                  float(dt_h), n, s, rates=rates)
-    return ca.Function("moment_step", [x, u, p], [ca.vertcat(*out)], ["x", "u", "p"], ["x_next"])
 
 
 def _shift(v: np.ndarray, s: int, block: int = 1) -> np.ndarray:
