@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..physics.impacts import sample_impact_energies, sample_xi, sample_zeta  # eqns (5), (9): one definition  # noqa: F401
+
 R_MAX = 0.99  # r is kept in [0, R_MAX] (r -> 1 is a fractal boundary, eqn 3)
 
 
@@ -40,42 +42,6 @@ def ellipse_size_aspect(a, b):
 
 
 # --- energetics -------------------------------------------------------------------------------
-
-def sample_impact_energies(rng, theta, n, weighted=True):
-    """Draw ``n`` impact-energy pairs U_in > U_out from Gamma(3/2, theta).  (5)
-
-    With ``weighted`` the pairs are drawn in proportion to the share of particles
-    that collision processes, (U_in - U_out) / U_in: the loop "repeat until Delta U is
-    spent" processes that many particles (docs/model.md, Sec. 3.2).
-
-    Returns
-    -------
-    u_in, u_out : ndarray
-    """
-    out_in = np.empty(0)
-    out_out = np.empty(0)
-    while out_in.size < n:
-        m = max(16, int(2.2 * (n - out_in.size)) + 8)
-        g = rng.gamma(1.5, theta, size=(2, m))
-        hi = np.maximum(g[0], g[1])
-        lo = np.minimum(g[0], g[1])
-        if weighted:
-            keep = rng.random(m) * hi < hi - lo
-            hi, lo = hi[keep], lo[keep]
-        out_in = np.concatenate([out_in, hi])
-        out_out = np.concatenate([out_out, lo])
-    return out_in[:n], out_out[:n]
-
-
-def sample_zeta(rng, alpha, n):
-    """Tribological factor zeta ~ Beta(2, alpha + 1): p = (a+1)(a+2) z (1-z)^a.  (9)"""
-    return rng.beta(2.0, alpha + 1.0, size=n)
-
-
-def sample_xi(rng, beta, n):
-    """Plasticity factor xi ~ Beta(beta + 1, 2): p = (b+1)(b+2) x^b (1-x).  (9)"""
-    return rng.beta(beta + 1.0, 2.0, size=n)
-
 
 def friction_heat(e_in, psi, zeta):
     """Friction heat Delta U_f = A u_in sin^2(2 psi)(1 - zeta^2), with A u_in = e_in.  (7)"""

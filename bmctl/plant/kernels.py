@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING, Callable, Protocol
 
 import numpy as np
 
+from ..physics.impacts import dissipation_coefficients, sample_impact_angles  # eqns (7)-(9): one definition  # noqa: F401
+
 from . import events as ev
 from . import thermal
 from .kinematics import MEAN_LOSS_RATIO, Kinematics
@@ -92,42 +94,6 @@ class Kernels(Protocol):
         rng : numpy.random.Generator
             Source of every draw.
         """
-
-
-def dissipation_coefficients(alpha: float, beta: float) -> tuple[float, float]:
-    """(a, b) with E[dissipated share | psi] = a sin^2(2 psi) + b cos^2(2 psi).  (7)-(9)
-
-    a = 1 - E[zeta^2], zeta ~ Beta(2, alpha + 1); b = 1 - E[xi^2], xi ~ Beta(beta + 1, 2).
-
-    Parameters
-    ----------
-    alpha, beta : float
-        The exponents of (9).
-    """
-    ez2 = 2 * 3 / ((alpha + 3) * (alpha + 4))
-    ex2 = (beta + 1) * (beta + 2) / ((beta + 3) * (beta + 4))
-    return 1.0 - ez2, 1.0 - ex2
-
-
-def sample_impact_angles(rng: np.random.Generator, a: float, b: float, n: int) -> np.ndarray:
-    """Incidence angles psi of the impacts the loop runs: density ~ 1 / (a sin^2 2psi + b cos^2 2psi).
-
-    A collision draws one psi uniformly in (-pi/2, pi/2) (Sec. 3.2) and runs impacts until
-    Delta U is spent, about Delta U / (U_in c(psi)) of them with c(psi) = a sin^2 2psi +
-    b cos^2 2psi: an impact's psi is the collision's psi weighted by 1 / c(psi). Exact
-    transform of one uniform draw phi ~ U(-pi, pi): 2 psi = atan2(sqrt(b) sin phi, sqrt(a) cos phi).
-
-    Parameters
-    ----------
-    rng : numpy.random.Generator
-        Source of the n uniform draws.
-    a, b : float
-        :func:`dissipation_coefficients`.
-    n : int
-        Number of angles.
-    """
-    phi = rng.uniform(-np.pi, np.pi, size=n)
-    return 0.5 * np.arctan2(math.sqrt(b) * np.sin(phi), math.sqrt(a) * np.cos(phi))
 
 
 class PaperKernels:
