@@ -297,7 +297,7 @@ def test_report_loads_in_headless_chromium(tmp_path):
     prof = tempfile.mkdtemp()
     r = subprocess.run([_chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                         "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={prof}",
-                        "--window-size=1400,2200", f"--screenshot={shot}", "--enable-logging=stderr", "--v=0",
+                        "--window-size=1400,2200", "--virtual-time-budget=10000", f"--screenshot={shot}", "--enable-logging=stderr", "--v=0",
                         page.as_uri()], capture_output=True, text=True, timeout=180)
     shutil.rmtree(prof, ignore_errors=True)
     console = [ln for ln in r.stderr.splitlines() if "CONSOLE" in ln and ("ERROR" in ln or "error" in ln.lower())]
