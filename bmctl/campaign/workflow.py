@@ -561,7 +561,7 @@ def status(folder, campaign: Campaign | None = None) -> dict:
 
 def report(folder, out=None, campaign: Campaign | None = None) -> Path:
     """Write the self-contained HTML report (default ``DIR/report.html``); returns its path."""
-    from .report import write_report
+    from .html_report import write_report
 
     c = campaign or Campaign(folder)
     try:

@@ -344,3 +344,16 @@ config = "{LQR}"
     np.testing.assert_allclose([r["estimate"]["s_mean_um"] for r in rows], data["est_s_mean_um"], rtol=1e-5)
     for k, v in summary["final_estimate"].items():  # full precision at the end
         assert rows[-1]["estimate"][k] == v, k
+
+
+def test_package_verbs_stay_functions_after_every_submodule_is_imported():
+    """No submodule of bmctl.campaign shadows a verb of the package (``report`` once did)."""
+    import importlib
+    import pkgutil
+
+    import bmctl.campaign as pkg
+
+    for m in pkgutil.iter_modules(pkg.__path__):
+        importlib.import_module(f"bmctl.campaign.{m.name}")
+    for verb in pkg.__all__:
+        assert callable(getattr(pkg, verb)) and not isinstance(getattr(pkg, verb), type(pkg)), verb
