@@ -32,7 +32,13 @@ class _Generator:
         self.fn = fn
 
     def generate_dependencies(self, name: str, opts: dict) -> None:
-        self.fn.generate(name, opts)
+        import hashlib
+        import os
+
+        # casadi wants a C identifier as the generated file's stem; the cache's temporary name may hold
+        # a '.' (the interval length), so generate under a safe stem and move the file to ``name``
+        safe = "band_" + hashlib.sha256(name.encode()).hexdigest()[:16]
+        os.replace(self.fn.generate(safe, opts), name)
 
 
 def step_function(model, dt_h: float):
