@@ -57,7 +57,7 @@ def run_one(job) -> dict:
     summ = Path(out) / "summary.json"
     if summ.exists():
         return json.loads(summ.read_text())
-    resume = (Path(out) / "checkpoint.pkl").exists()
+    resume = (Path(out) / "checkpoint.npz").exists()
     return run_trial(scen_path, out, seed=seed, resume=resume)
 
 

@@ -173,7 +173,7 @@ def closed_loop(scenarios, seeds, out: Path) -> str:
 
                     summ = json.loads((folder / "summary.json").read_text())
                 else:
-                    summ = run_trial(path, folder, seed=seed, resume=(folder / "checkpoint.pkl").exists())
+                    summ = run_trial(path, folder, seed=seed, resume=(folder / "checkpoint.npz").exists())
                 walls.append(time.perf_counter() - t0)
                 errs.append(100 * max(summ["final_error"].values()))
                 print(f"  closed loop {Path(scn).stem} {kind} seed {seed}: {errs[-1]:.2f} % ({walls[-1]:.0f} s)", flush=True)
