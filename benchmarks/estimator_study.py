@@ -154,7 +154,7 @@ def _scenario_with_kind(scenario: str, kind: str, folder: Path) -> str:
     return str(p)
 
 
-def closed_loop(scenarios, seeds, out: Path) -> str:
+def closed_loop(scenarios, seeds, out: Path, kinds=KINDS) -> str:
     """MPC trials on each estimator; returns the markdown table of final target errors."""
     from bmctl.trial import run_trial
 
@@ -162,7 +162,7 @@ def closed_loop(scenarios, seeds, out: Path) -> str:
     rows = ["| scenario | estimator | seeds | final target error % (per seed) | mean % | wall s per trial |",
             "|---|---|---|---|---|---|"]
     for scn in scenarios:
-        for kind in KINDS:
+        for kind in kinds:
             path = _scenario_with_kind(scn, kind, out)
             errs, walls = [], []
             for seed in seeds:
@@ -191,6 +191,9 @@ def main(argv=None) -> int:
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--closed-loop", action="store_true", help="also run MPC trials on each estimator (minutes each)")
     ap.add_argument("--cl-seeds", type=int, default=1)
+    ap.add_argument("--cl-kinds", default=",".join(KINDS),
+                    help="estimators of the closed loop, comma separated (pf,ukf); the PF trials equal the control "
+                         "study's mpc-default runs of the same scenario and seed")
     ap.add_argument("--no-open-loop", action="store_true")
     args = ap.parse_args(argv)
     out = Path(args.out)
@@ -224,7 +227,10 @@ def main(argv=None) -> int:
         np.savez_compressed(out / "runs.npz", **flat)
     if args.closed_loop:
         t0 = time.perf_counter()
-        cl = closed_loop(args.scenarios, list(range(args.cl_seeds)), out / "closed_loop")
+        kinds = tuple(k for k in args.cl_kinds.split(",") if k)
+        if not kinds or set(kinds) - set(KINDS):
+            raise SystemExit(f"--cl-kinds: expected a comma-separated subset of {','.join(KINDS)}, got {args.cl_kinds!r}")
+        cl = closed_loop(args.scenarios, list(range(args.cl_seeds)), out / "closed_loop", kinds)
         text.append(f"## Closed loop (MPC on each estimator; wall {time.perf_counter() - t0:.0f} s)\n\n{cl}\n")
     io.write_text(out / "summary.md", "\n".join(text))
     print("\n".join(text))
