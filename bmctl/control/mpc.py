@@ -18,8 +18,12 @@ and the slack (L1 + quadratic). docs/control.md has the details and the numbers.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,6 +42,27 @@ ACCEPTED = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 X_SCALE = np.array([50.0, 30.0, 0.1, 0.1, 100.0, 1.0])
 #: number of target quantities (moments, then D-values) carried per interval in the NLP's parameters
 NY = len(TARGET_KEYS)
+#: built NLPs and interpreted solvers kept per thread, keyed by what they are built from (most recent last)
+_BUILT = threading.local()
+BUILT_KEEP = 4
+
+
+def _built_entry(key: str) -> dict:
+    """This thread's store for the NLP ``key`` (LRU of :data:`BUILT_KEEP` entries).
+
+    A controller with the same model constants, coefficients and configuration builds the same
+    NLP and the same IPOPT solvers; building them (expanding the constraint Jacobian) costs
+    seconds, so later controllers in the process (trials one after another, a resumed trial,
+    tests) reuse them. Solvers carry no state between calls: warm starts come from the inputs."""
+    store = getattr(_BUILT, "store", None)
+    if store is None:
+        store = _BUILT.store = OrderedDict()
+    if key not in store:
+        store[key] = {"solvers": {}}
+        while len(store) > BUILT_KEEP:
+            store.popitem(last=False)
+    store.move_to_end(key)
+    return store[key]
 
 
 @dataclass
@@ -79,6 +104,7 @@ class MPCController(CompiledSolvers):
         self._prev: _Solution | None = None
         self._sticky_exact = False
         self._nlp = None
+        self._built: dict = {"solvers": {}}  # this NLP's entry in the thread's store (_built_entry)
         self._nlp_c = None  # the NLP with the rate field as a called function (compiled solvers)
         self._pending: dict = {}  # solver key -> (library path, options) while gcc runs
         self.adaptive = cfg.adaptation.mode != "none"
@@ -291,8 +317,22 @@ class MPCController(CompiledSolvers):
                 "w_lo": lo, "w_hi": hi, "m_ub": m_ub, "m_lb": m_lb, "k_end": k_end}
 
     # --- NLP ---------------------------------------------------------------------------------
+    def _build_key(self) -> str:
+        """What the NLP is built from: model constants and coefficients, configuration, D-value rows."""
+        h = hashlib.sha256(repr(self.model.const).encode())
+        h.update(json.dumps(self.model.coeffs, sort_keys=True).encode())
+        h.update(self.cfg.model_dump_json().encode())
+        h.update(repr((self._dvalues(self.reference), self.rpm_scale, self.n_scen, self.adaptive)).encode())
+        return h.hexdigest()
+
     def _build(self):
-        self._nlp = self._nlp_dict(self.model.casadi_step(self.interval_h, self.cfg.solver.substeps))
+        built = _built_entry(self._build_key())
+        if "nlp" not in built:
+            nlp = self._nlp_dict(self.model.casadi_step(self.interval_h, self.cfg.solver.substeps))
+            built.update(nlp=nlp, J=self._J, nv=self._nv, ng=self._ng, hess=self._hess)
+        self._nlp, self._J, self._hess = built["nlp"], built["J"], built["hess"]
+        self._nv, self._ng = built["nv"], built["ng"]
+        self._built = built
 
     def _nlp_dict(self, F, keep: bool = True) -> dict:
         """The NLP ``{x, p, f, g}`` with ``F`` as the interval step (``keep``: also the cost function,
@@ -407,7 +447,10 @@ class MPCController(CompiledSolvers):
                              "ipopt.mu_init": 1e-4})
             compiled = self._compiled_solver(key, opts) if hessian != "exact" else None
             if compiled is None:
-                compiled = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp, opts)
+                okey = (key, repr(sorted((k, v) for k, v in opts.items() if k != "hess_lag")))
+                compiled = self._built["solvers"].get(okey)
+                if compiled is None:
+                    compiled = self._built["solvers"][okey] = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp, opts)
             self._solvers[key] = compiled
         elif key in self._pending:  # a background compile may have finished: switch to it
             self._upgrade(key)

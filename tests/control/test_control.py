@@ -96,6 +96,20 @@ def test_mpc_bounds_rate_limits_and_minutes(reach):
 
 
 @pytest.mark.slow
+def test_controllers_with_the_same_build_share_the_nlp_and_solvers(model):
+    """A second controller built from the same model and configuration reuses the first one's NLP
+    (and so its solvers); another horizon or a D-value target builds its own."""
+    a = make_controller(mpc_cfg(horizon=2), model, {"s_mean_um": 40.0})
+    b = make_controller(mpc_cfg(horizon=2), model, {"s_mean_um": 30.0})
+    c = make_controller(mpc_cfg(horizon=3), model, {"s_mean_um": 40.0})
+    d = make_controller(mpc_cfg(horizon=2), model, {"d50_um": 40.0})
+    for ctrl in (a, b, c, d):
+        ctrl._build()
+    assert a._nlp is b._nlp and a._built is b._built
+    assert c._nlp is not a._nlp and d._nlp is not a._nlp
+    assert a._build_key() == b._build_key() != c._build_key()
+
+
 def test_expanded_warm_solver_gives_the_same_plans(model):
     # expand = "warm" only changes how casadi evaluates the NLP (SX instead of MX), not the problem
     Xs = model.simulate(model.x0(), [[350.0, 0.8]] * 3, DT)

@@ -1,6 +1,7 @@
 """Closed-loop trials: outputs, resume after interruption, bad scenario files."""
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -38,6 +39,20 @@ def small(tmp_path_factory):
     return p
 
 
+@pytest.fixture(scope="module")
+def one_step(small, tmp_path_factory):
+    """A trial of ``small`` (seed 1) stopped after its first interval, as a crash would leave it."""
+    out = tmp_path_factory.mktemp("one") / "o"
+    assert run_trial(small, out, seed=1, max_steps=1) == {"interrupted_at_step": 1}
+    return out
+
+
+def _copy(folder, tmp_path):
+    import shutil
+
+    return Path(shutil.copytree(folder, tmp_path / "o"))
+
+
 def _rows(path):
     return path.read_text().splitlines()
 
@@ -72,11 +87,10 @@ def test_trial_outputs_and_resume_identical(small, tmp_path):
 
 
 @pytest.mark.slow
-def test_checkpoint_is_plain_data(small, tmp_path):
+def test_checkpoint_is_plain_data(one_step):
     import numpy as np
 
-    out = tmp_path / "o"
-    run_trial(small, out, seed=3, max_steps=1)
+    out = one_step
     with np.load(out / "checkpoint.npz", allow_pickle=False) as z:  # raises if any entry needs pickle
         assert all(z[k].dtype != object for k in z.files)
 
@@ -87,9 +101,8 @@ def test_checkpoint_is_plain_data(small, tmp_path):
     ("checkpoint.npz", None),  # truncated to half its length
     ("trial.json", b'{"scenario": "x", "se'),
 ])
-def test_resume_refuses_damaged_files_one_line(small, tmp_path, capsys, target, content):
-    out = tmp_path / "o"
-    run_trial(small, out, seed=1, max_steps=1)
+def test_resume_refuses_damaged_files_one_line(small, one_step, tmp_path, capsys, target, content):
+    out = _copy(one_step, tmp_path)
     f = out / target
     f.write_bytes(f.read_bytes()[: f.stat().st_size // 2] if content is None else content)
     capsys.readouterr()
@@ -100,9 +113,8 @@ def test_resume_refuses_damaged_files_one_line(small, tmp_path, capsys, target, 
 
 
 @pytest.mark.slow
-def test_resume_refuses_other_seed(small, tmp_path):
-    out = tmp_path / "o"
-    run_trial(small, out, seed=1, max_steps=1)
+def test_resume_refuses_other_seed(small, one_step, tmp_path):
+    out = _copy(one_step, tmp_path)
     rc = main(["trial", str(small), "--resume", str(out), "--seed", "2", "--no-progress"])
     assert rc == 2
 
