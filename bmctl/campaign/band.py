@@ -8,10 +8,11 @@ interval); a 12 h schedule costs seconds.
 
 This module evaluates the same step -- eqns (15)-(20) through :func:`bmctl.moments.equations.step`,
 the same substeps and RKC stages -- as a casadi function compiled to C and cached on disk by
-:mod:`bmctl.control.cache` (bmctl's own cache folder; the key is a SHA-256 of the serialized
-function, so the card and its coefficients are in it). The function *calls* the particle rate
+:mod:`bmctl.control.cache` (bmctl's own cache folder). The function *calls* the particle rate
 field at every stage (as the MPC's compiled NLP does), so its C code is small and compiles in
-seconds. While the library does not exist yet (the first process on a card), gcc runs in the
+seconds. The key is of the function's inputs (:func:`bmctl.control.cache.input_key`: the
+model's constants and coefficients, the interval, substeps and stages, the generating modules'
+source), so a process that finds the library builds nothing. While the library does not exist yet (the first process on a card), gcc runs in the
 background and the numpy step is used; both evaluate the same equations, so the band agrees to
 rounding (tests/campaign/test_campaign.py).
 """
@@ -73,18 +74,22 @@ def compiled_step(model, dt_h: float):
     key = round(float(dt_h), 12)
     if key in loaded:
         return loaded[key]
-    fn = step_function(model, dt_h)
-    path = cache.library_path(cache.solver_key([fn], "band-step"), prefix="band")
+    n, stages = model._integration(float(dt_h))
+    # keyed by what the function is built from, so a hit builds nothing symbolic
+    inputs = {"model": cache.model_inputs(model), "dt_h": float(dt_h), "substeps": n, "stages": stages}
+    path = cache.library_path(cache.input_key("band-step", inputs), prefix="band")
     if path is None:
         return None
     if not cache.ready(path):
-        cache.start_compile(_Generator(fn), path, wait=cache.wait_for_compile())
+        cache.start_compile(_Generator(step_function(model, dt_h)), path, wait=cache.wait_for_compile())
         if not cache.ready(path):
             return None
     import casadi as ca
 
     try:
         lib = ca.external("band_step", str(path))
+        if [lib.size_in(i) for i in range(3)] + [lib.size_out(0)] != [(6, 1), (2, 1), (2, 1), (6, 1)]:
+            raise RuntimeError("sizes do not fit")
     except Exception as exc:  # noqa: BLE001 - casadi raises RuntimeError on any bad library
         cache.notice(f"compiled band step {path.name} did not load ({str(exc).splitlines()[0][:80]}): rebuilt")
         path.unlink(missing_ok=True)

@@ -6,15 +6,25 @@ from __future__ import annotations
 
 class CompiledSolvers:
     """Methods of :class:`bmctl.control.mpc.MPCController` that find, build and switch to compiled
-    solvers (the controller keeps ``_solvers``, ``_pending`` and ``_nlp_dict``)."""
+    solvers (the controller keeps ``_solvers``, ``_pending``, ``_nlp_dict`` and the NLP sizes
+    ``_nv``, ``_ng``, ``_np``)."""
 
     def _compiled_solver(self, key, opts: dict):
         """The solver for ``key`` from bmctl's cache of compiled NLPs (:mod:`bmctl.control.cache`), or None.
 
-        A missing library is compiled (in the background unless ``BMCTL_MPC_COMPILE=wait``); the
-        caller then builds the interpreted solver, which :meth:`_upgrade` replaces once gcc is done.
-        The compiled NLP evaluates the same equations (the step with the rate field as a called
-        function instead of inlined), so plans agree to solver tolerance (tests/test_control.py).
+        The library is found by a key of the NLP's inputs (:meth:`_library_inputs`), so a hit loads
+        it without building the NLP. A missing library is compiled (in the background unless
+        ``BMCTL_MPC_COMPILE=wait``); the caller then builds the interpreted solver, which
+        :meth:`_upgrade` replaces once gcc is done. The compiled NLP evaluates the same equations
+        (the step with the rate field as a called function instead of inlined), so plans agree to
+        solver tolerance (tests/control/test_control.py).
+
+        Parameters
+        ----------
+        key : tuple
+            ``("warm" | "cold", hessian)``.
+        opts : dict
+            nlpsol options without ``hess_lag`` (the Gauss-Newton Hessian is generated into the library).
         """
         from . import cache
 
@@ -27,28 +37,52 @@ class CompiledSolvers:
         if not cache.ready(path):
             import casadi as ca
 
+            if self._nlp is None:
+                self._build()  # the Gauss-Newton Hessian
+            if self._nlp_c is None:
+                self._nlp_c = self._nlp_dict(_call_step(self.model, self.interval_h, self.cfg.solver.substeps),
+                                             keep=False)
             gen = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp_c, {**lib_opts, **(
-                {"hess_lag": opts["hess_lag"]} if "hess_lag" in opts else {})})
+                {"hess_lag": self._hess} if key[1] == "gauss-newton" else {})})
             cache.start_compile(gen, path, wait=cache.wait_for_compile())
             if not cache.ready(path):
                 self._pending[key] = (path, lib_opts)
                 return None
-        return cache.load(path, f"mpc_{key[0]}", lib_opts)
+        return self._load(path, key, lib_opts)
 
-    def _library(self, key, opts: dict):
-        """Cache path of the compiled NLP for solver ``key`` (builds the call-based NLP on first use)."""
-        import casadi as ca
-
+    def _library_inputs(self) -> dict:
+        """What the NLP is built from, as plain data (the compiled library's key)."""
         from . import cache
 
-        if self._nlp_c is None:
-            self._nlp_c = self._nlp_dict(_call_step(self.model, self.interval_h, self.cfg.solver.substeps), keep=False)
-        nlp = self._nlp_c
-        fns = [ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])]
-        if "hess_lag" in opts:
-            fns.append(opts["hess_lag"])
-        tag = f"{key[0]}-{key[1]}-it{opts['ipopt.max_iter']}"
-        return cache.library_path(cache.solver_key(fns, tag), prefix=f"mpc-{key[0]}")
+        cfg = self.cfg
+        temperature = cfg.temperature.model_dump(mode="json")
+        temperature.pop("ceiling_c")  # a bound of the constraints, not part of the NLP
+        return {"model": cache.model_inputs(self.model), "horizon": self.N, "interval_h": self.interval_h,
+                "rpm_scale": self.rpm_scale, "n_scen": self.n_scen, "dvalues": self._dvalues(self.reference),
+                "weights": cfg.weights.model_dump(mode="json"), "temperature": temperature,
+                "solver": cfg.solver.model_dump(mode="json"), "adaptation": cfg.adaptation.model_dump(mode="json"),
+                "robust": cfg.robust.model_dump(mode="json"), "sizes": [self._nv, self._ng, self._np]}
+
+    def _library(self, key, opts: dict):
+        """Cache path of the compiled NLP for solver ``key`` (nothing is built: the key is of the inputs)."""
+        from . import cache
+
+        tag = f"mpc-{key[0]}-{key[1]}-it{opts['ipopt.max_iter']}"
+        return cache.library_path(cache.input_key(tag, self._library_inputs()), prefix=f"mpc-{key[0]}")
+
+    def _load(self, path, key, lib_opts: dict):
+        """The compiled solver at ``path``, or None (removed) when it does not load or its sizes do not fit."""
+        from . import cache
+
+        solver = cache.load(path, f"mpc_{key[0]}", lib_opts)
+        if solver is None:
+            return None
+        sizes = (solver.size_in("x0"), solver.size_in("p"), solver.size_out("g"))
+        if sizes != ((self._nv, 1), (self._np, 1), (self._ng, 1)):
+            cache.notice(f"compiled solver {path.name} does not fit this controller (sizes {sizes}): rebuilt")
+            path.unlink(missing_ok=True)
+            return None
+        return solver
 
     def _upgrade(self, key) -> None:
         from . import cache
@@ -56,7 +90,7 @@ class CompiledSolvers:
         path, lib_opts = self._pending[key]
         if cache.ready(path):
             del self._pending[key]
-            solver = cache.load(path, f"mpc_{key[0]}", lib_opts)
+            solver = self._load(path, key, lib_opts)
             if solver is not None:
                 self._solvers[key] = solver
 

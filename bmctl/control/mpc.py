@@ -86,6 +86,7 @@ class MPCController(CompiledSolvers):
         self.bias = np.zeros(4)  # additive prediction bias per interval (Adaptation, mode "bias")
         self._rls = np.zeros((2, 4))  # forgetting sums: observed x predicted, predicted^2 (relative)
         self._last = None  # (t, x_est, p) of the previous call, for the gain update
+        self._nv, self._ng, self._np = self._sizes()
 
     # --- public ------------------------------------------------------------------------------
     def set_target(self, target, t_end_h: float | None = None) -> None:
@@ -291,6 +292,14 @@ class MPCController(CompiledSolvers):
                 "w_lo": lo, "w_hi": hi, "m_ub": m_ub, "m_lb": m_lb, "k_end": k_end}
 
     # --- NLP ---------------------------------------------------------------------------------
+    def _sizes(self) -> tuple[int, int, int]:
+        """Decision, constraint and parameter counts of the NLP (:meth:`_nlp_dict`'s layout), without building it."""
+        N, ne = self.N, self.n_scen - 1
+        na = 4 if self.adaptive else 0
+        nv = 9 * N + 6 * N * ne  # w, m, z (6 per interval), s; z of each further scenario
+        ng = 6 * N + (N - 1) + N + 7 * N * ne  # defects, rpm moves, temperature rows; per further scenario
+        return nv, ng, 8 + 3 * NY * N + 2 + na + 8 * ne
+
     def _build(self):
         self._nlp = self._nlp_dict(self.model.casadi_step(self.interval_h, self.cfg.solver.substeps))
 
@@ -362,7 +371,7 @@ class MPCController(CompiledSolvers):
         if not keep:
             return nlp
         self._J = ca.Function("J", [V, P], [J])
-        self._nv, self._ng = V.shape[0], g.shape[0]
+        assert (V.shape[0], g.shape[0], P.shape[0]) == (self._nv, self._ng, self._np)  # _sizes() mirrors this layout
         # Gauss-Newton Hessian of the Lagrangian: the cost's and the temperature rows' curvature, the
         # dynamics' curvature dropped, plus a proximal term on the scaled inputs (cheap to build)
         lf = ca.MX.sym("lam_f")
@@ -384,8 +393,6 @@ class MPCController(CompiledSolvers):
             hessian = s.hessian if warm else s.cold_hessian
         key = ("warm" if warm else "cold", hessian)
         if key not in self._solvers:
-            if self._nlp is None:
-                self._build()
             max_iter = s.max_iter
             if warm and hessian == "gauss-newton" and s.retry_exact:
                 max_iter = min(max_iter, s.gn_max_iter)
@@ -399,14 +406,17 @@ class MPCController(CompiledSolvers):
                 opts["ipopt.max_wall_time"] = s.max_wall_s
             if hessian == "limited-memory":
                 opts["ipopt.hessian_approximation"] = "limited-memory"
-            elif hessian == "gauss-newton":
-                opts["hess_lag"] = self._hess
             if warm:
                 opts.update({"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-6,
                              "ipopt.warm_start_slack_bound_push": 1e-6, "ipopt.warm_start_mult_bound_push": 1e-6,
                              "ipopt.mu_init": 1e-4})
+            # a compiled library found in the cache is loaded without building the NLP symbolically
             compiled = self._compiled_solver(key, opts) if hessian != "exact" else None
             if compiled is None:
+                if self._nlp is None:
+                    self._build()
+                if hessian == "gauss-newton":
+                    opts["hess_lag"] = self._hess
                 compiled = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp, opts)
             self._solvers[key] = compiled
         elif key in self._pending:  # a background compile may have finished: switch to it
@@ -536,6 +546,8 @@ class MPCController(CompiledSolvers):
         else:
             ms, note = 0.0, ""
         V, _, _ = self._guess(data, False, res["W"], Mb)  # rounded plan, simulated; slack = violation
+        if self._nlp is None:  # the solvers came compiled from the cache: the cost function is built now
+            self._build()
         f = float(self._J(V, data["P"]))
         return res["W"], Mb, ms, f - res["f"], note
 
