@@ -3,6 +3,10 @@
 
 from __future__ import annotations
 
+import weakref
+
+_LOADED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()  # model -> {(dt, substeps): loaded Function}
+
 
 class CompiledSolvers:
     """Methods of :class:`bmctl.control.mpc.MPCController` that find, build and switch to compiled
@@ -123,3 +127,90 @@ def _call_step(model, dt_h: float, substeps: int | None):
     out = eq.step(eq.CA(), model.const, model.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
                   float(dt_h), n, s, rates=rates)
     return ca.Function("moment_step", [x, u, p], [ca.vertcat(*out)], ["x", "u", "p"], ["x_next"])
+
+
+class _Generator:
+    """Adapter: :func:`bmctl.control.cache.start_compile` generates through ``generate_dependencies``."""
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def generate_dependencies(self, name: str, opts: dict) -> None:
+        import hashlib
+        import os
+
+        # casadi wants a C identifier as the generated file's stem; the cache's temporary name may hold
+        # a '.' (the interval length), so generate under a safe stem and move the file to ``name``
+        safe = "band_" + hashlib.sha256(name.encode()).hexdigest()[:16]
+        os.replace(self.fn.generate(safe, opts), name)
+
+
+def _integration(model, dt_h: float, substeps: int | None) -> tuple[int, int]:
+    """(substeps, RKC stages) of a step: the model's default, or ``substeps`` with the stages they need."""
+    from ..moments.model import rkc_stages
+
+    n, stages = model._integration(float(dt_h))
+    if substeps is None or int(substeps) == n:
+        return n, stages
+    return int(substeps), rkc_stages(model.const.rate_max_per_h, float(dt_h) / int(substeps))
+
+
+def step_function(model, dt_h: float, substeps: int | None = None):
+    """casadi.Function ``F(x[6], u[2], p[2]) -> x_next[6]``: :meth:`MomentModel.step` over ``dt_h``
+    hours (default substeps and stages, or ``substeps``) with the rate field as a called function."""
+    import casadi as ca
+
+    from ..moments import equations as eq
+    from ..moments.model import _ca_cols
+
+    n, stages = _integration(model, dt_h, substeps)
+    R = model.rate_function()
+
+    def rates(yl, T, h, w, bm, fm):
+        v = R(ca.vertcat(*yl[:4]), ca.vertcat(T, h, w, bm, fm))
+        return [v[i] for i in range(4)]
+
+    x, u, p = ca.MX.sym("x", 6), ca.MX.sym("u", 2), ca.MX.sym("p", 2)
+    out = eq.step(eq.CA(), model.const, model.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
+                  float(dt_h), n, stages, rates=rates)  # eqns (15)-(20), mill then rest
+    return ca.Function("band_step", [x, u, p], [ca.vertcat(*out)], ["x", "u", "p"], ["x_next"])
+
+
+def compiled_step(model, dt_h: float, substeps: int | None = None):
+    """The compiled :func:`step_function` from bmctl's cache, or None (not compiled yet: gcc is
+    started in the background, or waited for with ``BMCTL_MPC_COMPILE=wait``; no gcc or cache).
+
+    The library's key is of the function's inputs (:func:`bmctl.control.cache.input_key`: the
+    model's constants and coefficients, interval, substeps and stages, the generating source),
+    so a hit builds nothing symbolic. The end band of ``campaign advise`` and the MPC's initial
+    guess use it.
+    """
+    from . import cache
+
+    if not cache.enabled():
+        return None
+    loaded = _LOADED.setdefault(model, {})
+    n, stages = _integration(model, dt_h, substeps)
+    key = (round(float(dt_h), 12), n)
+    if key in loaded:
+        return loaded[key]
+    inputs = {"model": cache.model_inputs(model), "dt_h": float(dt_h), "substeps": n, "stages": stages}
+    path = cache.library_path(cache.input_key("band-step", inputs), prefix="band")
+    if path is None:
+        return None
+    if not cache.ready(path):
+        cache.start_compile(_Generator(step_function(model, dt_h, substeps)), path, wait=cache.wait_for_compile())
+        if not cache.ready(path):
+            return None
+    import casadi as ca
+
+    try:
+        lib = ca.external("band_step", str(path))
+        if [lib.size_in(i) for i in range(3)] + [lib.size_out(0)] != [(6, 1), (2, 1), (2, 1), (6, 1)]:
+            raise RuntimeError("sizes do not fit")
+    except Exception as exc:  # noqa: BLE001 - casadi raises RuntimeError on any bad library
+        cache.notice(f"compiled band step {path.name} did not load ({str(exc).splitlines()[0][:80]}): rebuilt")
+        path.unlink(missing_ok=True)
+        return None
+    loaded[key] = lib
+    return lib

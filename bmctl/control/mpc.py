@@ -81,6 +81,7 @@ class MPCController(CompiledSolvers):
         self._nlp = None
         self._nlp_c = None  # the NLP with the rate field as a called function (compiled solvers)
         self._pending: dict = {}  # solver key -> (library path, options) while gcc runs
+        self._step_fn = None  # the interval step of the initial guess (compiled when in the cache)
         self.adaptive = cfg.adaptation.mode != "none"
         self.gain = np.ones(4)  # prediction gain per particle moment (Adaptation, mode "gain")
         self.bias = np.zeros(4)  # additive prediction bias per interval (Adaptation, mode "bias")
@@ -204,9 +205,15 @@ class MPCController(CompiledSolvers):
         return self._make_plan(x0, t, U, X, status)
 
     def _step(self, x, u, pp) -> np.ndarray:
-        """One interval of the NLP's (uncorrected) prediction: the casadi step with ``[solver] substeps``."""
-        F = self.model.casadi_step(self.interval_h, self.cfg.solver.substeps)
-        return np.asarray(F(x, u, pp), dtype=float).ravel()
+        """One interval of the NLP's (uncorrected) prediction with ``[solver] substeps``: the compiled
+        step from bmctl's cache (:func:`bmctl.control.compiled.compiled_step`; the same equations,
+        nothing built symbolically in a process that finds it), else the casadi step."""
+        if self._step_fn is None:
+            from .compiled import compiled_step
+
+            self._step_fn = (compiled_step(self.model, self.interval_h, self.cfg.solver.substeps)
+                             or self.model.casadi_step(self.interval_h, self.cfg.solver.substeps))
+        return np.asarray(self._step_fn(x, u, pp), dtype=float).ravel()
 
     def _predict(self, x0, U, pp) -> np.ndarray:
         """States under ``U`` as the NLP predicts them (with the adaptation's correction when on):
