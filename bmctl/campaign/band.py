@@ -23,7 +23,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..control.compiled import compiled_step, step_function  # noqa: F401  (the step lives with the MPC's)
+from ..control.compiled import compiled_step, step_function  # the step lives with the MPC's
+
+__all__ = ["compiled_step", "propagate", "step_function"]
 
 
 def propagate(model, X: np.ndarray, P: np.ndarray, schedule: list[dict]) -> np.ndarray:

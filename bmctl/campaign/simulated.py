@@ -119,7 +119,8 @@ def run_as_campaign(scenario_path, folder, seed: int = 0) -> list[dict]:
     """Run a trial scenario through the campaign verbs; returns one row per control interval
     (``t_h, rpm, milling``, the plant's ``true`` moments and the campaign's ``estimate``)."""
     return [{"k": rec.k, "t_h": rec.t_h, "rpm": rec.rpm, "milling": rec.milling, "true": rec.truth,
-             "estimate": rec.estimate, "sampled": rec.sampled} for _, rec, _ in trial_steps(scenario_path, folder, seed)]
+             "estimate": rec.estimate, "sampled": rec.sampled}
+            for _, rec, _ in trial_steps(scenario_path, folder, seed)]
 
 
 def run_trial_as_campaign(scenario_path, out, seed: int = 0, progress=None) -> dict:

@@ -451,7 +451,8 @@ def advise(folder, campaign: Campaign | None = None) -> dict:
         ``next`` (rpm, milling share, milling and rest minutes, interval); ``schedule`` to the batch
         end; ``end`` (median and 90 % band of each moment at the batch end; ``end_nominal``: the
         controller's own prediction); ``reachable`` per target; ``binding`` constraints;
-        ``solver`` (status line), ``solver_status``, ``solver_ok``, ``fallback``; ``solve_ms``, ``advise_ms``; ``plan_id``.
+        ``solver`` (status line), ``solver_status``, ``solver_ok``, ``fallback``; ``solve_ms``,
+        ``advise_ms``; ``plan_id``.
     """
     t_start = time.perf_counter()
     c = campaign or Campaign(folder)
