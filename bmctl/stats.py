@@ -26,8 +26,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
-from scipy.special import ndtri
 
 WEIGHT_POWER = {"number": 0, "area": 2, "volume": 3}
 DVALUE_QUANTILES = {"d10_um": 0.10, "d50_um": 0.50, "d90_um": 0.90}
@@ -116,6 +114,8 @@ def weighted_mode(s: np.ndarray, power: int, step: float = MODE_STEP_UM, smooth_
     n = int(np.ceil(hi / step))
     idx = np.clip((s / step).astype(np.int64), 0, n - 1)
     h = np.bincount(idx, weights=None if power == 0 else s**power, minlength=n).astype(float)
+    from scipy.ndimage import gaussian_filter1d  # scipy on first use only (a fresh `campaign advise` needs none)
+
     h = gaussian_filter1d(h, smooth_bins, mode="constant")
     return (np.argmax(h) + 0.5) * step
 
@@ -158,6 +158,22 @@ def size_stats(s_um: np.ndarray) -> dict[str, float]:
 
 
 # --- closed forms of a log-normal law (numpy or casadi) ---------------------------------------
+#: ``scipy.special.ndtri`` at the D-value quantiles, to the last bit (tests/test_stats.py checks them):
+#: restoring a filter (``campaign advise``) then needs no scipy import (~0.5 s)
+_NDTRI = {0.1: -1.2815515655446004, 0.5: 0.0, 0.9: 1.2815515655446004}
+
+
+def ndtri(q: float) -> float:
+    """Standard normal quantile: ``scipy.special.ndtri`` (imported on first use; the D-value
+    quantiles 0.1, 0.5, 0.9 from a table of its values)."""
+    z = _NDTRI.get(q)
+    if z is not None:
+        return z
+    from scipy.special import ndtri as _ndtri
+
+    return float(_ndtri(q))
+
+
 def _ops(*args: Any):
     """The module whose exp/log/sqrt apply: casadi if any argument is a casadi object, else numpy."""
     for a in args:

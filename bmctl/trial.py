@@ -164,6 +164,9 @@ def _kept_rows(traj: Path, steps: int) -> str:
 def _resume(loop: ClosedLoop, out: Path, scenario_path, seed: int) -> None:
     ckpt, traj = out / CHECKPOINT, out / "trajectory.csv"
     meta = _read_meta(out / "trial.json")
+    if meta.get("campaign"):
+        raise InputError(f"--resume: {out} holds a trial run with --campaign, which does not resume; run it again "
+                         "with the same --seed into a new --out")
     if meta.get("seed") != seed or meta.get("scenario") != str(Path(scenario_path).resolve()):
         raise InputError(f"--resume: {out} holds a trial of {meta.get('scenario')} with seed {meta.get('seed')}")
     if not ckpt.exists():

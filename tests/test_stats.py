@@ -164,3 +164,17 @@ def test_moment_model_and_filter_report_the_same_dvalues():
     d50 = model.outputs(pf.X)["d50_um"]
     assert lo <= mean <= hi and d50.min() <= lo and hi <= d50.max()
     assert est.as_dict()["d50_um_q95"] == hi
+
+
+def test_ndtri_table_is_scipys_and_the_normal_law():
+    """The D-value quantiles' table equals scipy's ndtri to the last bit, and Phi(z) = q (erf law)."""
+    import math
+
+    from scipy.special import ndtri as scipy_ndtri
+
+    from bmctl.stats import _NDTRI, ndtri
+
+    for q, z in _NDTRI.items():
+        assert z == float(scipy_ndtri(q)), q
+        assert abs(0.5 * (1 + math.erf(z / math.sqrt(2))) - q) < 1e-15
+    assert ndtri(0.25) == float(scipy_ndtri(0.25))  # off the table: scipy

@@ -77,10 +77,17 @@ class CampaignLoop(ClosedLoop):
 
     def decide_at(self, t_h: float):
         """The controller's plan at batch time ``t_h`` from the current estimate and ``u_prev``
-        (as :meth:`ClosedLoop.decide`, which plans at ``k * interval_h``)."""
+        (as :meth:`ClosedLoop.decide`, which plans at ``k * interval_h``; a scenario MPC gets the
+        filter's scenarios as there)."""
         x, p = estimate_vectors(self.est)
         t0 = time.perf_counter()
-        plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev)
+        if getattr(self.controller, "n_scen", 1) > 1:  # scenario MPC: the filter's spread, as ClosedLoop.decide
+            from ..control.robust import filter_scenarios
+
+            plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev,
+                                        scenarios=filter_scenarios(self.est, self.controller.n_scen - 1))
+        else:
+            plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev)
         st = plan.status
         solve_ms = st.solve_ms if st.solve_ms else (time.perf_counter() - t0) * 1e3
         return plan, solve_ms

@@ -451,7 +451,8 @@ def advise(folder, campaign: Campaign | None = None) -> dict:
         ``next`` (rpm, milling share, milling and rest minutes, interval); ``schedule`` to the batch
         end; ``end`` (median and 90 % band of each moment at the batch end; ``end_nominal``: the
         controller's own prediction); ``reachable`` per target; ``binding`` constraints;
-        ``solver`` (status line); ``solve_ms``, ``advise_ms``; ``plan_id``.
+        ``solver`` (status line), ``solver_status``, ``solver_ok``, ``fallback``; ``solve_ms``,
+        ``advise_ms``; ``plan_id``.
     """
     t_start = time.perf_counter()
     c = campaign or Campaign(folder)
@@ -485,6 +486,7 @@ def advise(folder, campaign: Campaign | None = None) -> dict:
                 "end_nominal": {"t_h": float(plan.times_h[-1]), "s_mean_um": x_end[0], "s_std_um": x_end[1],
                                 "r_mean": x_end[2], "r_std": x_end[3], "temperature_c": x_end[4]},
                 "reachable": reach, "binding": binding, "solver": plan.status.line(),
+                "solver_status": plan.status.solver_status, "fallback": plan.status.fallback,
                 "solver_ok": bool(plan.status.success), "solve_ms": float(solve_ms),
                 "pending_samples": c.con.execute("SELECT COUNT(*) FROM samples WHERE t_h > ?",
                                                  (clock + EPS_H,)).fetchone()[0],

@@ -17,6 +17,9 @@ def configure(p):
     p.add_argument("--out", default=None, metavar="DIR", help="output folder (default out/trial-<name>-seed<N>)")
     p.add_argument("--resume", default=None, metavar="DIR", help="carry on an interrupted trial in DIR")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--campaign", action="store_true",
+                   help="run the trial through the campaign verbs (the plant as the person at the mill); "
+                        "leaves DIR/campaign/ for `bmctl campaign status/report` (no --resume)")
 
 
 #: CPU seconds of one filter particle per sample and of one feedback solve (docs/estimation.md, docs/control.md)
@@ -48,6 +51,9 @@ def run(args) -> int:
     from ..trial import run_trial
 
     sc = load_scenario(args.scenario)
+    if args.campaign and args.resume:
+        raise InputError("--resume: a trial run with --campaign does not resume (the simulated plant is not in the "
+                         "campaign); run it again with the same --seed into a new --out: same trajectory")
     if args.resume and args.out and Path(args.resume) != Path(args.out):
         raise InputError("--resume: give the trial folder once (--resume DIR), not with a different --out")
     out = output_path(args.resume or args.out or f"out/trial-{sc.scenario.name}-seed{args.seed}",
@@ -64,7 +70,14 @@ def run(args) -> int:
             bar.total = K
             bar.update(k - bar.n)
     try:
-        summary = run_trial(args.scenario, out, seed=args.seed, resume=args.resume is not None, progress=progress)
+        if args.campaign:
+            from ..campaign.simulated import check_scenario, run_trial_as_campaign
+
+            check_scenario(sc, args.scenario)
+            summary = run_trial_as_campaign(args.scenario, out, seed=args.seed, progress=progress)
+        else:
+            summary = run_trial(args.scenario, out, seed=args.seed, resume=args.resume is not None,
+                                progress=progress)
     finally:
         if bar is not None:
             bar.close()
@@ -79,5 +92,6 @@ def run(args) -> int:
     print(f"{sc.scenario.name} seed {args.seed}: final error {err}; max T {summary['max_temperature_c']:.1f} C, "
           f"{summary['temperature_violations']} violations; energy {summary['energy_kj']:.0f} kJ; "
           f"{summary['fallbacks']} fallbacks; median solve {summary['median_solve_ms']:.0f} ms")
-    print(f"  wrote {out}/trajectory.csv, summary.json, trial.png")
+    print(f"  wrote {out}/trajectory.csv, summary.json, trial.png"
+          + (f"; the campaign in {out}/campaign (bmctl campaign report {out}/campaign)" if args.campaign else ""))
     return 0

@@ -3,18 +3,32 @@
 
 from __future__ import annotations
 
+import weakref
+
+_LOADED: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()  # model -> {(dt, substeps): loaded Function}
+
 
 class CompiledSolvers:
     """Methods of :class:`bmctl.control.mpc.MPCController` that find, build and switch to compiled
-    solvers (the controller keeps ``_solvers``, ``_pending`` and ``_nlp_dict``)."""
+    solvers (the controller keeps ``_solvers``, ``_pending``, ``_nlp_dict`` and the NLP sizes
+    ``_nv``, ``_ng``, ``_np``)."""
 
     def _compiled_solver(self, key, opts: dict):
         """The solver for ``key`` from bmctl's cache of compiled NLPs (:mod:`bmctl.control.cache`), or None.
 
-        A missing library is compiled (in the background unless ``BMCTL_MPC_COMPILE=wait``); the
-        caller then builds the interpreted solver, which :meth:`_upgrade` replaces once gcc is done.
-        The compiled NLP evaluates the same equations (the step with the rate field as a called
-        function instead of inlined), so plans agree to solver tolerance (tests/test_control.py).
+        The library is found by a key of the NLP's inputs (:meth:`_library_inputs`), so a hit loads
+        it without building the NLP. A missing library is compiled (in the background unless
+        ``BMCTL_MPC_COMPILE=wait``); the caller then builds the interpreted solver, which
+        :meth:`_upgrade` replaces once gcc is done. The compiled NLP evaluates the same equations
+        (the step with the rate field as a called function instead of inlined), so plans agree to
+        solver tolerance (tests/control/test_control.py).
+
+        Parameters
+        ----------
+        key : tuple
+            ``("warm" | "cold", hessian)``.
+        opts : dict
+            nlpsol options without ``hess_lag`` (the Gauss-Newton Hessian is generated into the library).
         """
         from . import cache
 
@@ -27,28 +41,52 @@ class CompiledSolvers:
         if not cache.ready(path):
             import casadi as ca
 
+            if self._nlp is None:
+                self._build()  # the Gauss-Newton Hessian
+            if self._nlp_c is None:
+                self._nlp_c = self._nlp_dict(_call_step(self.model, self.interval_h, self.cfg.solver.substeps),
+                                             keep=False)
             gen = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp_c, {**lib_opts, **(
-                {"hess_lag": opts["hess_lag"]} if "hess_lag" in opts else {})})
+                {"hess_lag": self._hess} if key[1] == "gauss-newton" else {})})
             cache.start_compile(gen, path, wait=cache.wait_for_compile())
             if not cache.ready(path):
                 self._pending[key] = (path, lib_opts)
                 return None
-        return cache.load(path, f"mpc_{key[0]}", lib_opts)
+        return self._load(path, key, lib_opts)
 
-    def _library(self, key, opts: dict):
-        """Cache path of the compiled NLP for solver ``key`` (builds the call-based NLP on first use)."""
-        import casadi as ca
-
+    def _library_inputs(self) -> dict:
+        """What the NLP is built from, as plain data (the compiled library's key)."""
         from . import cache
 
-        if self._nlp_c is None:
-            self._nlp_c = self._nlp_dict(_call_step(self.model, self.interval_h, self.cfg.solver.substeps), keep=False)
-        nlp = self._nlp_c
-        fns = [ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]])]
-        if "hess_lag" in opts:
-            fns.append(opts["hess_lag"])
-        tag = f"{key[0]}-{key[1]}-it{opts['ipopt.max_iter']}"
-        return cache.library_path(cache.solver_key(fns, tag), prefix=f"mpc-{key[0]}")
+        cfg = self.cfg
+        temperature = cfg.temperature.model_dump(mode="json")
+        temperature.pop("ceiling_c")  # a bound of the constraints, not part of the NLP
+        return {"model": cache.model_inputs(self.model), "horizon": self.N, "interval_h": self.interval_h,
+                "rpm_scale": self.rpm_scale, "n_scen": self.n_scen, "dvalues": self._dvalues(self.reference),
+                "weights": cfg.weights.model_dump(mode="json"), "temperature": temperature,
+                "solver": cfg.solver.model_dump(mode="json"), "adaptation": cfg.adaptation.model_dump(mode="json"),
+                "robust": cfg.robust.model_dump(mode="json"), "sizes": [self._nv, self._ng, self._np]}
+
+    def _library(self, key, opts: dict):
+        """Cache path of the compiled NLP for solver ``key`` (nothing is built: the key is of the inputs)."""
+        from . import cache
+
+        tag = f"mpc-{key[0]}-{key[1]}-it{opts['ipopt.max_iter']}"
+        return cache.library_path(cache.input_key(tag, self._library_inputs()), prefix=f"mpc-{key[0]}")
+
+    def _load(self, path, key, lib_opts: dict):
+        """The compiled solver at ``path``, or None (removed) when it does not load or its sizes do not fit."""
+        from . import cache
+
+        solver = cache.load(path, f"mpc_{key[0]}", lib_opts)
+        if solver is None:
+            return None
+        sizes = (solver.size_in("x0"), solver.size_in("p"), solver.size_out("g"))
+        if sizes != ((self._nv, 1), (self._np, 1), (self._ng, 1)):
+            cache.notice(f"compiled solver {path.name} does not fit this controller (sizes {sizes}): rebuilt")
+            path.unlink(missing_ok=True)
+            return None
+        return solver
 
     def _upgrade(self, key) -> None:
         from . import cache
@@ -56,7 +94,7 @@ class CompiledSolvers:
         path, lib_opts = self._pending[key]
         if cache.ready(path):
             del self._pending[key]
-            solver = cache.load(path, f"mpc_{key[0]}", lib_opts)
+            solver = self._load(path, key, lib_opts)
             if solver is not None:
                 self._solvers[key] = solver
 
@@ -89,3 +127,90 @@ def _call_step(model, dt_h: float, substeps: int | None):
     out = eq.step(eq.CA(), model.const, model.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
                   float(dt_h), n, s, rates=rates)
     return ca.Function("moment_step", [x, u, p], [ca.vertcat(*out)], ["x", "u", "p"], ["x_next"])
+
+
+class _Generator:
+    """Adapter: :func:`bmctl.control.cache.start_compile` generates through ``generate_dependencies``."""
+
+    def __init__(self, fn):
+        self.fn = fn
+
+    def generate_dependencies(self, name: str, opts: dict) -> None:
+        import hashlib
+        import os
+
+        # casadi wants a C identifier as the generated file's stem; the cache's temporary name may hold
+        # a '.' (the interval length), so generate under a safe stem and move the file to ``name``
+        safe = "band_" + hashlib.sha256(name.encode()).hexdigest()[:16]
+        os.replace(self.fn.generate(safe, opts), name)
+
+
+def _integration(model, dt_h: float, substeps: int | None) -> tuple[int, int]:
+    """(substeps, RKC stages) of a step: the model's default, or ``substeps`` with the stages they need."""
+    from ..moments.model import rkc_stages
+
+    n, stages = model._integration(float(dt_h))
+    if substeps is None or int(substeps) == n:
+        return n, stages
+    return int(substeps), rkc_stages(model.const.rate_max_per_h, float(dt_h) / int(substeps))
+
+
+def step_function(model, dt_h: float, substeps: int | None = None):
+    """casadi.Function ``F(x[6], u[2], p[2]) -> x_next[6]``: :meth:`MomentModel.step` over ``dt_h``
+    hours (default substeps and stages, or ``substeps``) with the rate field as a called function."""
+    import casadi as ca
+
+    from ..moments import equations as eq
+    from ..moments.model import _ca_cols
+
+    n, stages = _integration(model, dt_h, substeps)
+    R = model.rate_function()
+
+    def rates(yl, T, h, w, bm, fm):
+        v = R(ca.vertcat(*yl[:4]), ca.vertcat(T, h, w, bm, fm))
+        return [v[i] for i in range(4)]
+
+    x, u, p = ca.MX.sym("x", 6), ca.MX.sym("u", 2), ca.MX.sym("p", 2)
+    out = eq.step(eq.CA(), model.const, model.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2),
+                  float(dt_h), n, stages, rates=rates)  # eqns (15)-(20), mill then rest
+    return ca.Function("band_step", [x, u, p], [ca.vertcat(*out)], ["x", "u", "p"], ["x_next"])
+
+
+def compiled_step(model, dt_h: float, substeps: int | None = None):
+    """The compiled :func:`step_function` from bmctl's cache, or None (not compiled yet: gcc is
+    started in the background, or waited for with ``BMCTL_MPC_COMPILE=wait``; no gcc or cache).
+
+    The library's key is of the function's inputs (:func:`bmctl.control.cache.input_key`: the
+    model's constants and coefficients, interval, substeps and stages, the generating source),
+    so a hit builds nothing symbolic. The end band of ``campaign advise`` and the MPC's initial
+    guess use it.
+    """
+    from . import cache
+
+    if not cache.enabled():
+        return None
+    loaded = _LOADED.setdefault(model, {})
+    n, stages = _integration(model, dt_h, substeps)
+    key = (round(float(dt_h), 12), n)
+    if key in loaded:
+        return loaded[key]
+    inputs = {"model": cache.model_inputs(model), "dt_h": float(dt_h), "substeps": n, "stages": stages}
+    path = cache.library_path(cache.input_key("band-step", inputs), prefix="band")
+    if path is None:
+        return None
+    if not cache.ready(path):
+        cache.start_compile(_Generator(step_function(model, dt_h, substeps)), path, wait=cache.wait_for_compile())
+        if not cache.ready(path):
+            return None
+    import casadi as ca
+
+    try:
+        lib = ca.external("band_step", str(path))
+        if [lib.size_in(i) for i in range(3)] + [lib.size_out(0)] != [(6, 1), (2, 1), (2, 1), (6, 1)]:
+            raise RuntimeError("sizes do not fit")
+    except Exception as exc:  # noqa: BLE001 - casadi raises RuntimeError on any bad library
+        cache.notice(f"compiled band step {path.name} did not load ({str(exc).splitlines()[0][:80]}): rebuilt")
+        path.unlink(missing_ok=True)
+        return None
+    loaded[key] = lib
+    return lib

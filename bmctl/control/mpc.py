@@ -107,11 +107,13 @@ class MPCController(CompiledSolvers):
         self._built: dict = {"solvers": {}}  # this NLP's entry in the thread's store (_built_entry)
         self._nlp_c = None  # the NLP with the rate field as a called function (compiled solvers)
         self._pending: dict = {}  # solver key -> (library path, options) while gcc runs
+        self._step_fn = None  # the interval step of the initial guess (compiled when in the cache)
         self.adaptive = cfg.adaptation.mode != "none"
         self.gain = np.ones(4)  # prediction gain per particle moment (Adaptation, mode "gain")
         self.bias = np.zeros(4)  # additive prediction bias per interval (Adaptation, mode "bias")
         self._rls = np.zeros((2, 4))  # forgetting sums: observed x predicted, predicted^2 (relative)
         self._last = None  # (t, x_est, p) of the previous call, for the gain update
+        self._nv, self._ng, self._np = self._sizes()
 
     # --- public ------------------------------------------------------------------------------
     def set_target(self, target, t_end_h: float | None = None) -> None:
@@ -229,9 +231,15 @@ class MPCController(CompiledSolvers):
         return self._make_plan(x0, t, U, X, status)
 
     def _step(self, x, u, pp) -> np.ndarray:
-        """One interval of the NLP's (uncorrected) prediction: the casadi step with ``[solver] substeps``."""
-        F = self.model.casadi_step(self.interval_h, self.cfg.solver.substeps)
-        return np.asarray(F(x, u, pp), dtype=float).ravel()
+        """One interval of the NLP's (uncorrected) prediction with ``[solver] substeps``: the compiled
+        step from bmctl's cache (:func:`bmctl.control.compiled.compiled_step`; the same equations,
+        nothing built symbolically in a process that finds it), else the casadi step."""
+        if self._step_fn is None:
+            from .compiled import compiled_step
+
+            self._step_fn = (compiled_step(self.model, self.interval_h, self.cfg.solver.substeps)
+                             or self.model.casadi_step(self.interval_h, self.cfg.solver.substeps))
+        return np.asarray(self._step_fn(x, u, pp), dtype=float).ravel()
 
     def _predict(self, x0, U, pp) -> np.ndarray:
         """States under ``U`` as the NLP predicts them (with the adaptation's correction when on):
@@ -325,6 +333,14 @@ class MPCController(CompiledSolvers):
         h.update(repr((self._dvalues(self.reference), self.rpm_scale, self.n_scen, self.adaptive)).encode())
         return h.hexdigest()
 
+    def _sizes(self) -> tuple[int, int, int]:
+        """Decision, constraint and parameter counts of the NLP (:meth:`_nlp_dict`'s layout), without building it."""
+        N, ne = self.N, self.n_scen - 1
+        na = 4 if self.adaptive else 0
+        nv = 9 * N + 6 * N * ne  # w, m, z (6 per interval), s; z of each further scenario
+        ng = 6 * N + (N - 1) + N + 7 * N * ne  # defects, rpm moves, temperature rows; per further scenario
+        return nv, ng, 8 + 3 * NY * N + 2 + na + 8 * ne
+
     def _build(self):
         built = _built_entry(self._build_key())
         if "nlp" not in built:
@@ -402,7 +418,7 @@ class MPCController(CompiledSolvers):
         if not keep:
             return nlp
         self._J = ca.Function("J", [V, P], [J])
-        self._nv, self._ng = V.shape[0], g.shape[0]
+        assert (V.shape[0], g.shape[0], P.shape[0]) == (self._nv, self._ng, self._np)  # _sizes() mirrors this layout
         # Gauss-Newton Hessian of the Lagrangian: the cost's and the temperature rows' curvature, the
         # dynamics' curvature dropped, plus a proximal term on the scaled inputs (cheap to build)
         lf = ca.MX.sym("lam_f")
@@ -424,8 +440,6 @@ class MPCController(CompiledSolvers):
             hessian = s.hessian if warm else s.cold_hessian
         key = ("warm" if warm else "cold", hessian)
         if key not in self._solvers:
-            if self._nlp is None:
-                self._build()
             max_iter = s.max_iter
             if warm and hessian == "gauss-newton" and s.retry_exact:
                 max_iter = min(max_iter, s.gn_max_iter)
@@ -439,14 +453,17 @@ class MPCController(CompiledSolvers):
                 opts["ipopt.max_wall_time"] = s.max_wall_s
             if hessian == "limited-memory":
                 opts["ipopt.hessian_approximation"] = "limited-memory"
-            elif hessian == "gauss-newton":
-                opts["hess_lag"] = self._hess
             if warm:
                 opts.update({"ipopt.warm_start_init_point": "yes", "ipopt.warm_start_bound_push": 1e-6,
                              "ipopt.warm_start_slack_bound_push": 1e-6, "ipopt.warm_start_mult_bound_push": 1e-6,
                              "ipopt.mu_init": 1e-4})
+            # a compiled library found in the cache is loaded without building the NLP symbolically
             compiled = self._compiled_solver(key, opts) if hessian != "exact" else None
             if compiled is None:
+                if self._nlp is None:
+                    self._build()
+                if hessian == "gauss-newton":
+                    opts["hess_lag"] = self._hess
                 okey = (key, repr(sorted((k, v) for k, v in opts.items() if k != "hess_lag")))
                 compiled = self._built["solvers"].get(okey)
                 if compiled is None:
@@ -579,6 +596,8 @@ class MPCController(CompiledSolvers):
         else:
             ms, note = 0.0, ""
         V, _, _ = self._guess(data, False, res["W"], Mb)  # rounded plan, simulated; slack = violation
+        if self._nlp is None:  # the solvers came compiled from the cache: the cost function is built now
+            self._build()
         f = float(self._J(V, data["P"]))
         return res["W"], Mb, ms, f - res["f"], note
 

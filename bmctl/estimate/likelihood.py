@@ -40,7 +40,18 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy import special
+
+
+class _Special:
+    """``scipy.special``, imported on first use (a fresh `campaign advise` restores the filter without it)."""
+
+    def __getattr__(self, name):
+        from scipy import special as sp
+
+        return getattr(sp, name)
+
+
+special = _Special()
 
 R_FLOOR = 0.005  # continuous form: measured r clipped to [R_FLOOR, 1 - R_FLOOR]
 BETA_VAR_MARGIN = 0.98  # keep v < 0.98 m (1 - m) so that Beta a, b > 0
@@ -74,21 +85,20 @@ def beta_params(mean, std):
     return m * k, (1 - m) * k
 
 
+@lru_cache(maxsize=1)
 def _weibull_table():
+    """(ln cv increasing, ln k) of the Weibull shape table (built on first use)."""
     k = np.exp(np.linspace(np.log(0.15), np.log(80.0), 2000))
     g1 = special.gammaln(1 + 1 / k)
     cv = np.sqrt(np.expm1(special.gammaln(1 + 2 / k) - 2 * g1))
     return np.log(cv[::-1]), np.log(k[::-1])  # increasing ln cv
 
 
-_WB_LNCV, _WB_LNK = _weibull_table()
-
-
 def weibull_params(mean, std):
     """Shape k and log-scale ln(lambda) of the Weibull with the given mean and std (broadcasts)."""
     mean = np.asarray(mean, dtype=float)
     lncv = np.log(np.asarray(std, dtype=float) / mean)
-    k = np.exp(np.interp(lncv, _WB_LNCV, _WB_LNK))
+    k = np.exp(np.interp(lncv, *_weibull_table()))
     return k, np.log(mean) - special.gammaln(1 + 1 / k)
 
 

@@ -41,6 +41,24 @@ def test_cache_key_changes_with_the_coefficients(private_cache):
     assert _library(_controller(other)) != a
 
 
+def test_cache_key_is_of_the_nlp_inputs_and_builds_nothing(private_cache):
+    """The library's key follows what enters the NLP (a weight) and not a constraint bound (the
+    ceiling); computing it builds no NLP."""
+    model = make_moment_model(card_path("alni-1to1-300rpm-lab"))
+    ctrl = _controller(model)
+    warm = ("warm", "limited-memory"), {"ipopt.max_iter": 100}
+    a = ctrl._library(*warm)
+    assert ctrl._nlp is None and ctrl._nlp_c is None
+    cfg = ctrl.cfg
+    hot = cfg.model_copy(update={"temperature": cfg.temperature.model_copy(update={"ceiling_c": 55.0})})
+    heavy = cfg.model_copy(update={"weights": cfg.weights.model_copy(update={"energy_per_kWh": 0.7})})
+    assert make_controller(hot, model, ctrl.reference)._library(*warm) == a
+    assert make_controller(heavy, model, ctrl.reference)._library(*warm) != a
+    assert ctrl._library(("cold", "limited-memory"), {"ipopt.max_iter": 100}) != a
+    ctrl._build()  # the layout _sizes() computes without building is the built NLP's (asserted there)
+    assert ctrl._library(*warm) == a
+
+
 def test_corrupt_library_is_ignored_and_removed(private_cache, capsys):
     private_cache.mkdir(parents=True)
     bad = private_cache / "mpc-warm-0123456789abcdef01234567.so"
@@ -66,6 +84,8 @@ def test_compiled_and_interpreted_solvers_give_the_same_plans(private_cache, mon
         ctrl = _controller(model)
         x, u, out = model.x0(), None, []
         for k in range(5):
+            if k == 3:
+                state, x3, u3 = ctrl.get_state(), x.copy(), u
             plan = ctrl.plan(x, 0.5 * k, None, u)
             assert plan.status.success
             out.append(plan.u)
@@ -73,6 +93,12 @@ def test_compiled_and_interpreted_solvers_give_the_same_plans(private_cache, mon
             x = model.step(x, u, 0.5)
         plans[mode] = np.array(out)
     assert any(private_cache.glob("mpc-warm-*.so"))
+    # a controller that finds the compiled library (as a fresh process does) builds no NLP and plans alike
+    fresh = _controller(model)
+    fresh.set_state(state)
+    plan = fresh.plan(x3, 1.5, None, u3)
+    assert plan.status.success and fresh._nlp is None and fresh._nlp_c is None
+    np.testing.assert_allclose(plan.u, plans["wait"][3], rtol=1e-9)
     # IPOPT tol 1e-4 (scaled): rpm within 0.1, milling fraction within 1e-3
     np.testing.assert_allclose(plans["wait"][..., 0], plans["0"][..., 0], atol=0.1)
     np.testing.assert_allclose(plans["wait"][..., 1], plans["0"][..., 1], atol=1e-3)

@@ -1,0 +1,93 @@
+"""``bmctl trial --campaign``: a trial driven through the campaign verbs gives the plain trial's
+trajectory.csv, leaves a campaign that ``bmctl campaign`` opens, and refuses what it cannot do."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bmctl.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+LQR = ROOT / "controllers" / "lqr-baseline.toml"
+
+
+def _scenario(path: Path, extra: str = "") -> Path:
+    path.write_text(f"""model = "{CARD}"
+hours = 2.0
+target = {{ s_mean_um = 40.0 }}
+[scenario]
+name = "campaign-cli"
+description = "LQR, 2 h, samples every hour"
+[plant]
+particles = 400
+[sampling]
+every_h = 1.0
+particles = 120
+[estimator]
+particles = 100
+{extra}
+[controller]
+config = "{LQR}"
+""")
+    return path
+
+
+def _read(path: Path) -> tuple[list[str], np.ndarray]:
+    """Header and the cells as written (numbers at the CSV's precision, the solver status as text)."""
+    lines = path.read_text().splitlines()
+    return lines[0].split(","), np.array([ln.split(",") for ln in lines[1:]])
+
+
+@pytest.mark.slow
+def test_trial_campaign_cli_gives_the_plain_trajectory_and_a_campaign(tmp_path, capsys):
+    sc = _scenario(tmp_path / "scenario.toml")
+    plain, camp = tmp_path / "plain", tmp_path / "camp"
+    assert main(["trial", str(sc), "--seed", "5", "--out", str(plain), "--no-progress"]) == 0
+    assert main(["trial", str(sc), "--seed", "5", "--out", str(camp), "--no-progress", "--campaign"]) == 0
+    h1, a = _read(plain / "trajectory.csv")
+    h2, b = _read(camp / "trajectory.csv")
+    assert h1 == h2 and a.shape == b.shape == (4, len(h1))
+    same = [i for i, k in enumerate(h1) if k != "solve_ms"]  # wall time of the solve differs run to run
+    np.testing.assert_array_equal(a[:, same], b[:, same])
+    assert np.isfinite(a[:, same[:-3]].astype(float)).all()  # a real trajectory, not empty cells
+    s1 = json.loads((plain / "summary.json").read_text())
+    s2 = json.loads((camp / "summary.json").read_text())
+    for k in ("final_true", "final_estimate", "final_error", "max_temperature_c", "temperature_violations",
+              "energy_kj", "fallbacks", "solver_failures", "steps", "batch_h"):
+        assert s1[k] == s2[k], k
+    assert (camp / "trial.png").stat().st_size > 10_000
+    # the campaign it leaves is a campaign: status and report open it
+    capsys.readouterr()
+    assert main(["campaign", "status", str(camp / "campaign")]) == 0
+    assert "2" in capsys.readouterr().out
+    assert main(["campaign", "report", str(camp / "campaign")]) == 0
+    assert (camp / "campaign" / "report.html").stat().st_size > 10_000
+    from bmctl import campaign as cp
+
+    st = cp.status(camp / "campaign")
+    assert st["clock_h"] == 2.0 and st["counts"]["actions"] == 4 and st["counts"]["samples"] == 2
+    assert st["counts"]["decisions"] == 4 and st["deviations"] == []
+    # resuming is refused with one line, for the folder and for the flag
+    assert main(["trial", str(sc), "--seed", "5", "--resume", str(camp), "--no-progress"]) == 2
+    assert main(["trial", str(sc), "--seed", "5", "--out", str(camp), "--no-progress", "--campaign"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 2 and "does not resume" in err and "already holds" in err
+
+
+def test_trial_campaign_refusals_are_one_line(tmp_path, capsys):
+    sc = _scenario(tmp_path / "scenario.toml")
+    assert main(["trial", str(sc), "--campaign", "--resume", str(tmp_path / "x"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--campaign does not resume" in err
+    ukf = _scenario(tmp_path / "ukf.toml", 'kind = "ukf"')
+    assert main(["trial", str(ukf), "--campaign", "--out", str(tmp_path / "u"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "particle filter" in err
+    assert not (tmp_path / "u" / "campaign").exists()
+    assert main(["trial", str(sc), "--campaign", "--seed", "x", "--no-progress"]) == 2
+    assert capsys.readouterr().err.count("\n") == 1
