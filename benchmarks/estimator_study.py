@@ -159,26 +159,29 @@ def closed_loop(scenarios, seeds, out: Path, kinds=KINDS) -> str:
     from bmctl.trial import run_trial
 
     out.mkdir(parents=True, exist_ok=True)
-    rows = ["| scenario | estimator | seeds | final target error % (per seed) | mean % | wall s per trial |",
+    rows = ["| scenario | estimator | seeds | final target error % (per seed) | mean ± se % | wall s per trial |",
             "|---|---|---|---|---|---|"]
-    for scn in scenarios:
-        for kind in kinds:
-            path = _scenario_with_kind(scn, kind, out)
-            errs, walls = [], []
-            for seed in seeds:
-                folder = out / f"{Path(scn).stem}-{kind}-s{seed}"
-                t0 = time.perf_counter()
-                if (folder / "summary.json").exists():
-                    import json
+    errs = {(scn, kind): [] for scn in scenarios for kind in kinds}
+    walls = {key: [] for key in errs}
+    paths = {(scn, kind): _scenario_with_kind(scn, kind, out) for scn, kind in errs}
+    for seed in seeds:  # seeds outermost: a partial run covers every scenario and estimator
+        for (scn, kind), path in paths.items():
+            folder = out / f"{Path(scn).stem}-{kind}-s{seed}"
+            t0 = time.perf_counter()
+            if (folder / "summary.json").exists():
+                import json
 
-                    summ = json.loads((folder / "summary.json").read_text())
-                else:
-                    summ = run_trial(path, folder, seed=seed, resume=(folder / "checkpoint.npz").exists())
-                walls.append(time.perf_counter() - t0)
-                errs.append(100 * max(summ["final_error"].values()))
-                print(f"  closed loop {Path(scn).stem} {kind} seed {seed}: {errs[-1]:.2f} % ({walls[-1]:.0f} s)", flush=True)
-            rows.append(f"| {Path(scn).stem} | {kind} | {len(seeds)} | {', '.join(f'{e:.2f}' for e in errs)} | "
-                        f"{np.mean(errs):.2f} | {np.mean(walls):.0f} |")
+                summ = json.loads((folder / "summary.json").read_text())
+            else:
+                summ = run_trial(path, folder, seed=seed, resume=(folder / "checkpoint.npz").exists())
+            walls[(scn, kind)].append(time.perf_counter() - t0)
+            errs[(scn, kind)].append(100 * max(summ["final_error"].values()))
+            print(f"  closed loop {Path(scn).stem} {kind} seed {seed}: {errs[(scn, kind)][-1]:.2f} % "
+                  f"({walls[(scn, kind)][-1]:.0f} s)", flush=True)
+    for (scn, kind), e in errs.items():
+        se = np.std(e, ddof=1) / np.sqrt(len(e)) if len(e) > 1 else float("nan")
+        rows.append(f"| {Path(scn).stem} | {kind} | {len(seeds)} | {', '.join(f'{v:.2f}' for v in e)} | "
+                    f"{np.mean(e):.2f} ± {se:.2f} | {np.mean(walls[(scn, kind)]):.0f} |")
     return "\n".join(rows)
 
 
