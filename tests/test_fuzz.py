@@ -68,10 +68,13 @@ def run_case(case: fuzzlib.Case, capsys) -> tuple[str, str]:
     capsys.readouterr()
     with tempfile.TemporaryDirectory(prefix="bmctl-fuzz-") as tmp:
         folder = Path(tmp)
-        argv = case.write(folder)
+        case.write(folder)
         try:
             with _env(case.env), _limit(CASE_CPU_S, CASE_WALL_S):
-                rc = main(argv)
+                for argv in case.commands(folder):
+                    rc = main(argv)
+                    if rc != 0:
+                        break
         except Hang:
             rc = None
         except Exception as exc:  # anything escaping main is a traceback to the user
