@@ -16,7 +16,9 @@ uninterrupted run. A damaged checkpoint or ``trial.json`` is refused with one li
 
 from __future__ import annotations
 
+import csv
 import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -153,11 +155,46 @@ def _read_meta(path: Path) -> dict:
     return meta
 
 
+#: trajectory columns that may hold NaN (no sample behind them)
+_NAN_OK = frozenset(["ess"] + [c for c in trajectory_header() if c.endswith(("_q05", "_q95"))])
+
+
 def _kept_rows(traj: Path, steps: int) -> str:
-    """The header and the first ``steps`` complete rows of ``traj`` (a torn row is dropped)."""
-    lines = [ln for ln in traj.read_text().splitlines(keepends=True) if ln.endswith("\n")]
+    """The header and the first ``steps`` complete rows of ``traj`` (a torn row is dropped).
+
+    Each kept row must be one this module writes: the header of :func:`trajectory_header`,
+    then rows of as many fields, numbered 0, 1, ... in ``step``, finite numbers in every field
+    but ``solver_status`` (NaN allowed in ``ess`` and the bands, where no sample stands behind
+    them); anything else is an InputError naming the file and the row.
+    """
+    try:
+        text = io.read_input_bytes(traj).decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{traj}: not a bmctl trajectory (not UTF-8 text)") from None
+    lines = [ln + "\n" for ln in text.split("\n")[:-1]]  # the text after the last newline is a torn row
+    if not lines:
+        raise InputError(f"{traj}: no complete header row (empty or damaged); the checkpoint needs {steps} rows")
     if len(lines) < steps + 1:
         raise InputError(f"{traj}: {len(lines) - 1} complete rows, the checkpoint needs {steps}")
+    header = trajectory_header()
+    rows = list(csv.reader(lines[: steps + 1]))
+    if rows[0] != header:
+        raise InputError(f"{traj}: row 1: not the trajectory header of this bmctl")
+    status_col = header.index("solver_status")
+    for i, fields in enumerate(rows[1:]):
+        if len(fields) != len(header):
+            raise InputError(f"{traj}: row {i + 2}: {len(fields)} fields, the header has {len(header)}")
+        if fields[0] != str(i):
+            raise InputError(f"{traj}: row {i + 2}: step {fields[0]!r}, expected {i}")
+        for j, f in enumerate(fields):
+            if j == status_col:
+                continue
+            try:
+                v = float(f)
+            except ValueError:
+                raise InputError(f"{traj}: row {i + 2}: {header[j]}: not a number ({f!r})") from None
+            if not math.isfinite(v) and not (math.isnan(v) and header[j] in _NAN_OK):
+                raise InputError(f"{traj}: row {i + 2}: {header[j]}: not finite ({f!r})")
     return "".join(lines[: steps + 1])
 
 

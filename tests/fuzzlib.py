@@ -734,7 +734,8 @@ def _campaign_case(rng: random.Random) -> Case:
                     label = "init DIR that is a file"
             else:
                 init[flag] = v
-            names = [flag, "target", "campaign.sqlite", "missing.toml", "models", "README.md", "toml"]
+            names = [flag, "target", "campaign.sqlite", "missing.toml", "models", "README.md", "toml",
+                     "bmctl-fuzz-"]  # '@' is the case's own folder
         else:
             which = rng.choice(["card", "controller"])
             src = CAMPAIGN_CARD if which == "card" else CAMPAIGN_CTRL[ctrl]
@@ -811,6 +812,7 @@ def _campaign_case(rng: random.Random) -> Case:
         verb = rng.choice(["advise", "advise", "status", "status", "log", "sample", "decide", "report"])
         argv = _verb_argv(rng, verb, files)
         label = f"{label} on {base}-{ctrl}: {verb}"
+        names = names + (["advice"] if verb == "decide" else [])
         verify = None  # the damage is in the checked database; stdout is checked
     if then_advise and op != "damaged" and not pre:
         pre, argv = [argv], ["campaign", "advise", "@out"]
@@ -1062,7 +1064,8 @@ def check_outputs(folder: Path, t_max_c: float = T_MAX_C) -> list[str]:
                 except (TypeError, ValueError):
                     continue  # text columns
                 if not math.isfinite(v):
-                    if k.endswith("_q05") or k.endswith("_q95") or k in ("eta_size", "eta_shape"):
+                    if k.endswith("_q05") or k.endswith("_q95") or k in ("eta_size", "eta_shape") or (
+                            k == "ess" and name == "trajectory.csv"):
                         continue  # no sample behind a band: NaN is stated, not nonsense
                     bad.append(f"{name}: row {i + 2}: {k} = {text}")
                     continue
