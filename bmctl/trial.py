@@ -198,6 +198,66 @@ def _kept_rows(traj: Path, steps: int) -> str:
     return "".join(lines[: steps + 1])
 
 
+def _finite_numbers(value) -> bool:
+    """Whether ``value`` is None, a boolean, a finite number, or a list, table or numeric array of them."""
+    if value is None or isinstance(value, bool):
+        return True
+    if isinstance(value, dict):
+        return all(_finite_numbers(v) for v in value.values())
+    if isinstance(value, list):
+        return all(_finite_numbers(v) for v in value)
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "iuf" and bool(np.all(np.isfinite(value)))
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def _misfit(template, value, path: str = "") -> str | None:
+    """Where ``value`` (a loaded state) does not have the form of ``template`` (the state of a
+    fresh loop of the same scenario), or None: the same dict keys; arrays of the same dtype kind
+    and shape; numbers where numbers were, finite where they were finite; strings and booleans
+    where they were; lists of such (a list may have grown: its items take the form of the first);
+    where the template holds None, None or finite numbers (a not-yet-set input)."""
+    where = path or "/"
+    num = (int, float)
+    if isinstance(template, dict):
+        if not isinstance(value, dict) or set(value) != set(template):
+            return f"{where}: expected a table with keys {sorted(template)[:6]}"
+        for k in template:
+            why = _misfit(template[k], value[k], f"{path}/{k}")
+            if why:
+                return why
+        return None
+    if isinstance(template, np.ndarray):
+        if not isinstance(value, np.ndarray) or value.dtype.kind != template.dtype.kind or value.shape != template.shape:
+            return f"{where}: expected a {template.dtype} array of shape {template.shape}"
+        if template.dtype.kind == "f" and np.all(np.isfinite(template)) and not np.all(np.isfinite(value)):
+            return f"{where}: not finite"
+        return None
+    if isinstance(template, list):
+        if not isinstance(value, list):
+            return f"{where}: expected a list"
+        for i, v in enumerate(value):
+            t = template[i] if i < len(template) else (template[0] if template else None)
+            why = _misfit(t, v, f"{path}/{i}") if (template or not isinstance(v, (dict, list, np.ndarray))) else \
+                f"{where}/{i}: unexpected item"
+            if why:
+                return why
+        return None
+    if template is None:  # not set yet in a fresh loop (an input, a warm start, a flag): finite numbers or booleans
+        return None if _finite_numbers(value) else f"{where}: expected nothing, finite numbers or booleans"
+    if isinstance(template, bool):
+        return None if isinstance(value, bool) else f"{where}: expected true or false"
+    if isinstance(template, num):
+        if not isinstance(value, num) or isinstance(value, bool) or (isinstance(template, int) and isinstance(value, float)):
+            return f"{where}: expected a number"
+        if math.isfinite(template) and not math.isfinite(value):
+            return f"{where}: not finite"
+        return None
+    if isinstance(template, str):
+        return None if isinstance(value, str) else f"{where}: expected text"
+    return None
+
+
 def _resume(loop: ClosedLoop, out: Path, scenario_path, seed: int) -> None:
     ckpt, traj = out / CHECKPOINT, out / "trajectory.csv"
     meta = _read_meta(out / "trial.json")
@@ -206,6 +266,9 @@ def _resume(loop: ClosedLoop, out: Path, scenario_path, seed: int) -> None:
     if not ckpt.exists():
         raise InputError(f"--resume: {ckpt} not found")
     state = load_state(ckpt)
+    why = _misfit(loop.get_state(), state)
+    if why:
+        raise InputError(f"{ckpt}: {why} (not a checkpoint of this trial, or damaged)")
     try:
         loop.set_state(state)
     except (KeyError, TypeError, ValueError, IndexError):
