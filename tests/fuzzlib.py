@@ -713,7 +713,12 @@ def _campaign_case(rng: random.Random) -> Case:
             flag = rng.choice(["--hours", "--hours", "--temperature-max-c", "--particles", "--seed", "--target",
                                "--target", "--model", "--controller", "DIR"])
             v = rng.choice(CAMPAIGN_NUMBERS)
-            if flag == "--target":
+            benign = {"--hours": ["0.5", "12", "24", "1000"], "--temperature-max-c": ["-50", "20", "60", "400"],
+                      "--particles": ["50", "200"], "--seed": ["7", "123456789012"],
+                      "--target": ["s_mean_um=40,r_mean=0.05", "r_std=0.01", "d90_um=80", "span=1.5", "d50_um=1e-3"]}
+            if flag in benign and rng.random() < 0.35:  # a legitimate value: init (and advise) must then work
+                v = rng.choice(benign[flag])
+            elif flag == "--target":
                 v = rng.choice([f"d50_um={v}", f"s_mean_um={v}", f"r_mean={v}", "bogus=3", "d50_um", "=",
                                 "d50_um=45,s_mean_um=40", "d50_um=45,d50_um=46", "r_mean=2", "r_std=0.01,d50_um=45",
                                 "s_std_um=1e-9", ",,", "D50_um=45"])
