@@ -599,7 +599,8 @@ def check_campaign(out: Path, t_max_c: float = AL_MELTING_C) -> list[str]:
 def _damage_db(rng: random.Random) -> tuple[Callable[[Path], None], str, list[str]]:
     """A damage to ``out/campaign.sqlite`` (the copied campaign): (setup step, label, names)."""
     op = rng.choice(["garbage", "truncate", "empty", "foreign", "version", "drop-table", "value", "value", "value",
-                     "meta", "state", "input-changed", "input-missing", "db-is-folder", "no-db"])
+                     "meta", "state", "input-changed", "input-missing", "db-is-folder", "no-db", "read-only",
+                     "wal-blocked"])
     names = ["campaign.sqlite", "campaign database"]
 
     def db(folder: Path) -> Path:
@@ -661,6 +662,13 @@ def _damage_db(rng: random.Random) -> tuple[Callable[[Path], None], str, list[st
         return step, "inputs/controller changed", ["inputs", "changed"]
     if op == "input-missing":
         return (lambda f: shutil.rmtree(f / "out" / "inputs")), "inputs/ removed", ["inputs", "changed or missing"]
+    if op == "read-only":  # refuses writes unless the fuzz runs as root (then the command must simply work)
+        def step(f):
+            db(f).chmod(0o444)
+            (f / "out").chmod(0o555)
+        return step, "read-only folder and database", names + ["readonly", "read-only", "Permission denied"]
+    if op == "wal-blocked":  # the write-ahead log cannot be created (a folder in its place): writes fail
+        return (lambda f: (f / "out" / "campaign.sqlite-wal").mkdir()), "campaign.sqlite-wal is a folder", names
     if op == "db-is-folder":
         def step(f):
             db(f).unlink()

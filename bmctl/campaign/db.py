@@ -113,7 +113,7 @@ def open_db(folder: str | Path) -> sqlite3.Connection:
         con = _connect(path)
         row = con.execute("SELECT version FROM schema_version").fetchone()
     except sqlite3.DatabaseError as exc:
-        raise InputError(f"{path}: not a bmctl campaign database ({exc})") from None
+        raise InputError(f"{path}: cannot be read as a bmctl campaign database ({exc})") from None
     if row is None or row[0] != SCHEMA_VERSION:
         con.close()
         raise InputError(f"{path}: campaign schema version {row and row[0]}, this bmctl reads {SCHEMA_VERSION}")
