@@ -1,7 +1,8 @@
 """Long fuzz run of the ``bmctl`` CLI: hostile inputs, each case in its own subprocess.
 
 The cases are those of tests/fuzzlib.py (mutated shipped cards, schedules, scenarios,
-controllers, particle tables, micrographs and out-of-range flags), drawn round-robin over
+controllers, particle tables, micrographs, out-of-range flags, hostile campaign commands and
+damaged campaign databases, damaged files of interrupted trials), drawn round-robin over
 the kinds from seeds 0..N-1. Each case runs in a forked child of a worker that has imported
 bmctl once (so a case costs its own work, not Python's start-up), with stdout and stderr
 captured and a wall-clock limit; the outcome is classified by ``fuzzlib.classify``.
@@ -52,12 +53,19 @@ def _preload() -> None:
         make_moment_model(str(card))
 
 
+def _fixtures(kinds) -> None:
+    """Build the campaigns and interrupted trials the campaign and resume cases copy (once, before
+    the workers fork, so both share them; removed when this process exits)."""
+    if {"campaign", "resume"} & set(kinds):
+        fuzzlib.fixtures()
+
+
 def run_case(kind: str, seed: int, timeout_s: float) -> dict:
     """Run one case in a forked child; returns its record (kind, seed, label, outcome, detail, seconds)."""
     case = fuzzlib.make_case(kind, seed)
     with tempfile.TemporaryDirectory(prefix="bmctl-fuzz-") as tmp:
         folder = Path(tmp)
-        argv = case.write(folder)
+        case.write(folder)
         out_f, err_f = folder / ".stdout", folder / ".stderr"
         t0 = time.monotonic()
         pid = os.fork()
@@ -74,7 +82,10 @@ def run_case(kind: str, seed: int, timeout_s: float) -> dict:
                 sys.stderr = os.fdopen(2, "w", buffering=1)
                 from bmctl.cli import main
 
-                code = main(argv)
+                for argv in case.commands(folder):
+                    code = main(argv)
+                    if code != 0:
+                        break
             except BaseException:  # noqa: BLE001 - anything escaping main is the finding
                 traceback.print_exc()
                 code = 99
@@ -126,6 +137,7 @@ def main(argv=None) -> int:
     kinds = args.kinds.split(",")
     jobs = [(kinds[i % len(kinds)], args.start + i // len(kinds), args.timeout) for i in range(args.cases)]
     _preload()
+    _fixtures(kinds)
     import multiprocessing as mp
 
     t0 = time.time()

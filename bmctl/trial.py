@@ -16,7 +16,9 @@ uninterrupted run. A damaged checkpoint or ``trial.json`` is refused with one li
 
 from __future__ import annotations
 
+import csv
 import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -153,12 +155,107 @@ def _read_meta(path: Path) -> dict:
     return meta
 
 
+#: trajectory columns that may hold NaN (no sample behind them)
+_NAN_OK = frozenset(["ess"] + [c for c in trajectory_header() if c.endswith(("_q05", "_q95"))])
+
+
 def _kept_rows(traj: Path, steps: int) -> str:
-    """The header and the first ``steps`` complete rows of ``traj`` (a torn row is dropped)."""
-    lines = [ln for ln in traj.read_text().splitlines(keepends=True) if ln.endswith("\n")]
+    """The header and the first ``steps`` complete rows of ``traj`` (a torn row is dropped).
+
+    Each kept row must be one this module writes: the header of :func:`trajectory_header`,
+    then rows of as many fields, numbered 0, 1, ... in ``step``, finite numbers in every field
+    but ``solver_status`` (NaN allowed in ``ess`` and the bands, where no sample stands behind
+    them); anything else is an InputError naming the file and the row.
+    """
+    try:
+        text = io.read_input_bytes(traj).decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputError(f"{traj}: not a bmctl trajectory (not UTF-8 text)") from None
+    lines = [ln + "\n" for ln in text.split("\n")[:-1]]  # the text after the last newline is a torn row
+    if not lines:
+        raise InputError(f"{traj}: no complete header row (empty or damaged); the checkpoint needs {steps} rows")
     if len(lines) < steps + 1:
         raise InputError(f"{traj}: {len(lines) - 1} complete rows, the checkpoint needs {steps}")
+    header = trajectory_header()
+    rows = list(csv.reader(lines[: steps + 1]))
+    if rows[0] != header:
+        raise InputError(f"{traj}: row 1: not the trajectory header of this bmctl")
+    status_col = header.index("solver_status")
+    for i, fields in enumerate(rows[1:]):
+        if len(fields) != len(header):
+            raise InputError(f"{traj}: row {i + 2}: {len(fields)} fields, the header has {len(header)}")
+        if fields[0] != str(i):
+            raise InputError(f"{traj}: row {i + 2}: step {fields[0]!r}, expected {i}")
+        for j, f in enumerate(fields):
+            if j == status_col:
+                continue
+            try:
+                v = float(f)
+            except ValueError:
+                raise InputError(f"{traj}: row {i + 2}: {header[j]}: not a number ({f!r})") from None
+            if not math.isfinite(v) and not (math.isnan(v) and header[j] in _NAN_OK):
+                raise InputError(f"{traj}: row {i + 2}: {header[j]}: not finite ({f!r})")
     return "".join(lines[: steps + 1])
+
+
+def _finite_numbers(value) -> bool:
+    """Whether ``value`` is None, a boolean, a finite number, or a list, table or numeric array of them."""
+    if value is None or isinstance(value, bool):
+        return True
+    if isinstance(value, dict):
+        return all(_finite_numbers(v) for v in value.values())
+    if isinstance(value, list):
+        return all(_finite_numbers(v) for v in value)
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "iuf" and bool(np.all(np.isfinite(value)))
+    return isinstance(value, (int, float)) and math.isfinite(value)
+
+
+def _misfit(template, value, path: str = "") -> str | None:
+    """Where ``value`` (a loaded state) does not have the form of ``template`` (the state of a
+    fresh loop of the same scenario), or None: the same dict keys; arrays of the same dtype kind
+    and shape; numbers where numbers were, finite where they were finite; strings and booleans
+    where they were; lists of such (a list may have grown: its items take the form of the first);
+    where the template holds None, None or finite numbers (a not-yet-set input)."""
+    where = path or "/"
+    num = (int, float)
+    if isinstance(template, dict):
+        if not isinstance(value, dict) or set(value) != set(template):
+            return f"{where}: expected a table with keys {sorted(template)[:6]}"
+        for k in template:
+            why = _misfit(template[k], value[k], f"{path}/{k}")
+            if why:
+                return why
+        return None
+    if isinstance(template, np.ndarray):
+        if not isinstance(value, np.ndarray) or value.dtype.kind != template.dtype.kind or value.shape != template.shape:
+            return f"{where}: expected a {template.dtype} array of shape {template.shape}"
+        if template.dtype.kind == "f" and np.all(np.isfinite(template)) and not np.all(np.isfinite(value)):
+            return f"{where}: not finite"
+        return None
+    if isinstance(template, list):
+        if not isinstance(value, list):
+            return f"{where}: expected a list"
+        for i, v in enumerate(value):
+            t = template[i] if i < len(template) else (template[0] if template else None)
+            why = _misfit(t, v, f"{path}/{i}") if (template or not isinstance(v, (dict, list, np.ndarray))) else \
+                f"{where}/{i}: unexpected item"
+            if why:
+                return why
+        return None
+    if template is None:  # not set yet in a fresh loop (an input, a warm start, a flag): finite numbers or booleans
+        return None if _finite_numbers(value) else f"{where}: expected nothing, finite numbers or booleans"
+    if isinstance(template, bool):
+        return None if isinstance(value, bool) else f"{where}: expected true or false"
+    if isinstance(template, num):
+        if not isinstance(value, num) or isinstance(value, bool) or (isinstance(template, int) and isinstance(value, float)):
+            return f"{where}: expected a number"
+        if math.isfinite(template) and not math.isfinite(value):
+            return f"{where}: not finite"
+        return None
+    if isinstance(template, str):
+        return None if isinstance(value, str) else f"{where}: expected text"
+    return None
 
 
 def _resume(loop: ClosedLoop, out: Path, scenario_path, seed: int) -> None:
@@ -172,6 +269,9 @@ def _resume(loop: ClosedLoop, out: Path, scenario_path, seed: int) -> None:
     if not ckpt.exists():
         raise InputError(f"--resume: {ckpt} not found")
     state = load_state(ckpt)
+    why = _misfit(loop.get_state(), state)
+    if why:
+        raise InputError(f"{ckpt}: {why} (not a checkpoint of this trial, or damaged)")
     try:
         loop.set_state(state)
     except (KeyError, TypeError, ValueError, IndexError):

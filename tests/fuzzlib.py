@@ -3,7 +3,8 @@
 Shared by the seeded property test (tests/test_fuzz.py, Hypothesis draws the case seeds) and
 the long run (benchmarks/fuzz.py, each case in a forked subprocess). A case is a command line
 built around one mutated input -- a model card, a schedule, a scenario, a controller, a
-particle table, a micrograph or a flag -- plus the names an error message about it may use.
+particle table, a micrograph, a flag, a campaign command or database, or a damaged file of an
+interrupted trial -- plus the names an error message about it may use.
 :func:`classify` sorts what the CLI did into the outcomes of docs/reliability.md:
 
 ``clean``            exit 2, one stderr line naming the file, flag or field
@@ -17,17 +18,22 @@ particle table, a micrograph or a flag -- plus the names an error message about 
 
 from __future__ import annotations
 
+import atexit
 import csv
 import functools
 import io
 import json
 import math
 import random
+import shutil
+import sqlite3
 import struct
+import tempfile
 import tomllib
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -276,12 +282,27 @@ class Case:
     env: dict[str, str] = field(default_factory=dict)
     out: str = "out"
     t_max_c: float = AL_MELTING_C  # the hottest output allowed
+    #: commands run before ``argv`` (each must exit 0 for the next to run; the first other exit is the outcome)
+    pre: list[list[str]] = field(default_factory=list)
+    #: builds what the case starts from under its folder (a copied campaign or trial, then damaged)
+    setup: Callable[[Path], None] | None = None
+    #: further checks of the ``out`` folder after exit 0: a list of problems (empty: sane)
+    verify: Callable[[Path], list[str]] | None = None
 
     def write(self, folder: Path) -> list[str]:
         """Write the case's files under ``folder``; returns argv with paths made absolute."""
         for name, data in self.files.items():
             (folder / name).write_bytes(data)
-        return [a.replace("@", str(folder) + "/") for a in self.argv]
+        if self.setup is not None:
+            self.setup(folder)
+        return self._abs(self.argv, folder)
+
+    def _abs(self, argv: list[str], folder: Path) -> list[str]:
+        return [a.replace("@", str(folder) + "/") if a.startswith("@") else a for a in argv]
+
+    def commands(self, folder: Path) -> list[list[str]]:
+        """Every command line of the case, in order (``pre`` then ``argv``), paths made absolute."""
+        return [self._abs(a, folder) for a in self.pre] + [self._abs(self.argv, folder)]
 
 
 def _card(rng: random.Random) -> Path:
@@ -375,6 +396,10 @@ def make_case(kind: str, seed: int) -> Case:
                     ["img" + suffix, "--um-per-px", "--scale-bar-um"])
     if kind == "flags":
         return _flag_case(rng, out)
+    if kind == "campaign":
+        return _campaign_case(rng)
+    if kind == "resume":
+        return _resume_case(rng)
     raise ValueError(kind)
 
 
@@ -435,8 +460,593 @@ def _flag_case(rng: random.Random, out: str) -> Case:
                 env)
 
 
+# --- fixtures: a campaign and an interrupted trial, built once per process and copied per case ----
 
-KINDS = ("card", "schedule", "scenario", "controller", "table", "image", "flags")
+_FIXTURES: dict[str, Path] = {}
+CAMPAIGN_CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+CAMPAIGN_CTRL = {"recipe": ROOT / "controllers" / "recipe-300rpm-continuous.toml",
+                 "lqr": ROOT / "controllers" / "lqr-baseline.toml"}
+CAMPAIGN_HOURS = 2.0
+RESUME_SCENARIO = f"""model = "{ROOT / 'models' / 'alni-1to1-300rpm-lab.toml'}"
+hours = 1.5
+[scenario]
+name = "fuzz-resume"
+description = "three 0.5 h steps, open loop"
+[controller]
+config = "{ROOT / 'controllers' / 'recipe-300rpm-continuous.toml'}"
+[plant]
+particles = 200
+[sampling]
+every_h = 0.5
+particles = 40
+[estimator]
+particles = 60
+"""
+
+
+def _table_csv(rng: random.Random, n: int = 60) -> bytes:
+    return ("\n".join(",".join(r) for r in base_table(rng, n)) + "\n").encode()
+
+
+def fixtures() -> Path:
+    """The folder of the shared fixtures (built on first call; removed when the process exits).
+
+    ``campaign-fresh-<c>``: ``campaign init`` only; ``campaign-logged-<c>``: init, a 0.5 h log
+    with a temperature reading, a sample at 0.5 h and an advice (``c``: recipe or lqr).
+    ``trial-0``, ``trial-1``, ``trial-3``: the resume scenario stopped after 0 and 1 of its 3
+    steps, and finished (same seed: ``trial-3/trajectory.csv`` is the reference of every resume).
+    """
+    if "root" in _FIXTURES:
+        return _FIXTURES["root"]
+    root = Path(tempfile.mkdtemp(prefix="bmctl-fuzz-fixtures-"))
+    atexit.register(shutil.rmtree, root, True)
+    from bmctl import campaign as cp
+    from bmctl.trial import run_trial
+
+    rng = random.Random("fixtures")
+    (root / "t.csv").write_bytes(_table_csv(rng))
+    for c, ctrl in CAMPAIGN_CTRL.items():
+        fresh, logged = root / f"campaign-fresh-{c}", root / f"campaign-logged-{c}"
+        cp.init(fresh, CAMPAIGN_CARD, ctrl, "d50_um=45", hours=CAMPAIGN_HOURS, particles=100)
+        shutil.copytree(fresh, logged)
+        cp.log(logged, 300.0, 0.5, 1.0, 40.0)
+        cp.sample(logged, 0.5, [str(root / "t.csv")])
+        cp.advise(logged)
+    sc = root / "resume.toml"
+    sc.write_text(RESUME_SCENARIO)
+    run_trial(sc, root / "trial-0", max_steps=0)
+    shutil.copytree(root / "trial-0", root / "trial-1")
+    run_trial(sc, root / "trial-1", resume=True, max_steps=1)
+    shutil.copytree(root / "trial-1", root / "trial-3")
+    run_trial(sc, root / "trial-3", resume=True)
+    _FIXTURES["root"] = root
+    return root
+
+
+def _copy_fixture(name: str, dest: str = "out"):
+    def setup(folder: Path) -> None:
+        shutil.copytree(fixtures() / name, folder / dest)
+    return setup
+
+
+def _then(*steps):
+    def setup(folder: Path) -> None:
+        for st in steps:
+            if st is not None:
+                st(folder)
+    return setup
+
+
+# --- campaign cases ---------------------------------------------------------------------------------
+
+CAMPAIGN_NUMBERS = ["0", "-1", "nan", "inf", "-inf", "1e300", "abc", "", "1e-300", "1e9"]
+
+
+def _est_problems(name: str, est: dict, t_max_c: float) -> list[str]:
+    bad = []
+    for k, v in est.items():
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            continue
+        if not math.isfinite(v):
+            bad.append(f"{name}: {k} = {v}")
+            continue
+        base = k.removesuffix("_q05").removesuffix("_q95")
+        if base in ("s_mean_um",) and not S_MIN_UM <= v <= S_MAX_UM:
+            bad.append(f"{name}: {k} = {v:g} um outside [{S_MIN_UM:g}, {S_MAX_UM:g}]")
+        elif base == "r_mean" and not 0.0 <= v < 1.0:
+            bad.append(f"{name}: {k} = {v:g} outside [0, 1)")
+        elif base in ("s_std_um", "r_std") and not v >= 0:
+            bad.append(f"{name}: {k} = {v:g} < 0")
+        elif base == "temperature_c" and not T_MIN_C <= v <= t_max_c:
+            bad.append(f"{name}: {k} = {v:g} C outside [{T_MIN_C:g}, {t_max_c:g}]")
+    return bad
+
+
+def check_campaign(out: Path, t_max_c: float = AL_MELTING_C) -> list[str]:
+    """Physical-bounds problems of an (undamaged) campaign database under ``out``: every stored
+    estimate finite and physical, every logged and advised action finite with rpm >= 0 and the
+    milling share in [0, 1], the log contiguous and within the batch."""
+    path = out / "campaign.sqlite"
+    if not path.is_file():
+        return []
+    con = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+    try:
+        bad = []
+        for t, e in con.execute("SELECT t_h, estimate FROM estimator_states"):
+            bad += _est_problems(f"estimate at {t} h", json.loads(e), t_max_c)
+        hours = json.loads(con.execute("SELECT value FROM meta WHERE key = 'hours'").fetchone()[0])
+        if not (isinstance(hours, (int, float)) and 0 < hours <= 1000):
+            bad.append(f"meta: hours = {hours}")
+        end = 0.0
+        for t0, t1, rpm, m in con.execute("SELECT t0_h, t1_h, rpm, milling FROM actions ORDER BY t0_h"):
+            if not all(isinstance(v, float) and math.isfinite(v) for v in (t0, t1, rpm, m)):
+                bad.append(f"action {t0}-{t1} h: {rpm} rpm, milling {m}")
+            elif abs(t0 - end) > 1e-6 or t1 > hours + 1e-6 or rpm < 0 or not 0 <= m <= 1:
+                bad.append(f"action {t0:g}-{t1:g} h: {rpm:g} rpm, milling {m:g} (log ends {end:g}, batch {hours:g} h)")
+            else:
+                end = t1
+        for rpm, m, dt, adv in con.execute("SELECT rpm, milling, interval_h, advice FROM plans"):
+            if not (math.isfinite(rpm) and rpm >= 0 and 0 <= m <= 1 and math.isfinite(dt) and dt > 0):
+                bad.append(f"plan: {rpm} rpm, milling {m}, interval {dt} h")
+            a = json.loads(adv)
+            for k, e in (a.get("end") or {}).items():
+                bad += _est_problems(f"advice end band {k}", {k: e["median"]}, t_max_c)
+        return bad
+    finally:
+        con.close()
+
+
+def _damage_db(rng: random.Random) -> tuple[Callable[[Path], None], str, list[str]]:
+    """A damage to ``out/campaign.sqlite`` (the copied campaign): (setup step, label, names)."""
+    op = rng.choice(["garbage", "truncate", "empty", "foreign", "version", "drop-table", "value", "value", "value",
+                     "meta", "state", "input-changed", "input-missing", "db-is-folder", "no-db", "read-only",
+                     "wal-blocked"])
+    names = ["campaign.sqlite", "campaign database"]
+
+    def db(folder: Path) -> Path:
+        return folder / "out" / "campaign.sqlite"
+
+    if op == "garbage":
+        n = rng.choice([1, 100, 5000])
+        data = bytes(rng.getrandbits(8) for _ in range(n))
+        return (lambda f: db(f).write_bytes(data)), f"db garbage {n} B", names
+    if op == "truncate":
+        cut = rng.random()
+        def step(f):
+            raw = db(f).read_bytes()
+            db(f).write_bytes(raw[: int(cut * len(raw))])
+        return step, f"db truncated@{cut:.2f}", names
+    if op == "empty":
+        return (lambda f: db(f).write_bytes(b"")), "db empty", names
+    if op == "foreign":
+        tables = rng.choice([["CREATE TABLE foo (a)"], ["CREATE TABLE schema_version (version)",
+                                                         "INSERT INTO schema_version VALUES (1)"],
+                             ["CREATE TABLE schema_version (version)", "INSERT INTO schema_version VALUES ('one')"]])
+        def step(f):
+            db(f).unlink()
+            con = sqlite3.connect(db(f))
+            for q in tables:
+                con.execute(q)
+            con.commit()
+            con.close()
+        return step, f"db foreign schema ({len(tables)} statements)", names + ["schema"]
+    if op == "version":
+        v = rng.choice([2, 0, -1, "'1'", "X'01'", 1.5])
+        return _sql(f"UPDATE schema_version SET version = {v}"), f"schema_version = {v}", names + ["schema"]
+    if op == "drop-table":
+        t = rng.choice(["meta", "actions", "samples", "particles", "estimator_states", "plans", "decisions",
+                        "temperatures"])
+        return _sql(f"DROP TABLE {t}"), f"drop {t}", names + [t]
+    if op == "value":
+        table, col = rng.choice([("actions", "rpm"), ("actions", "t1_h"), ("actions", "milling"), ("actions", "hours"),
+                                 ("temperatures", "temperature_c"), ("samples", "t_h"), ("particles", "s_um"),
+                                 ("particles", "r"), ("estimator_states", "estimate"), ("estimator_states", "t_h"),
+                                 ("plans", "advice"), ("plans", "rpm"), ("plans", "t_h"), ("plans", "interval_h"),
+                                 ("estimator_states", "state"), ("plans", "controller_state")])
+        v = rng.choice(["'abc'", "X'00ff'", "1e308", "-1", "'nan'", "9e999", "-9e999", "''", "'{}'", "'[1]'"])
+        return _sql(f"UPDATE {table} SET {col} = {v}"), f"{table}.{col} = {v}", names + [table, col]
+    if op == "meta":
+        key = rng.choice(["hours", "target", "seed", "particles", "inputs", "temperature_max_c"])
+        v = rng.choice(["'abc'", "'-1'", "'1e300'", "'NaN'", "'null'", "'{}'", "'[1, 2]'", "X'00'", "'\"x\"'"])
+        return (_sql(f"UPDATE meta SET value = {v} WHERE key = '{key}'"), f"meta.{key} = {v}",
+                names + ["meta", key])
+    if op == "state":
+        blob = rng.choice(["X'00'", "X'504b0304'", "zeroblob(100)", "'abc'"])
+        t = rng.choice(["estimator_states", "plans"])
+        col = "state" if t == "estimator_states" else "controller_state"
+        return _sql(f"UPDATE {t} SET {col} = {blob}"), f"{t}.{col} = {blob}", names + [t, col, "state"]
+    if op == "input-changed":
+        def step(f):
+            p = next((f / "out" / "inputs").glob("controller-*.toml"))
+            p.write_text(p.read_text() + "\n# edited\n")
+        return step, "inputs/controller changed", ["inputs", "changed"]
+    if op == "input-missing":
+        return (lambda f: shutil.rmtree(f / "out" / "inputs")), "inputs/ removed", ["inputs", "changed or missing"]
+    if op == "read-only":  # refuses writes unless the fuzz runs as root (then the command must simply work)
+        def step(f):
+            db(f).chmod(0o444)
+            (f / "out").chmod(0o555)
+        return step, "read-only folder and database", names + ["readonly", "read-only", "Permission denied"]
+    if op == "wal-blocked":  # the write-ahead log cannot be created (a folder in its place): writes fail
+        return (lambda f: (f / "out" / "campaign.sqlite-wal").mkdir()), "campaign.sqlite-wal is a folder", names
+    if op == "db-is-folder":
+        def step(f):
+            db(f).unlink()
+            db(f).mkdir()
+        return step, "campaign.sqlite is a folder", names
+    def step(f):
+        db(f).unlink()
+    return step, "campaign.sqlite removed", names + ["no campaign"]
+
+
+def _sql(q: str) -> Callable[[Path], None]:
+    def step(folder: Path) -> None:
+        con = sqlite3.connect(folder / "out" / "campaign.sqlite")
+        try:
+            con.execute(q)
+            con.commit()
+        except sqlite3.DatabaseError:  # a constraint refused the damage: leave the file as it was
+            pass
+        finally:
+            con.close()
+    return step
+
+
+def _verb_argv(rng: random.Random, verb: str, files: dict[str, bytes]) -> list[str]:
+    if verb == "log":
+        return ["campaign", "log", "@out", "--rpm", "300", "--hours", "0.5", "--temperature-c", "45"]
+    if verb == "sample":
+        files["s.csv"] = _table_csv(rng)
+        return ["campaign", "sample", "@out", "--at-h", "0.5", "@s.csv"]
+    if verb == "decide":
+        return ["campaign", "decide", "@out", rng.choice(["--accept", "--reject"])]
+    if verb == "report":
+        return ["campaign", "report", "@out", "--out", "@out/report.html"]
+    return ["campaign", verb, "@out"] + (["--json"] if verb in ("advise", "status") and rng.random() < 0.3 else [])
+
+
+def _campaign_case(rng: random.Random) -> Case:
+    op = rng.choice(["init", "init", "init-file", "log", "log", "log", "sample", "sample-table", "sample-image",
+                     "decide", "damaged", "damaged", "damaged", "damaged"])
+    ctrl = rng.choice(["recipe", "recipe", "lqr"])
+    files: dict[str, bytes] = {}
+    init = {"--model": str(CAMPAIGN_CARD), "--controller": str(CAMPAIGN_CTRL[ctrl]), "--target": "d50_um=45",
+            "--hours": "2", "--particles": "100"}
+    verify = check_campaign
+    then_advise = rng.random() < 0.4
+    pre: list[list[str]] = []
+    setup = None
+    if op in ("init", "init-file"):
+        if op == "init":
+            flag = rng.choice(["--hours", "--hours", "--temperature-max-c", "--particles", "--seed", "--target",
+                               "--target", "--model", "--controller", "DIR"])
+            v = rng.choice(CAMPAIGN_NUMBERS)
+            benign = {"--hours": ["0.5", "12", "24", "1000"], "--temperature-max-c": ["-50", "20", "60", "400"],
+                      "--particles": ["50", "200"], "--seed": ["7", "123456789012"],
+                      "--target": ["s_mean_um=40,r_mean=0.05", "r_std=0.01", "d90_um=80", "span=1.5", "d50_um=1e-3"]}
+            if flag in benign and rng.random() < 0.35:  # a legitimate value: init (and advise) must then work
+                v = rng.choice(benign[flag])
+            elif flag == "--target":
+                v = rng.choice([f"d50_um={v}", f"s_mean_um={v}", f"r_mean={v}", "bogus=3", "d50_um", "=",
+                                "d50_um=45,s_mean_um=40", "d50_um=45,d50_um=46", "r_mean=2", "r_std=0.01,d50_um=45",
+                                "s_std_um=1e-9", ",,", "D50_um=45"])
+            elif flag == "--hours":
+                v = rng.choice(CAMPAIGN_NUMBERS + ["1e6", "1000", "0.01", "24"])
+            elif flag == "--temperature-max-c":
+                v = rng.choice(CAMPAIGN_NUMBERS + ["-300", "5000", "20", "30"])
+            elif flag in ("--model", "--controller"):
+                v = rng.choice(["@missing.toml", "@", str(ROOT / "models"), str(ROOT / "README.md"),
+                                str(CAMPAIGN_CTRL["lqr"]) if flag == "--model" else str(CAMPAIGN_CARD)])
+            label = f"init {flag} {v!r}"
+            if flag == "DIR":  # a folder that already holds a campaign, or is a file
+                if rng.random() < 0.5:
+                    setup = _copy_fixture(f"campaign-fresh-{ctrl}")
+                    label = "init into an existing campaign"
+                else:
+                    files["out"] = b"not a folder"
+                    label = "init DIR that is a file"
+            else:
+                init[flag] = v
+            names = [flag, "target", "campaign.sqlite", "missing.toml", "models", "README.md", "toml",
+                     "bmctl-fuzz-"]  # '@' is the case's own folder
+        else:
+            which = rng.choice(["card", "controller"])
+            src = CAMPAIGN_CARD if which == "card" else CAMPAIGN_CTRL[ctrl]
+            data, names, label = mutate_toml(rng, src.read_text())
+            files["x.toml"] = data
+            init["--model" if which == "card" else "--controller"] = "@x.toml"
+            names = names + ["x.toml"]
+            label = f"init {which}: {label}"
+        argv = ["campaign", "init", "@out", *sum(([k, a] for k, a in init.items()), [])]
+        if then_advise:
+            pre, argv = [argv], ["campaign", "advise", "@out"]
+            label += " + advise"
+        return Case("campaign", label, argv, files, names, pre=pre, setup=setup, verify=verify,
+                    env={"BMCTL_BUDGET_CPU_H": "0.01"})
+    base = rng.choice(["logged", "logged", "fresh"])
+    setup_steps = [_copy_fixture(f"campaign-{base}-{ctrl}")]
+    if op == "log":
+        flag = rng.choice(["--rpm", "--rpm", "--hours", "--hours", "--milling", "--temperature-c", "--from-h",
+                           "--from-h"])
+        args = {"--rpm": "300", "--hours": "0.5", "--milling": "0.75", "--temperature-c": "45"}
+        pool = {"--rpm": CAMPAIGN_NUMBERS + ["5000", "100", "499"],
+                "--hours": CAMPAIGN_NUMBERS + ["1.5", "1.6", "2", "1e-9", "0.001"],
+                "--milling": CAMPAIGN_NUMBERS + ["1.5", "-0.1", "0.5", "1"],
+                "--temperature-c": CAMPAIGN_NUMBERS + ["-300", "5000", "399", "25", "-50"],
+                "--from-h": CAMPAIGN_NUMBERS + ["0.2", "0.5", "0.4999999", "0.5000001", "5", "2"]}[flag]
+        args[flag] = rng.choice(pool)
+        argv = ["campaign", "log", "@out", *sum(([k, a] for k, a in args.items()), [])]
+        label = f"log {flag} {args[flag]!r} on {base}-{ctrl}"
+        names = [flag, "--hours", "--from-h"]
+    elif op in ("sample", "sample-table", "sample-image"):
+        at = "0.5"
+        if op == "sample":
+            at = rng.choice(CAMPAIGN_NUMBERS + ["0.25", "0.5", "1.9", "2.0", "2.1", "100", "-0.0"])
+            files["s.csv"] = _table_csv(rng)
+            inputs = ["@s.csv"]
+            label = f"sample --at-h {at!r} on {base}-{ctrl}"
+            names = ["--at-h"]
+        elif op == "sample-table":
+            data, names, label = mutate_table(rng)
+            files["s.csv"] = data
+            inputs = ["@s.csv"]
+            label = f"sample table: {label}"
+            names = names + ["s.csv"]
+        else:
+            data, suffix, label = mutate_image(rng)
+            files[f"img{suffix}"] = data
+            flags = rng.choice([["--um-per-px", "0.5"], ["--um-per-px", "nan"], ["--um-per-px", "1e-300"], []])
+            inputs = [f"@img{suffix}", *flags]
+            label = f"sample image: {label} {' '.join(flags)}"
+            names = ["img" + suffix, "--um-per-px", "--scale-bar-um"]
+        argv = ["campaign", "sample", "@out", "--at-h", at, *inputs]
+    elif op == "decide":
+        choice = rng.choice(["accept", "reject-rpm", "reject-milling", "accept-rpm", "after-log", "note"])
+        argv = ["campaign", "decide", "@out"]
+        if choice == "accept":
+            argv.append("--accept")
+        elif choice == "reject-rpm":
+            argv += ["--reject", "--rpm", rng.choice(CAMPAIGN_NUMBERS + ["5000"])]
+        elif choice == "reject-milling":
+            argv += ["--reject", "--milling", rng.choice(CAMPAIGN_NUMBERS + ["1.5"])]
+        elif choice == "accept-rpm":
+            argv += ["--accept", "--rpm", "200"]
+        elif choice == "after-log":
+            pre = [["campaign", "log", "@out", "--rpm", "300", "--hours", "0.5"]]
+            argv.append("--accept")
+        else:
+            argv += ["--accept", "--note", rng.choice(["\u00e9\u2603\U0001f600", "x" * 100_000, "'; DROP TABLE plans; --",
+                                                       "\x00\x01"])]
+        label = f"decide {choice} on {base}-{ctrl}: {' '.join(argv[3:])[:40]}"
+        names = ["--rpm", "--milling", "--accept", "--reject", "advice"]
+    else:
+        step, label, names = _damage_db(rng)
+        setup_steps.append(step)
+        verb = rng.choice(["advise", "advise", "status", "status", "log", "sample", "decide", "report"])
+        argv = _verb_argv(rng, verb, files)
+        label = f"{label} on {base}-{ctrl}: {verb}"
+        names = names + (["advice"] if verb == "decide" else [])
+        verify = None  # the damage is in the checked database; stdout is checked
+    if then_advise and op != "damaged" and not pre:
+        pre, argv = [argv], ["campaign", "advise", "@out"]
+        label += " + advise"
+    return Case("campaign", label, argv, files, names, pre=pre, setup=_then(*setup_steps), verify=verify,
+                env={"BMCTL_BUDGET_CPU_H": "0.01"})
+
+
+# --- resume cases -------------------------------------------------------------------------------------
+
+def reference_rows() -> list[list[str]]:
+    """The finished trial's ``trajectory.csv`` rows (header first)."""
+    with open(fixtures() / "trial-3" / "trajectory.csv", newline="") as fh:
+        return list(csv.reader(fh))
+
+
+def check_resumed(exact: bool) -> Callable[[Path], list[str]]:
+    """A verify: the resumed trial finished all 3 steps, and (``exact``) its trajectory is the
+    uninterrupted run's (the solve-time column aside)."""
+    def verify(out: Path) -> list[str]:
+        bad = check_outputs(out)
+        traj, summ = out / "trajectory.csv", out / "summary.json"
+        if not summ.is_file():
+            return bad + ["summary.json missing after exit 0"]
+        try:
+            steps = json.loads(summ.read_text())["steps"]
+        except (ValueError, KeyError, TypeError):
+            return bad + ["summary.json unreadable after exit 0"]
+        with open(traj, newline="") as fh:
+            rows = list(csv.reader(fh))
+        ref = reference_rows()
+        if steps != 3 or len(rows) != len(ref):
+            return bad + [f"{steps} steps, {len(rows) - 1} rows (the trial has 3)"]
+        if exact:
+            skip = ref[0].index("solve_ms")
+            for i, (a, b) in enumerate(zip(rows, ref)):
+                if [x for j, x in enumerate(a) if j != skip] != [x for j, x in enumerate(b) if j != skip]:
+                    return bad + [f"trajectory.csv row {i + 1} differs from the uninterrupted run"]
+        return bad
+    return verify
+
+
+def _resume_case(rng: random.Random) -> Case:
+    base = rng.choice(["trial-0", "trial-1", "trial-1", "trial-3"])
+    k = int(base[-1])
+    ref = reference_rows()
+    line = lambda row: ",".join(row) + "\n"  # noqa: E731
+    target = rng.choice(["trajectory", "trajectory", "checkpoint", "checkpoint", "checkpoint", "meta", "none",
+                         "flags"])
+    exact = True
+    argv_extra: list[str] = []
+    names: list[str] = []
+
+    def out(folder: Path, name: str) -> Path:
+        return folder / "out" / name
+
+    def write(name: str, data: bytes):
+        return lambda f: out(f, name).write_bytes(data)
+
+    step: Callable[[Path], None] | None = None
+    if target == "trajectory":
+        names = ["trajectory.csv"]
+        op = rng.choice(["torn", "torn", "extra-row", "empty", "missing", "header-only", "garbage", "value",
+                         "short-row", "long-row", "header", "crlf", "no-newline-at-all"])
+        label = f"trajectory.csv {op}"
+        if op == "torn" and k < 3:
+            cut = rng.randrange(1, len(line(ref[k + 1])) - 1)
+            step = lambda f: out(f, "trajectory.csv").open("a").write(line(ref[k + 1])[:cut])  # noqa: E731
+            label += f"@{cut}"
+        elif op == "extra-row" and k < 3:
+            step = lambda f: out(f, "trajectory.csv").open("a").write(line(ref[k + 1]))  # noqa: E731
+        elif op == "empty":
+            step = write("trajectory.csv", b"")
+        elif op == "missing":
+            step = lambda f: out(f, "trajectory.csv").unlink()  # noqa: E731
+        elif op == "header-only":
+            step = write("trajectory.csv", line(ref[0]).encode())
+        elif op == "garbage":
+            step = write("trajectory.csv", bytes(rng.getrandbits(8) for _ in range(rng.choice([10, 3000]))))
+        elif op in ("value", "short-row", "long-row") and k >= 1:
+            i = rng.randrange(1, k + 1)
+            rows = [list(r) for r in ref[: k + 1]]
+            if op == "value":
+                j = rng.randrange(len(rows[i]))
+                rows[i][j] = rng.choice(["abc", "nan", "", "1e999", "-1", "\x00"])
+                label += f" row {i} {ref[0][j]}={rows[i][j]!r}"
+            elif op == "short-row":
+                rows[i] = rows[i][:-3]
+            else:
+                rows[i] = rows[i] + ["7"]
+            step = write("trajectory.csv", "".join(line(r) for r in rows).encode())
+        elif op == "header":
+            rows = [list(r) for r in ref[: k + 1]]
+            rows[0] = rows[0][::-1]
+            step = write("trajectory.csv", "".join(line(r) for r in rows).encode())
+        elif op == "crlf":
+            step = write("trajectory.csv", "".join(",".join(r) + "\r\n" for r in ref[: k + 1]).encode())
+        else:
+            step = write("trajectory.csv", ",".join(ref[0]).encode())
+            label = "trajectory.csv: the header without its newline"
+        exact = op in ("torn", "extra-row", "crlf")
+    elif target == "checkpoint":
+        names = ["checkpoint.npz", "checkpoint"]
+        op = rng.choice(["truncated", "garbage", "empty", "missing", "foreign", "object", "json-garbage",
+                         "json-list", "other-step", "leaf", "leaf", "pickle", "pkl-beside", "folder"])
+        label = f"checkpoint.npz {op}"
+        if op == "truncated":
+            cut = rng.random()
+            def step(f):
+                raw = out(f, "checkpoint.npz").read_bytes()
+                out(f, "checkpoint.npz").write_bytes(raw[: int(cut * len(raw))])
+            label += f"@{cut:.2f}"
+        elif op == "garbage":
+            step = write("checkpoint.npz", bytes(rng.getrandbits(8) for _ in range(rng.choice([10, 5000]))))
+        elif op == "empty":
+            step = write("checkpoint.npz", b"")
+        elif op == "missing":
+            step = lambda f: out(f, "checkpoint.npz").unlink()  # noqa: E731
+        elif op == "folder":
+            def step(f):
+                out(f, "checkpoint.npz").unlink()
+                out(f, "checkpoint.npz").mkdir()
+        elif op in ("foreign", "object", "json-garbage", "json-list"):
+            def step(f, op=op):
+                with open(out(f, "checkpoint.npz"), "wb") as fh:
+                    if op == "foreign":
+                        np.savez(fh, a=np.arange(3.0), b=np.zeros((2, 2)))
+                    elif op == "object":
+                        np.savez(fh, __json__=np.array(['{"loop": {"__array__": "/x"}}']),
+                                 **{"/x": np.array([{"a": 1}, None], dtype=object)})
+                    elif op == "json-garbage":
+                        np.savez(fh, __json__=np.array("{not json"))
+                    else:
+                        np.savez(fh, __json__=np.array("[1, 2]"))
+        elif op == "other-step":
+            other = rng.choice([b for b in ("trial-0", "trial-1", "trial-3") if b != base])
+            step = lambda f: shutil.copyfile(fixtures() / other / "checkpoint.npz", out(f, "checkpoint.npz"))  # noqa: E731
+            label += f" (of {other})"
+            exact = True
+        elif op == "leaf":
+            from bmctl.checkpoint import load_state, save_state
+
+            state = load_state(fixtures() / base / "checkpoint.npz")
+            leaves = [(p, v) for p, v in _state_leaves(state)]
+            path, v = rng.choice(leaves)
+            nv = _swap_leaf(rng, v) if not isinstance(v, np.ndarray) else _swap_array(rng, v)
+            _set(state, path, nv)
+            label += f" {'/'.join(map(str, path))}={str(nv)[:20]}"
+            step = lambda f: save_state(out(f, "checkpoint.npz"), state)  # noqa: E731
+            names += [str(x) for x in path]
+            exact = False
+        elif op == "pickle":
+            import pickle
+
+            step = write("checkpoint.npz", pickle.dumps({"loop": {"k": 1}}))
+        else:  # a pickle beside the checkpoint must be ignored
+            import pickle
+
+            step = write("checkpoint.pkl", pickle.dumps({"loop": {"k": 99}}))
+        exact = exact if op in ("other-step", "leaf") else True
+    elif target == "meta":
+        names = ["trial.json", "--resume"]
+        op = rng.choice(["garbage", "empty", "missing", "list", "types", "seed", "scenario", "null", "extra"])
+        label = f"trial.json {op}"
+        meta = json.loads((fixtures() / base / "trial.json").read_text())
+        data = {"garbage": b"\xff\xfe{{", "empty": b"", "list": b"[1, 2]", "null": b"null",
+                "types": json.dumps({"scenario": 5, "seed": "0"}).encode(),
+                "seed": json.dumps({**meta, "seed": 1}).encode(),
+                "scenario": json.dumps({**meta, "scenario": "/elsewhere/sc.toml"}).encode(),
+                "extra": json.dumps({**meta, "x": [1, 2]}).encode()}.get(op)
+        step = (lambda f: out(f, "trial.json").unlink()) if op == "missing" else write("trial.json", data)  # noqa: E731
+    elif target == "flags":
+        v = rng.choice(["1", "-1", "abc", "1e300"])
+        argv_extra = ["--seed", v]
+        label = f"--seed {v!r} differs from the trial's"
+        names = ["--seed", "--resume", "trial.json"]
+    else:
+        label = "no damage"
+        if k == 3 and rng.random() < 0.5:
+            step = write("summary.json", b"\x00garbage")
+            label = "summary.json garbage"
+    argv = ["trial", str(fixtures() / "resume.toml"), "--resume", "@out", "--no-progress", *argv_extra]
+    return Case("resume", f"{base}: {label}", argv, {}, names + ["trajectory.csv", "checkpoint.npz", "trial.json"],
+                setup=_then(_copy_fixture(base), step), verify=check_resumed(exact))
+
+
+def _state_leaves(data, prefix=()):
+    if isinstance(data, dict):
+        for k, v in data.items():
+            yield from _state_leaves(v, prefix + (k,))
+    elif isinstance(data, list) and data:
+        for i, v in enumerate(data):
+            yield from _state_leaves(v, prefix + (i,))
+    else:
+        yield prefix, data
+
+
+def _swap_leaf(rng: random.Random, v):
+    """A value of another type, or a non-finite number (damage a checkpoint's structure can show;
+    a value of the right type changed to another is an edit no check of the form can see)."""
+    return rng.choice(["abc", "", True, [v, v], {"x": 1}, float("nan"), float("inf"), 2**70 * 1.0 if isinstance(v, int)
+                       and not isinstance(v, bool) else "1"])
+
+
+def _swap_array(rng: random.Random, a: np.ndarray):
+    op = rng.choice(["nan", "shape", "empty", "dtype", "scalar"])
+    if op == "nan":
+        b = np.array(a, dtype=float, copy=True)
+        if b.size:
+            b.flat[rng.randrange(b.size)] = np.nan
+        return b
+    if op == "shape":
+        return np.resize(a, (a.size + 3,))
+    if op == "empty":
+        return a[:0]
+    if op == "dtype":
+        return np.asarray(a).astype("U8")
+    return 1.0
+
+
+KINDS = ("card", "schedule", "scenario", "controller", "table", "image", "flags", "campaign", "resume")
 
 
 # --- the checker --------------------------------------------------------------------------------
@@ -472,7 +1082,8 @@ def check_outputs(folder: Path, t_max_c: float = T_MAX_C) -> list[str]:
                 except (TypeError, ValueError):
                     continue  # text columns
                 if not math.isfinite(v):
-                    if k.endswith("_q05") or k.endswith("_q95") or k in ("eta_size", "eta_shape"):
+                    if k.endswith("_q05") or k.endswith("_q95") or k in ("eta_size", "eta_shape") or (
+                            k == "ess" and name == "trajectory.csv"):
                         continue  # no sample behind a band: NaN is stated, not nonsense
                     bad.append(f"{name}: row {i + 2}: {k} = {text}")
                     continue
@@ -522,6 +1133,8 @@ def classify(case: Case, rc: int | None, stdout: str, stderr: str, folder: Path)
             return "clean", msg[:200]
         return "unnamed", msg[:200]
     bad = check_outputs(folder, case.t_max_c)
+    if case.verify is not None and not bad:
+        bad = case.verify(folder)
     if bad:
         return "wrote-nonsense", "; ".join(bad[:3])
     why = _summary_nonsense(stdout)

@@ -1,4 +1,5 @@
-"""Seeded fuzz of the CLI: hostile cards, schedules, scenarios, controllers, tables, images, flags.
+"""Seeded fuzz of the CLI: hostile cards, schedules, scenarios, controllers, tables, images, flags,
+campaign commands and databases, and damaged files of an interrupted trial.
 
 Each example is one case of tests/fuzzlib.py run in-process through ``bmctl.cli.main``: it must
 exit 0 with every output within physical bounds, or exit 2 with exactly one stderr line naming
@@ -68,10 +69,13 @@ def run_case(case: fuzzlib.Case, capsys) -> tuple[str, str]:
     capsys.readouterr()
     with tempfile.TemporaryDirectory(prefix="bmctl-fuzz-") as tmp:
         folder = Path(tmp)
-        argv = case.write(folder)
+        case.write(folder)
         try:
             with _env(case.env), _limit(CASE_CPU_S, CASE_WALL_S):
-                rc = main(argv)
+                for argv in case.commands(folder):
+                    rc = main(argv)
+                    if rc != 0:
+                        break
         except Hang:
             rc = None
         except Exception as exc:  # anything escaping main is a traceback to the user
@@ -147,6 +151,22 @@ def test_fuzz_flags(seed, capsys, monkeypatch):
     _check("flags", seed, capsys)
 
 
+@pytest.mark.slow
+@settings(max_examples=5, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_campaigns(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("campaign", seed, capsys)
+
+
+@pytest.mark.slow
+@settings(max_examples=5, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_resume(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("resume", seed, capsys)
+
+
 # --- the checker itself must be able to fail ------------------------------------------------------
 
 def test_checker_flags_outputs_outside_physical_bounds(tmp_path):
@@ -166,3 +186,35 @@ def test_classify_sorts_outcomes(tmp_path):
     assert fuzzlib.classify(case, 1, "", "Traceback (most recent call last):\n", tmp_path)[0] == "traceback"
     assert fuzzlib.classify(case, None, "", "", tmp_path)[0] == "hang"
     assert fuzzlib.classify(case, 0, "s mean nan um", "", tmp_path)[0] == "accepted-nonsense"
+
+
+def test_campaign_checker_flags_nonsense_in_the_database(tmp_path):
+    import json
+    import sqlite3
+
+    con = sqlite3.connect(tmp_path / "campaign.sqlite")
+    con.execute("CREATE TABLE meta (key, value)")
+    con.execute("CREATE TABLE estimator_states (t_h, estimate)")
+    con.execute("CREATE TABLE actions (t0_h, t1_h, rpm, milling)")
+    con.execute("CREATE TABLE plans (rpm, milling, interval_h, advice)")
+    con.execute("INSERT INTO meta VALUES ('hours', '2.0')")
+    con.execute("INSERT INTO estimator_states VALUES (0.5, ?)", (json.dumps({"s_mean_um": 40.0, "r_mean": 1.5}),))
+    con.execute("INSERT INTO actions VALUES (0.0, 0.5, 300.0, 1.0), (0.7, 1.0, 300.0, 1.0)")
+    con.commit()
+    con.close()
+    bad = fuzzlib.check_campaign(tmp_path)
+    assert any("r_mean" in b for b in bad) and any("0.7" in b for b in bad)
+
+
+def test_resume_checker_compares_with_the_uninterrupted_run(tmp_path):
+    ref = fuzzlib.reference_rows()
+    (tmp_path / "summary.json").write_text('{"steps": 3}')
+    rows = [list(r) for r in ref]
+    with open(tmp_path / "trajectory.csv", "w") as fh:
+        fh.write("".join(",".join(r) + "\n" for r in rows))
+    assert fuzzlib.check_resumed(True)(tmp_path) == []
+    rows[2][1] = "1.25"
+    with open(tmp_path / "trajectory.csv", "w") as fh:
+        fh.write("".join(",".join(r) + "\n" for r in rows))
+    assert fuzzlib.check_resumed(True)(tmp_path) != []
+    assert fuzzlib.check_resumed(False)(tmp_path) == []

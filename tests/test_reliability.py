@@ -332,3 +332,121 @@ def test_no_code_bearing_loads():
             if "np.load(" in line and "allow_pickle=False" not in line:
                 hits.append(f"{rel}: np.load without allow_pickle=False")
     assert hits == []
+
+
+# --- trial --resume with damaged files (found by the resume fuzz, tests/fuzzlib.py) ------------------------
+
+def _trajectory(path: Path, rows: list[list[str]], tail: str = "") -> Path:
+    from bmctl.trial import trajectory_header
+
+    path.write_text("\n".join(",".join(r) for r in [trajectory_header(), *rows]) + "\n" + tail)
+    return path
+
+
+def _row(step: int) -> list[str]:
+    from bmctl.trial import trajectory_header
+
+    row = [str(step), str(0.5 * (step + 1))] + ["1.5"] * (len(trajectory_header()) - 2)
+    row[trajectory_header().index("solver_status")] = "ok"
+    return row
+
+
+def test_resume_keeps_complete_rows_and_drops_a_torn_one(tmp_path):
+    from bmctl.trial import _kept_rows
+
+    traj = _trajectory(tmp_path / "trajectory.csv", [_row(0), _row(1)], tail="2,1.5,30")
+    kept = _kept_rows(traj, 2)
+    assert kept.count("\n") == 3 and "2,1.5,30" not in kept
+    assert _kept_rows(traj, 1).count("\n") == 2  # the checkpoint is behind the file: its rows only
+
+
+@pytest.mark.parametrize("damage, named", [
+    (lambda r: r[1].append("7"), "row 3: 36 fields"),
+    (lambda r: r[1].pop(), "row 3: 34 fields"),
+    (lambda r: r[0].__setitem__(0, "5"), "row 2: step '5'"),
+    (lambda r: r[0].__setitem__(4, "abc"), "row 2: true_s_mean_um: not a number"),
+    (lambda r: r[0].__setitem__(4, "nan"), "row 2: true_s_mean_um: not finite"),
+])
+def test_resume_refuses_a_damaged_kept_row(tmp_path, damage, named):
+    from bmctl.errors import InputError
+    from bmctl.trial import _kept_rows
+
+    rows = [_row(0), _row(1)]
+    damage(rows)
+    traj = _trajectory(tmp_path / "trajectory.csv", rows)
+    with pytest.raises(InputError, match=f"trajectory.csv: {re.escape(named)}"):
+        _kept_rows(traj, 2)
+
+
+@pytest.mark.parametrize("content, named", [
+    (b"", "no complete header row"), (b"\xce\x00\xff garbage", "not UTF-8"), (b"a,b\n", "row 1: not the trajectory header"),
+])
+def test_resume_refuses_an_empty_or_foreign_trajectory(tmp_path, content, named):
+    from bmctl.errors import InputError
+    from bmctl.trial import _kept_rows
+
+    (tmp_path / "trajectory.csv").write_bytes(content)
+    with pytest.raises(InputError, match=named):
+        _kept_rows(tmp_path / "trajectory.csv", 0)
+
+
+def test_resume_refuses_a_checkpoint_of_another_form():
+    from bmctl.trial import _misfit
+
+    fresh = {"loop": {"k": 0, "u_prev": None, "est": {"s_mean_um": 40.0}},
+             "mill": {"s": np.ones(4), "counts": [0, 0, "ok"]}}
+    good = {"loop": {"k": 2, "u_prev": [300.0, 1.0], "est": {"s_mean_um": 52.5}},
+            "mill": {"s": np.full(4, 2.0), "counts": [3, 1, "ok"]}}
+    assert _misfit(fresh, good) is None
+    for path, value, why in [
+        (("mill", "counts", 2), 1e9, "/mill/counts/2: expected text"),
+        (("loop", "est", "s_mean_um"), [40.0, 40.0], "/loop/est/s_mean_um: expected a number"),
+        (("loop", "est", "s_mean_um"), float("inf"), "/loop/est/s_mean_um: not finite"),
+        (("loop", "k"), 1.5, "/loop/k: expected a number"),
+        (("loop", "u_prev"), ["abc", 1.0], "/loop/u_prev: expected nothing, finite numbers"),
+        (("mill", "s"), np.ones(5), "/mill/s: expected a float64 array of shape (4,)"),
+        (("mill", "s"), np.array([1.0, np.nan, 1.0, 1.0]), "/mill/s: not finite"),
+        (("mill",), {"s": np.ones(4)}, "/mill: expected a table"),
+    ]:
+        bad = {"loop": dict(good["loop"], est=dict(good["loop"]["est"])), "mill": dict(good["mill"])}
+        d = bad
+        for k in path[:-1]:
+            d = d[k] if not isinstance(d[k], list) else d.__setitem__(k, list(d[k])) or d[k]
+        d[path[-1]] = value
+        assert (_misfit(fresh, bad) or "").startswith(why), (path, _misfit(fresh, bad))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("damage, outcome", [("torn", 0), ("long-row", 2), ("garbage", 2), ("leaf", 2)])
+def test_resume_of_a_damaged_trial_carries_on_or_names_the_file(tmp_path, capsys, damage, outcome):
+    import shutil
+
+    from bmctl.checkpoint import load_state, save_state
+
+    fx = fuzzlib.fixtures()
+    out = tmp_path / "t"
+    shutil.copytree(fx / "trial-1", out)
+    ref = fuzzlib.reference_rows()
+    traj = out / "trajectory.csv"
+    if damage == "torn":
+        traj.write_text(traj.read_text() + ",".join(ref[2])[:40])
+    elif damage == "long-row":
+        traj.write_text(",".join(ref[0]) + "\n" + ",".join(ref[1] + ["7"]) + "\n")
+    elif damage == "garbage":
+        traj.write_bytes(b"\xce\x00\xff" * 100)
+    else:
+        state = load_state(out / "checkpoint.npz")
+        state["loop"]["est"]["s_std_um"] = [1.0, 2.0]
+        save_state(out / "checkpoint.npz", state)
+    rc = main(["trial", str(fx / "resume.toml"), "--resume", str(out), "--no-progress"])
+    cap = capsys.readouterr()
+    assert rc == outcome, cap.err
+    if outcome == 2:
+        err = _err_lines(cap.err)
+        assert len(err) == 1 and ("trajectory.csv" in err[0] or "checkpoint.npz" in err[0]), err
+    else:
+        assert fuzzlib.check_resumed(exact=True)(out) == []
+
+
+def _err_lines(err: str) -> list[str]:
+    return [ln for ln in err.splitlines() if ln.strip()]

@@ -113,7 +113,7 @@ def open_db(folder: str | Path) -> sqlite3.Connection:
         con = _connect(path)
         row = con.execute("SELECT version FROM schema_version").fetchone()
     except sqlite3.DatabaseError as exc:
-        raise InputError(f"{path}: not a bmctl campaign database ({exc})") from None
+        raise InputError(f"{path}: cannot be read as a bmctl campaign database ({exc})") from None
     if row is None or row[0] != SCHEMA_VERSION:
         con.close()
         raise InputError(f"{path}: campaign schema version {row and row[0]}, this bmctl reads {SCHEMA_VERSION}")
@@ -156,9 +156,81 @@ def set_meta(con: sqlite3.Connection, **items) -> None:
         con.execute("INSERT OR REPLACE INTO meta VALUES (?, ?)", (k, json.dumps(v)))
 
 
-def get_meta(con: sqlite3.Connection) -> dict:
-    """All meta keys as a dict."""
-    return {k: json.loads(v) for k, v in con.execute("SELECT key, value FROM meta")}
+def get_meta(con: sqlite3.Connection, where: str = "meta") -> dict:
+    """All meta keys as a dict (a value that is not JSON is an InputError naming its key)."""
+    out = {}
+    for k, v in con.execute("SELECT key, value FROM meta"):
+        try:
+            out[k] = json.loads(v)
+        except (TypeError, ValueError):
+            raise InputError(f"{where}: meta {k!r}: not a JSON value (damaged or edited)") from None
+    return out
+
+
+# --- what a damaged or edited database may hold -------------------------------------------------
+#: numeric columns and the range every row must keep (NULL allowed where the schema allows it)
+NUMERIC = (
+    ("actions", "t0_h", 0.0, 1000.0, False), ("actions", "t1_h", 0.0, 1000.0, False),
+    ("actions", "hours", 1e-12, 1000.0, False), ("actions", "rpm", 0.0, 1e5, False),
+    ("actions", "milling", 0.0, 1.0, False), ("actions", "plan_id", 1, 2**62, True),
+    ("temperatures", "t_h", 0.0, 1000.0, False), ("temperatures", "temperature_c", -50.0, 400.0, False),
+    ("samples", "t_h", 0.0, 1000.0, False), ("samples", "n", 0, 2**62, False),
+    ("samples", "um_per_px", 1e-300, 1e300, True), ("samples", "s_median_um", 1e-3, 1e4, False),
+    ("samples", "r_median", 0.0, 1.0, False),
+    ("particles", "sample_id", 1, 2**62, False), ("particles", "particle_id", 1, 2**62, False),
+    ("particles", "x_um", -1e300, 1e300, True), ("particles", "y_um", -1e300, 1e300, True),
+    ("particles", "area_um2", 0.0, 1e300, False), ("particles", "perimeter_um", 0.0, 1e300, False),
+    ("particles", "s_um", 1e-3, 1e4, False), ("particles", "r", 0.0, 0.999999999, False),
+    ("estimator_states", "t_h", -1.0, 1000.0, False),
+    ("plans", "t_h", 0.0, 1000.0, False), ("plans", "rpm", 0.0, 1e5, False), ("plans", "milling", 0.0, 1.0, False),
+    ("plans", "interval_h", 1e-12, 1000.0, False), ("plans", "advise_ms", 0.0, 1e12, False),
+    ("decisions", "plan_id", 1, 2**62, False), ("decisions", "accepted", 0, 1, False),
+    ("decisions", "rpm", 0.0, 1e5, True), ("decisions", "milling", 0.0, 1.0, True),
+)
+#: columns of JSON text, and of plain-data state BLOBs
+JSON_TEXT = (("estimator_states", "estimate"), ("plans", "advice"), ("samples", "sources"), ("samples", "report"))
+BLOBS = (("estimator_states", "state"), ("plans", "controller_state"))
+TEXT = (("actions", "deviation"), ("decisions", "note"), ("particles", "image"))
+
+
+def check(con: sqlite3.Connection, path) -> None:
+    """Refuse a damaged or edited database with one line naming the table, row and column.
+
+    Every table of the schema must be there; every numeric column a number (not text or a
+    BLOB) within its range (:data:`NUMERIC`), JSON columns valid JSON objects or lists, state
+    columns BLOBs. The states themselves are checked when they are read (:func:`unpack`).
+    """
+    try:
+        have = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        for stmt in SCHEMA.split(";"):
+            words = stmt.split()
+            if words[:2] == ["CREATE", "TABLE"] and words[2] not in have:
+                raise InputError(f"{path}: table {words[2]} missing (damaged, or not a bmctl campaign database)")
+        for table, col, lo, hi, nullable in NUMERIC:
+            null = f"{col} IS NOT NULL AND " if nullable else ""
+            row = con.execute(f"SELECT rowid, {col} FROM {table} WHERE {null}(typeof({col}) NOT IN ('real', 'integer') "
+                              f"OR NOT ({col} BETWEEN ? AND ?)) LIMIT 1", (lo, hi)).fetchone()
+            if row is not None:
+                raise InputError(f"{path}: {table} row {row[0]}: {col} = {row[1]!r:.40}: not a number in "
+                                 f"[{lo:g}, {hi:g}] (damaged or edited)")
+        for table, col in BLOBS:
+            row = con.execute(f"SELECT rowid FROM {table} WHERE typeof({col}) != 'blob' LIMIT 1").fetchone()
+            if row is not None:
+                raise InputError(f"{path}: {table} row {row[0]}: {col}: not a stored state (damaged or edited)")
+        for table, col in TEXT:
+            row = con.execute(f"SELECT rowid FROM {table} WHERE typeof({col}) != 'text' LIMIT 1").fetchone()
+            if row is not None:
+                raise InputError(f"{path}: {table} row {row[0]}: {col}: not text (damaged or edited)")
+        for table, col in JSON_TEXT:
+            for rowid, text in con.execute(f"SELECT rowid, {col} FROM {table}"):
+                try:
+                    ok = isinstance(text, str) and isinstance(json.loads(text), (dict, list))
+                except ValueError:
+                    ok = False
+                if not ok:
+                    raise InputError(f"{path}: {table} row {rowid}: {col}: not a JSON document (damaged or edited)")
+    except sqlite3.DatabaseError as exc:
+        raise InputError(f"{path}: damaged campaign database ({exc})") from None
 
 
 # --- plain-data states as BLOBs -----------------------------------------------------------------
@@ -182,4 +254,4 @@ def unpack(blob: bytes, where: str = "state") -> dict:
 
 
 __all__ = ["ARRAY_TAG", "DB_NAME", "SCHEMA_VERSION", "LOCK_TIMEOUT_S", "create", "open_db", "transaction",
-           "init_schema", "set_meta", "get_meta", "pack", "unpack", "now", "db_path"]
+           "init_schema", "set_meta", "get_meta", "check", "pack", "unpack", "now", "db_path"]

@@ -21,6 +21,12 @@ from .. import io
 from . import targets as tg
 
 
+def _legend(ax) -> None:
+    """A legend when the axes has labelled artists (an empty campaign has none: no warning then)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
+
+
 def _png(fig) -> str:
     buf = _io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
@@ -67,7 +73,7 @@ def figures(c) -> dict[str, str]:
         unit = " (µm)" if k.endswith("_um") else ""
         ax.set_title(k.replace("_um", "") + unit), ax.set_xlabel("t (h)"), ax.grid(alpha=0.3)
         ax.set_xlim(0, meta["hours"])
-    axes[0].legend(fontsize=7)
+    _legend(axes[0])
     fig.tight_layout()
     out["estimate"] = _png(fig)
 
@@ -84,7 +90,7 @@ def figures(c) -> dict[str, str]:
                 g = np.geomspace(bins[0], bins[-1], 200)
                 ax.plot(g, _lognormal_pdf(g, e["s_mean_um"], e["s_std_um"]), "C0-", label="model at the estimate")
             ax.set_xscale("log"), ax.set_title(f"sample {sid} at {ts:g} h"), ax.set_xlabel("s (µm)")
-        axes[0][0].legend(fontsize=7)
+        _legend(axes[0][0])
         fig.tight_layout()
         out["histograms"] = _png(fig)
 
@@ -100,7 +106,7 @@ def figures(c) -> dict[str, str]:
     if plans:
         ax.plot([p[0] + p[2] * p[3] / 2 for p in plans], [p[1] for p in plans], "C3v", label="recommended rpm")
     ax.set_xlim(0, meta["hours"]), ax.set_xlabel("t (h)"), ax.set_ylabel("rpm"), ax.grid(alpha=0.3)
-    ax.set_title("actions: milled intervals (gaps are rests) and recommendations"), ax.legend(fontsize=7)
+    ax.set_title("actions: milled intervals (gaps are rests) and recommendations"), _legend(ax)
     if t.size:
         ax2.plot(t, [e[1]["temperature_c"] for e in est], "C0-", label="estimate")
         ax2.fill_between(t, [e[1]["temperature_c_q05"] for e in est], [e[1]["temperature_c_q95"] for e in est],
@@ -110,7 +116,7 @@ def figures(c) -> dict[str, str]:
     if meta.get("temperature_max_c") is not None:
         ax2.axhline(meta["temperature_max_c"], color="k", ls=":", label="ceiling")
     ax2.set_xlim(0, meta["hours"]), ax2.set_xlabel("t (h)"), ax2.set_title("vial temperature (°C)")
-    ax2.grid(alpha=0.3), ax2.legend(fontsize=7)
+    ax2.grid(alpha=0.3), _legend(ax2)
     fig.tight_layout()
     out["actions"] = _png(fig)
     return out

@@ -42,7 +42,7 @@ TARGETS: dict[str, tuple[Callable[[float, dict], dict[str, float]], str]] = {
 
 def known_keys() -> tuple[str, ...]:
     """Every key a campaign target may name."""
-    return tuple(TARGET_KEYS) + tuple(TARGETS)
+    return tuple(dict.fromkeys(tuple(TARGET_KEYS) + tuple(TARGETS)))  # d50_um is in both: named once
 
 
 def parse(text: str, where: str = "--target") -> dict[str, float]:

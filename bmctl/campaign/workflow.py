@@ -45,6 +45,8 @@ from .modelcache import moment_model
 
 EPS_H = 1e-9
 INPUTS = "inputs"
+#: the longest batch a campaign may plan (h), as ``bmctl design --hours``
+MAX_HOURS = 1000.0
 
 
 # --- helpers -------------------------------------------------------------------------------------
@@ -64,6 +66,38 @@ def _finite(v, name: str, lo: float | None = None, hi: float | None = None, stri
     if hi is not None and x > hi:
         raise InputError(f"{name}: must be <= {hi:g} (got {v})")
     return x
+
+
+def _check_meta(meta: dict, where: str) -> dict:
+    """The campaign's meta data, each key of the type and range ``init`` writes (else an InputError)."""
+    def bad(key, why):
+        return InputError(f"{where}: meta {key!r}: {why} (damaged or edited)")
+
+    for key in ("inputs", "target", "hours", "temperature_max_c", "seed", "particles", "controller_kind"):
+        if key not in meta:
+            raise bad(key, "missing")
+    num = (int, float)
+    h = meta["hours"]
+    if not isinstance(h, num) or isinstance(h, bool) or not 0 < h <= MAX_HOURS:
+        raise bad("hours", f"{h!r} is not a batch length in (0, {MAX_HOURS:g}] h")
+    T = meta["temperature_max_c"]
+    if T is not None and (not isinstance(T, num) or isinstance(T, bool) or not -50 <= T <= 400):
+        raise bad("temperature_max_c", f"{T!r} is not a ceiling in [-50, 400] C")
+    if not isinstance(meta["seed"], int) or isinstance(meta["seed"], bool) or meta["seed"] < 0:
+        raise bad("seed", f"{meta['seed']!r} is not a seed")
+    n = meta["particles"]
+    if not isinstance(n, int) or isinstance(n, bool) or not 50 <= n <= 200_000:
+        raise bad("particles", f"{n!r} is not a particle count in [50, 200000]")
+    tgt = meta["target"]
+    if not isinstance(tgt, dict) or any(k not in tg.known_keys() or not isinstance(v, num) or isinstance(v, bool)
+                                        or not (math.isfinite(v) and v > 0) for k, v in tgt.items()):
+        raise bad("target", f"{tgt!r:.60} is not a target of known keys and positive values")
+    inp = meta["inputs"]
+    if not isinstance(inp, dict) or not {"card", "controller"} <= set(inp) or any(
+            not isinstance(v, dict) or not isinstance(v.get("file"), str) or not isinstance(v.get("sha256"), str)
+            for v in inp.values()):
+        raise bad("inputs", "not the copied inputs' files and checksums")
+    return meta
 
 
 @dataclass
@@ -92,7 +126,13 @@ class Campaign:
     def __init__(self, folder):
         self.folder = Path(folder)
         self.con = db.open_db(self.folder)
-        self.meta = db.get_meta(self.con)
+        where = str(db.db_path(self.folder))
+        try:
+            db.check(self.con, where)
+            self.meta = _check_meta(db.get_meta(self.con, where), where)
+        except BaseException:
+            self.con.close()
+            raise
         self._loop = None
 
     def close(self) -> None:
@@ -151,6 +191,12 @@ class Campaign:
         loop = CampaignLoop(OperatorMill(model.card.thermal.ambient_C), RecordedSensor(), pf, controller, g_sample, lcfg)
         loop.model = model
         return loop
+
+    def rpm_max(self) -> float:
+        """The highest sun-disc speed of the card's mill (rpm): a logged or stated rpm above it is refused."""
+        from ..config import load_card
+
+        return float(load_card(self._input("card")).mill.rpm_max)
 
     # --- reads -----------------------------------------------------------------------------
     def actions(self) -> list[Action]:
@@ -300,8 +346,8 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
             raise InputError(f"target: unknown key {k!r} (one of {', '.join(tg.known_keys())})")
     if not tgt and cfg.kind != "recipe":
         raise InputError(f"--target: a feedback controller ({cfg.kind}) needs a target")
-    H = float(card.process.hours) if hours is None else _finite(hours, "--hours", 0, strict=True)
-    Tmax = None if temperature_max_c is None else _finite(temperature_max_c, "--temperature-max-c")
+    H = float(card.process.hours) if hours is None else _finite(hours, "--hours", 0, MAX_HOURS, strict=True)
+    Tmax = None if temperature_max_c is None else _finite(temperature_max_c, "--temperature-max-c", -50, 400)
     if int(particles) < 50:
         raise InputError(f"--particles: must be >= 50 (got {particles})")
     folder = Path(folder)
@@ -367,6 +413,8 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
     T = None if temperature_c is None else _finite(temperature_c, "--temperature-c", -50, 400)
     c = campaign or Campaign(folder)
     try:
+        if rpm > c.rpm_max():
+            raise InputError(f"--rpm {rpm:g}: above the mill's rpm_max ({c.rpm_max():g}) in the campaign's card")
         with db.transaction(c.con, where=str(folder)):
             clock = c.clock_h()
             t0 = clock if from_h is None else _finite(from_h, "--from-h", 0)
@@ -517,6 +565,8 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
     milling = None if milling is None else _finite(milling, "--milling", 0, 1)
     c = campaign or Campaign(folder)
     try:
+        if rpm is not None and rpm > c.rpm_max():
+            raise InputError(f"--rpm {rpm:g}: above the mill's rpm_max ({c.rpm_max():g}) in the campaign's card")
         with db.transaction(c.con, where=str(folder)):
             plan = c.latest_plan()
             clock = c.clock_h()

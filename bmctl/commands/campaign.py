@@ -113,7 +113,20 @@ def _print_advice(a: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Dispatch the sub-verb; print what it did."""
+    """Dispatch the sub-verb; print what it did. An SQLite error the checks did not foresee
+    (a file damaged under a running command) is one line naming the database."""
+    import sqlite3
+
+    from ..campaign.db import db_path
+    from ..errors import InputError
+
+    try:
+        return _run(args)
+    except sqlite3.DatabaseError as exc:
+        raise InputError(f"{db_path(args.dir)}: damaged campaign database ({exc})") from None
+
+
+def _run(args: argparse.Namespace) -> int:
     from .. import campaign as cp
     from ..campaign import targets as tg
 

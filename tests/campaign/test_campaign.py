@@ -357,3 +357,59 @@ def test_package_verbs_stay_functions_after_every_submodule_is_imported():
         importlib.import_module(f"bmctl.campaign.{m.name}")
     for verb in pkg.__all__:
         assert callable(getattr(pkg, verb)) and not isinstance(getattr(pkg, verb), type(pkg)), verb
+
+
+# --- damaged or edited databases, out-of-range flags (found by the campaign fuzz, tests/fuzzlib.py) ----------
+@pytest.fixture(scope="module")
+def fresh_campaign(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fresh") / "c"
+    _init(d)
+    return d
+
+
+@pytest.mark.parametrize("damage, named", [
+    ("DROP TABLE actions", "table actions missing"),
+    ("DROP TABLE meta", "table meta missing"),
+    ("UPDATE meta SET value = 'abc' WHERE key = 'hours'", "meta 'hours'"),
+    ("UPDATE meta SET value = '{}' WHERE key = 'hours'", "meta 'hours'"),
+    ("UPDATE meta SET value = X'00' WHERE key = 'particles'", "meta 'particles'"),
+    ("UPDATE estimator_states SET t_h = 'abc'", "estimator_states row 1: t_h"),
+    ("UPDATE estimator_states SET estimate = 'abc'", "estimator_states row 1: estimate"),
+    ("UPDATE estimator_states SET state = 'abc'", "estimator_states row 1: state"),
+])
+@pytest.mark.parametrize("verb", ["status", "advise", "log"])
+def test_damaged_database_is_one_line_naming_the_field(fresh_campaign, tmp_path, capsys, damage, named, verb):
+    d = tmp_path / "c"
+    shutil.copytree(fresh_campaign, d)
+    con = sqlite3.connect(str(d / db.DB_NAME))
+    con.execute(damage)
+    con.commit()
+    con.close()
+    argv = ["campaign", verb, str(d)] + (["--rpm", "300", "--hours", "0.5"] if verb == "log" else [])
+    assert main(argv) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and db.DB_NAME in err[0] and named in err[0], err
+
+
+def test_actions_time_far_beyond_the_batch_is_refused(fresh_campaign, tmp_path, capsys):
+    d = tmp_path / "c"
+    shutil.copytree(fresh_campaign, d)
+    cp.log(d, 300.0, 0.5)
+    con = sqlite3.connect(str(d / db.DB_NAME))
+    con.execute("UPDATE actions SET t1_h = 1e308")
+    con.commit()
+    con.close()
+    assert main(["campaign", "decide", str(d), "--accept"]) == 2
+    assert "actions row 1: t1_h" in capsys.readouterr().err
+
+
+def test_out_of_range_campaign_flags_are_refused(fresh_campaign, tmp_path):
+    with pytest.raises(InputError, match="--hours"):
+        _init(tmp_path / "a", hours=1e300)
+    with pytest.raises(InputError, match="--temperature-max-c"):
+        _init(tmp_path / "b", temperature_max_c=1e9)
+    d = tmp_path / "c"
+    shutil.copytree(fresh_campaign, d)
+    with pytest.raises(InputError, match="--rpm 5000: above the mill's rpm_max"):
+        cp.log(d, 5000.0, 0.5)
+    assert cp.status(d)["counts"]["actions"] == 0
