@@ -57,8 +57,17 @@ def run_one(job) -> dict:
     summ = Path(out) / "summary.json"
     if summ.exists():
         return json.loads(summ.read_text())
-    resume = (Path(out) / "checkpoint.npz").exists()
-    return run_trial(scen_path, out, seed=seed, resume=resume)
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    lock = Path(f"{out}.running")  # another study process runs this case (two may share --out)
+    try:
+        os.close(os.open(lock, os.O_CREAT | os.O_EXCL))
+    except FileExistsError:
+        return None
+    try:
+        resume = (Path(out) / "checkpoint.npz").exists()
+        return run_trial(scen_path, out, seed=seed, resume=resume)
+    finally:
+        lock.unlink()
 
 
 def table(results: dict) -> str:
@@ -85,11 +94,13 @@ def main() -> None:
     ap.add_argument("--out", default="out/control_study")
     ap.add_argument("--controllers", nargs="+", default=list(CONTROLLERS))
     ap.add_argument("--table-only", action="store_true", help="tabulate the finished runs under --out")
+    ap.add_argument("--reverse", action="store_true",
+                    help="last seed first: a second process on the same --out meets the first in the middle")
     a = ap.parse_args()
     out = Path(a.out)
     cases = [(s, c) for s in SCENARIOS for c in a.controllers]
     jobs = {}
-    for seed in range(a.seeds):  # seed-major: every case gets its first seeds before any gets more
+    for seed in (reversed if a.reverse else iter)(range(a.seeds)):  # seed-major: every case gets its first seeds before any gets more
         for scen, ctrl in cases:
             jobs[(scen, ctrl, seed)] = (str(scenario_file(out / "scenarios", scen, ctrl)),
                                         str(out / f"{scen}-{ctrl}" / f"seed{seed}"), seed)
@@ -99,6 +110,9 @@ def main() -> None:
             futs = {k: ex.submit(run_one, j) for k, j in jobs.items()}
             for (scen, ctrl, seed), f in futs.items():
                 s = f.result()
+                if s is None:
+                    print(f"{scen} {ctrl} seed {seed}: running in another process", flush=True)
+                    continue
                 print(f"{scen} {ctrl} seed {seed}: error {100 * max(s['final_error'].values()):.2f} %, "
                       f"peak {s['max_temperature_c']:.1f} C", flush=True)
     for (scen, ctrl, seed), (_, o, _) in jobs.items():
