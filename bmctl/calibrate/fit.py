@@ -13,7 +13,6 @@ Parameters are fitted as u = ln(value / card value).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Annotated, Callable, Sequence
 
@@ -24,7 +23,7 @@ from ..config import ModelCard, Strict
 from ..parallel import map_seeded
 from .history import History
 from .params import get_params
-from .simulate import SUMMARY_NAMES, SimTask, bootstrap_cov, simulate_task, summaries
+from .simulate import SimTask, bootstrap_cov, simulate_task, summaries
 
 Z90 = 1.6448536269514722  # two-sided 90 %: Phi^-1(0.95)
 
@@ -157,6 +156,16 @@ def _weight(obs_cov: np.ndarray, sim_var: np.ndarray, R: int) -> np.ndarray:
     return np.linalg.inv(C)
 
 
+def _setup(card: ModelCard, names, histories, s: FitSettings, seed: int, client, progress):
+    """The measured summaries ``y``, their covariance, and the plant evaluator with common random
+    numbers: one SeedSequence(seed) split into the bootstrap's stream and one per history and replicate."""
+    boot_ss, sim_ss = np.random.SeedSequence(seed).spawn(2)
+    y, obs_cov = observed(histories, np.random.default_rng(boot_ss), s.bootstrap)
+    crn = sim_ss.spawn(len(histories) * s.replicates)
+    seeds = [[crn[hi * s.replicates + r] for r in range(s.replicates)] for hi in range(len(histories))]
+    return y, obs_cov, _Evaluator(card, names, histories, s, seeds, client, progress)
+
+
 def calibrate(card: ModelCard, histories: Sequence[History], names: Sequence[str], seed: int = 0,
               settings: FitSettings | None = None, start_u: np.ndarray | None = None, client=None,
               progress: Callable[[int], None] | None = None,
@@ -190,12 +199,7 @@ def calibrate(card: ModelCard, histories: Sequence[History], names: Sequence[str
     s = settings or FitSettings()
     names = list(names)
     p = len(names)
-    root = np.random.SeedSequence(seed)
-    boot_ss, sim_ss = root.spawn(2)
-    y, obs_cov = observed(histories, np.random.default_rng(boot_ss), s.bootstrap)
-    crn = sim_ss.spawn(len(histories) * s.replicates)
-    seeds = [[crn[hi * s.replicates + r] for r in range(s.replicates)] for hi in range(len(histories))]
-    ev = _Evaluator(card, names, histories, s, seeds, client, progress)
+    y, obs_cov, ev = _setup(card, names, histories, s, seed, client, progress)
     P = np.eye(p) / s.prior_sd**2
     u = np.zeros(p)
     start_choice = {"start": "card"}
@@ -300,12 +304,7 @@ def local_information(card: ModelCard, histories: Sequence[History], names: Sequ
     """
     s = settings or FitSettings()
     names = list(names)
-    root = np.random.SeedSequence(seed)
-    boot_ss, sim_ss = root.spawn(2)
-    y, obs_cov = observed(histories, np.random.default_rng(boot_ss), s.bootstrap)
-    crn = sim_ss.spawn(len(histories) * s.replicates)
-    seeds = [[crn[hi * s.replicates + r] for r in range(s.replicates)] for hi in range(len(histories))]
-    ev = _Evaluator(card, names, histories, s, seeds, client, progress)
+    y, obs_cov, ev = _setup(card, names, histories, s, seed, client, progress)
     S = ev.run(_design(np.asarray(u, float), s.fd_step))
     W = _weight(obs_cov, S.var(axis=1, ddof=1).mean(axis=0), s.replicates)
     J, F = _jacobian_information(S, W, s.fd_step)

@@ -326,11 +326,12 @@ class MPCController(CompiledSolvers):
 
     # --- NLP ---------------------------------------------------------------------------------
     def _build_key(self) -> str:
-        """What the NLP is built from: model constants and coefficients, configuration, D-value rows."""
+        """What the NLP is built from: model constants and coefficients, configuration, D-value rows
+        (everything else the NLP uses is derived from these)."""
         h = hashlib.sha256(repr(self.model.const).encode())
         h.update(json.dumps(self.model.coeffs, sort_keys=True).encode())
         h.update(self.cfg.model_dump_json().encode())
-        h.update(repr((self._dvalues(self.reference), self.rpm_scale, self.n_scen, self.adaptive)).encode())
+        h.update(repr(self._dvalues(self.reference)).encode())
         return h.hexdigest()
 
     def _sizes(self) -> tuple[int, int, int]:
