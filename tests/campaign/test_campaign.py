@@ -316,25 +316,11 @@ def test_report_loads_in_headless_chromium(tmp_path):
 @pytest.mark.slow
 def test_trial_as_campaign_gives_the_trial_trajectory(tmp_path):
     from bmctl.campaign.simulated import run_as_campaign
+
+    from .scenarios import lqr_scenario
     from bmctl.trial import run_trial
 
-    sc = tmp_path / "scenario.toml"
-    sc.write_text(f"""model = "{CARD}"
-hours = 2.0
-target = {{ s_mean_um = 40.0 }}
-[scenario]
-name = "campaign-equivalence"
-description = "LQR, 2 h, samples every hour"
-[plant]
-particles = 400
-[sampling]
-every_h = 1.0
-particles = 120
-[estimator]
-particles = 100
-[controller]
-config = "{LQR}"
-""")
+    sc = lqr_scenario(tmp_path / "scenario.toml")
     summary = run_trial(sc, tmp_path / "trial", seed=11)
     rows = run_as_campaign(sc, tmp_path / "campaign", seed=11)
     data = np.genfromtxt(tmp_path / "trial" / "trajectory.csv", delimiter=",", names=True, dtype=None, encoding="utf-8")

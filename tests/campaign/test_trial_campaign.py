@@ -11,30 +11,7 @@ import pytest
 
 from bmctl.cli import main
 
-ROOT = Path(__file__).resolve().parents[2]
-CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
-LQR = ROOT / "controllers" / "lqr-baseline.toml"
-
-
-def _scenario(path: Path, extra: str = "") -> Path:
-    path.write_text(f"""model = "{CARD}"
-hours = 2.0
-target = {{ s_mean_um = 40.0 }}
-[scenario]
-name = "campaign-cli"
-description = "LQR, 2 h, samples every hour"
-[plant]
-particles = 400
-[sampling]
-every_h = 1.0
-particles = 120
-[estimator]
-particles = 100
-{extra}
-[controller]
-config = "{LQR}"
-""")
-    return path
+from .scenarios import lqr_scenario
 
 
 def _read(path: Path) -> tuple[list[str], np.ndarray]:
@@ -45,7 +22,7 @@ def _read(path: Path) -> tuple[list[str], np.ndarray]:
 
 @pytest.mark.slow
 def test_trial_campaign_cli_gives_the_plain_trajectory_and_a_campaign(tmp_path, capsys):
-    sc = _scenario(tmp_path / "scenario.toml")
+    sc = lqr_scenario(tmp_path / "scenario.toml")
     plain, camp = tmp_path / "plain", tmp_path / "camp"
     assert main(["trial", str(sc), "--seed", "5", "--out", str(plain), "--no-progress"]) == 0
     assert main(["trial", str(sc), "--seed", "5", "--out", str(camp), "--no-progress", "--campaign"]) == 0
@@ -80,11 +57,11 @@ def test_trial_campaign_cli_gives_the_plain_trajectory_and_a_campaign(tmp_path, 
 
 
 def test_trial_campaign_refusals_are_one_line(tmp_path, capsys):
-    sc = _scenario(tmp_path / "scenario.toml")
+    sc = lqr_scenario(tmp_path / "scenario.toml")
     assert main(["trial", str(sc), "--campaign", "--resume", str(tmp_path / "x"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--campaign does not resume" in err
-    ukf = _scenario(tmp_path / "ukf.toml", 'kind = "ukf"')
+    ukf = lqr_scenario(tmp_path / "ukf.toml", 'kind = "ukf"')
     assert main(["trial", str(ukf), "--campaign", "--out", str(tmp_path / "u"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "particle filter" in err
