@@ -132,17 +132,23 @@ def _call_step(model, dt_h: float, substeps: int | None):
 class _Generator:
     """Adapter: :func:`bmctl.control.cache.start_compile` generates through ``generate_dependencies``."""
 
-    def __init__(self, fn):
-        self.fn = fn
+    def __init__(self, fn, reverse: bool = False):
+        self.fn, self.reverse = fn, reverse
 
     def generate_dependencies(self, name: str, opts: dict) -> None:
         import hashlib
         import os
 
+        import casadi as ca
+
         # casadi wants a C identifier as the generated file's stem; the cache's temporary name may hold
         # a '.' (the interval length), so generate under a safe stem and move the file to ``name``
         safe = "band_" + hashlib.sha256(name.encode()).hexdigest()[:16]
-        os.replace(self.fn.generate(safe, opts), name)
+        cg = ca.CodeGenerator(safe, opts)
+        cg.add(self.fn)
+        if self.reverse:  # named adj1_<name>: casadi.external finds it and differentiates through it
+            cg.add(self.fn.reverse(1))
+        os.replace(cg.generate(), name)
 
 
 def _integration(model, dt_h: float, substeps: int | None) -> tuple[int, int]:
@@ -176,14 +182,23 @@ def step_function(model, dt_h: float, substeps: int | None = None):
     return ca.Function("band_step", [x, u, p], [ca.vertcat(*out)], ["x", "u", "p"], ["x_next"])
 
 
-def compiled_step(model, dt_h: float, substeps: int | None = None):
+def compiled_step(model, dt_h: float, substeps: int | None = None, reverse: bool = False,
+                  wait: bool | None = None):
     """The compiled :func:`step_function` from bmctl's cache, or None (not compiled yet: gcc is
     started in the background, or waited for with ``BMCTL_MPC_COMPILE=wait``; no gcc or cache).
 
     The library's key is of the function's inputs (:func:`bmctl.control.cache.input_key`: the
     model's constants and coefficients, interval, substeps and stages, the generating source),
     so a hit builds nothing symbolic. The end band of ``campaign advise`` and the MPC's initial
-    guess use it.
+    guess use it; ``bmctl design`` uses it with ``reverse``.
+
+    Parameters
+    ----------
+    reverse : bool, optional
+        Also compile the step's reverse derivative (``adj1_band_step``), so that gradients through
+        the loaded function run compiled too (a separate library; gcc -O1 takes about 5 s).
+    wait : bool, optional
+        Compile in the foreground when the library is missing (default: ``BMCTL_MPC_COMPILE=wait``).
     """
     from . import cache
 
@@ -191,15 +206,16 @@ def compiled_step(model, dt_h: float, substeps: int | None = None):
         return None
     loaded = _LOADED.setdefault(model, {})
     n, stages = _integration(model, dt_h, substeps)
-    key = (round(float(dt_h), 12), n)
+    key = (round(float(dt_h), 12), n, bool(reverse))
     if key in loaded:
         return loaded[key]
     inputs = {"model": cache.model_inputs(model), "dt_h": float(dt_h), "substeps": n, "stages": stages}
-    path = cache.library_path(cache.input_key("band-step", inputs), prefix="band")
+    path = cache.library_path(cache.input_key("band-step-adj" if reverse else "band-step", inputs), prefix="band")
     if path is None:
         return None
     if not cache.ready(path):
-        cache.start_compile(_Generator(step_function(model, dt_h, substeps)), path, wait=cache.wait_for_compile())
+        cache.start_compile(_Generator(step_function(model, dt_h, substeps), reverse), path,
+                            wait=cache.wait_for_compile() if wait is None else wait)
         if not cache.ready(path):
             return None
     import casadi as ca

@@ -69,6 +69,16 @@ class PatternResult:
         return count_switches(self.segments)
 
 
+def _design_step(model, dt_h: float, substeps: int):
+    """The moment step of the design grid: compiled with its reverse derivative from bmctl's cache
+    (compiled in the foreground when missing: about 5 s of gcc, repaid within the first solve), else
+    the interpreted SX step. Same equations either way (tests/control/test_pattern.py)."""
+    from .compiled import compiled_step
+
+    F = compiled_step(model, dt_h, substeps, reverse=True, wait=True)
+    return F if F is not None else model.casadi_step(dt_h, substeps)
+
+
 class PatternDesigner:
     """Builds and solves the phase-pattern problem for one card, batch length and settings.
 
@@ -108,7 +118,7 @@ class PatternDesigner:
         m, c, cfg, P = self.model, self.model.const, self.cfg, self.P
         mill = cfg.mill
         dtg = self.L / self.n_sub
-        F = m.casadi_step(dtg, cfg.solver.substeps)  # the MPC's prediction accuracy; reported numbers are re-simulated
+        F = _design_step(m, dtg, cfg.solver.substeps)  # the MPC's prediction accuracy; reported numbers are re-simulated
         n = ca.MX.sym("n", P)  # rpm / step
         f = ca.MX.sym("f", P)  # duty
         k = ca.MX.sym("k", P)  # cycles
@@ -135,8 +145,10 @@ class PatternDesigner:
                   f[i] + y[i]]
             lbg += [0.0, 0.0, 1.0]
             ubg += [np.inf, np.inf, np.inf]
-            for _ in range(self.n_sub):
-                x = F(x, ca.vertcat(rpm, f[i]), p)
+            for _ in range(self.n_sub):  # moments through the step function; T, h in closed form beside it
+                T1, h1 = eq.thermal_exact(eq.CA(), c, x[4], x[5], w, f[i] * dtg)
+                T2, h2 = eq.thermal_exact(eq.CA(), c, T1, h1, 0.0, (1 - f[i]) * dtg)
+                x = ca.vertcat(F(x, ca.vertcat(rpm, f[i]), p)[:4], T2, h2)
             energy = energy + c.power_max_W * w ** 3 * f[i] * L / 1000.0
         if mill.max_switches is not None:
             g.append(ca.sum1(2 * y * k))
@@ -174,7 +186,7 @@ class PatternDesigner:
 
     def _opts(self, it=300):
         return {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": it,
-                "ipopt.tol": 1e-6, "ipopt.hessian_approximation": "limited-memory", "expand": True}
+                "ipopt.tol": 1e-6, "ipopt.hessian_approximation": "limited-memory"}
 
     def _guess(self, which: int = 0):
         """Start points: 0 the card's rpm, 3/4 duty, one cycle; 1 the top rpm in the most short cycles

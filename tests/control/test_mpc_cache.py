@@ -102,3 +102,30 @@ def test_compiled_and_interpreted_solvers_give_the_same_plans(private_cache, mon
     # IPOPT tol 1e-4 (scaled): rpm within 0.1, milling fraction within 1e-3
     np.testing.assert_allclose(plans["wait"][..., 0], plans["0"][..., 0], atol=0.1)
     np.testing.assert_allclose(plans["wait"][..., 1], plans["0"][..., 1], atol=1e-3)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+def test_design_on_the_compiled_step_gives_the_interpreted_design(private_cache, monkeypatch):
+    """bmctl design's moment step compiled with its reverse derivative (bmctl.control.pattern._design_step)
+    solves the same pattern problem as casadi's interpreter: same integers, duties to solver tolerance."""
+    from bmctl.control.compiled import _LOADED
+    from bmctl.control.pattern import PatternDesigner
+
+    cfg = load_controller(ROOT / "controllers" / "mpc-default.toml")
+    target = {"d50_um": (40.0, 50.0)}
+    res = {}
+    for mode in ("0", "wait"):
+        monkeypatch.setenv(cache.ENV_SWITCH, mode)
+        model = make_moment_model(card_path("alni-1to1-300rpm-lab"))  # fresh: no step loaded before
+        d = PatternDesigner(model, 4.0, cfg, target)
+        loaded = [k for k in _LOADED.get(model, {}) if k[2]]  # (dt_h, substeps, reverse)
+        assert loaded == ([] if mode == "0" else [(0.5, cfg.solver.substeps, True)])
+        res[mode] = d.solve()
+    assert any(private_cache.glob("band-*.so"))
+    a, b = res["0"], res["wait"]
+    assert a.segments == b.segments
+    np.testing.assert_array_equal(a.rpm, b.rpm)
+    np.testing.assert_array_equal(a.cycles, b.cycles)
+    np.testing.assert_allclose(a.duty, b.duty, atol=1e-4)
+    assert b.cost == pytest.approx(a.cost, rel=1e-4)
