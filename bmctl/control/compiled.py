@@ -61,10 +61,12 @@ class CompiledSolvers:
         cfg = self.cfg
         temperature = cfg.temperature.model_dump(mode="json")
         temperature.pop("ceiling_c")  # a bound of the constraints, not part of the NLP
+        solver = cfg.solver.model_dump(mode="json")
+        solver.pop("compile_exact")  # which solvers are compiled, not what they solve
         return {"model": cache.model_inputs(self.model), "horizon": self.N, "interval_h": self.interval_h,
                 "rpm_scale": self.rpm_scale, "n_scen": self.n_scen, "dvalues": self._dvalues(self.reference),
                 "weights": cfg.weights.model_dump(mode="json"), "temperature": temperature,
-                "solver": cfg.solver.model_dump(mode="json"), "adaptation": cfg.adaptation.model_dump(mode="json"),
+                "solver": solver, "adaptation": cfg.adaptation.model_dump(mode="json"),
                 "robust": cfg.robust.model_dump(mode="json"), "sizes": [self._nv, self._ng, self._np]}
 
     def _library(self, key, opts: dict):

@@ -217,6 +217,9 @@ class Solver(Strict):
     #: Hessian of cold solves (first call, after reset(), `bmctl design`): far from the solution the
     #: Gauss-Newton steps cycle; the exact Hessian converges in ~30-40 iterations
     cold_hessian: Literal["gauss-newton", "exact", "limited-memory"] = "exact"
+    #: compile the exact-Hessian solvers too (cold solves, exact retries) into bmctl's cache: ~15 MB of C,
+    #: ~3 min of gcc -O1 in the background once per NLP; then a cold solve takes ~0.8 s instead of ~10 s
+    compile_exact: bool = True
     warm_start: bool = True  # start from the shifted previous plan and its multipliers
     retry_exact: bool = True  # a failed warm solve is retried once with the exact Hessian before falling back
     #: with retry_exact: iteration cap of the warm Gauss-Newton attempt (it converges in a few iterations

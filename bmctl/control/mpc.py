@@ -459,7 +459,7 @@ class MPCController(CompiledSolvers):
                              "ipopt.warm_start_slack_bound_push": 1e-6, "ipopt.warm_start_mult_bound_push": 1e-6,
                              "ipopt.mu_init": 1e-4})
             # a compiled library found in the cache is loaded without building the NLP symbolically
-            compiled = self._compiled_solver(key, opts) if hessian != "exact" else None
+            compiled = self._compiled_solver(key, opts) if hessian != "exact" or s.compile_exact else None
             if compiled is None:
                 if self._nlp is None:
                     self._build()
