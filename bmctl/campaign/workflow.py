@@ -41,7 +41,7 @@ from ..errors import InputError
 from . import db
 from . import targets as tg
 from .advice import _end_band, _measure, _schedule, _why
-from .modelcache import moment_model
+from ..moments.modelcache import moment_model
 
 EPS_H = 1e-9
 INPUTS = "inputs"

@@ -49,7 +49,7 @@ def _controller_path(arg) -> Path:
 def run(args) -> int:
     from ..control.config import MPCConfig, load_controller, parse_target
     from ..control.design import design_schedule, write_design
-    from ..moments.model import make_moment_model
+    from ..moments.modelcache import moment_model
 
     # all input checks first: nothing is written on bad input
     target = parse_target(args.target)
@@ -58,7 +58,7 @@ def run(args) -> int:
     if not isinstance(cfg, MPCConfig):
         raise InputError(f"{path}: kind: design needs an mpc controller (got {cfg.kind!r})")
     out = output_path(args.out)
-    model = make_moment_model(args.model)
+    model = moment_model(args.model)
     hours = args.hours if args.hours is not None else float(model.card.process.hours)
     from ..cards import check_work, design_work
 

@@ -14,7 +14,7 @@ import pytest
 
 from bmctl import campaign as cp
 from bmctl.campaign import band
-from bmctl.campaign.modelcache import moment_model
+from bmctl.moments.modelcache import moment_model
 from bmctl.measure.tables import ParticleTable
 from bmctl.moments.model import make_moment_model
 

@@ -1,4 +1,4 @@
-"""The campaign's moment model, with its card-derived constants cached on disk.
+"""The moment model of a card file, with its card-derived constants cached on disk (campaigns, trials, design).
 
 :func:`bmctl.moments.model.make_moment_model` derives the card's constants and the default
 threshold laws from a seeded Monte Carlo over 400 000 impacts
@@ -81,7 +81,10 @@ def moment_model(card_path) -> object:
     card_path = Path(card_path)
     cp = coeffs_path(card_path)
     cp = cp if cp.exists() else None
-    entry = _entry(card_path, cp)
+    try:
+        entry = _entry(card_path, cp) if card_path.is_file() else None
+    except OSError:  # unreadable card: make_moment_model says so in one line
+        entry = None
     if entry is not None and entry.is_file():
         try:
             doc = json.loads(entry.read_text())
