@@ -55,7 +55,7 @@ def one(seed: int, client, names=("gamma", "delta"), rpms=(300.0,), settings=Non
     truth = {"alpha": 1.0, "beta": 1.0, "gamma": GAMMA_X, "delta": DELTA_X}
     row = {"seed": seed, "wall_s": time.perf_counter() - t0, "cpu_s_main": time.process_time() - c0,
            "plant_runs": cal.plant_runs, "chi2": cal.chi2, "n_summaries": cal.n_summaries, "converged": cal.converged,
-           "moment_start": res.start_info}
+           "moment_start": res.start_info, "ridge": cal.ridge}
     for i, n in enumerate(cal.names):
         cv = cal.card_values[i]
         t = truth[n]
@@ -92,6 +92,8 @@ def coverage(args):
                   f"({time.perf_counter() - t0:.0f} s)", flush=True)
     finally:
         close_client(client)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1, default=float))
     for n in ("gamma", "delta"):
         cov = np.mean([r[n]["covered"] for r in rows])
         within = np.mean([abs(r[n]["rel_err"]) <= 0.15 for r in rows])
@@ -161,6 +163,7 @@ def scaling(args):
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("what", choices=("main", "coverage", "four", "scaling"))
+    ap.add_argument("--json", default=None, help="coverage: write every case's row (with the ridge scan) here")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--first", type=int, default=1)
