@@ -303,13 +303,12 @@ def ridge_posterior(ev: _Evaluator, y: np.ndarray, W: np.ndarray, P: np.ndarray,
     the end's -2 ln posterior is within ``ridge_tail`` of the best, up to ``ridge_max_sd`` (and
     3 prior sd). At each grid point the other directions are re-fitted by one Gauss-Newton step
     with the Jacobian ``J`` (their conditional posterior is Gaussian with precision ``H`` restricted
-    to them), which gives the profile -2 ln posterior q(τ) and the conditional means. Plant noise
-    moves each q(τ) by several units even under common random numbers, so q is fitted by a
-    parabola over the whole scan (curvature at least the prior's) and the conditional means by a
-    line: the estimate is the parabola's vertex, the variance along the ridge its inverse
-    curvature, and the 90 % intervals are those of the resulting Gaussian. This is a Laplace
-    approximation whose weakest direction is measured over several sd of the ridge instead of
-    from the local Jacobian at wherever the steps stopped.
+    to them), which gives the profile -2 ln posterior q(τ) and the conditional means. The
+    posterior is then the mixture over the grid with weights exp(-q/2) (integration over one
+    direction, as INLA integrates over its hyperparameters): the estimate is its median, the 90 %
+    interval its 5 % and 95 % quantiles per parameter, the covariance the mixture's. The ridge is
+    far from a parabola (a steep wall on one side, a long slope on the other), which the mixture
+    follows and a Laplace approximation does not.
 
     Returns
     -------
@@ -358,26 +357,40 @@ def ridge_posterior(ev: _Evaluator, y: np.ndarray, W: np.ndarray, P: np.ndarray,
         if not evaluate(ext):
             break
     ks = sorted(grid)
-    tau = np.array([k * step for k in ks])
     q = np.array([grid[k][0] for k in ks])
     centres = np.array([grid[k][1] for k in ks])
-    # plant noise moves each q by several units even under common random numbers, so q(tau) is fitted
-    # by a parabola over the whole scan (not read point by point); its curvature is at least the prior's
-    c2, c1, _ = np.polyfit(tau, q, 2)
-    c2 = max(float(c2), float(v @ P @ v))
-    t_hat = float(np.clip(-c1 / (2.0 * c2), tau[0], tau[-1]))
-    B, A = np.polyfit(tau, centres, 1)  # conditional means along the ridge, fitted linearly as well
-    u_hat = A + B * t_hat
-    cov = np.outer(B, B) / c2 + (Wb @ Cw @ Wb.T if p > 1 else 0.0)
-    sd = np.sqrt(np.diag(cov))
-    j = int(np.argmin(np.abs(tau - t_hat)))
+    wts = np.exp(-0.5 * (q - q.min()))
+    wts /= wts.sum()
+    # within a grid cell the ridge coordinate is spread uniformly over one step
+    var_in = np.outer(v, v) * step**2 / 12.0 + (Wb @ Cw @ Wb.T if p > 1 else 0.0)
+    sd_in = np.sqrt(np.maximum(np.diag(var_in), 1e-30))
+    mean = wts @ centres
+    cov = (centres - mean).T @ ((centres - mean) * wts[:, None]) + var_in
+    qs = np.array([_mixture_quantiles(centres[:, i], sd_in[i], wts, (0.05, 0.5, 0.95)) for i in range(p)])
+    j = int(np.argmax(wts))
     info = {"direction_ln": v.tolist(), "laplace_sd_along": float(sd_v), "step_ln": float(step),
             "gauss_newton_end_ln": u0.tolist(), "cov_other_ln": (Wb @ Cw @ Wb.T if p > 1 else np.zeros((1, 1))).tolist(),
-            "sd_along": float(1.0 / np.sqrt(c2)), "offset_of_estimate_ln": t_hat,
             "points": [{"offset_sd": k * s.ridge_step_sd, "u_ln": grid[k][1].tolist(),
                         "minus2_log_posterior": grid[k][0], "chi2": grid[k][2]} for k in ks],
-            "chi2_at_estimate": float(grid[ks[j]][2])}
-    return u_hat, u_hat - Z90 * sd, u_hat + Z90 * sd, cov, info
+            "weights": wts.tolist(), "chi2_at_estimate": float(grid[ks[j]][2])}
+    return qs[:, 1], qs[:, 0], qs[:, 2], cov, info
+
+
+def _mixture_quantiles(m: np.ndarray, sd: float, w: np.ndarray, probs) -> list[float]:
+    """Quantiles of the normal mixture sum_j w_j N(m_j, sd^2) (bisection on its CDF)."""
+    from math import erf, sqrt
+
+    def cdf(x):
+        return float(sum(wj * 0.5 * (1.0 + erf((x - mj) / (sd * sqrt(2.0)))) for wj, mj in zip(w, m)))
+
+    out = []
+    for pr in probs:
+        a, b = float(m.min() - 10 * sd), float(m.max() + 10 * sd)
+        for _ in range(80):
+            c = 0.5 * (a + b)
+            a, b = (c, b) if cdf(c) < pr else (a, c)
+        out.append(0.5 * (a + b))
+    return out
 
 
 def _identifiability(names, F: np.ndarray, ratio: np.ndarray, s: FitSettings) -> tuple[list[bool], list[str]]:

@@ -268,3 +268,33 @@ def test_estimate_write_card(tmp_path):
     d = float(last[header.index("delta_mult")])
     assert nxt.stochastic.gamma_per_um2 == pytest.approx(card.stochastic.gamma_per_um2 * g, rel=1e-4)
     assert nxt.stochastic.delta_per_um2 == pytest.approx(card.stochastic.delta_per_um2 * d, rel=1e-4)
+
+
+def test_ridge_posterior_reproduces_a_gaussian_posterior():
+    """Summaries linear in u (no plant noise): the posterior is Gaussian with precision J'WJ + P and
+    mean H^-1 J'W y. The ridge scan, started away from the mean, must give its median and its 5 %
+    and 95 % quantiles (up to the grid's cell spread: variance x (1 + 1/12) along the ridge)."""
+    from scipy.stats import norm
+
+    from bmctl.calibrate.fit import FitSettings, ridge_posterior
+
+    J = np.array([[1.0, 0.9], [0.8, 0.75], [0.5, 0.48], [0.2, 0.1]]) * 6.0  # a strongly correlated pair
+    W = np.eye(4)
+    P = np.eye(2)
+    y = J @ np.array([0.4, -0.3]) + np.array([0.3, -0.2, 0.1, 0.05])
+
+    class Linear:
+        def run(self, pts):
+            return np.stack([np.stack([J @ u] * 2) for u in pts])
+
+    H = J.T @ W @ J + P
+    cov = np.linalg.inv(H)
+    mean = cov @ J.T @ W @ y
+    u0 = mean + 1.5 * np.sqrt(np.diag(cov)) * np.array([1.0, -1.0])  # where Gauss-Newton might have stopped
+    u_hat, lo, hi, cov_r, info = ridge_posterior(Linear(), y, W, P, J, H, u0, FitSettings())
+    sd = np.sqrt(np.diag(cov))
+    np.testing.assert_allclose(u_hat, mean, atol=0.02 * sd.max())
+    z = norm.ppf(0.95)
+    np.testing.assert_allclose(hi - u_hat, z * sd, rtol=0.06)
+    np.testing.assert_allclose(u_hat - lo, z * sd, rtol=0.06)
+    assert len(info["points"]) >= 7  # extended until both ends are in the tails
