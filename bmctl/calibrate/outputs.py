@@ -88,7 +88,8 @@ def calibration_dict(cal: Calibration, histories: Sequence[History], distances: 
     lam = np.linalg.eigvalsh(cal.fisher)
     return {
         "method": "Gaussian synthetic likelihood of per-sample summaries (mean, std of ln s and r), "
-                  "Gauss-Newton on common-random-number plant runs, Laplace 90 % intervals "
+                  "Gauss-Newton on common-random-number plant runs, estimate and 90 % intervals from a "
+                  "scan of the posterior along its least-informed direction "
                   "(docs/calibration-from-data.md)",
         "parameters": params,
         "correlation_ln": corr.tolist(),
@@ -97,7 +98,7 @@ def calibration_dict(cal: Calibration, histories: Sequence[History], distances: 
         "chi2_at_optimum": cal.chi2, "n_summaries": cal.n_summaries,
         "sample_distances": distances,
         "converged": cal.converged, "plant_runs": cal.plant_runs, "start_choice": cal.start_choice,
-        "iterations": cal.iterations,
+        "iterations": cal.iterations, "ridge": cal.ridge,
         "histories": [{"name": h.name, "file": h.path, "times_h": h.times_h,
                        "particles_measured": [int(s.s_um.size) for s in h.samples]} for h in histories],
         **meta,
