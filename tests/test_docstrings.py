@@ -11,7 +11,9 @@ PACKAGES = ["bmctl.plant", "bmctl.moments", "bmctl.estimate", "bmctl.control", "
 EXTRA = ["bmctl.simulate:simulate", "bmctl.trial:run_trial", "bmctl.whatif:run_schedule_ensemble",
          "bmctl.config:load_card", "bmctl.plant.plant:Plant.advance", "bmctl.plant.plant:Plant.sample",
          "bmctl.estimate.filter:ParticleFilter.predict", "bmctl.estimate.filter:ParticleFilter.update",
-         "bmctl.moments.model:MomentModel.step", "bmctl.moments.model:MomentModel.simulate"]
+         "bmctl.moments.model:MomentModel.step", "bmctl.moments.model:MomentModel.simulate",
+         "bmctl.calibrate.fit:calibrate", "bmctl.calibrate.fit:ridge_posterior",
+         "bmctl.control.compiled:compiled_step"]
 
 
 def _targets():

@@ -310,6 +310,25 @@ def ridge_posterior(ev: _Evaluator, y: np.ndarray, W: np.ndarray, P: np.ndarray,
     far from a parabola (a steep wall on one side, a long slope on the other), which the mixture
     follows and a Laplace approximation does not.
 
+    Parameters
+    ----------
+    ev : _Evaluator
+        Plant runs of points in u (``ev.run(points)`` -> summaries (points, replicates, n)).
+    y : ndarray
+        Measured summaries.
+    W : ndarray
+        Weight (inverse covariance of the summaries) of the last Gauss-Newton iteration.
+    P : ndarray
+        Prior precision in u.
+    J : ndarray
+        Jacobian of the summaries in u (last iteration).
+    H : ndarray
+        Laplace precision J'WJ + P.
+    u0 : ndarray
+        Where the Gauss-Newton steps ended (the scan's centre).
+    s : FitSettings
+        ``ridge_step_sd``, ``ridge_max_sd``, ``ridge_tail``, ``prior_sd``.
+
     Returns
     -------
     u_hat, lo, hi, cov, info

@@ -196,6 +196,11 @@ def compiled_step(model, dt_h: float, substeps: int | None = None, reverse: bool
 
     Parameters
     ----------
+    model : MomentModel
+    dt_h : float
+        Interval of one step (h).
+    substeps : int, optional
+        RKC substeps (default: the model's).
     reverse : bool, optional
         Also compile the step's reverse derivative (``adj1_band_step``), so that gradients through
         the loaded function run compiled too (a separate library; gcc -O1 takes about 5 s).
