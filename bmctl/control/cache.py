@@ -25,6 +25,11 @@ Decisions
   and keeps using the interpreted solver; the compiled one is picked up at the next solve after
   gcc finished (in this or any later process). A first run is therefore never slower than
   without compilation.
+* **One compile per library.** A lock file next to the library (``<name>.so.lock``, created
+  exclusively, removed by the compile's shell when gcc ends) keeps concurrent processes (trial
+  workers, a second terminal) from compiling the same library twice; the others keep solving
+  interpreted and load the library when it appears. A lock older than 30 min is taken as left
+  by a killed process and replaced.
 * **Fallbacks.** No gcc, a failed compile, or a library that does not load (corrupt,
   truncated): one line on stderr, the interpreted solver, and (for a bad file) the file is
   removed so the next process rebuilds it.
@@ -205,6 +210,11 @@ def start_compile(solver, path: Path, wait: bool = False) -> None:
             _running[str(path)].wait()
             ready(path)
         return
+    lock = _lock_path(path)
+    if not _take_lock(lock):  # another process is compiling it: use its library when it is there
+        if wait:
+            _wait_for_other(path, lock)
+        return
     fd, c_file = tempfile.mkstemp(prefix=f"gen_{path.stem.replace('-', '_')}_", suffix=".c", dir=path.parent)
     os.close(fd)
     tmp_so = c_file[:-2] + ".so"
@@ -215,18 +225,65 @@ def start_compile(solver, path: Path, wait: bool = False) -> None:
         solver.generate_dependencies(c_path.name, {"with_header": False})
     except Exception:
         c_path.unlink(missing_ok=True)
+        lock.unlink(missing_ok=True)
         raise
     finally:
         os.chdir(cwd)
     # compile to a temporary name, then rename into place; the sources are removed either way
     script = (f'gcc {" ".join(CFLAGS)} -o "{tmp_so}" "{c_file}" && mv -f "{tmp_so}" "{path}"; '
-              f'rc=$?; rm -f "{c_file}" "{tmp_so}"; exit $rc')
+              f'rc=$?; rm -f "{c_file}" "{tmp_so}" "{lock}"; exit $rc')
     proc = subprocess.Popen(["sh", "-c", script], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     _running[str(path)] = proc
     if wait:
         proc.wait()
         ready(path)
+
+
+#: a compile lock older than this is taken to be left by a killed process (the slowest compile,
+#: the exact-Hessian NLP, takes 3-5 min at -O1)
+LOCK_STALE_S = 1800.0
+
+
+def _lock_path(path: Path) -> Path:
+    return path.with_name(path.name + ".lock")
+
+
+def _take_lock(lock: Path) -> bool:
+    """Create ``lock`` exclusively (one compile of a library at a time across processes); a stale
+    lock is replaced. False when another process holds it."""
+    import time
+
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600)
+        except FileExistsError:
+            try:
+                if time.time() - lock.stat().st_mtime < LOCK_STALE_S:
+                    return False
+                lock.unlink()
+            except FileNotFoundError:
+                pass
+            continue
+        except OSError:
+            return True  # no lock possible (odd file system): compile anyway, the rename stays atomic
+        os.write(fd, str(os.getpid()).encode())
+        os.close(fd)
+        return True
+    return False
+
+
+def _wait_for_other(path: Path, lock: Path) -> None:
+    """Block until another process's compile of ``path`` ended (its lock is gone) or went stale."""
+    import time
+
+    while lock.exists() and not path.is_file():
+        try:
+            if time.time() - lock.stat().st_mtime >= LOCK_STALE_S:
+                return
+        except FileNotFoundError:
+            return
+        time.sleep(0.5)
 
 
 def load(path: Path, name: str, opts: dict):

@@ -140,3 +140,27 @@ def test_design_on_the_compiled_step_gives_the_interpreted_design(private_cache,
     np.testing.assert_array_equal(a.cycles, b.cycles)
     np.testing.assert_allclose(a.duty, b.duty, atol=1e-4)
     assert b.cost == pytest.approx(a.cost, rel=1e-4)
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+def test_one_compile_per_library_across_processes(private_cache, monkeypatch):
+    """A fresh lock file (another process compiling) means no second gcc; a stale one is replaced;
+    the compile removes its lock when gcc ends."""
+    import time
+
+    import casadi as ca
+
+    from bmctl.control.compiled import _Generator
+
+    monkeypatch.setenv(cache.ENV_SWITCH, "1")
+    x = ca.SX.sym("x")
+    gen = _Generator(ca.Function("band_step", [x], [x * x]))
+    path = cache.library_path("0" * 24, prefix="test")
+    lock = path.with_name(path.name + ".lock")
+    lock.write_text("12345")
+    cache.start_compile(gen, path)  # held by "another process": nothing started
+    assert str(path) not in cache._running and not path.exists()
+    old = time.time() - cache.LOCK_STALE_S - 60
+    os.utime(lock, (old, old))  # left by a killed process
+    cache.start_compile(gen, path, wait=True)
+    assert path.is_file() and not lock.exists()
