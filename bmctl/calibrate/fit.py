@@ -341,8 +341,8 @@ def ridge_posterior(ev: _Evaluator, y: np.ndarray, W: np.ndarray, P: np.ndarray,
     Wb = vec[:, 1:]  # the better-informed directions
     Hw = Wb.T @ H @ Wb
     Cw = np.linalg.inv(Hw) if p > 1 else np.zeros((0, 0))
-    step = s.ridge_step_sd * sd_v
     lim = min(s.ridge_max_sd * sd_v, 3.0 * s.prior_sd / max(np.max(np.abs(v)), 1e-12))
+    step = min(s.ridge_step_sd * sd_v, lim / 2.0)  # at least -2..2 inside the limits (a prior-wide ridge)
     grid: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}  # k -> (q, conditional mean point u, chi2)
 
     def evaluate(ks):

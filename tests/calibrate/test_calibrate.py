@@ -298,3 +298,24 @@ def test_ridge_posterior_reproduces_a_gaussian_posterior():
     np.testing.assert_allclose(hi - u_hat, z * sd, rtol=0.06)
     np.testing.assert_allclose(u_hat - lo, z * sd, rtol=0.06)
     assert len(info["points"]) >= 7  # extended until both ends are in the tails
+
+
+def test_ridge_posterior_of_a_parameter_the_data_ignore_is_the_prior():
+    """A parameter the summaries do not respond to: its posterior is the prior N(0, 1) in ln units,
+    so the scan (capped at 3 prior sd) must return the prior's median and 5 %/95 % quantiles."""
+    from scipy.stats import norm
+
+    from bmctl.calibrate.fit import FitSettings, ridge_posterior
+
+    J = np.array([[4.0, 0.0], [2.0, 0.0], [1.0, 0.0]])
+    W, P = np.eye(3), np.eye(2)
+    y = J @ np.array([0.2, 0.0])
+
+    class Linear:
+        def run(self, pts):
+            return np.stack([np.stack([J @ u] * 2) for u in pts])
+
+    H = J.T @ W @ J + P
+    u_hat, lo, hi, _, _ = ridge_posterior(Linear(), y, W, P, J, H, np.array([0.2, 0.5]), FitSettings())
+    assert abs(u_hat[1]) < 0.05
+    np.testing.assert_allclose([lo[1], hi[1]], norm.ppf([0.05, 0.95]), rtol=0.06)
