@@ -405,5 +405,6 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
     ax.set_title("estimated bonding γ and fracture δ factors"), ax.set_ylabel("factor relative to the card (1 = card)")
     ax.set_xlabel("t (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
     fig.suptitle(f"{sc.scenario.name}: {sc.scenario.description}")
-    fig.tight_layout()
+    # fixed margins: tight_layout would draw the figure once more only to measure it
+    fig.subplots_adjust(left=0.055, right=0.965, bottom=0.075, top=0.91, wspace=0.36, hspace=0.32)
     io.savefig(fig, out / "trial.png", dpi=110)
