@@ -76,7 +76,8 @@ def moments_over_time(path: Path, t_h: np.ndarray, cols: dict[str, np.ndarray], 
     ax.set_xlabel("milling time t (h)"), ax.set_ylabel("vial temperature (°C)"), ax.set_title("temperature")
     ax.legend(fontsize=8), ax.grid(alpha=0.3)
     fig.suptitle(title)
-    savefig(fig, path, dpi=120, bbox_inches="tight")
+    fig.subplots_adjust(left=0.05, right=0.985, bottom=0.13, top=0.86, wspace=0.24)  # fixed: no measuring draw
+    savefig(fig, path, dpi=120)
 
 
 def log_size_bins(s_edges_um: np.ndarray, per_decade: int = 20, s_min_um: float = 1.0) -> np.ndarray:
@@ -160,8 +161,7 @@ def size_distributions(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, time
     xlo, xhi = edges[max(nz[0] - 1, 0)], edges[min(nz[-1] + 2, edges.size - 1)]
     for a, k in zip(axes.flat, idx):
         top = 1.15 * max(q0[k].max(), q3[k].max())
-        a.bar(edges[:-1], q0[k], width=np.diff(edges), align="edge", color="tab:blue", alpha=0.45,
-              label="number density per ln s")
+        a.stairs(q0[k], edges, fill=True, color="tab:blue", alpha=0.45, label="number density per ln s")
         a.step(edges[:-1], q3[k], where="post", color="tab:orange", lw=1.6, label="volume density per ln s")
         a.set_xscale("log")
         _log_size_axis(a)
@@ -252,7 +252,8 @@ def irregularity_distributions(path: Path, r_edges: np.ndarray, p_r: np.ndarray,
     for ax in axes:
         ax.set_xlim(0, hi), ax.set_xlabel(R_LABEL), ax.grid(alpha=0.3, which="both"), ax.legend(fontsize=8)
     fig.suptitle(title)
-    savefig(fig, path, dpi=120, bbox_inches="tight")
+    fig.subplots_adjust(left=0.065, right=0.98, bottom=0.12, top=0.86, wspace=0.2)  # fixed: no measuring draw
+    savefig(fig, path, dpi=120)
 
 
 _MOMENT_LABELS = {"s_mean_um": "mean s (µm)", "s_std_um": "std s (µm)", "r_mean": "mean irregularity r",
