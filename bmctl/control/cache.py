@@ -45,7 +45,6 @@ import shutil
 import stat
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 #: gcc flags; part of the key
@@ -215,8 +214,7 @@ def start_compile(solver, path: Path, wait: bool = False) -> None:
         if wait:
             _wait_for_other(path, lock)
         return
-    fd, c_file = tempfile.mkstemp(prefix=f"gen_{path.stem.replace('-', '_')}_", suffix=".c", dir=path.parent)
-    os.close(fd)
+    c_file = _new_source_file(path)
     tmp_so = c_file[:-2] + ".so"
     c_path = Path(c_file)
     cwd = os.getcwd()
@@ -243,6 +241,22 @@ def start_compile(solver, path: Path, wait: bool = False) -> None:
 #: a compile lock older than this is taken to be left by a killed process (the slowest compile,
 #: the exact-Hessian NLP, takes 3-5 min at -O1)
 LOCK_STALE_S = 1800.0
+
+
+def _new_source_file(path: Path) -> str:
+    """A new, empty ``gen_<stem>_<hex>.c`` next to ``path``. casadi takes the file's stem as a C
+    identifier and refuses a double underscore, which ``tempfile.mkstemp``'s random part (letters,
+    digits and '_') can produce; a hex token cannot."""
+    import secrets
+
+    stem = path.stem.replace("-", "_")
+    while True:
+        name = path.parent / f"gen_{stem}_{secrets.token_hex(6)}.c"
+        try:
+            os.close(os.open(name, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+            return str(name)
+        except FileExistsError:
+            continue
 
 
 def _lock_path(path: Path) -> Path:

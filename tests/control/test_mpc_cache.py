@@ -2,6 +2,7 @@
 
 import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -164,3 +165,13 @@ def test_one_compile_per_library_across_processes(private_cache, monkeypatch):
     os.utime(lock, (old, old))  # left by a killed process
     cache.start_compile(gen, path, wait=True)
     assert path.is_file() and not lock.exists()
+
+
+def test_generated_source_names_are_c_identifiers(tmp_path):
+    """casadi takes the generated file's stem as a C identifier and refuses '__' (tempfile.mkstemp's
+    random part can produce one): the cache's own names never hold it."""
+    import re
+
+    for _ in range(500):
+        stem = Path(cache._new_source_file(tmp_path / "mpc-cold-0123abcd.so")).stem
+        assert "__" not in stem and re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", stem)
