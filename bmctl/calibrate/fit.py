@@ -339,8 +339,8 @@ def ridge_posterior(ev: _Evaluator, y: np.ndarray, W: np.ndarray, P: np.ndarray,
     v = vec[:, 0]
     sd_v = 1.0 / np.sqrt(lam[0])
     Wb = vec[:, 1:]  # the better-informed directions
-    Hw = Wb.T @ H @ Wb
-    Cw = np.linalg.inv(Hw) if p > 1 else np.zeros((0, 0))
+    Cw = np.linalg.inv(Wb.T @ H @ Wb) if p > 1 else np.zeros((0, 0))
+    C_other = Wb @ Cw @ Wb.T  # their conditional covariance in u ((p, p); zero for one parameter)
     lim = min(s.ridge_max_sd * sd_v, 3.0 * s.prior_sd / max(np.max(np.abs(v)), 1e-12))
     step = min(s.ridge_step_sd * sd_v, lim / 2.0)  # at least -2..2 inside the limits (a prior-wide ridge)
     grid: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}  # k -> (q, conditional mean point u, chi2)
@@ -381,14 +381,14 @@ def ridge_posterior(ev: _Evaluator, y: np.ndarray, W: np.ndarray, P: np.ndarray,
     wts = np.exp(-0.5 * (q - q.min()))
     wts /= wts.sum()
     # within a grid cell the ridge coordinate is spread uniformly over one step
-    var_in = np.outer(v, v) * step**2 / 12.0 + (Wb @ Cw @ Wb.T if p > 1 else 0.0)
+    var_in = np.outer(v, v) * step**2 / 12.0 + C_other
     sd_in = np.sqrt(np.maximum(np.diag(var_in), 1e-30))
     mean = wts @ centres
     cov = (centres - mean).T @ ((centres - mean) * wts[:, None]) + var_in
     qs = np.array([_mixture_quantiles(centres[:, i], sd_in[i], wts, (0.05, 0.5, 0.95)) for i in range(p)])
     j = int(np.argmax(wts))
     info = {"direction_ln": v.tolist(), "laplace_sd_along": float(sd_v), "step_ln": float(step),
-            "gauss_newton_end_ln": u0.tolist(), "cov_other_ln": (Wb @ Cw @ Wb.T if p > 1 else np.zeros((1, 1))).tolist(),
+            "gauss_newton_end_ln": u0.tolist(), "cov_other_ln": C_other.tolist(),
             "points": [{"offset_sd": k * s.ridge_step_sd, "u_ln": grid[k][1].tolist(),
                         "minus2_log_posterior": grid[k][0], "chi2": grid[k][2]} for k in ks],
             "weights": wts.tolist(), "chi2_at_estimate": float(grid[ks[j]][2])}
@@ -410,6 +410,46 @@ def _mixture_quantiles(m: np.ndarray, sd: float, w: np.ndarray, probs) -> list[f
             a, b = (c, b) if cdf(c) < pr else (a, c)
         out.append(0.5 * (a + b))
     return out
+
+
+def local_information(card: ModelCard, histories: Sequence[History], names: Sequence[str], u: np.ndarray,
+                      seed: int = 0, settings: FitSettings | None = None, client=None,
+                      progress: Callable[[int], None] | None = None) -> dict:
+    """Identifiability at one point: Fisher information of the summaries, posterior sd, verdicts.
+
+    One design (2p + 1 points x replicates plant runs per history) at ``u`` = ln(value / card
+    value); no data are needed beyond the histories' schedules, times and sample sizes (their
+    measured samples set the sampling covariance). Answers "which parameters would these
+    experiments identify?" before running them.
+
+    Parameters
+    ----------
+    card : ModelCard
+    histories : sequence of History
+    names : sequence of str
+    u : ndarray
+        Point (ln ratio to the card) to evaluate at, e.g. the truth in a synthetic study.
+    seed : int, optional
+    settings : FitSettings, optional
+    client : distributed.Client, optional
+    progress : callable, optional
+
+    Returns
+    -------
+    dict
+        ``fisher``, ``cov_u``, ``sd_ratio`` (posterior / prior sd), ``identified``, ``why``.
+    """
+    s = settings or FitSettings()
+    names = list(names)
+    y, obs_cov, ev = _setup(card, names, histories, s, seed, client, progress)
+    S = ev.run(_design(np.asarray(u, float), s.fd_step))
+    W = _weight(obs_cov, S.var(axis=1, ddof=1).mean(axis=0), s.replicates)
+    J, F = _jacobian_information(S, W, s.fd_step)
+    cov = np.linalg.inv(F + np.eye(len(names)) / s.prior_sd**2)
+    ratio = np.sqrt(np.diag(cov)) / s.prior_sd
+    identified, why = _identifiability(names, F, ratio, s)
+    return {"fisher": F, "cov_u": cov, "sd_ratio": ratio, "identified": identified, "why": why,
+            "plant_runs": ev.runs}
 
 
 def _identifiability(names, F: np.ndarray, ratio: np.ndarray, s: FitSettings) -> tuple[list[bool], list[str]]:

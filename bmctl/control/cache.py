@@ -263,21 +263,26 @@ def _lock_path(path: Path) -> Path:
     return path.with_name(path.name + ".lock")
 
 
+def _lock_live(lock: Path) -> bool:
+    """Whether ``lock`` exists and is younger than :data:`LOCK_STALE_S`."""
+    import time
+
+    try:
+        return time.time() - lock.stat().st_mtime < LOCK_STALE_S
+    except FileNotFoundError:
+        return False
+
+
 def _take_lock(lock: Path) -> bool:
     """Create ``lock`` exclusively (one compile of a library at a time across processes); a stale
     lock is replaced. False when another process holds it."""
-    import time
-
     for _ in range(2):
         try:
             fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600)
         except FileExistsError:
-            try:
-                if time.time() - lock.stat().st_mtime < LOCK_STALE_S:
-                    return False
-                lock.unlink()
-            except FileNotFoundError:
-                pass
+            if _lock_live(lock):
+                return False
+            lock.unlink(missing_ok=True)
             continue
         except OSError:
             return True  # no lock possible (odd file system): compile anyway, the rename stays atomic
@@ -291,12 +296,7 @@ def _wait_for_other(path: Path, lock: Path) -> None:
     """Block until another process's compile of ``path`` ended (its lock is gone) or went stale."""
     import time
 
-    while lock.exists() and not path.is_file():
-        try:
-            if time.time() - lock.stat().st_mtime >= LOCK_STALE_S:
-                return
-        except FileNotFoundError:
-            return
+    while _lock_live(lock) and not path.is_file():
         time.sleep(0.5)
 
 

@@ -72,7 +72,7 @@ class PatternResult:
 def _design_step(model, dt_h: float, substeps: int):
     """The moment step of the design grid: compiled with its reverse derivative from bmctl's cache
     (compiled in the foreground when missing: about 5 s of gcc, repaid within the first solve), else
-    the interpreted SX step. Same equations either way (tests/control/test_pattern.py)."""
+    the interpreted SX step. Same equations either way (tests/control/test_mpc_cache.py)."""
     from .compiled import compiled_step
 
     F = compiled_step(model, dt_h, substeps, reverse=True, wait=True)

@@ -319,3 +319,21 @@ def test_ridge_posterior_of_a_parameter_the_data_ignore_is_the_prior():
     u_hat, lo, hi, _, _ = ridge_posterior(Linear(), y, W, P, J, H, np.array([0.2, 0.5]), FitSettings())
     assert abs(u_hat[1]) < 0.05
     np.testing.assert_allclose([lo[1], hi[1]], norm.ppf([0.05, 0.95]), rtol=0.06)
+
+
+def test_local_information_reports_identifiability_without_a_fit():
+    """``local_information`` (used by ``benchmarks/calibrate_accuracy.py four``): one design at a point,
+    a positive semi-definite Fisher information, posterior sd no wider than the prior's, one verdict
+    with its reason per parameter; the same seed gives the same numbers."""
+    from bmctl.calibrate.fit import FitSettings, local_information
+    from bmctl.calibrate.synthetic import synthetic_history
+
+    truth = with_factors(load_card(LAB), 1.4, 0.75)
+    h = synthetic_history(truth, [(1.0, 300.0, 1.0)], [0.5, 1.0], 150, 400, np.random.default_rng(3), name="tiny")
+    s = FitSettings(particles=200)
+    a = local_information(load_card(LAB), [h], ["gamma", "delta"], np.log([1.4, 0.75]), seed=1, settings=s)
+    assert a["plant_runs"] == (2 * 2 + 1) * s.replicates
+    assert a["fisher"].shape == (2, 2) and np.all(np.linalg.eigvalsh(a["fisher"]) >= -1e-9)
+    assert np.all(a["sd_ratio"] <= 1.0 + 1e-12) and len(a["identified"]) == len(a["why"]) == 2
+    b = local_information(load_card(LAB), [h], ["gamma", "delta"], np.log([1.4, 0.75]), seed=1, settings=s)
+    np.testing.assert_array_equal(a["fisher"], b["fisher"])
