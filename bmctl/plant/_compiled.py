@@ -22,6 +22,7 @@ import os
 import numpy as np
 from numba import njit
 
+from ..physics.samplers import ENERGY_MAIN_U, ENERGY_TAIL_T, N_CELLS, N_TAIL_CELLS
 from .events import R_MAX
 
 # indices into the float parameter vector (built by Plant._numba_params)
@@ -29,7 +30,38 @@ P_THETA, P_TRAPPED, P_SQRT_A, P_SQRT_B, P_ZETA_B, P_XI_A = 0, 1, 2, 3, 4, 5
 P_SIGMA, P_U_BOND, P_U_FRAC, P_ETA_EQ = 6, 7, 8, 9  # change with temperature and hardening (contiguous)
 P_STRAIN_EFF, P_MAX_STRAIN = 10, 11
 P_MODULUS, P_SHARPNESS, P_GAMMA, P_DELTA = 12, 13, 14, 15
-N_PARAMS = 16
+P_TABULATED = 16  # 1: the tabulated samplers of bmctl.physics.samplers; 0: numpy's exact ones
+N_PARAMS = 17
+
+_E_SCALE = N_CELLS / ENERGY_MAIN_U  # as in bmctl.physics.samplers.tabulated_energies
+_T0 = ENERGY_TAIL_T[0]
+_T_SCALE = N_TAIL_CELLS / (ENERGY_TAIL_T[1] - ENERGY_TAIL_T[0])
+
+
+@njit(cache=True, inline="always")  # inlined: a call would pay the tables' reference counts
+def _tab_energy(u, main, tail):
+    """U_in / theta from one uniform u: samplers.tabulated_energies, same operations.  (5)"""
+    if u < ENERGY_MAIN_U:
+        z = u * _E_SCALE
+        k = min(int(z), N_CELLS - 1)
+        if k == 0:
+            return main[1] * np.cbrt(z)
+        return main[k] + (z - k) * (main[k + 1] - main[k])
+    zt = (-math.log1p(-u) - _T0) * _T_SCALE
+    k = min(int(zt), N_TAIL_CELLS - 1)
+    return tail[k] + (zt - k) * (tail[k + 1] - tail[k])
+
+
+@njit(cache=True, inline="always")
+def _tab_beta(u, q, a):
+    """Beta(a, 2) from one uniform u: samplers.tabulated_beta_a2, same operations.  (9)"""
+    z = u * N_CELLS
+    k = int(z)
+    if k == 0:
+        return q[1] * z ** (1.0 / a)
+    if k == N_CELLS - 1:
+        return 1.0 - (1.0 - q[N_CELLS - 1]) * math.sqrt(N_CELLS - z)
+    return q[k] + (z - k) * (q[k + 1] - q[k])
 
 
 @njit(cache=True)
@@ -77,7 +109,7 @@ def _first_round(qi, qj, qv, seen):
 
 
 @njit(cache=True)
-def _round(rng, s, r, i, j, v, p, seen):
+def _round(rng, s, r, i, j, v, p, seen, tabs):
     """One round of impacts on pairs (i, j) sharing no slot: PaperKernels.impact + Plant._impact_round.
 
     Returns the numbers of bonds and fractures.
@@ -85,16 +117,29 @@ def _round(rng, s, r, i, j, v, p, seen):
     n = i.size
     pi = np.pi
     # draws, in the numpy engine's order
-    u_in = _energies(rng, p[P_THETA], n)  # (5)
+    tabulated = p[P_TABULATED] != 0.0
+    if tabulated:
+        u_in = np.empty(n)
+        theta = p[P_THETA]
+        for k in range(n):
+            u_in[k] = _tab_energy(rng.random(), tabs[0], tabs[1]) * theta  # (5)
+    else:
+        u_in = _energies(rng, p[P_THETA], n)  # (5)
     phi = np.empty(n)
     for k in range(n):
         phi[k] = rng.uniform(-pi, pi)
     zeta = np.empty(2 * n)
-    for k in range(2 * n):
-        zeta[k] = rng.beta(2.0, p[P_ZETA_B])  # (9)
     xi = np.empty(2 * n)
-    for k in range(2 * n):
-        xi[k] = rng.beta(p[P_XI_A], 2.0)  # (9)
+    if tabulated:
+        for k in range(2 * n):
+            zeta[k] = 1.0 - _tab_beta(rng.random(), tabs[2], p[P_ZETA_B])  # (9)
+        for k in range(2 * n):
+            xi[k] = _tab_beta(rng.random(), tabs[3], p[P_XI_A])  # (9)
+    else:
+        for k in range(2 * n):
+            zeta[k] = rng.beta(2.0, p[P_ZETA_B])  # (9)
+        for k in range(2 * n):
+            xi[k] = rng.beta(p[P_XI_A], 2.0)  # (9)
     x = np.empty(2 * n)
     for k in range(2 * n):
         x[k] = rng.random()
@@ -114,9 +159,11 @@ def _round(rng, s, r, i, j, v, p, seen):
     frac = np.zeros(2 * n, dtype=np.bool_)
     n_frac = 0
     for k in range(n):
-        psi = 0.5 * math.atan2(p[P_SQRT_B] * math.sin(phi[k]), p[P_SQRT_A] * math.cos(phi[k]))
-        sin2 = math.sin(2 * psi) ** 2
-        cos2 = math.cos(2 * psi) ** 2
+        ca = p[P_SQRT_A] * math.cos(phi[k])  # cos 2psi, as impacts.sample_impact_cos2psi
+        sb = p[P_SQRT_B] * math.sin(phi[k])
+        c2 = ca / math.sqrt(ca * ca + sb * sb)
+        cos2 = c2 * c2  # cos^2 2psi, sin^2 2psi: events.impact_heats
+        sin2 = 1.0 - cos2
         for side in range(2):
             q = k + side * n
             slot = i[k] if side == 0 else j[k]
@@ -129,7 +176,7 @@ def _round(rng, s, r, i, j, v, p, seen):
             area = pi / 4 * sq**2
             mag = min(s_eff * 1.5 * dup / (area * sq * sigma), max_strain)  # (11)
             c = math.sqrt(min(max(1 - (1 - rq) ** 2, 0.0), 1.0))
-            eps = mag if abs(psi) < math.atan2(1 + c, 1 - c) else -mag  # (14)
+            eps = mag if c2 > -2.0 * c / (1.0 + c * c) else -mag  # (14): events.strain_sign
             rq = min(max(rq + (1 - rq) * c * eps, 0.0), R_MAX)  # (12), (13)
             rq = rq * math.exp(-eta * 1.5 * dup / (area * sq * sigma))  # rounding, after (13)
             r_new[q] = rq
@@ -177,7 +224,7 @@ def _round(rng, s, r, i, j, v, p, seen):
         pb = min(max(p[P_GAMMA] * si * sj / ((1 - ri) * (1 - rj)), 0.0), 1.0)  # (15)
         if u_bond[k] >= pb:  # no bond whatever p_u <= 1: skip (16), (17)
             continue
-        d = 0.75 * si * sj / (si + sj) * math.sqrt(3 * pi * u_in[k] / (p[P_MODULUS] * (si**3.0 + sj**3.0)))  # (16)
+        d = 0.75 * si * sj / (si + sj) * math.sqrt(3 * pi * u_in[k] / (p[P_MODULUS] * (si * si * si + sj * sj * sj)))  # (16)
         d = min(d, pi / 2 * min(si, sj))
         pu = _threshold((dud[k] + dud[n + k]) / d, p[P_U_BOND], sharp)  # (17)
         if u_bond[k] < pb * pu:
@@ -241,7 +288,7 @@ def _round(rng, s, r, i, j, v, p, seen):
 
 
 @njit(cache=True)
-def impacts(rng, s, r, qi, qj, qv, n, flush, p, seen):
+def impacts(rng, s, r, qi, qj, qv, n, flush, p, seen, tabs):
     """Queue n new impacts, then run the first round (every round with ``flush``): Plant._impacts.
 
     Parameters
@@ -260,6 +307,9 @@ def impacts(rng, s, r, qi, qj, qv, n, flush, p, seen):
         Float parameters (``P_*`` indices).
     seen : ndarray of bool, shape (M,)
         All False; scratch space, left all False.
+    tabs : tuple of four ndarrays
+        The sampler tables (``Plant._sampler_tables``): energy main and tail, Beta(alpha + 1, 2),
+        Beta(beta + 1, 2); unused with ``p[P_TABULATED] == 0``.
 
     Returns
     -------
@@ -273,16 +323,14 @@ def impacts(rng, s, r, qi, qj, qv, n, flush, p, seen):
     i[:nq] = qi
     j[:nq] = qj
     v[:nq] = qv
-    for k in range(n):
-        i[nq + k] = rng.integers(0, M)
-    for k in range(n):
-        j[nq + k] = (i[nq + k] + rng.integers(1, M)) % M  # uniform over the others
-    for k in range(n):
-        v[nq + k] = (j[nq + k] + rng.integers(1, M)) % M  # rebalancing slot, never j
+    # vector draws: numpy's stream, and 6x faster in numba than one integer at a time
+    i[nq:] = rng.integers(0, M, n)
+    j[nq:] = (i[nq:] + rng.integers(1, M, n)) % M  # uniform over the others
+    v[nq:] = (j[nq:] + rng.integers(1, M, n)) % M  # rebalancing slot, never j
     n_imp, n_bond, n_frac = 0, 0, 0
     while i.size:
         ready = _first_round(i, j, v, seen)
-        b, f = _round(rng, s, r, i[ready], j[ready], v[ready], p, seen)
+        b, f = _round(rng, s, r, i[ready], j[ready], v[ready], p, seen, tabs)
         n_imp += int(ready.sum())
         n_bond += b
         n_frac += f
@@ -294,7 +342,7 @@ def impacts(rng, s, r, qi, qj, qv, n, flush, p, seen):
 
 
 @njit(cache=True)
-def run_steps(rng, s, r, qi, qj, qv, lam, p, seen, n_new, flush):
+def run_steps(rng, s, r, qi, qj, qv, lam, p, seen, n_new, flush, tabs):
     """The time steps of one milling interval (Plant._run): Poisson(lam[k]) new impacts per step, then the flush.
 
     Without steps (``lam`` empty): ``n_new`` new impacts and one round, every round with
@@ -302,7 +350,7 @@ def run_steps(rng, s, r, qi, qj, qv, lam, p, seen, n_new, flush):
 
     Parameters
     ----------
-    rng, s, r, qi, qj, qv, seen
+    rng, s, r, qi, qj, qv, seen, tabs
         As :func:`impacts`.
     lam : ndarray, shape (K,)
         Mean number of new impacts of each step.
@@ -319,11 +367,11 @@ def run_steps(rng, s, r, qi, qj, qv, lam, p, seen, n_new, flush):
     """
     K = lam.size
     if K == 0:
-        return impacts(rng, s, r, qi, qj, qv, n_new, flush, p[0], seen)
+        return impacts(rng, s, r, qi, qj, qv, n_new, flush, p[0], seen, tabs)
     n_imp, n_bond, n_frac = 0, 0, 0
     for k in range(K + 1):
         n = rng.poisson(lam[k]) if k < K else 0
-        qi, qj, qv, a, b, f = impacts(rng, s, r, qi, qj, qv, n, k == K, p[k], seen)
+        qi, qj, qv, a, b, f = impacts(rng, s, r, qi, qj, qv, n, k == K, p[k], seen, tabs)
         n_imp += a
         n_bond += b
         n_frac += f

@@ -53,6 +53,12 @@ def plastic_heat(e_in, psi, xi):
     return e_in * np.cos(2 * psi) ** 2 * (1 - xi**2)
 
 
+def impact_heats(e_in, cos2psi, zeta, xi):
+    """Friction and plastic heat (7), (8) from cos 2 psi: sin^2 2psi = 1 - cos^2 2psi.  (7), (8)"""
+    cos_sq = cos2psi * cos2psi
+    return e_in * (1.0 - cos_sq) * (1 - zeta**2), e_in * cos_sq * (1 - xi**2)
+
+
 def mean_dissipated_share(alpha, beta):
     """E[sin^2(2psi)(1-zeta^2) + cos^2(2psi)(1-xi^2)] under (9) and uniform psi.  (7), (8), (10)"""
     ez2 = 2 * 3 / ((alpha + 3) * (alpha + 4))  # E[zeta^2], zeta ~ Beta(2, alpha+1)
@@ -68,16 +74,27 @@ def critical_angle(r):
     return np.arctan2(1 + c, 1 - c)
 
 
-def plastic_strain(dU_p, s, sigma, efficiency, psi, r, max_strain):
+def strain_sign(cos2psi, r):
+    """+1 where the impact flattens the particle, |psi| < psi_c (14); -1 elsewhere.
+
+    With c = cos(omega), tan psi_c = (1 + c) / (1 - c) gives cos 2 psi_c = -2 c / (1 + c^2), and
+    cos is decreasing on [0, pi], so |psi| < psi_c exactly where cos 2 psi > -2 c / (1 + c^2):
+    :func:`critical_angle` without the arctangent.
+    """
+    c = np.sqrt(np.clip(1 - (1 - np.asarray(r, dtype=float)) ** 2, 0, 1))  # cos(omega)
+    return np.where(np.asarray(cos2psi) > -2.0 * c / (1.0 + c * c), 1.0, -1.0)
+
+
+def plastic_strain(dU_p, s, sigma, efficiency, cos2psi, r, max_strain):
     """Signed equivalent strain eps = +-eta_eps (3/2) Delta U_p / (A s sigma).  (11), sign by (14)
 
     ``efficiency`` (eta_eps) is the share of plastic heat that does shape-changing
-    work (docs/model.md, eqn 11); |eps| is capped at ``max_strain``.
+    work (docs/model.md, eqn 11); |eps| is capped at ``max_strain``; ``cos2psi`` is cos 2 psi of
+    the impact (:func:`strain_sign`).
     """
     area = np.pi / 4 * s**2
     mag = np.minimum(efficiency * 1.5 * dU_p / (area * s * sigma), max_strain)
-    sign = np.where(np.abs(psi) < critical_angle(r), 1.0, -1.0)
-    return sign * mag
+    return strain_sign(cos2psi, r) * mag
 
 
 def aspect_change(r, eps):
@@ -115,7 +132,7 @@ def hertz_contact_length(s_i, s_j, energy, modulus):
     ``energy`` is the impactor's incident energy U_in, as printed; the cap keeps the
     contact within the smaller particle (docs/model.md, eqn 16).
     """
-    d = 0.75 * s_i * s_j / (s_i + s_j) * np.sqrt(3 * np.pi * energy / (modulus * (s_i**3 + s_j**3)))
+    d = 0.75 * s_i * s_j / (s_i + s_j) * np.sqrt(3 * np.pi * energy / (modulus * (s_i * s_i * s_i + s_j * s_j * s_j)))
     return np.minimum(d, np.pi / 2 * np.minimum(s_i, s_j))
 
 

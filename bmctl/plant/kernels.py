@@ -24,8 +24,11 @@ from typing import TYPE_CHECKING, Callable, Protocol
 
 import numpy as np
 
-from ..physics.impacts import dissipation_coefficients, sample_impact_angles  # eqns (7)-(9): one definition  # noqa: F401
+from ..physics.impacts import (dissipation_coefficients, sample_impact_angles,  # eqns (7)-(9): one definition  # noqa: F401
+                               sample_impact_cos2psi)
 
+from ..errors import InputError
+from ..physics import samplers as tab
 from . import events as ev
 from . import thermal
 from .kinematics import MEAN_LOSS_RATIO, Kinematics
@@ -96,6 +99,9 @@ class Kernels(Protocol):
         """
 
 
+SAMPLERS = ("tabulated", "exact")  # how PaperKernels draws U_in (5) and zeta, xi (9)
+
+
 class PaperKernels:
     """The paper's impact physics, eqns (5)-(20) with the energy partition of docs/model.md.
 
@@ -105,7 +111,27 @@ class PaperKernels:
     of the loop "until Delta U is spent" (Sec. 3.2): a collision runs about
     (Delta U / U_in) / c(psi) impacts, so U_in is drawn with weight Delta U / U_in (5) and psi
     with weight 1 / c(psi) (:func:`sample_impact_angles`).
+
+    Parameters
+    ----------
+    samplers : {"tabulated", "exact"}, optional
+        How U_in (5) and zeta, xi (9) are drawn: ``"tabulated"`` (default) inverts the laws'
+        CDFs from tables, one uniform draw per variate (:mod:`bmctl.physics.samplers`);
+        ``"exact"`` uses numpy's Gamma and Beta samplers (:mod:`bmctl.physics.impacts`), the
+        streams of bmctl 0.x before the tables. Same laws (KS-tested); different streams.
+
+    Examples
+    --------
+    >>> PaperKernels().samplers
+    'tabulated'
+    >>> PaperKernels(samplers="exact").samplers
+    'exact'
     """
+
+    def __init__(self, samplers: str = "tabulated"):
+        if samplers not in SAMPLERS:
+            raise InputError(f"samplers: must be one of {', '.join(SAMPLERS)} (got {samplers!r})")
+        self.samplers = samplers
 
     def rate(self, plant: "Plant", kin: Kinematics) -> float:
         """Impacts per particle per second: f F_t E[(U_in - U_out)/U_in] E[1/c(psi)], E[1/c] = 1/sqrt(a b).
@@ -137,17 +163,49 @@ class PaperKernels:
         return sample_impact_angles(rng, *dissipation_coefficients(plant.card.stochastic.alpha,
                                                                    plant.card.stochastic.beta), n)
 
+    def sample_cos2psi(self, plant: "Plant", rng: np.random.Generator, n: int) -> np.ndarray:
+        """cos 2psi of the incidence angles of ``n`` impacts (:func:`sample_impact_cos2psi`, the law of
+        :meth:`sample_psi` from the same draws).
+
+        Parameters
+        ----------
+        plant : Plant
+            Supplies the card.
+        rng : numpy.random.Generator
+            Source of the draws.
+        n : int
+            Number of impacts.
+        """
+        return sample_impact_cos2psi(rng, *dissipation_coefficients(plant.card.stochastic.alpha,
+                                                                    plant.card.stochastic.beta), n)
+
+    def sample_energies(self, rng: np.random.Generator, theta: float, n: int) -> np.ndarray:
+        """U_in of ``n`` impacts under the weighted law of (5), by the kernels' ``samplers``.
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            Source of the draws.
+        theta : float
+            Gamma scale (J).
+        n : int
+            Number of impacts.
+        """
+        if self.samplers == "tabulated":
+            return tab.tabulated_energies(rng, theta, n)  # (5)
+        return ev.sample_impact_energies(rng, theta, n)[0]  # (5)
+
     def collide(self, plant: "Plant", kin: Kinematics, si: np.ndarray, ri: np.ndarray,
                 sj: np.ndarray, rj: np.ndarray, rng: np.random.Generator) -> Outcome:
         n = si.size
-        u_in, _u_out = ev.sample_impact_energies(rng, kin.energy_scale, n)  # (5)
-        psi = self.sample_psi(plant, rng, n)
-        return self.impact(plant, kin, si, ri, sj, rj, u_in, psi, rng)[0]
+        u_in = self.sample_energies(rng, kin.energy_scale, n)  # (5)
+        cos2psi = self.sample_cos2psi(plant, rng, n)
+        return self.impact(plant, kin, si, ri, sj, rj, u_in, cos2psi, rng)[0]
 
     def impact(self, plant: "Plant", kin: Kinematics, si: np.ndarray, ri: np.ndarray, sj: np.ndarray,
-               rj: np.ndarray, u_in: np.ndarray, psi: np.ndarray,
+               rj: np.ndarray, u_in: np.ndarray, cos2psi: np.ndarray,
                rng: np.random.Generator) -> tuple[Outcome, np.ndarray]:
-        """Impacts with given incident energies U_in and angles psi on pairs (i, j), eqns (6)-(20).
+        """Impacts with given incident energies U_in and angles psi (as cos 2 psi) on pairs (i, j), eqns (6)-(20).
 
         ``plant`` supplies the state: ``card``, ``total_area``, ``temperature_C``, ``hardening``,
         ``effective_yield_stress()`` and the factors ``_gamma``, ``_delta``. Returns the
@@ -162,8 +220,8 @@ class PaperKernels:
             Collision quantities (trapped share).
         si, ri, sj, rj : ndarray
             Sizes (m) and aspect ratios of the pairs.
-        u_in, psi : ndarray
-            Incident energy (J) and incidence angle of each impact.
+        u_in, cos2psi : ndarray
+            Incident energy (J) and cos 2 psi (psi: incidence angle) of each impact.
         rng : numpy.random.Generator
             Source of zeta, xi and the event draws.
         """
@@ -173,12 +231,15 @@ class PaperKernels:
         trapped_area = kin.trapped_fraction * plant.total_area  # (6): u_in = U_in / A_trapped
         e_i = u_in * np.minimum(si**2 / trapped_area, 1.0)  # a particle gets at most the whole impact
         e_j = u_in * np.minimum(sj**2 / trapped_area, 1.0)
-        zeta = ev.sample_zeta(rng, st.alpha, 2 * n)  # (9)
-        xi = ev.sample_xi(rng, st.beta, 2 * n)
-        psi2 = np.concatenate([psi, psi])
+        if self.samplers == "tabulated":
+            zeta = tab.tabulated_zeta(rng, st.alpha, 2 * n)  # (9)
+            xi = tab.tabulated_xi(rng, st.beta, 2 * n)
+        else:
+            zeta = ev.sample_zeta(rng, st.alpha, 2 * n)  # (9)
+            xi = ev.sample_xi(rng, st.beta, 2 * n)
+        c2 = np.concatenate([cos2psi, cos2psi])
         e2 = np.concatenate([e_i, e_j])
-        dUf = ev.friction_heat(e2, psi2, zeta)  # (7)
-        dUp = ev.plastic_heat(e2, psi2, xi)  # (8)
+        dUf, dUp = ev.impact_heats(e2, c2, zeta, xi)  # (7), (8)
         dUd = dUf + dUp  # (10)
 
         sigma_eff = plant.effective_yield_stress()
@@ -186,7 +247,7 @@ class PaperKernels:
                                             card.thermal)
         s2 = np.concatenate([si, sj])
         r2 = np.concatenate([ri, rj])
-        eps = ev.plastic_strain(dUp, s2, sigma_eff, part.strain_efficiency, psi2, r2, part.max_strain)  # (11), (14)
+        eps = ev.plastic_strain(dUp, s2, sigma_eff, part.strain_efficiency, c2, r2, part.max_strain)  # (11), (14)
         r2 = np.clip(r2 + ev.aspect_change(r2, eps), 0.0, ev.R_MAX)  # (13)
         r2 = ev.equiaxing(r2, dUp, s2, sigma_eff, part.equiaxing_efficiency,  # after (13)
                           plant.hardening, part.equiaxing_hardening)

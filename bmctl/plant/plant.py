@@ -325,11 +325,21 @@ class Plant:
         p[:, cc.P_SIGMA:cc.P_ETA_EQ + 1] = rows
         lam = np.array([m for m, _ in steps], dtype=float)
         qi, qj, qv, n_imp, n_bond, n_frac = cc.run_steps(self.rng, self.s, self.r, *self._queue, lam, p, self._seen,
-                                                         n_new, flush)
+                                                         n_new, flush, self._sampler_tables())
         self._queue = (qi, qj, qv)
         self.counts.impacts += n_imp
         self.counts.bonds += n_bond
         self.counts.fractures += n_frac
+
+    def _sampler_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The tables of the tabulated samplers: energy main and tail, Beta(alpha + 1, 2), Beta(beta + 1, 2)."""
+        if self.kernels.samplers != "tabulated":
+            dummy = np.zeros(2)
+            return dummy, dummy, dummy, dummy
+        from ..physics import samplers as tab
+
+        st = self.card.stochastic
+        return (*tab.energy_tables(), tab.beta_a2_table(st.alpha + 1.0), tab.beta_a2_table(st.beta + 1.0))
 
     def _step_params(self) -> tuple[float, float, float, float]:
         """sigma_eff, u_bond, u_frac and the rounding efficiency at the current temperature and hardening."""
@@ -354,6 +364,7 @@ class Plant:
         p[cc.P_STRAIN_EFF], p[cc.P_MAX_STRAIN] = part.strain_efficiency, part.max_strain
         p[cc.P_MODULUS], p[cc.P_SHARPNESS] = mat.elastic_modulus_Pa, part.threshold_sharpness
         p[cc.P_GAMMA], p[cc.P_DELTA] = self._gamma, self._delta
+        p[cc.P_TABULATED] = 1.0 if self.kernels.samplers == "tabulated" else 0.0
         return p
 
     def _impact_round(self, kin: Kinematics, i: np.ndarray, j: np.ndarray, v: np.ndarray) -> None:

@@ -100,7 +100,7 @@ class ReferencePlant:
         st = card.stochastic
         self._gamma = st.gamma_per_um2 * 1e12  # (15), as the plant
         self._delta = st.delta_per_um2 * 1e12  # (20)
-        self._physics = PaperKernels()
+        self._physics = PaperKernels(samplers="exact")  # the paper's loop draws as printed
         self._next_collision = None  # time (s) of the next collision while milling at one rpm
 
     # --- the attributes PaperKernels.impact reads --------------------------------------------
@@ -190,7 +190,7 @@ class ReferencePlant:
         i = int(rng.integers(n))
         j = (i + 1 + int(rng.integers(n - 1))) % n  # uniform over the others
         out, dud = self._physics.impact(self, kin, np.array([s[i]]), np.array([r[i]]), np.array([s[j]]),
-                                        np.array([r[j]]), u_in, psi, rng)
+                                        np.array([r[j]]), u_in, np.cos(2 * psi), rng)
         r[i], r[j] = float(out.r[0]), float(out.r[1])
         self.counts.impacts += 1
         if out.frac.any():  # (20): part 1 stays, part 2 is a new particle

@@ -135,9 +135,9 @@ def energetics(card: ModelCard, rpm: float, collisions: int, seed: int, particle
     ui, ui_se = _ratio_se(steps * u_in_all, steps)
     # the plant's sampler: its hit rate, and a large sample of its impacts
     big = 400_000
-    u_p, _ = ev.sample_impact_energies(rng, kin.energy_scale, big)
-    psi_p = plant.kernels.sample_psi(plant, rng, big)
-    return Energetics(rate, rate_se, wald, wald_se, float(over.mean()), plant.hit_rate(kin), pl, pl_se, float(np.mean(np.cos(2 * psi_p) ** 2)),
+    u_p = plant.kernels.sample_energies(rng, kin.energy_scale, big)
+    cos2psi_p = plant.kernels.sample_cos2psi(plant, rng, big)
+    return Energetics(rate, rate_se, wald, wald_se, float(over.mean()), plant.hit_rate(kin), pl, pl_se, float(np.mean(cos2psi_p**2)),
                       ui, ui_se, float(u_p.mean()), float(steps.mean()))
 
 

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
+from bmctl.physics import samplers as tab
 from bmctl.plant import events as ev
 from bmctl.plant.kinematics import MEAN_ABS_DIFF_GAMMA15, MEAN_LOSS_RATIO
 
@@ -49,11 +50,30 @@ def test_eq11_strain_sign_rule():
     r = np.full(4, 0.2)
     psi_c = ev.critical_angle(0.2)
     psi = np.array([0.0, psi_c * 0.99, psi_c * 1.01, -np.pi / 2 * 0.999])
-    eps = ev.plastic_strain(np.full(4, 1e-6), np.full(4, 40e-6), 80e6, 1.0, psi, r, 10.0)
+    eps = ev.plastic_strain(np.full(4, 1e-6), np.full(4, 40e-6), 80e6, 1.0, np.cos(2 * psi), r, 10.0)
     assert np.all(eps[:2] > 0) and np.all(eps[2:] < 0)
     # magnitude (3/2) dU_p / (A s sigma)
     A = np.pi / 4 * (40e-6) ** 2
     assert abs(eps[0]) == pytest.approx(1.5e-6 / (A * 40e-6 * 80e6))
+
+
+def test_eq14_strain_sign_from_cos2psi_is_the_critical_angle_rule():
+    rng = np.random.default_rng(4)
+    psi = rng.uniform(-np.pi / 2, np.pi / 2, 200_000)
+    r = rng.uniform(0.0, ev.R_MAX, psi.size)
+    by_angle = np.where(np.abs(psi) < ev.critical_angle(r), 1.0, -1.0)
+    by_cos = ev.strain_sign(np.cos(2 * psi), r)
+    # equal except within rounding of the boundary |psi| = psi_c
+    near = np.abs(np.abs(psi) - ev.critical_angle(r)) < 1e-9
+    assert np.array_equal(by_angle[~near], by_cos[~near]) and near.sum() < 5
+
+
+def test_eq7_eq8_heats_from_cos2psi():
+    rng = np.random.default_rng(5)
+    e, psi, z, x = rng.random(100), rng.uniform(-np.pi / 2, np.pi / 2, 100), rng.random(100), rng.random(100)
+    dUf, dUp = ev.impact_heats(e, np.cos(2 * psi), z, x)
+    np.testing.assert_allclose(dUf, ev.friction_heat(e, psi, z), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(dUp, ev.plastic_heat(e, psi, x), rtol=1e-12, atol=1e-15)
 
 
 def test_eq18_and_eq20_conserve_area():
@@ -124,11 +144,16 @@ def test_eq5_weighted_sampler_matches_loop_weighting():
     assert MEAN_ABS_DIFF_GAMMA15 == pytest.approx(4 / np.pi, rel=1e-6)
 
 
+ZETA_XI = {"exact": (ev.sample_zeta, ev.sample_xi), "tabulated": (tab.tabulated_zeta, tab.tabulated_xi)}
+
+
+@pytest.mark.parametrize("sampler", ZETA_XI)
 @pytest.mark.parametrize("alpha,beta", [(2.1, 1.8), (2.17, 1.72), (2.05, 1.86)])
-def test_eq9_zeta_xi_samplers_ks(alpha, beta):
+def test_eq9_zeta_xi_samplers_ks(alpha, beta, sampler):
     rng = np.random.default_rng(3)
-    z = ev.sample_zeta(rng, alpha, 3000)
-    x = ev.sample_xi(rng, beta, 3000)
+    sample_zeta, sample_xi = ZETA_XI[sampler]
+    z = sample_zeta(rng, alpha, 3000)
+    x = sample_xi(rng, beta, 3000)
     pz = lambda t: (alpha + 1) * (alpha + 2) * t * (1 - t) ** alpha  # (9) as printed
     px = lambda t: (beta + 1) * (beta + 2) * t**beta * (1 - t)
     Fz = lambda v: np.array([integrate.quad(pz, 0, vi)[0] for vi in np.atleast_1d(v)])

@@ -163,7 +163,8 @@ def test_loop_energetics_detect_uniform_angles(cards, monkeypatch):
     # the plant's earlier sampler drew psi uniformly: the loop's plastic share is higher
     from bmctl.plant.kernels import PaperKernels
 
-    monkeypatch.setattr(PaperKernels, "sample_psi", lambda self, plant, rng, n: rng.uniform(-np.pi / 2, np.pi / 2, n))
+    monkeypatch.setattr(PaperKernels, "sample_cos2psi",
+                        lambda self, plant, rng, n: np.cos(2 * rng.uniform(-np.pi / 2, np.pi / 2, n)))
     card = cards["alni-1to1-300rpm-lab"]
     e = V.energetics(card, 300.0, 8000, 7, particles=2000)
     assert e.z()["plastic"] > V.Z_BIAS
