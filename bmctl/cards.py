@@ -36,6 +36,7 @@ OPTIONAL_FIELDS = {
     "process": {"mode", "mill_min", "rest_min"},
     "mill": {"ball_material"},
     "powder": {"mass_kg"},
+    "simulation": {"samplers"},
 }
 #: relative tolerances of the consistency checks (see the module docstring)
 BALL_MASS_RTOL = 0.02

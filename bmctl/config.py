@@ -187,6 +187,9 @@ class Simulation(Strict):
     batch_fraction: Range(1e-4, 0.5) = 0.05  # share of the particles per step (smaller: more steps)
     max_step_s: Range(1e-3, 3600.0) = 60.0
     s_max_um: Range(1.0, 1e5) = 1000.0  # raster extent: 1 um bins, memory grows with it
+    # how the plant draws U_in (5) and zeta, xi (9): inverse-CDF tables, one uniform per variate,
+    # or numpy's Gamma/Beta samplers (same laws, the streams of earlier versions); docs/model.md
+    samplers: Literal["tabulated", "exact"] = "tabulated"
 
 
 class ModelCard(Strict):

@@ -221,19 +221,26 @@ class PatternDesigner:
             V[2 * P:4 * P] = np.round(V[2 * P:4 * P])
         else:
             s = ca.nlpsol("design_relaxed", "ipopt", self.nlp, self._opts())
-            best = None
+            starts = []
             for which in range(STARTS):  # the relaxation is non-convex (welding hump): a few starts
                 r = s(x0=self._guess(which), lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
-                if best is None or float(r["f"]) < float(best["f"]):
-                    best = r
-            V = np.asarray(best["x"], float).ravel()
-            Vr = self._round(V)
-            lb2, ub2 = lbx.copy(), ubx.copy()
-            for sl in (slice(0, P), slice(2 * P, 4 * P)):
-                lb2[sl] = ub2[sl] = Vr[sl]
-            r2 = s(x0=Vr, lbx=lb2, ubx=ub2, lbg=self.lbg, ubg=self.ubg)
-            V = np.asarray(r2["x"], float).ravel()
-            status = str(s.stats().get("return_status", "?"))
+                starts.append((float(r["f"]), which, np.asarray(r["x"], float).ravel()))
+            # round the best relaxed point; where rounding loses the target, the next starts' too
+            best = None
+            for _, _, V in sorted(starts, key=lambda e: e[0]):
+                Vr = self._round(V)
+                lb2, ub2 = lbx.copy(), ubx.copy()
+                for sl in (slice(0, P), slice(2 * P, 4 * P)):
+                    lb2[sl] = ub2[sl] = Vr[sl]
+                r2 = s(x0=Vr, lbx=lb2, ubx=ub2, lbg=self.lbg, ubg=self.ubg)
+                res = self._result(np.asarray(r2["x"], float).ravel(), 0.0, method,
+                                   str(s.stats().get("return_status", "?")))
+                if best is None or res.error < best.error:
+                    best = res
+                if best.error <= self.cfg.objective.tolerance:
+                    break
+            best.solve_s = time.perf_counter() - t0
+            return best
         return self._result(V, time.perf_counter() - t0, method, status)
 
     def _round(self, V):

@@ -413,6 +413,8 @@ class UKFEstimator:
         mean, lo, hi = m.copy(), m - Z90 * sd, m + Z90 * sd
         mean[LOG_IDX] = np.exp(m[LOG_IDX] + 0.5 * var[LOG_IDX])
         lo[LOG_IDX], hi[LOG_IDX] = np.exp(lo[LOG_IDX]), np.exp(hi[LOG_IDX])
+        # a log-normal mean can leave the state bounds (r_mean < 0.9 ...) when the variance is large
+        mean[:6] = self._project(np.concatenate([mean[:6], [0.0, 0.0]])[None, :])[0, :6]
         return Estimate(self.t_h, self.names, mean, lo, hi, float("nan"))
 
     # --- state round trip ------------------------------------------------------------------

@@ -118,7 +118,7 @@ class Plant:
         if engine not in ENGINES:
             raise InputError(f"engine: must be one of {', '.join(ENGINES)} (got {engine!r})")
         self.card = card
-        self.kernels: Kernels = PaperKernels() if kernels is None else kernels
+        self.kernels: Kernels = PaperKernels(card.simulation.samplers) if kernels is None else kernels
         self.engine = engine
         self.rng = rng
         M = int(particles or card.simulation.particles)
