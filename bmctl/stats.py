@@ -114,10 +114,28 @@ def weighted_mode(s: np.ndarray, power: int, step: float = MODE_STEP_UM, smooth_
     n = int(np.ceil(hi / step))
     idx = np.clip((s / step).astype(np.int64), 0, n - 1)
     h = np.bincount(idx, weights=None if power == 0 else s**power, minlength=n).astype(float)
-    from scipy.ndimage import gaussian_filter1d  # scipy on first use only (a fresh `campaign advise` needs none)
-
-    h = gaussian_filter1d(h, smooth_bins, mode="constant")
+    h = gaussian_smooth(h, smooth_bins)
     return (np.argmax(h) + 0.5) * step
+
+
+def gaussian_smooth(h: np.ndarray, sigma_bins: float) -> np.ndarray:
+    """``scipy.ndimage.gaussian_filter1d(h, sigma_bins, mode="constant")`` in numpy (no scipy import).
+
+    The same kernel (truncated at 4 sigma, normalised) and zero padding; equal to scipy's to
+    round-off (tests/test_stats.py).
+
+    Parameters
+    ----------
+    h : ndarray, (n,)
+        Histogram.
+    sigma_bins : float
+        Standard deviation of the Gaussian, in bins (> 0).
+    """
+    radius = int(4.0 * float(sigma_bins) + 0.5)
+    x = np.arange(-radius, radius + 1, dtype=float)
+    k = np.exp(-0.5 / float(sigma_bins) ** 2 * x * x)
+    k /= k.sum()
+    return np.convolve(np.asarray(h, dtype=float), k, mode="full")[radius:radius + len(h)]
 
 
 def dvalues(s: np.ndarray, power: int = 3) -> dict[str, float]:

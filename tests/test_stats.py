@@ -178,3 +178,15 @@ def test_ndtri_table_is_scipys_and_the_normal_law():
         assert z == float(scipy_ndtri(q)), q
         assert abs(0.5 * (1 + math.erf(z / math.sqrt(2))) - q) < 1e-15
     assert ndtri(0.25) == float(scipy_ndtri(0.25))  # off the table: scipy
+
+
+@pytest.mark.parametrize("sigma", [0.7, 3.0, 12.5])
+@pytest.mark.parametrize("n", [5, 40, 900])
+def test_gaussian_smooth_is_scipys_gaussian_filter1d(sigma, n):
+    from scipy.ndimage import gaussian_filter1d
+
+    from bmctl.stats import gaussian_smooth
+
+    h = np.random.default_rng(n).poisson(5.0, n).astype(float)
+    np.testing.assert_allclose(gaussian_smooth(h, sigma), gaussian_filter1d(h, sigma, mode="constant"),
+                               rtol=1e-12, atol=1e-14)

@@ -9,9 +9,8 @@ from __future__ import annotations
 
 
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
 
-from ..stats import SIZE_STAT_NAMES, size_stats
+from ..stats import SIZE_STAT_NAMES, gaussian_smooth, size_stats
 
 UM = 1e-6  # metres per micrometre
 DS_UM = 1.0  # paper's stochastic raster: Delta s = 1 um
@@ -43,7 +42,7 @@ def _mode(values: np.ndarray, step: float, lo: float, hi: float) -> float:
     n = int(np.ceil((hi - lo) / step))
     idx = np.clip(((values - lo) / step).astype(np.int64), 0, n - 1)
     h = np.bincount(idx, minlength=n).astype(float)
-    h = gaussian_filter1d(h, MODE_SMOOTH_BINS, mode="constant")
+    h = gaussian_smooth(h, MODE_SMOOTH_BINS)
     return lo + (np.argmax(h) + 0.5) * step
 
 
