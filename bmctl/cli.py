@@ -10,7 +10,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+
+# bmctl's matrices are small: BLAS worker threads only spin (a 12 h MPC trial: 8.3 s CPU for 6.7 s
+# wall with OpenBLAS's default threads, 6.7 s with one). Set before numpy loads; the user's
+# setting wins (docs/performance.md).
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 from .errors import InputError
 
