@@ -13,7 +13,12 @@ EXTRA = ["bmctl.simulate:simulate", "bmctl.trial:run_trial", "bmctl.whatif:run_s
          "bmctl.estimate.filter:ParticleFilter.predict", "bmctl.estimate.filter:ParticleFilter.update",
          "bmctl.moments.model:MomentModel.step", "bmctl.moments.model:MomentModel.simulate",
          "bmctl.calibrate.fit:calibrate", "bmctl.calibrate.fit:ridge_posterior",
-         "bmctl.control.compiled:compiled_step"]
+         "bmctl.control.compiled:compiled_step", "bmctl.physics.samplers:tabulated_energies",
+         "bmctl.physics.samplers:tabulated_beta_a2", "bmctl.physics.samplers:tabulated_zeta",
+         "bmctl.physics.samplers:tabulated_xi", "bmctl.physics.samplers:beta_a2_table",
+         "bmctl.physics.samplers:energy_density", "bmctl.physics.impacts:sample_impact_cos2psi",
+         "bmctl.plant.kernels:PaperKernels", "bmctl.plant.kernels:PaperKernels.sample_cos2psi",
+         "bmctl.plant.kernels:PaperKernels.sample_energies", "bmctl.stats:gaussian_smooth"]
 
 
 def _targets():
