@@ -226,7 +226,8 @@ def size_heatmap(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, times_h: S
         fig.colorbar(im, ax=ax, extend="max", label=f"density per unit ln s ({lab}; t = 0 clipped)")
     axes[0].set_ylabel("particle size s (µm, log scale)")
     fig.suptitle(title)
-    savefig(fig, path, dpi=120, bbox_inches="tight")
+    fig.subplots_adjust(left=0.06, right=0.975, bottom=0.11, top=0.87, wspace=0.12)  # fixed: no measuring draw
+    savefig(fig, path, dpi=120)
 
 
 def irregularity_distributions(path: Path, r_edges: np.ndarray, p_r: np.ndarray, times_h: Sequence[float],
