@@ -47,11 +47,9 @@ class FitSettings(Strict):
     ridge_step_sd: Annotated[float, Field(gt=0, le=2)] = 1.0  # grid step along the ridge, in Laplace sd
     ridge_max_sd: Annotated[float, Field(gt=0, le=20)] = 6.0  # farthest grid point, in Laplace sd
     ridge_tail: Annotated[float, Field(gt=0)] = 4.5  # extend the grid while an end is within this of the best -2 ln L
-    #: the fit's plant runs draw (5), (9) with numpy's samplers ("exact"), whatever the card says
-    #: ("card": the card's [simulation] samplers): with the tabulated samplers the common random
-    #: numbers stay in step across design points and the 90 % intervals covered 14 of 20 seeded cases,
-    #: 18 of 20 with "exact" (docs/calibration-from-data.md); the law, and so the estimate's meaning, is the same
-    samplers: Literal["exact", "tabulated", "card"] = "exact"
+    #: how the fit's plant runs draw (5), (9): "card" (its [simulation] samplers), or "exact" /
+    #: "tabulated" whatever the card says; the laws, and so the estimate's meaning, are the same
+    samplers: Literal["card", "exact", "tabulated"] = "card"
 
 
 @dataclass
