@@ -4,11 +4,13 @@
 kernels (:class:`bmctl.plant.kernels.PaperKernels`): queue n new impacts, take the rounds of
 first-in-queue impacts, draw and apply each round's physics, eqns (5)-(20), and rebalance.
 It draws from the plant's own ``numpy.random.Generator`` in the numpy engine's order (each
-kind of variate for the whole round, then the next kind) with numpy's own samplers, which
+kind of variate for the whole round, then the next kind): uniforms through the tables of
+:mod:`bmctl.physics.samplers` (``p[P_TABULATED]``), or numpy's own Gamma/Beta samplers, which
 numba runs on the same bit generator; every arithmetic step is written in the numpy code's
 order of operations. A seed therefore gives the numpy engine's trajectory to the last bit
-(tested in tests/test_plant_compiled.py), wherever numpy's float64 sin, cos, arctan2, exp and
-power call the C library, as they do on x86-64 without AVX-512 (docs/performance.md).
+(tests/plant/test_plant_compiled.py), wherever numpy's float64 sin, cos and exp call the C
+library, as they do on x86-64 without AVX-512; elsewhere the two agree to a relative 1e-12
+(docs/performance.md).
 
 Compiled code is cached on disk (numba ``cache=True``: next to this file, or in the user's
 cache directory when the package folder is read-only).
