@@ -95,7 +95,8 @@ class Plant:
         Number M of simulated particles (default: the card's, 20,000).
     kernels : Kernels, optional
         The impact physics the event machinery runs (default: the paper's,
-        :class:`bmctl.plant.kernels.PaperKernels`); verification swaps in simple kernels.
+        :class:`bmctl.plant.kernels.PaperKernels`, with the card's ``[simulation] samplers``);
+        verification swaps in simple kernels.
     engine : {"numba", "numpy"}, optional
         How the events run: ``"numba"`` (default) runs the paper's kernels as one compiled
         loop per step (:mod:`bmctl.plant._compiled`), ``"numpy"`` as vectorised numpy batches.
