@@ -131,3 +131,30 @@ def test_cold_cache_runs_numpy_code_and_compiles_in_background(monkeypatch):
     a.advance(300.0, 0.2)
     assert started == [1] and not b._compiled_step()
     _assert_same(a, b)
+
+
+def test_card_samplers_choose_the_kernels_and_bad_values_name_the_field(tmp_path):
+    from bmctl.config import load_card
+
+    card = load_card(card_path("alni-1to1-300rpm-lab"))
+    assert Plant(card, np.random.default_rng(0), 100).kernels.samplers == "tabulated"
+    exact = card.model_copy(update={"simulation": card.simulation.model_copy(update={"samplers": "exact"})})
+    assert Plant(exact, np.random.default_rng(0), 100).kernels.samplers == "exact"
+    text = card_path("alni-1to1-300rpm-lab").read_text().replace("[simulation]", '[simulation]\nsamplers = "fast"')
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    with pytest.raises(InputError, match="simulation.samplers"):
+        load_card(bad)
+
+
+@pytest.mark.slow
+def test_engines_agree_with_the_exact_samplers(compiled):
+    card = load_card(card_path("alni-1to1-300rpm-lab"))
+    card = card.model_copy(update={"simulation": card.simulation.model_copy(update={"samplers": "exact"})})
+    a, b = _pair(card, 13, 800)
+    assert b._compiled_step() and a.kernels.samplers == b.kernels.samplers == "exact"
+    for rpm, h in [(300.0, 0.6), (450.0, 0.4)]:
+        a.advance(rpm, h)
+        b.advance(rpm, h)
+        _assert_same(a, b)
+    assert a.counts.bonds > 10 and a.counts.fractures > 10
