@@ -224,10 +224,10 @@ class PatternDesigner:
             starts = []
             for which in range(STARTS):  # the relaxation is non-convex (welding hump): a few starts
                 r = s(x0=self._guess(which), lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
-                starts.append((float(r["f"]), which, np.asarray(r["x"], float).ravel()))
+                starts.append((float(r["f"]), np.asarray(r["x"], float).ravel()))
             # round the best relaxed point; where rounding loses the target, the next starts' too
             best = None
-            for _, _, V in sorted(starts, key=lambda e: e[0]):
+            for _, V in sorted(starts, key=lambda e: e[0]):
                 Vr = self._round(V)
                 lb2, ub2 = lbx.copy(), ubx.copy()
                 for sl in (slice(0, P), slice(2 * P, 4 * P)):

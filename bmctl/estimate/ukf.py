@@ -414,7 +414,7 @@ class UKFEstimator:
         mean[LOG_IDX] = np.exp(m[LOG_IDX] + 0.5 * var[LOG_IDX])
         lo[LOG_IDX], hi[LOG_IDX] = np.exp(lo[LOG_IDX]), np.exp(hi[LOG_IDX])
         # a log-normal mean can leave the state bounds (r_mean < 0.9 ...) when the variance is large
-        mean[:6] = self._project(np.concatenate([mean[:6], [0.0, 0.0]])[None, :])[0, :6]
+        self._project(mean[None, :])  # in place on the states
         return Estimate(self.t_h, self.names, mean, lo, hi, float("nan"))
 
     # --- state round trip ------------------------------------------------------------------

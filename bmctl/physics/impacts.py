@@ -91,8 +91,14 @@ def sample_impact_angles(rng: np.random.Generator, a: float, b: float, n: int) -
     n : int
         Number of angles.
     """
+    ca, sb = _angle_components(rng, a, b, n)
+    return 0.5 * np.arctan2(sb, ca)
+
+
+def _angle_components(rng: np.random.Generator, a: float, b: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(sqrt(a) cos phi, sqrt(b) sin phi) of n uniform draws phi ~ U(-pi, pi): 2 psi is their angle."""
     phi = rng.uniform(-np.pi, np.pi, size=n)
-    return 0.5 * np.arctan2(math.sqrt(b) * np.sin(phi), math.sqrt(a) * np.cos(phi))
+    return math.sqrt(a) * np.cos(phi), math.sqrt(b) * np.sin(phi)
 
 
 def sample_impact_cos2psi(rng: np.random.Generator, a: float, b: float, n: int) -> np.ndarray:
@@ -118,9 +124,7 @@ def sample_impact_cos2psi(rng: np.random.Generator, a: float, b: float, n: int) 
     >>> bool(np.allclose(c, np.cos(2 * psi)))
     True
     """
-    phi = rng.uniform(-np.pi, np.pi, size=n)
-    ca = math.sqrt(a) * np.cos(phi)
-    sb = math.sqrt(b) * np.sin(phi)
+    ca, sb = _angle_components(rng, a, b, n)
     return ca / np.sqrt(ca * ca + sb * sb)
 
 

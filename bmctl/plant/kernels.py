@@ -148,24 +148,9 @@ class PaperKernels:
         a, b = dissipation_coefficients(plant.card.stochastic.alpha, plant.card.stochastic.beta)
         return kin.frequency * kin.trapped_fraction * MEAN_LOSS_RATIO / math.sqrt(a * b)
 
-    def sample_psi(self, plant: "Plant", rng: np.random.Generator, n: int) -> np.ndarray:
-        """The incidence angles of ``n`` impacts (:func:`sample_impact_angles` with the card's alpha, beta).
-
-        Parameters
-        ----------
-        plant : Plant
-            Supplies the card.
-        rng : numpy.random.Generator
-            Source of the draws.
-        n : int
-            Number of impacts.
-        """
-        return sample_impact_angles(rng, *dissipation_coefficients(plant.card.stochastic.alpha,
-                                                                   plant.card.stochastic.beta), n)
-
     def sample_cos2psi(self, plant: "Plant", rng: np.random.Generator, n: int) -> np.ndarray:
-        """cos 2psi of the incidence angles of ``n`` impacts (:func:`sample_impact_cos2psi`, the law of
-        :meth:`sample_psi` from the same draws).
+        """cos 2psi of the incidence angles of ``n`` impacts (:func:`sample_impact_cos2psi`: the angles of
+        :func:`sample_impact_angles`, from the same draws).
 
         Parameters
         ----------
@@ -194,6 +179,23 @@ class PaperKernels:
         if self.samplers == "tabulated":
             return tab.tabulated_energies(rng, theta, n)  # (5)
         return ev.sample_impact_energies(rng, theta, n)[0]  # (5)
+
+    def sample_zeta_xi(self, rng: np.random.Generator, alpha: float, beta: float,
+                       n: int) -> tuple[np.ndarray, np.ndarray]:
+        """``n`` tribological factors zeta, then ``n`` plasticity factors xi, by the kernels' ``samplers``.  (9)
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            Source of the draws.
+        alpha, beta : float
+            The exponents of (9).
+        n : int
+            Number of each.
+        """
+        if self.samplers == "tabulated":
+            return tab.tabulated_zeta(rng, alpha, n), tab.tabulated_xi(rng, beta, n)
+        return ev.sample_zeta(rng, alpha, n), ev.sample_xi(rng, beta, n)
 
     def collide(self, plant: "Plant", kin: Kinematics, si: np.ndarray, ri: np.ndarray,
                 sj: np.ndarray, rj: np.ndarray, rng: np.random.Generator) -> Outcome:
@@ -231,12 +233,7 @@ class PaperKernels:
         trapped_area = kin.trapped_fraction * plant.total_area  # (6): u_in = U_in / A_trapped
         e_i = u_in * np.minimum(si**2 / trapped_area, 1.0)  # a particle gets at most the whole impact
         e_j = u_in * np.minimum(sj**2 / trapped_area, 1.0)
-        if self.samplers == "tabulated":
-            zeta = tab.tabulated_zeta(rng, st.alpha, 2 * n)  # (9)
-            xi = tab.tabulated_xi(rng, st.beta, 2 * n)
-        else:
-            zeta = ev.sample_zeta(rng, st.alpha, 2 * n)  # (9)
-            xi = ev.sample_xi(rng, st.beta, 2 * n)
+        zeta, xi = self.sample_zeta_xi(rng, st.alpha, st.beta, 2 * n)  # (9)
         c2 = np.concatenate([cos2psi, cos2psi])
         e2 = np.concatenate([e_i, e_j])
         dUf, dUp = ev.impact_heats(e2, c2, zeta, xi)  # (7), (8)
