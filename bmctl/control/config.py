@@ -237,6 +237,10 @@ class Solver(Strict):
     #: RKC substeps per interval of the MPC's prediction (default: the moment model's, <= 1/16 h
     #: each); fewer substeps with more stages are as stable and cheaper (docs/control.md)
     substeps: Annotated[int, Field(ge=1, le=64)] | None = None
+    #: threads that run `bmctl design`'s relaxed starts side by side (default: the CPUs this process
+    #: may use, at most the number of starts); each start has its own solver, so the design is the
+    #: same for any number
+    design_threads: Annotated[int, Field(ge=1)] | None = None
 
 
 class OnOff(Strict):

@@ -204,8 +204,9 @@ def design_figure(d: Design, path: Path) -> None:
     for ax in axes[1]:
         ax.set_xlabel("batch time t (h)")
     fig.suptitle(f"{d.card_name}: designed schedule (moment-model prediction)")
-    fig.tight_layout()
-    savefig(fig, path, dpi=110, bbox_inches="tight")
+    # fixed margins: tight_layout and a tight bounding box would each draw the figure once more to measure it
+    fig.subplots_adjust(left=0.07, right=0.985, bottom=0.08, top=0.9, wspace=0.2, hspace=0.16)
+    savefig(fig, path, dpi=110)
 
 
 def write_design(d: Design, out: Path) -> list[Path]:

@@ -4,7 +4,7 @@ A state gives the number-weighted size and aspect-ratio laws of the powder:
 
 size s (um)
     Weibull with the state's mean and std (``size_law="weibull"``, the default), or
-    log-normal with them (``size_law="lognormal"``, the issue's law: its s_std misfits the
+    log-normal with them (``size_law="lognormal"``, the moment model's own closure: its s_std misfits the
     plant's populations by 20-43 %, docs/estimation.md). Measurement noise: multiplicative,
     ``ln s_meas = ln s + e``, ``e ~ N(0, sigma_log_s^2)`` (exact for the log-normal,
     variance-matched for the Weibull).
