@@ -18,7 +18,8 @@ EXTRA = ["bmctl.simulate:simulate", "bmctl.trial:run_trial", "bmctl.whatif:run_s
          "bmctl.physics.samplers:tabulated_xi", "bmctl.physics.samplers:beta_a2_table",
          "bmctl.physics.samplers:energy_density", "bmctl.physics.impacts:sample_impact_cos2psi",
          "bmctl.plant.kernels:PaperKernels", "bmctl.plant.kernels:PaperKernels.sample_cos2psi",
-         "bmctl.plant.kernels:PaperKernels.sample_energies", "bmctl.plant.kernels:PaperKernels.sample_zeta_xi", "bmctl.stats:gaussian_smooth"]
+         "bmctl.plant.kernels:PaperKernels.sample_energies", "bmctl.plant.kernels:PaperKernels.sample_zeta_xi",
+         "bmctl.stats:gaussian_smooth"]
 
 
 def _targets():
