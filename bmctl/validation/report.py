@@ -196,7 +196,7 @@ def _pdf_panel(ax, res: CaseResult) -> None:
                 a_sim = float(np.mean(~cont))
                 ax.annotate(f"unbroken: {a_sim:.3f} (exact {a_ex:.3f})", (0.35, 0.9 - 0.08 * ti), xycoords="axes fraction",
                             color=col, fontsize=7)
-            ax.set_xlabel("x / x0 (x = s^2, x0 = (40 um)^2)")
+            ax.set_xlabel("x / x0 (x = s^2, x0 = (40 µm)^2)")
             ax.set_ylabel("number density")
     ax.set_yscale("log")
     ax.set_title(f"{res.case.name} (M = {M}, {len(res.seeds)} seeds)", fontsize=9)
@@ -244,7 +244,7 @@ def reference_figure(report: Report, path) -> None:
     n = len(report.reference)
     fig, axes = plt.subplots(2, n, figsize=(4 * n, 6.5), squeeze=False)
     for col, cmp in enumerate(report.reference):
-        for row, (a, b, label) in enumerate(((cmp.plant_s, cmp.ref_s, "size s (um)"), (cmp.plant_r, cmp.ref_r, "aspect ratio r"))):
+        for row, (a, b, label) in enumerate(((cmp.plant_s, cmp.ref_s, "size s (µm)"), (cmp.plant_r, cmp.ref_r, "aspect ratio r"))):
             ax = axes[row, col]
             pa, pb = np.concatenate(a), np.concatenate(b)
             hi = float(np.quantile(np.concatenate([pa, pb]), 0.995))
