@@ -220,8 +220,7 @@ class PatternDesigner:
             V[:P] = np.round(V[:P])
             V[2 * P:4 * P] = np.round(V[2 * P:4 * P])
         else:
-            starts = self._relaxed_starts(lbx, ubx)
-            s = ca.nlpsol("design_rounded", "ipopt", self.nlp, self._opts())
+            starts, s = self._relaxed_starts(lbx, ubx)  # s: a relaxed start's solver, free again
             # round the best relaxed point; where rounding loses the target, the next starts' too
             best = None
             for _, V in sorted(starts, key=lambda e: e[0]):
@@ -240,27 +239,29 @@ class PatternDesigner:
             return best
         return self._result(V, time.perf_counter() - t0, method, status)
 
-    def _relaxed_starts(self, lbx, ubx) -> list:
-        """(cost, x) of the relaxed solve from each start point. The relaxation is non-convex (welding
-        hump), so a few starts; each has its own IPOPT solver (one solver's work memory cannot be
-        shared between threads), run side by side on ``solver.design_threads`` threads: casadi
-        releases the GIL while it solves, and the results do not depend on the thread count."""
+    def _relaxed_starts(self, lbx, ubx) -> tuple[list, object]:
+        """(cost, x) of the relaxed solve from each start point, and a solver to reuse. The relaxation
+        is non-convex (welding hump), so a few starts, run side by side on ``solver.design_threads``
+        threads, each start with its own IPOPT solver (one solver's work memory cannot be shared
+        between threads; on one thread one solver serves them all): casadi releases the GIL while it
+        solves, and the results do not depend on the thread count."""
         import casadi as ca
         from concurrent.futures import ThreadPoolExecutor
 
         from ..parallel import default_workers
 
         threads = min(STARTS, self.cfg.solver.design_threads or default_workers())
-        solvers = [ca.nlpsol(f"design_relaxed_{w}", "ipopt", self.nlp, self._opts()) for w in range(STARTS)]
+        solvers = [ca.nlpsol(f"design_relaxed_{w}", "ipopt", self.nlp, self._opts())
+                   for w in range(STARTS if threads > 1 else 1)]
 
         def start(which):
-            r = solvers[which](x0=self._guess(which), lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
+            r = solvers[which % len(solvers)](x0=self._guess(which), lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
             return float(r["f"]), np.asarray(r["x"], float).ravel()
 
         if threads == 1:
-            return [start(w) for w in range(STARTS)]
+            return [start(w) for w in range(STARTS)], solvers[0]
         with ThreadPoolExecutor(threads, thread_name_prefix="bmctl-design") as pool:
-            return list(pool.map(start, range(STARTS)))
+            return list(pool.map(start, range(STARTS))), solvers[0]
 
     def _round(self, V):
         P, mill = self.P, self.cfg.mill

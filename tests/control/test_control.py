@@ -468,7 +468,7 @@ def test_design_starts_on_threads_give_the_sequential_design(model):
     for threads in (1, STARTS):
         cfg = cfg.model_copy(update={"solver": cfg.solver.model_copy(update={"design_threads": threads})})
         d = PatternDesigner(model, 3.0, cfg, target)
-        starts[threads] = d._relaxed_starts(*d._bounds())
+        starts[threads] = d._relaxed_starts(*d._bounds())[0]
     assert len(starts[1]) == STARTS
     for (f1, x1), (f3, x3) in zip(starts[1], starts[STARTS]):
         assert f1 == f3
