@@ -77,13 +77,18 @@ def _schedule(c, plan, t_h: float) -> list[dict]:
     return rows
 
 
-def _end_band(c, sched: list[dict]) -> dict:
+def _end_band(c, sched: list[dict], plan=None) -> dict:
     """Median and 90 % band of the moments at the batch end: filter particles (a deterministic
-    weighted selection) propagated by the moment model under the schedule."""
+    weighted selection) propagated by the moment model under the schedule. A plan made on operable
+    schedules has already predicted its spread particles (the same selection): those are used."""
     lp = c.loop
     pf = lp.estimator
-    idx = _band_indices(pf.weights, BAND_PARTICLES)
-    X = propagate(lp.model, pf.X[idx], pf.P[idx], sched)
+    X = None if plan is None else plan.extra.get("spread_x_end")
+    if X is None or len(X) < 2:
+        idx = _band_indices(pf.weights, BAND_PARTICLES)
+        plan_cfg = getattr(lp.controller.cfg, "plan", None)
+        substeps = plan_cfg.substeps if plan_cfg is not None and plan_cfg.method == "search" else None
+        X = propagate(lp.model, pf.X[idx], pf.P[idx], sched, substeps=substeps)
     out = {}
     names = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
     vals = {k: X[:, i] for i, k in enumerate(names)}
@@ -107,6 +112,11 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
     cfg = c.loop.controller.cfg
     if getattr(cfg, "kind", "") == "recipe":
         return reach, ["open-loop recipe: the schedule is fixed, no constraint is weighed"]
+    if "binding" in plan.extra:  # a plan on operable schedules names the limits it runs against itself
+        binding = list(plan.extra["binding"])
+        if not all(reach.values()) and not binding:
+            binding.append("none of the mill's limits: the model cannot reach the target from this estimate")
+        return reach, binding
     U = np.asarray(plan.u, dtype=float)
     on = U[:, 1] > 1e-3
     b = getattr(cfg, "bounds", None)

@@ -243,6 +243,14 @@ class Campaign:
                              "ORDER BY id DESC LIMIT 1").fetchone()
         return r
 
+    def plan_before(self, t_h: float):
+        """The latest advice given before batch time ``t_h`` (the controller's previous decision), or None.
+
+        An advice repeated at the same logged time starts from this one too, so the same database
+        gives the same advice however often ``advise`` runs."""
+        return self.con.execute("SELECT id, t_h, rpm, milling, interval_h, advice, controller_state FROM plans "
+                                "WHERE t_h < ? ORDER BY id DESC LIMIT 1", (t_h - EPS_H,)).fetchone()
+
     # --- the estimator's timeline ------------------------------------------------------------
     def _restore_node(self, node_id: int) -> float:
         blob, t = self.con.execute("SELECT state, t_h FROM estimator_states WHERE id = ?", (node_id,)).fetchone()
@@ -510,16 +518,19 @@ def advise(folder, campaign: Campaign | None = None) -> dict:
             clock = c.clock_h()
             _, t_node, est = c.last_node()
             c._restore_node(c.last_node()[0])
-            prev = c.latest_plan()
+            prev = c.plan_before(clock)
             if prev is not None:
                 lp.controller.set_state(db.unpack(prev[6], f"{folder}: controller state"))
+            else:
+                lp.controller.reset()
             ctrl_target = tg.controller_target(c.meta["target"], est)
             lp.controller.set_target(ctrl_target, t_end_h=c.meta["hours"])
             acts = c.actions()
             lp.u_prev = (acts[-1].rpm, acts[-1].milling) if acts else None
-            plan, solve_ms = lp.decide_at(clock)
+            history = [(a.hours, a.rpm, a.milling) for a in acts]
+            plan, solve_ms = lp.decide_at(clock, history=history)
             sched = _schedule(c, plan, clock)
-            end = _end_band(c, sched) if sched else {}
+            end = _end_band(c, sched, plan) if sched else {}
             reach, binding = _why(c, plan, sched, end, ctrl_target)
             x_end = np.asarray(plan.x[-1], dtype=float)
             dt = plan.interval_h
