@@ -144,12 +144,12 @@ def _append_row(path: Path, row: list) -> None:
 
 
 def _read_meta(path: Path) -> dict:
+    if not path.exists() and not path.is_symlink():
+        raise InputError(f"--resume: {path} not found")
     try:
-        meta = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"--resume: {path} not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        raise InputError(f"{path}: not a bmctl trial record (truncated or damaged)") from None
+        meta = io.read_json(path, max_bytes=1 << 20)
+    except InputError as exc:
+        raise InputError(f"{path}: not a bmctl trial record ({str(exc).removeprefix(str(path) + ': ')})") from None
     if not isinstance(meta, dict) or not {"scenario", "seed"} <= set(meta):
         raise InputError(f"{path}: not a bmctl trial record (no scenario and seed)")
     return meta

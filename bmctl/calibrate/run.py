@@ -13,6 +13,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..config import ModelCard
+from ..io import name_part
 from ..parallel import map_seeded
 from .fit import Calibration, FitSettings, calibrate
 from .history import History
@@ -101,6 +102,6 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
                 "wall_s": wall}
         paths.append(outputs.write_json(out / "calibration.json", outputs.calibration_dict(cal, histories, dist, meta)))
         for h, k in zip(histories, kept):
-            paths.append(outputs.plot_history(out / f"histograms-{h.name}.png", h, k,
+            paths.append(outputs.plot_history(out / f"histograms-{name_part(h.name)}.png", h, k,
                                               f"{h.name}: measured vs calibrated {stem}"))
     return CalibrationRun(cal, info, kept, dist, paths, wall)
