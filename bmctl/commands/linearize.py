@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from ..errors import InputError
 from ._args import hours_arg, output_path, rpm_arg
+from ._model import add_identify_flag
 
 
 def configure(p):
@@ -13,6 +14,7 @@ def configure(p):
                    help="linearise at the state reached after this many hours at --rpm (default 6)")
     p.add_argument("--horizon", type=hours_arg("--horizon"), default=2.0, help="gramian horizon in h (default 2)")
     p.add_argument("--out", default="out/linearize", metavar="DIR", help="output folder (default out/linearize)")
+    add_identify_flag(p)
 
 
 def run(args) -> int:
@@ -20,7 +22,7 @@ def run(args) -> int:
 
     from ..config import load_card
     from ..io import name_part, savefig
-    from ..moments import make_moment_model
+    from ._model import model_for, warn_window
     from ..moments.linear import analyse, operating_point, step_figure
 
     card = load_card(args.model)
@@ -33,7 +35,8 @@ def run(args) -> int:
 
     check_work(moment_work(args.at_hours + args.horizon), "--at-hours/--horizon")
     out = output_path(args.out)
-    model = make_moment_model(args.model)
+    model = model_for(args.model, args.identify)
+    warn_window(model, [rpm])
     x, u = operating_point(model, rpm, args.at_hours)
     a = analyse(model, x, u, horizon_h=args.horizon)
     names = model.state_names
