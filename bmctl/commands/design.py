@@ -2,27 +2,15 @@
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import int_arg, output_path
+from ._args import hours_arg, int_arg, output_path
+from ._model import add_identify_flag, heldout_text, model_for, warn_window
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_CONTROLLER = "controllers/mpc-default.toml"
-
-
-def _hours(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputError(f"--hours: not a number: {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise InputError(f"--hours: must be a finite number > 0 (got {text})")
-    if v > 1000.0:  # the longest batch a card allows (bmctl.config.HOURS)
-        raise InputError(f"--hours: {v:g} h exceeds the longest batch, 1000 h")
-    return v
 
 
 def configure(p):
@@ -33,7 +21,7 @@ def configure(p):
     p.add_argument("--objective", choices=("target", "min_time", "min_energy"), default=None,
                    help="target: error + energy/time weights; min_time / min_energy: shortest or cheapest batch "
                         "within the tolerance (default: the controller's [objective] kind)")
-    p.add_argument("--hours", type=_hours, default=None, help="batch length in h (default: the card's)")
+    p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="batch length in h (default: the card's)")
     p.add_argument("--controller", default=None, metavar="FILE.toml",
                    help=f"MPC controller file (default {DEFAULT_CONTROLLER})")
     p.add_argument("--out", default="out/design", metavar="DIR", help="output folder (default out/design)")
@@ -44,6 +32,7 @@ def configure(p):
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the plant check (default 0)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 256), default=None,
                    help="Dask workers of the plant check (default: serial for a small ensemble)")
+    add_identify_flag(p)
 
 
 def _controller_path(arg) -> Path:
@@ -56,7 +45,6 @@ def _controller_path(arg) -> Path:
 def run(args) -> int:
     from ..control.config import MPCConfig, load_controller, parse_target
     from ..control.design import design_schedule, write_design
-    from ..moments.modelcache import moment_model
 
     # all input checks first: nothing is written on bad input
     target = parse_target(args.target)
@@ -65,11 +53,19 @@ def run(args) -> int:
     if not isinstance(cfg, MPCConfig):
         raise InputError(f"{path}: kind: design needs an mpc controller (got {cfg.kind!r})")
     out = output_path(args.out)
-    model = moment_model(args.model)
+    model = model_for(args.model, args.identify)
     hours = args.hours if args.hours is not None else float(model.card.process.hours)
     from ..cards import check_work, design_work
 
-    check_work(design_work(hours, cfg.interval_h), f"--hours/{path}: interval_h")
+    work = design_work(hours, cfg.interval_h)
+    if args.plant_seeds:  # the plant check, at the top speed throughout (an upper bound)
+        from ..cards import simulation_work
+        from ..work import add, scale
+
+        top = min(cfg.bounds.rpm_max, model.rpm_max)
+        work = add(work, scale(simulation_work(model.card, [(hours, top)], args.plant_particles, 0.05, raster=False),
+                               args.plant_seeds))
+    check_work(work, f"--hours/--plant-seeds/--plant-particles/{path}: interval_h")
 
     def progress(text):
         print(f"design: {text}", file=sys.stderr, flush=True)
@@ -116,6 +112,8 @@ def run(args) -> int:
         if off:
             print(f"warning: the plant and the moment model disagree by more than the tolerance "
                   f"({100 * tol:g} %): {', '.join(off)}")
+    print(f"  prediction's moment model: {heldout_text(model)} ({model.coeffs_source})")
+    warn_window(model, [rpm for _, rpm in d.segments])
     if d.pareto:
         from ..control.design import pareto_table
 
