@@ -522,8 +522,10 @@ def ensure_coefficients(folder, identify: bool = False, progress=None):
         return for_card(c._input("card"), identify=identify, progress=progress)
 
 
-def advise(folder, campaign: Campaign | None = None) -> dict:
+def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
     """Recommend the next action from the current estimate.
+
+    ``progress``: called with one line per step (the command prints them on stderr).
 
     Returns
     -------
@@ -536,9 +538,12 @@ def advise(folder, campaign: Campaign | None = None) -> dict:
         ``advise_ms``; ``plan_id``.
     """
     t_start = time.perf_counter()
+    say = progress or (lambda text: None)
     c = campaign or Campaign(folder)
     try:
         with db.transaction(c.con, where=str(folder)):
+            if c._loop is None:
+                say("building the moment model, the filter and the controller")
             lp = c.loop
             clock = c.clock_h()
             _, t_node, est = c.last_node()
@@ -553,7 +558,9 @@ def advise(folder, campaign: Campaign | None = None) -> dict:
             acts = c.actions()
             lp.u_prev = (acts[-1].rpm, acts[-1].milling) if acts else None
             history = [(a.hours, a.rpm, a.milling) for a in acts]
+            say(f"planning from {clock:g} h to the batch end ({c.meta['hours']:g} h)")
             plan, solve_ms = lp.decide_at(clock, history=history)
+            say(f"planned in {solve_ms / 1e3:.1f} s: {plan.status.reason or plan.status.solver_status}")
             sched = _schedule(c, plan, clock)
             end = _end_band(c, sched, plan) if sched else {}
             reach, binding = _why(c, plan, sched, end, ctrl_target)

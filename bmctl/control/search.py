@@ -778,7 +778,7 @@ def _fine_rows(Pc: np.ndarray, f: int) -> np.ndarray:
 
 def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry: Carry | None = None,
            substeps: int = 2, rpm_step: float = 20.0, band: float = 0.002, rounds: int = 1, keep: int = 6,
-           extra=None, coarse: bool = True, coarse_factor: int = 2, pool: int = 8, pool_band: float = 0.02,
+           extra=None, coarse: bool = True, coarse_factor: int = 2, pool: int = 8, pool_band: float = 0.03,
            risk: float = 0.25) -> SearchResult:
     """Coarse batch over the families, then rounds of neighbours of the best few (and of the best per
     family), every candidate operable over the whole horizon; the best within the error band are then
@@ -812,8 +812,10 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         The coarse batch runs on a grid this many intervals per step (cycles of whole multiples);
         its best rows are carried to the interval grid, where every score is recomputed.
     pool : int
-        Size of the pool scored on the spread: the nominally closest half, the cheapest quarter and the
-        cheapest of each family, all within ``pool_band`` of the nominal best.
+        Size of the pool scored on the spread: the nominally closest half and the cheapest quarter within
+        ``pool_band`` of the nominal best, and the cheapest of each family there (so resting on, when it
+        is that close, is weighed against a plan whose outcome the spread scatters; further off, the
+        mill is not left idle while the filter still has to learn what it is).
     pool_band : float
         Relative-error band of the pool.
     risk : float
@@ -950,7 +952,7 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         by_nom = near[np.lexsort((near, np.round(sc.secondary[near], 9), np.round(sc.nominal[near], 4)))]
         by_cost = near[np.lexsort((near, np.round(sc.nominal[near], 4), np.round(sc.secondary[near], 9)))]
         cand = list(by_nom[:max(1, int(pool) // 2)]) + list(by_cost[:max(1, int(pool) // 4)])
-        for f in FAMILIES:  # the cheapest of each family within the pool band
+        for f in FAMILIES:  # the cheapest of each family within the pool band (resting on, when that is close)
             ids = [i for i in by_cost if C["F"][i] == f]
             if ids:
                 cand.append(ids[0])
