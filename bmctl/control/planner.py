@@ -17,8 +17,13 @@ The estimator's (gamma, delta) enter every plan, with their spread: the search s
 welding hump and back) loses to a safer one that is nearly as close. The vial ceiling holds for
 each particle's temperature.
 
-The plan is a function of its inputs only -- the estimate, the scenarios, the mill's record and the
-previous plan (one more candidate, shifted to now) -- so the same inputs give the same plan.
+A re-plan starts from the previous plan shifted to now: when it still comes within the tolerance
+(``[objective] tolerance``) of the target, a local search around it (its neighbours on the grid)
+decides; otherwise, and at the first call, the global search runs (the previous plan among its
+candidates).
+
+The plan is a function of its inputs only -- the estimate, the spread, the mill's record and the
+previous plan -- so the same inputs give the same plan.
 """
 
 from __future__ import annotations
@@ -151,10 +156,17 @@ class PlanController:
                 extra.append((shift_params(np.array(prev["params"]), np.array(prev["minutes"]), int(round(s))),
                               "previous"))
         ps_cfg = self.cfg.plan
-        res = search(self.model, np.array(x0s), np.array(ps), target, grid, self.lim, self.cfg.weights, carry,
-                     substeps=ps_cfg.substeps, rpm_step=ps_cfg.rpm_step, band=ps_cfg.error_band,
-                     rounds=ps_cfg.rounds, extra=extra, coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool,
-                     pool_band=ps_cfg.pool_band, risk=ps_cfg.risk)
+        kw = dict(substeps=ps_cfg.substeps, rpm_step=ps_cfg.rpm_step, band=ps_cfg.error_band,
+                  coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool, pool_band=ps_cfg.pool_band, risk=ps_cfg.risk)
+        args = (self.model, np.array(x0s), np.array(ps), target, grid, self.lim, self.cfg.weights, carry)
+        res, scope = None, "global"
+        if extra:  # the previous plan still reaches the target: a local search around it
+            res = search(*args, rounds=0, extra=extra, coarse=False, **kw)
+            scope = "local"
+            if res.error > self.cfg.objective.tolerance:
+                res = None
+        if res is None:
+            res, scope = search(*args, rounds=ps_cfg.rounds, extra=extra, **kw), "global"
         ms = (time.perf_counter() - t0) * 1e3
         cpu = (time.process_time() - c0) * 1e3
         fam = res.family if res.family != "previous" else (prev or {}).get("family", "previous")
@@ -165,14 +177,14 @@ class PlanController:
         X = res.X[0]
         peaks = res.peaks_c.max(axis=0)
         binding = plan_binding(res, grid, self.lim, carry, ceil)
-        st = Status("mpc", "search", True, res.evaluated, ms, cost=res.rms, t_ceiling_c=ceil,
+        st = Status("mpc", f"{scope} search", True, res.evaluated, ms, cost=res.rms, t_ceiling_c=ceil,
                     reason=f"{fam}: {describe_plan(res, grid)}")
         st.solve_cpu_ms = cpu
         st.t_peak_max_c = float(res.peak_c)
         u_apply = U[0].copy() if res.minutes[0] > 0 else np.zeros(2)
         extra_out = {"family": fam, "params": [float(v) for v in res.params], "error": res.error, "rms": res.rms,
                      "binding": binding, "per_family": res.per_family, "evaluated": res.evaluated,
-                     "nodes": res.nodes, "switches": res.switches, "switches_used": carry.switches,
+                     "nodes": res.nodes, "switches": res.switches, "switches_used": carry.switches, "scope": scope,
                      "lengths_min": grid.lengths_min.tolist(), "minutes": res.minutes.tolist(),
                      "spread_x_end": res.X[1:, -1].copy() if res.X.shape[0] > 1 else None}
         return Plan(t, self.interval_h, U, X, peaks, u_apply, st, extra_out)

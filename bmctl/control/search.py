@@ -921,7 +921,7 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
     if extra:
         ex = np.vstack([np.atleast_2d(e[0]) for e in extra])
         exf = [e[1] for e in extra]
-        ex, exf = with_neighbours(ex, exf) if coarse and coarse_factor > 1 else (ex, exf)
+        ex, exf = with_neighbours(ex, exf)
         start_rows = np.vstack([start_rows, ex])
         start_fams = start_fams + exf
     start_rows = np.vstack([start_rows, [_row(lim.rpm_lo, 0.0, 1, grid.K, cap=0.0)]])
