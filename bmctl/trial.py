@@ -80,9 +80,9 @@ def _model_and_controller(sc: Scenario, base: Path):
     """The moment model and the controller of a scenario (no random state: rebuilt on resume)."""
     from .control import make_controller
     from .control.config import load_controller, validate_controller
-    from .moments.modelcache import moment_model
+    from .moments.forcard import for_card
 
-    model = moment_model(resolve(sc.model, base))  # constants cached on disk (bmctl.moments.modelcache)
+    model = for_card(resolve(sc.model, base))  # this card's coefficients; constants cached on disk (modelcache)
     cfg_path = resolve(sc.controller.config, base)
     cfg = load_controller(cfg_path)
     if sc.temperature_max_c is not None and "temperature" in type(cfg).model_fields:
@@ -144,12 +144,12 @@ def _append_row(path: Path, row: list) -> None:
 
 
 def _read_meta(path: Path) -> dict:
+    if not path.exists() and not path.is_symlink():
+        raise InputError(f"--resume: {path} not found")
     try:
-        meta = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"--resume: {path} not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        raise InputError(f"{path}: not a bmctl trial record (truncated or damaged)") from None
+        meta = io.read_json(path, max_bytes=1 << 20)
+    except InputError as exc:
+        raise InputError(f"{path}: not a bmctl trial record ({str(exc).removeprefix(str(path) + ': ')})") from None
     if not isinstance(meta, dict) or not {"scenario", "seed"} <= set(meta):
         raise InputError(f"{path}: not a bmctl trial record (no scenario and seed)")
     return meta

@@ -1143,3 +1143,34 @@ def classify(case: Case, rc: int | None, stdout: str, stderr: str, folder: Path)
     if "ess 1," in stdout.lower().replace("min ess 1,", "ess 1,") and "degenerate" not in stderr:
         return "accepted-nonsense", "ESS collapsed to 1 without a warning"
     return "accepted-ok", ""
+
+
+# --- hostile building blocks of the second round (nesting, special files, crafted arrays) ---------
+
+def deep_toml_value(depth: int = 1000) -> str:
+    """A TOML value nested ``depth`` arrays deep."""
+    return "[" * depth + "1" + "]" * depth
+
+
+def deep_json(depth: int = 100_000) -> str:
+    """A JSON document nested ``depth`` lists deep."""
+    return "[" * depth + "]" * depth
+
+
+def npy_bomb(shape=(10**12,), dtype: str = "<f8", tail: bytes = b"\0" * 64) -> bytes:
+    """A ``.npy`` whose header declares ``shape`` (a few bytes of data behind it)."""
+    header = repr({"descr": dtype, "fortran_order": False, "shape": tuple(shape)}).encode()
+    pad = 64 - (10 + len(header) + 1) % 64
+    header += b" " * pad + b"\n"
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header + tail
+
+
+def npz_with(members: dict[str, bytes]) -> bytes:
+    """A zip of raw ``.npy`` members (as ``numpy.savez`` writes them, without checking them)."""
+    import zipfile
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    return buf.getvalue()

@@ -9,7 +9,6 @@ table of the samples and of the log. No scripts, no external resources.
 from __future__ import annotations
 
 import base64
-import html
 import io as _io
 import json
 import math
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import htmlsafe as hs
 from .. import io
 from . import targets as tg
 
@@ -122,52 +122,53 @@ def figures(c) -> dict[str, str]:
     return out
 
 
-def _table(header, rows) -> str:
-    h = "".join(f"<th>{html.escape(str(x))}</th>" for x in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in r) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
-
-
 def html_page(c) -> str:
-    """The report page (a string)."""
+    """The report page (a string). Every value from the database is escaped when the page is
+    rendered (:func:`bmctl.htmlsafe.render`): the template is the only markup."""
     meta = c.meta
     figs = figures(c)
     samples = c.con.execute("SELECT id, t_h, n, s_median_um, r_median, sources FROM samples ORDER BY t_h, id").fetchall()
-    srows = [(sid, f"{t:g}", n, f"{s:.4g}", f"{r:.3f}", ", ".join(Path(x).name for x in json.loads(src)))
+    srows = [(sid, f"{t:g}", n, f"{s:.4g}", f"{r:.3f}", ", ".join(Path(str(x)).name for x in json.loads(src)))
              for sid, t, n, s, r, src in samples]
     arows = [(f"{a.t0_h:g}", f"{a.t1_h:g}", f"{a.rpm:g}", f"{a.milling * a.hours * 60:.0f}",
               f"{(1 - a.milling) * a.hours * 60:.0f}", dev)
              for a, dev in zip(c.actions(), [r[0] for r in c.con.execute("SELECT deviation FROM actions ORDER BY t0_h")])]
     plan = c.latest_plan()
-    advice = ""
+    advice = hs.Markup("")
     if plan is not None:
         a = json.loads(plan[5])
         nx = a["next"]
-        advice = (f"<p>Latest advice at {a['t_h']:g} h: <b>{nx['rpm']:g} rpm, mill {nx['mill_min']} min, rest "
-                  f"{nx['rest_min']} min</b>; binding: {html.escape('; '.join(a['binding']) or 'none')}; "
-                  + "; ".join(f"{k} {'reachable' if ok else 'not reachable'}" for k, ok in a["reachable"].items())
-                  + "</p>")
+        reach = "; ".join(f"{k} {'reachable' if ok else 'not reachable'}" for k, ok in a["reachable"].items())
+        advice = hs.render("<p>Latest advice at {t} h: <b>{rpm} rpm, mill {mill} min, rest {rest} min</b>; "
+                           "binding: {binding}; {reach}</p>", t=a["t_h"], rpm=nx["rpm"], mill=nx["mill_min"],
+                           rest=nx["rest_min"], binding="; ".join(map(str, a["binding"])) or "none", reach=reach)
     tgt = ", ".join(f"{k} = {v:g}" for k, v in meta["target"].items())
-    img = lambda k, alt: (f'<figure><img alt="{alt}" src="data:image/png;base64,{figs[k]}"><figcaption>{alt}'
-                          "</figcaption></figure>") if k in figs else ""
-    return f"""<!DOCTYPE html>
+    img = lambda k, alt: hs.render('<figure><img alt="{alt}" src="data:image/png;base64,{data}"><figcaption>{alt}'  # noqa: E731
+                                   "</figcaption></figure>", alt=alt, data=figs[k]) if k in figs else ""
+    return hs.render("""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>bmctl campaign report</title>
 <style>body{{font-family:sans-serif;margin:1.5em;max-width:1400px}} img{{max-width:100%}}
 table{{border-collapse:collapse;font-size:0.9em}} td,th{{border:1px solid #bbb;padding:2px 8px;text-align:right}}</style>
 </head><body>
 <h1>Campaign report</h1>
-<p>{meta['hours']:g} h batch; target {html.escape(tgt)}; controller {html.escape(meta['controller_kind'])};
-card {html.escape(Path(meta['inputs']['card']['file']).name)}; logged to {c.clock_h():g} h.</p>
+<p>{hours:g} h batch; target {tgt}; controller {kind};
+card {card}; logged to {clock:g} h.</p>
 {advice}
-{img('estimate', 'Estimate and its 90 % band against the target over time')}
-{img('histograms', 'Measured size histograms against the model law at the estimate')}
-{img('actions', 'Actions taken and recommended; vial temperature')}
+{fig1}
+{fig2}
+{fig3}
 <h2>Samples</h2>
-{_table(['id', 't (h)', 'particles', 'median s (µm)', 'median r', 'sources'], srows)}
+{samples}
 <h2>Log</h2>
-{_table(['from (h)', 'to (h)', 'rpm', 'milling (min)', 'rest (min)', 'deviation'], arows)}
+{log}
 </body></html>
-"""
+""", hours=meta["hours"], tgt=tgt, kind=meta["controller_kind"], card=Path(meta["inputs"]["card"]["file"]).name,
+        clock=c.clock_h(), advice=advice,
+        fig1=img("estimate", "Estimate and its 90 % band against the target over time"),
+        fig2=img("histograms", "Measured size histograms against the model law at the estimate"),
+        fig3=img("actions", "Actions taken and recommended; vial temperature"),
+        samples=hs.table(["id", "t (h)", "particles", "median s (µm)", "median r", "sources"], srows),
+        log=hs.table(["from (h)", "to (h)", "rpm", "milling (min)", "rest (min)", "deviation"], arows))
 
 
 def write_report(c, path: Path) -> Path:

@@ -38,10 +38,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..limits import HOURS_MIN
 from . import db
 from . import targets as tg
 from .advice import _end_band, _measure, _schedule, _why
-from ..moments.modelcache import moment_model
+from ..moments.forcard import for_card
 
 EPS_H = 1e-9
 INPUTS = "inputs"
@@ -130,6 +131,7 @@ class Campaign:
         try:
             db.check(self.con, where)
             self.meta = _check_meta(db.get_meta(self.con, where), where)
+            db.check_inputs(self.folder, self.meta["inputs"], where)
         except BaseException:
             self.con.close()
             raise
@@ -147,8 +149,8 @@ class Campaign:
     # --- objects ---------------------------------------------------------------------------
     def _input(self, key: str) -> Path:
         m = self.meta["inputs"][key]
-        p = self.folder / m["file"]
-        if not p.exists() or _sha(p) != m["sha256"]:
+        p = self.folder / m["file"]  # checked on open (db.check_inputs): a file under inputs/
+        if not p.is_file() or _sha(p) != m["sha256"]:
             raise InputError(f"{p}: changed or missing since `campaign init` (the campaign runs on the copy "
                              f"taken then; sha256 {m['sha256'][:12]}...)")
         return p
@@ -171,7 +173,7 @@ class Campaign:
         card_path = self._input("card")
         if "moments" in m["inputs"]:
             self._input("moments")
-        model = moment_model(card_path)  # constants cached on disk (modelcache)
+        model = for_card(card_path)  # the card's own coefficients; constants cached on disk (modelcache)
         cfg_path = self._input("controller")
         cfg = load_controller(cfg_path)
         ceiling = m["temperature_max_c"]
@@ -305,7 +307,7 @@ class Campaign:
 
 # --- verbs -----------------------------------------------------------------------------------------
 def init(folder, model, controller, target, hours: float | None = None, temperature_max_c: float | None = None,
-         seed: int = 0, particles: int = 1000) -> dict:
+         seed: int = 0, particles: int = 1000, identify: bool = False, progress=None) -> dict:
     """Start a campaign in ``folder``: copy the inputs, write the prior estimator state.
 
     Parameters
@@ -326,6 +328,11 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         Seed of the filter's generator.
     particles : int, optional
         Filter particles.
+    identify : bool, optional
+        Identify the card's moment coefficients first when it has none of its own
+        (:func:`bmctl.moments.for_card`); else such a card is refused.
+    progress : callable, optional
+        Progress lines of that identification.
 
     Returns
     -------
@@ -338,6 +345,7 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
 
     card_p, ctrl_p = Path(model), Path(controller)
     card = load_card(card_p)
+    for_card(card_p, identify=identify, progress=progress)  # the card's own coefficients, or refuse
     cfg = load_controller(ctrl_p)
     tgt = tg.parse(target) if isinstance(target, str) else {k: _finite(v, f"target: {k}", 0, strict=True)
                                                             for k, v in dict(target).items()}
@@ -346,7 +354,7 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
             raise InputError(f"target: unknown key {k!r} (one of {', '.join(tg.known_keys())})")
     if not tgt and cfg.kind != "recipe":
         raise InputError(f"--target: a feedback controller ({cfg.kind}) needs a target")
-    H = float(card.process.hours) if hours is None else _finite(hours, "--hours", 0, MAX_HOURS, strict=True)
+    H = float(card.process.hours) if hours is None else _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)
     Tmax = None if temperature_max_c is None else _finite(temperature_max_c, "--temperature-max-c", -50, 400)
     if int(particles) < 50:
         raise InputError(f"--particles: must be >= 50 (got {particles})")
@@ -408,7 +416,7 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
         ``t0_h, t1_h, deviation`` and the new ``estimate``.
     """
     rpm = _finite(rpm, "--rpm", 0)
-    hours = _finite(hours, "--hours", 0, strict=True)
+    hours = _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)  # one second at least (bmctl.limits)
     milling = _finite(milling, "--milling", 0, 1)
     T = None if temperature_c is None else _finite(temperature_c, "--temperature-c", -50, 400)
     c = campaign or Campaign(folder)
@@ -487,6 +495,23 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
 def _insert_particles(con, rows) -> None:
     """Insert a sample's particles (a function of its own so that tests can interrupt here)."""
     con.executemany("INSERT INTO particles VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+
+
+def ensure_coefficients(folder, identify: bool = False, progress=None):
+    """The moment model of the campaign's copy of its card (:func:`bmctl.moments.for_card`): refuses
+    coefficients of another card, or identifies the copy with ``identify``.
+
+    Parameters
+    ----------
+    folder : path-like
+        The campaign.
+    identify : bool, optional
+        Identify the copy's coefficients when it has none of its own.
+    progress : callable, optional
+        Progress lines of that identification.
+    """
+    with Campaign(folder) as c:
+        return for_card(c._input("card"), identify=identify, progress=progress)
 
 
 def advise(folder, campaign: Campaign | None = None) -> dict:

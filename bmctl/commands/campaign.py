@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from ._args import float_arg, int_arg
+from ._args import float_arg, hours_arg, int_arg, rpm_arg
+from ._model import add_identify_flag, progress_printer, warn_window
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -23,36 +24,38 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--controller", required=True, metavar="CONFIG", help="controller config (controllers/*.toml)")
     p.add_argument("--target", required=True, metavar="K=V[,K=V]",
                    help="target at the batch end, e.g. d50_um=45 or s_mean_um=40,r_mean=0.05")
-    p.add_argument("--hours", type=float_arg("--hours", 0, strict=True), default=None, help="batch length (h); default: the card's")
+    p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="batch length (h); default: the card's")
     p.add_argument("--temperature-max-c", type=float_arg("--temperature-max-c"), default=None, metavar="C",
                    help="vial-temperature ceiling (degC); default: the controller's")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the estimator")
     p.add_argument("--particles", type=int_arg("--particles", 50, 200_000), default=1000, help="filter particles")
+    add_identify_flag(p)
     p = sub.add_parser("log", help="record what the mill ran")
     p.add_argument("dir", metavar="DIR")
-    p.add_argument("--rpm", required=True, type=float_arg("--rpm", 0), help="sun-disc speed (0: a rest)")
-    p.add_argument("--hours", required=True, type=float_arg("--hours", 0, strict=True), help="length of the interval (h)")
+    p.add_argument("--rpm", required=True, type=rpm_arg("--rpm"), help="sun-disc speed (0: a rest)")
+    p.add_argument("--hours", required=True, type=hours_arg("--hours"), help="length of the interval (h)")
     p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=1.0,
                    help="share of the interval spent milling, first (the rest of it is a rest)")
     p.add_argument("--temperature-c", type=float_arg("--temperature-c"), default=None, metavar="C",
                    help="vial temperature read at the end of the interval")
-    p.add_argument("--from-h", type=float_arg("--from-h", 0), default=None, metavar="H",
+    p.add_argument("--from-h", type=hours_arg("--from-h", zero=True), default=None, metavar="H",
                    help="start of the interval (default: end of the last one); overlaps and gaps are refused")
     p = sub.add_parser("sample", help="measure a sample and update the estimate")
     p.add_argument("dir", metavar="DIR")
-    p.add_argument("--at-h", required=True, type=float_arg("--at-h", 0), metavar="H", help="batch time the sample was taken (h)")
+    p.add_argument("--at-h", required=True, type=hours_arg("--at-h", zero=True), metavar="H", help="batch time the sample was taken (h)")
     p.add_argument("inputs", nargs="+", metavar="IMAGE_OR_TABLE", help="micrographs and/or particle tables (.csv)")
     p.add_argument("--um-per-px", type=float_arg("--um-per-px", 0, strict=True), default=None, metavar="X",
                    help="pixel size (overrides the image metadata)")
     p = sub.add_parser("advise", help="estimate, recommended next action, plan to the batch end, and why")
     p.add_argument("dir", metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the advice as JSON")
+    add_identify_flag(p)
     p = sub.add_parser("decide", help="accept or reject the latest advice")
     p.add_argument("dir", metavar="DIR")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--accept", action="store_true")
     g.add_argument("--reject", action="store_true")
-    p.add_argument("--rpm", type=float_arg("--rpm", 0), default=None, help="with --reject: what will be run instead")
+    p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="with --reject: what will be run instead")
     p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=None, help="with --reject: milling share instead")
     p.add_argument("--note", default="", help="free text kept with the decision")
     p = sub.add_parser("status", help="where the campaign stands")
@@ -133,7 +136,8 @@ def _run(args: argparse.Namespace) -> int:
     v, d = args.verb, args.dir
     if v == "init":
         meta = cp.init(d, args.model, args.controller, tg.parse(args.target), hours=args.hours,
-                       temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles)
+                       temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles,
+                       identify=args.identify, progress=progress_printer())
         print(f"campaign: {d}: {meta['hours']:g} h batch, target "
               + ", ".join(f"{k} = {x:g}" for k, x in meta["target"].items())
               + f", controller {meta['controller_kind']}; inputs copied to {d}/inputs")
@@ -156,7 +160,10 @@ def _run(args: argparse.Namespace) -> int:
         else:
             print(f"held: the log reaches {r['clock_h']:g} h; the sample is used when it reaches {r['t_h']:g} h")
     elif v == "advise":
+        model = cp.ensure_coefficients(d, identify=args.identify, progress=progress_printer())
         a = cp.advise(d)
+        warn_window(model, [r["rpm"] for r in a.get("schedule") or [] if r.get("mill_min", 1) > 0]
+                    + ([a["next"]["rpm"]] if a.get("next") else []))
         print(json.dumps(a, indent=2) if args.json else "", end="\n" if args.json else "")
         if not args.json:
             _print_advice(a)

@@ -2,27 +2,15 @@
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import output_path
+from ._args import hours_arg, output_path
+from ._model import add_identify_flag, heldout_text, model_for, warn_window
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_CONTROLLER = "controllers/mpc-default.toml"
-
-
-def _hours(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputError(f"--hours: not a number: {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise InputError(f"--hours: must be a finite number > 0 (got {text})")
-    if v > 1000.0:  # the longest batch a card allows (bmctl.config.HOURS)
-        raise InputError(f"--hours: {v:g} h exceeds the longest batch, 1000 h")
-    return v
 
 
 def configure(p):
@@ -33,10 +21,11 @@ def configure(p):
     p.add_argument("--objective", choices=("target", "min_time", "min_energy"), default=None,
                    help="target: error + energy/time weights; min_time / min_energy: shortest or cheapest batch "
                         "within the tolerance (default: the controller's [objective] kind)")
-    p.add_argument("--hours", type=_hours, default=None, help="batch length in h (default: the card's)")
+    p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="batch length in h (default: the card's)")
     p.add_argument("--controller", default=None, metavar="FILE.toml",
                    help=f"MPC controller file (default {DEFAULT_CONTROLLER})")
     p.add_argument("--out", default="out/design", metavar="DIR", help="output folder (default out/design)")
+    add_identify_flag(p)
 
 
 def _controller_path(arg) -> Path:
@@ -49,7 +38,6 @@ def _controller_path(arg) -> Path:
 def run(args) -> int:
     from ..control.config import MPCConfig, load_controller, parse_target
     from ..control.design import design_schedule, write_design
-    from ..moments.modelcache import moment_model
 
     # all input checks first: nothing is written on bad input
     target = parse_target(args.target)
@@ -58,7 +46,7 @@ def run(args) -> int:
     if not isinstance(cfg, MPCConfig):
         raise InputError(f"{path}: kind: design needs an mpc controller (got {cfg.kind!r})")
     out = output_path(args.out)
-    model = moment_model(args.model)
+    model = model_for(args.model, args.identify)
     hours = args.hours if args.hours is not None else float(model.card.process.hours)
     from ..cards import check_work, design_work
 
@@ -76,6 +64,8 @@ def run(args) -> int:
     print(f"{d.card_name}: {d.hours:g} h ({d.objective}), {n} segment{'s' if n != 1 else ''}, {r.switches} switches, "
           f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} C "
           f"(ceiling {d.ceiling_c:g} C); {r.method} {r.status}, {r.solve_s:.1f} s")
+    print(f"  prediction's moment model: {heldout_text(model)} ({model.coeffs_source})")
+    warn_window(model, [rpm for _, rpm in d.segments])
     if d.pareto:
         from ..control.design import pareto_table
 
