@@ -297,6 +297,19 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
         Stop after this many steps in this call (tests use it to simulate an interruption).
     progress : callable, optional
         Called after each step with (k, K).
+
+    Examples
+    --------
+    Two steps of the open-loop lab recipe, then the rest of the batch from the checkpoint:
+
+    >>> import tempfile
+    >>> from bmctl.trial import run_trial
+    >>> out = tempfile.mkdtemp()
+    >>> run_trial("scenarios/trial-lab-recipe.toml", out, seed=0, max_steps=2)
+    {'interrupted_at_step': 2}
+    >>> summary = run_trial("scenarios/trial-lab-recipe.toml", out, seed=0, resume=True)  # doctest: +ELLIPSIS
+    >>> summary["steps"]
+    24
     """
     sc = load_scenario(scenario_path)
     base = Path(scenario_path).resolve().parent

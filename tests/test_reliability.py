@@ -276,7 +276,7 @@ def test_design_refuses_a_solver_beyond_the_budget(tmp_path, capsys):
     assert main(["design", str(FAN), "--target", "s_mean_um=30", "--hours", "1000", "--controller", str(ctrl),
                  "--out", str(tmp_path / "o")]) == 2
     line = _err(capsys)
-    assert "--hours" in line and "BMCTL_BUDGET_CPU_H" in line and "over the budget of 0.5 h" in line
+    assert "--hours" in line and "BMCTL_BUDGET_CPU_H" in line and "over the budget of 1 h" in line
 
 
 @pytest.mark.parametrize("command", ["design", "identify"])
