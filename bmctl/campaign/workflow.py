@@ -557,7 +557,9 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
             lp.controller.set_target(ctrl_target, t_end_h=c.meta["hours"])
             acts = c.actions()
             lp.u_prev = (acts[-1].rpm, acts[-1].milling) if acts else None
-            history = [(a.hours, a.rpm, a.milling) for a in acts]
+            readings = dict(c.con.execute("SELECT action_id, temperature_c FROM temperatures WHERE action_id IS NOT NULL "
+                                          "ORDER BY id"))
+            history = [(a.hours, a.rpm, a.milling, readings.get(a.id)) for a in acts]
             say(f"planning from {clock:g} h to the batch end ({c.meta['hours']:g} h)")
             plan, solve_ms = lp.decide_at(clock, history=history)
             say(f"planned in {solve_ms / 1e3:.1f} s: {plan.status.reason or plan.status.solver_status}")

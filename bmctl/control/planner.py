@@ -35,7 +35,9 @@ import numpy as np
 
 from ..errors import InputError
 from .base import Plan, Reference, Status, batch_end_h, check_p, check_u_prev, check_x
-from .search import Carry, Grid, expand, limits_of, make_grid, search, shift_params
+from dataclasses import replace
+
+from .search import Carry, Grid, expand, fit_power, limits_of, make_grid, search, shift_params, thermal_peaks
 
 
 class PlanController:
@@ -122,8 +124,11 @@ class PlanController:
         scenarios : list of (x, p), optional
             The spread: filter particles (:func:`bmctl.control.robust.particle_scenarios`) or other
             (x, p) pairs; at most ``[plan] spread`` are used.
-        history : list of (hours, rpm, milling), optional
-            What the mill ran since the batch start (a campaign's log); replaces the own record.
+        history : list of (hours, rpm, milling[, reading]), optional
+            What the mill ran since the batch start (a campaign's log), with the vial reading at the
+            end of each interval where one was taken; replaces the own record. The readings fit the
+            mill's heating power (:func:`bmctl.control.search.fit_power`), with which the ceiling is
+            checked.
         """
         x0 = check_x(x_est)
         pp = check_p(self.model, p)
@@ -132,7 +137,10 @@ class PlanController:
         if not math.isfinite(t) or t < 0:
             raise InputError(f"t_h: must be a finite number >= 0 (got {t_h})")
         self._record(t, up)
-        carry = Carry.from_history(self._hist if history is None else history)
+        hist = self._hist if history is None else history
+        carry = Carry.from_history(hist)
+        power = fit_power(self.model, hist)
+        lim = replace(self.lim, power=power)
         ceil = self.cfg.temperature.ceiling_c
         grid = make_grid(t, self.t_end_h, self.interval_h)
         target = self.target_at_end()
@@ -158,7 +166,7 @@ class PlanController:
         ps_cfg = self.cfg.plan
         kw = dict(substeps=ps_cfg.substeps, rpm_step=ps_cfg.rpm_step, band=ps_cfg.error_band,
                   coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool, pool_band=ps_cfg.pool_band, risk=ps_cfg.risk)
-        args = (self.model, np.array(x0s), np.array(ps), target, grid, self.lim, self.cfg.weights, carry)
+        args = (self.model, np.array(x0s), np.array(ps), target, grid, lim, self.cfg.weights, carry)
         res, scope = None, "global"
         if extra:  # the previous plan still reaches the target: a local search around it
             res = search(*args, rounds=0, extra=extra, coarse=False, **kw)
@@ -175,8 +183,11 @@ class PlanController:
         dt_min = self.interval_h * 60.0
         U = np.column_stack([res.rpm, res.minutes / dt_min])
         X = res.X[0]
+        X0s = np.array(x0s)
+        res.peaks_c = thermal_peaks(self.model, X0s[:, 4], X0s[:, 5], res.rpm[None], res.minutes[None], grid, power,
+                                    per_interval=True)[:, 0, :]
         peaks = res.peaks_c.max(axis=0)
-        binding = plan_binding(res, grid, self.lim, carry, ceil)
+        binding = plan_binding(res, grid, lim, carry, ceil)
         st = Status("mpc", f"{scope} search", True, res.evaluated, ms, cost=res.rms, t_ceiling_c=ceil,
                     reason=f"{fam}: {describe_plan(res, grid)}")
         st.solve_cpu_ms = cpu
@@ -185,6 +196,7 @@ class PlanController:
         extra_out = {"family": fam, "params": [float(v) for v in res.params], "error": res.error, "rms": res.rms,
                      "binding": binding, "per_family": res.per_family, "evaluated": res.evaluated,
                      "nodes": res.nodes, "switches": res.switches, "switches_used": carry.switches, "scope": scope,
+                     "power": power,
                      "lengths_min": grid.lengths_min.tolist(), "minutes": res.minutes.tolist(),
                      "spread_x_end": res.X[1:, -1].copy() if res.X.shape[0] > 1 else None}
         return Plan(t, self.interval_h, U, X, peaks, u_apply, st, extra_out)

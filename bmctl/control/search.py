@@ -54,6 +54,10 @@ FAMILIES = ("rest", "constant", "cycled", "two-phase", "previous")
 NO_CAP = 1e9
 #: candidates within the error band scored on every scenario of the filter's spread (the cheapest first)
 POOL = 16
+#: added to the relative error of a plan that rests now and mills later: a plan that mills now ranks
+#: first unless resting first (e.g. to cool the vial) brings it this much closer (an advice is not a
+#: rest that its successors could keep postponing)
+DEFER_PENALTY = 0.005
 #: weight of the secondary cost (energy, milling time, switches) in the pool's score
 RISK_COST = 1e-4
 #: a candidate whose predicted peak is above the ceiling by more than this (degC) is over it
@@ -132,6 +136,9 @@ class Limits:
         On/off transitions per batch.
     ceiling_c : float
         Vial-temperature ceiling (degC).
+    power : float
+        The mill's heating power relative to the card's (fitted to the vial readings by
+        :func:`fit_power`; 1 without readings): the ceiling is checked with it.
     """
 
     rpm_lo: float
@@ -142,6 +149,7 @@ class Limits:
     min_rest: float
     max_switches: int | None
     ceiling_c: float
+    power: float = 1.0
 
 
 def limits_of(cfg, model) -> Limits:
@@ -199,7 +207,8 @@ class Carry:
         (0, 15.0, 300.0, 1)
         """
         c = cls()
-        for hours, rpm, m in history:
+        for row in history:
+            hours, rpm, m = row[:3]
             L = float(hours) * 60.0
             a = round(float(m) * L) if rpm > 0 else 0.0
             a = min(a, L)
@@ -475,11 +484,13 @@ def evaluate(model, x0s, ps, rpm: np.ndarray, minutes: np.ndarray, grid: Grid, s
     return Evaluation(states[:, node, :], peak[:, node], energy[node], mill_h[node], n_nodes, levels, path)
 
 
-def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: Grid) -> np.ndarray:
+def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: Grid, power: float = 1.0,
+                  per_interval: bool = False) -> np.ndarray:
     """Highest vial temperature of each schedule from each start (T0, h0): eq. (6) in closed form.
 
     The vial's temperature and hardening do not depend on the powder's moments, so the ceiling is
-    checked for every scenario without integrating the particle field.
+    checked for every scenario without integrating the particle field. ``power`` scales the heating
+    (the steady-state rise above ambient, :func:`fit_power`); ``per_interval`` returns (S, N, K).
 
     Parameters
     ----------
@@ -497,13 +508,68 @@ def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: G
     T = np.asarray(T0s, dtype=float)[:, None] * np.ones((1, rpm.shape[0]))
     h = np.asarray(h0s, dtype=float)[:, None] * np.ones((1, rpm.shape[0]))
     peak = T.copy()
+    each = []
+    w_scale = float(power) ** (1.0 / 3.0)  # P ~ w^3 in eq. (6): the power factor as a speed factor
     for j in range(grid.K):
         w = (rpm[:, j] / c.rpm_max)[None, :]
         a = (minutes[:, j] / 60.0)[None, :]
-        T1, h1 = eq.thermal_exact(eq.NP, c, T, h, w, a)
-        peak = np.maximum(peak, np.where(a > 0, T1, T))
+        T1, _ = eq.thermal_exact(eq.NP, c, T, h, w * w_scale, a)
+        _, h1 = eq.thermal_exact(eq.NP, c, T, h, w, a)
+        pk = np.maximum(T, np.where(a > 0, T1, T))
+        peak = np.maximum(peak, pk)
+        each.append(pk)
         T, h = eq.thermal_exact(eq.NP, c, T1, h1, 0.0, grid.lengths_min[j] / 60.0 - a)
-    return peak
+    return np.stack(each, axis=-1) if per_interval else peak
+
+
+def fit_power(model, history, T0: float | None = None, prior_weight: float = 1.0) -> float:
+    """The mill's heating power relative to the card's, from logged intervals with vial readings.
+
+    Each interval ``(hours, rpm, milling, reading)`` (mill first, then rest; ``reading`` the vial
+    temperature at its end, or None) is predicted from the previous reading by eq. (6) in closed
+    form; the end temperature is linear in the power factor f,
+    ``T_end - T_amb = e^(-b/tau) [(T_0 - T_amb) e^(-a/tau) + f dT_ss (1 - e^(-a/tau))]``, so f is a
+    least-squares fit (with a prior of 1 worth ``prior_weight`` readings of a 10 K rise), clipped to
+    [0.5, 2]. Without readings that follow milling, 1.
+
+    Parameters
+    ----------
+    model : MomentModel
+        Supplies the card's thermal constants.
+    history : sequence of tuples
+        ``(hours, rpm, milling)`` or ``(hours, rpm, milling, reading)``.
+    T0 : float, optional
+        Vial temperature at the start (default: the card's ambient).
+    prior_weight : float
+
+    Examples
+    --------
+    >>> from bmctl.moments import make_moment_model
+    >>> m = make_moment_model("models/alni-1to1-300rpm-lab.toml")
+    >>> fit_power(m, [(0.5, 300.0, 1.0)])
+    1.0
+    """
+    import math
+
+    c = model.const
+    amb = c.ambient_C
+    T = amb if T0 is None else float(T0)
+    num, den = prior_weight * 10.0 * 10.0, prior_weight * 10.0 * 10.0  # the prior: f = 1
+    for row in history:
+        hours, rpm, m = (float(v) for v in row[:3])
+        reading = row[3] if len(row) > 3 else None
+        a = hours * m if rpm > 0 else 0.0
+        b = hours - a
+        ea, eb = math.exp(-a / c.cooling_time_h), math.exp(-b / c.cooling_time_h)
+        dss = float(eq.power_W(c, rpm / c.rpm_max)) * c.cooling_time_h * 3600.0 / c.heat_capacity_J_per_K
+        base = eb * (T - amb) * ea
+        d = eb * dss * (1.0 - ea)
+        if reading is not None and d > 1e-6:
+            y = float(reading) - amb
+            num += d * (y - base)
+            den += d * d
+        T = float(reading) if reading is not None else amb + base + (num / den) * d
+    return float(np.clip(num / den, 0.5, 2.0))
 
 
 # --- scoring -----------------------------------------------------------------------------------
@@ -839,7 +905,7 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
     x0s = np.atleast_2d(np.asarray(x0s, dtype=float))
     ps = np.atleast_2d(np.asarray(ps, dtype=float))
     C: dict[str, list] = {k: [] for k in ("P", "F", "rpm", "min", "sw", "atm", "atr", "nom", "rms", "err", "exc",
-                                          "sec", "x_end", "peak", "E", "mh", "run", "idx")}
+                                          "sec", "x_end", "peak", "E", "mh", "run", "idx", "defer")}
     runs: list[Evaluation] = []
     seen: set = set()
     work = {"nodes": 0, "coarse": 0}
@@ -857,10 +923,12 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
             return None
         idx = np.array(take)
         ev = evaluate(model, x0s[:1], ps[:1], rpm[idx], mins[idx], g, substeps)
-        if x0s.shape[0] > 1:  # the ceiling in every scenario (closed form)
-            ev.peak_c = np.vstack([ev.peak_c, thermal_peaks(model, x0s[1:, 4], x0s[1:, 5], rpm[idx], mins[idx], g)])
+        # the ceiling in every scenario, eq. (6) in closed form with the mill's fitted heating power
+        ev.peak_c = thermal_peaks(model, x0s[:, 4], x0s[:, 5], rpm[idx], mins[idx], g, lim.power)
         work["nodes"] += ev.nodes
         sc = score(ev, target, lim, weights, sw[idx])
+        defer = (mins[idx, 0] <= 0) & (mins[idx, 1:].sum(axis=1) > 0) if g.K > 1 else np.zeros(idx.size, bool)
+        sc.nominal = sc.nominal + DEFER_PENALTY * defer  # milling later what could be milled now: ranks lower
         if not store:
             return idx, sc
         seen.update(keys)
@@ -869,6 +937,7 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
                           ("sw", sw[idx]), ("atm", at_m[idx]), ("atr", at_r[idx]), ("nom", sc.nominal),
                           ("rms", sc.rms), ("err", sc.error), ("exc", sc.excess_c), ("sec", sc.secondary),
                           ("x_end", ev.x_end[0]), ("peak", np.max(ev.peak_c, axis=0)), ("E", ev.energy_kWh),
+                          ("defer", defer),
                           ("mh", ev.milling_h)):
             C[key] += list(vals)
         C["run"] += [len(runs) - 1] * idx.size
@@ -964,7 +1033,8 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         E0 = target_errors(np.array([C["x_end"][i] for i in cand]), target)  # (n, k)
         E1 = target_errors(ev.x_end, target)  # (S - 1, n, k)
         var = np.mean(np.sum((E1 - E1.mean(axis=0)) ** 2, axis=-1), axis=0)
-        J = np.sum(E0 * E0, axis=-1) + risk * var + RISK_COST * sc.secondary[cand]
+        e_nom = np.sqrt(np.sum(E0 * E0, axis=-1)) + DEFER_PENALTY * np.array([C["defer"][i] for i in cand])
+        J = e_nom * e_nom + risk * var + RISK_COST * sc.secondary[cand]
         rms = np.sqrt(np.mean(np.sum(E1 * E1, axis=-1), axis=0))
         for n, i in enumerate(cand):
             C["rms"][i] = float(rms[n])

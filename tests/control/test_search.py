@@ -176,3 +176,49 @@ def test_plan_binding_names_only_limits_the_plan_meets(model, cfg):
     hot = float(np.max(plan.t_peak_c)) >= cfg.temperature.ceiling_c - 0.5
     assert hot == any("ceiling" in b for b in plan.extra["binding"])
     assert plan.u_apply[0] == plan.u[0, 0] and plan.u_apply[1] == plan.u[0, 1]
+
+
+def test_fit_power_recovers_a_hotter_mill_from_vial_readings(model):
+    from bmctl.control.search import fit_power
+    from bmctl.moments import equations as eq
+
+    c = model.const
+    T, h, hist = c.ambient_C, 0.0, []
+    for rpm, m in [(300, 1.0), (320, 1.0), (300, 0.5), (0, 0.0), (350, 1.0)]:
+        a = 0.5 * m
+        T1, h1 = eq.thermal_exact(eq.NP, c, T, h, rpm / c.rpm_max * 1.25 ** (1 / 3), a)  # 25 % more heating power
+        T, h = eq.thermal_exact(eq.NP, c, T1, h1, 0.0, 0.5 - a)
+        hist.append((0.5, float(rpm), m, float(T)))
+    assert fit_power(model, hist) == pytest.approx(1.25, rel=0.02)
+    assert fit_power(model, [r[:3] for r in hist]) == 1.0
+
+
+def test_a_hotter_mill_than_the_card_stays_under_the_ceiling(model, cfg):
+    """The plant heats more than the card says (12 balls instead of 10; the planner is given the card)
+    and the target asks for the card's hottest continuous milling: with the vial readings in the
+    history the planner fits the heating power and keeps the plant's peak within 2 °C of the ceiling
+    (the first interval, before any reading, cannot know). Planning with the card's power instead
+    runs the plant to about 114 °C."""
+    from bmctl.config import load_card
+
+    d = load_card(CARD).model_dump()
+    d["mill"]["ball_count"] = 12
+    hot = make_moment_model(type(load_card(CARD)).model_validate(d))
+    assert hot.const.power_max_W > 1.1 * model.const.power_max_W
+    target = float(model.simulate(model.x0(), [[330.0, 1.0]] * 12, 0.5)[-1, 0])
+    d = cfg.model_dump()
+    d["batch_hours"] = 6.0
+    d["plan"]["spread"] = 0
+    ctrl = make_controller(validate_controller(d, "test"), model, {"s_mean_um": target})
+    x, hist, t, peak = hot.x0(), [], 0.0, hot.x0()[4]
+    while t < 6.0 - 1e-9:
+        plan = ctrl.plan(x.copy(), t, history=hist)
+        u = plan.u_apply
+        for k in range(10):  # the plant, watched every 3 min, milling first
+            a = min(0.05, max(0.0, u[1] * 0.5 - k * 0.05))
+            x = hot.step(x, np.array([u[0], a / 0.05 if u[0] > 0 else 0.0]), 0.05)
+            peak = max(peak, x[4])
+        hist.append((0.5, float(u[0]), float(u[1]), float(x[4])))
+        t += 0.5
+    assert plan.extra["power"] > 1.1
+    assert peak <= cfg.temperature.ceiling_c + 2.0
