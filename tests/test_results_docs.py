@@ -59,7 +59,6 @@ PENDING = {
     "docs/moments.md",
     "docs/own-mill.md",
     "docs/performance.md",
-    "docs/reliability.md",
     "docs/verification.md",
 }
 
