@@ -134,8 +134,16 @@ def pick_times(times_h: Sequence[float], n: int = 6) -> list[int]:
 SIZE_TICKS_UM = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
 
 
-def _log_size_axis(ax, axis: str = "x") -> None:
-    """Log size axis with plain µm tick labels (1, 2, 5, 10, 20, ...)."""
+def log_size_axis(ax, axis: str = "x") -> None:
+    """Log size axis with plain µm tick labels (1, 2, 5, 10, 20, ...).
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+        Axes whose size axis is already on a log scale.
+    axis : {"x", "y"}
+        Which axis holds the sizes.
+    """
     from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
 
     a = ax.xaxis if axis == "x" else ax.yaxis
@@ -164,7 +172,7 @@ def size_distributions(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, time
         a.stairs(q0[k], edges, fill=True, color="tab:blue", alpha=0.45, label="number density per ln s")
         a.step(edges[:-1], q3[k], where="post", color="tab:orange", lw=1.6, label="volume density per ln s")
         a.set_xscale("log")
-        _log_size_axis(a)
+        log_size_axis(a)
         a.set_xlim(xlo, xhi), a.set_ylim(0, top)
         a.axvline(d50_um[k], color="k", lw=1, ls=":")
         a.text(d50_um[k], 0.93 * top, f" D50 {d50_um[k]:.0f} µm", fontsize=8, va="top", zorder=5,
@@ -219,7 +227,7 @@ def size_heatmap(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, times_h: S
             if key in cols:
                 ax.plot(t, cols[key], color=c, ls=ls, lw=1.4, label=name)
         ax.set_yscale("log"), ax.set_ylim(ylo, yhi)
-        _log_size_axis(ax, "y")
+        log_size_axis(ax, "y")
         ax.set_xlabel("milling time t (h)")
         ax.set_title(f"size distribution {lab}")
         ax.legend(fontsize=8, loc="upper right", facecolor="0.3", labelcolor="w", framealpha=0.6)
