@@ -83,7 +83,7 @@ def _check_meta(meta: dict, where: str) -> dict:
         raise bad("hours", f"{h!r} is not a batch length in (0, {MAX_HOURS:g}] h")
     T = meta["temperature_max_c"]
     if T is not None and (not isinstance(T, num) or isinstance(T, bool) or not -50 <= T <= 400):
-        raise bad("temperature_max_c", f"{T!r} is not a ceiling in [-50, 400] C")
+        raise bad("temperature_max_c", f"{T!r} is not a ceiling in [-50, 400] °C")
     if not isinstance(meta["seed"], int) or isinstance(meta["seed"], bool) or meta["seed"] < 0:
         raise bad("seed", f"{meta['seed']!r} is not a seed")
     n = meta["particles"]

@@ -42,7 +42,7 @@ def format_report(rep: dict) -> str:
         lines.append(f"  yield stress       {pw['sigma_MPa'][0]:.4g} / {pw['sigma_MPa'][1]:.4g} MPa")
         lines.append(f"  density            {pw['density_kg_m3'][0]:.5g} / {pw['density_kg_m3'][1]:.5g} kg/m^3")
         lines.append(f"  Poisson ratio      {pw['poisson']:.3g} (reported; not used by the model)")
-    head = ("rpm", "v m/s", "coll./s", "E_imp mJ", "a_H um", "trapped", "hits/p/h", "P W", "T_ss C", "")
+    head = ("rpm", "v m/s", "coll./s", "E_imp mJ", "a_H µm", "trapped", "hits/p/h", "P W", "T_ss °C", "")
     lines += ["", "per rpm (Burgio kinematics; Hertz radius after Maurice & Courtney)",
               "  " + "".join(f"{h:>10}" for h in head)]
     for r in rep["rows"]:
@@ -53,9 +53,9 @@ def format_report(rep: dict) -> str:
     t_max = val["temperature_max_C"]
     lines += ["", "validity",
               f"  rpm                0 to {val['rpm_max']:g}",
-              f"  sizes              {val['s_min_um']:g} to {val['s_max_um']:g} um",
+              f"  sizes              {val['s_min_um']:g} to {val['s_max_um']:g} µm",
               f"  vial temperature   " + ("no stated maximum" if t_max is None
-                                         else f"up to {t_max:g} C ({val['temperature_reason']})")]
+                                         else f"up to {t_max:g} °C ({val['temperature_reason']})")]
     return "\n".join(lines)
 
 
