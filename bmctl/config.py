@@ -128,6 +128,9 @@ class Validity(Strict):
     s_max_um: Range(0.01, 1e5) | None = None  # default: simulation.s_max_um
     # default: the lowest melting point of the powder's materials (above it nothing here holds)
     temperature_max_C: Range(-200.0, 4000.0) | None = None
+    # the hottest steady vial temperature of the data the card's constants were calibrated on: runs whose
+    # steady vial temperature goes above it warn (bmctl.cards.window_warnings; docs/moments.md, Sec. 9)
+    calibrated_temperature_max_C: Range(-200.0, 4000.0) | None = None
 
 
 class Stochastic(Strict):

@@ -81,9 +81,9 @@ def _model_and_controller(sc: Scenario, base: Path):
     """The moment model and the controller of a scenario (no random state: rebuilt on resume)."""
     from .control import make_controller
     from .control.config import load_controller, validate_controller
-    from .moments.modelcache import moment_model
+    from .moments.forcard import for_card
 
-    model = moment_model(resolve(sc.model, base))  # constants cached on disk (bmctl.moments.modelcache)
+    model = for_card(resolve(sc.model, base))  # this card's coefficients; constants cached on disk (modelcache)
     cfg_path = resolve(sc.controller.config, base)
     cfg = load_controller(cfg_path)
     if sc.temperature_max_c is not None and "temperature" in type(cfg).model_fields:

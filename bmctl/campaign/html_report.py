@@ -14,14 +14,13 @@ What it holds, in order:
 5. the vial-temperature readings against the ceiling, with the estimate and each reading's check;
 6. the log as recorded.
 
-Every value that reaches the page passes through :func:`esc`. Figures are base64 PNG; no
-scripts, no external resources.
+The page is built with :mod:`bmctl.htmlsafe` (trusted templates, every value escaped at
+render). Figures are base64 PNG; no scripts, no external resources.
 """
 
 from __future__ import annotations
 
 import base64
-import html
 import io as _io
 import json
 import math
@@ -29,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import htmlsafe as hs
 from .. import io
 from .readings import estimate_warning, reading_warnings
 
@@ -39,11 +39,6 @@ QUANTITIES = {
     "r_mean": ("mean irregularity r", "sample mean"),
     "d50_um": ("D50 (µm), volume-weighted", "sample D50"),
 }
-
-
-def esc(value) -> str:
-    """The one escaping function of the page: ``str(value)`` with ``& < > " '`` escaped."""
-    return html.escape(str(value), quote=True)
 
 
 def sample_statistics(s_um: np.ndarray, r: np.ndarray) -> dict[str, float]:
@@ -240,20 +235,14 @@ def figures(d: ReportData) -> dict[str, str]:
 
 
 # --- page -----------------------------------------------------------------------------------------
-def _table(header, rows, cls: str = "") -> str:
-    h = "".join(f"<th>{esc(x)}</th>" for x in header)
-    body = "".join("<tr>" + "".join(f"<td>{esc(x)}</td>" for x in r) + "</tr>" for r in rows)
-    return f'<table class="{esc(cls)}"><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>'
-
-
 def _band(est: dict | None, k: str, fmt: str = "{:.4g}") -> str:
-    """``mean [q05, q95]`` of an estimate dict, as ``bmctl campaign status`` prints it."""
+    """``mean  [q05, q95]`` of an estimate dict, as ``bmctl campaign status`` prints it."""
     if est is None or k not in est:
         return "n/a"
     return f"{fmt.format(est[k])}  [{fmt.format(est[f'{k}_q05'])}, {fmt.format(est[f'{k}_q95'])}]"
 
 
-def _samples_table(d: ReportData) -> str:
+def _samples_table(d: ReportData) -> hs.Markup:
     header = ["sample", "t (h)", "particles"]
     for k, (title, stat) in QUANTITIES.items():
         header += [f"{k}: estimate [90 %]", f"{k}: {stat}"]
@@ -264,10 +253,10 @@ def _samples_table(d: ReportData) -> str:
         for k in QUANTITIES:
             row += [_band(s["estimate"], k) if s["estimate"] else "waits for the log", f"{s['stats'][k]:.4g}"]
         rows.append(row + [", ".join(s["sources"])])
-    return _table(header, rows)
+    return hs.table(header, rows)
 
 
-def _advice_section(d: ReportData) -> str:
+def _advice_section(d: ReportData) -> hs.Markup:
     acts = {a.id: a for a in d.actions}
     parts = []
     for p in d.plans:
@@ -302,27 +291,26 @@ def _advice_section(d: ReportData) -> str:
                                              if k in est)),
                  ("target", ", ".join(f"{k} = {v:g}" for k, v in a["target"].items())),
                  ("reachable by the batch end", reach or "n/a"),
-                 ("binding", "; ".join(a.get("binding", [])) or "no constraint binds"),
-                 ("warnings", "; ".join(a.get("warnings", [])) or "none"),
+                 ("binding", "; ".join(map(str, a.get("binding", []))) or "no constraint binds"),
+                 ("warnings", "; ".join(map(str, a.get("warnings", []))) or "none"),
                  ("solver", a.get("solver", "")),
                  ("decision", dec), ("note", note or "none"),
                  ("then logged", "; ".join(ran) or "nothing yet"), ("deviation", dev)]
-        dl = "".join(f"<dt>{esc(k)}</dt><dd>{esc(v)}</dd>" for k, v in items)
+        dl = hs.join(hs.render("<dt>{k}</dt><dd>{v}</dd>", k=k, v=v) for k, v in items)
         sched = [(f"{r['t0_h']:.2f}-{r['t1_h']:.2f}", f"{r['rpm']:.0f}", r["mill_min"], r["rest_min"],
                   "" if r["planned"] else "held") for r in a.get("schedule", [])]
         end = [(k, f"{e['median']:.4g}", f"[{e['q05']:.4g}, {e['q95']:.4g}]") for k, e in a.get("end", {}).items()]
-        parts.append(
-            f'<section class="advice" id="advice-{esc(p["id"])}"><h3>Advice {esc(p["id"])} at '
-            f'{esc(format(p["t_h"], "g"))} h</h3><dl>{dl}</dl>'
-            f"<details><summary>plan advised to the batch end ({esc(len(sched))} intervals) and the predicted "
-            f"end state</summary>"
-            + _table(["interval (h)", "rpm", "mill (min)", "rest (min)", ""], sched, "plan")
-            + _table(["at the batch end", "median", "90 % band"], end, "end")
-            + "</details></section>")
-    return "".join(parts) or "<p>No advice was asked for.</p>"
+        parts.append(hs.render(
+            '<section class="advice" id="advice-{pid}"><h3>Advice {pid} at {t:g} h</h3><dl>{dl}</dl>'
+            "<details><summary>plan advised to the batch end ({n} intervals) and the predicted end state</summary>"
+            '<div class="plan">{plan}</div><div class="end">{end}</div></details></section>',
+            pid=p["id"], t=p["t_h"], dl=dl, n=len(sched),
+            plan=hs.table(["interval (h)", "rpm", "mill (min)", "rest (min)", ""], sched),
+            end=hs.table(["at the batch end", "median", "90 % band"], end)))
+    return hs.join(parts) if parts else hs.Markup("<p>No advice was asked for.</p>")
 
 
-def _temperature_table(d: ReportData) -> str:
+def _temperature_table(d: ReportData) -> hs.Markup:
     rows = []
     for t, y in d.temps:
         e = d.node_at(float(t))
@@ -331,12 +319,43 @@ def _temperature_table(d: ReportData) -> str:
                      "n/a" if e is None or "reading_predicted_c" not in e else
                      f"{e['reading_predicted_c']:.1f} ± {e['reading_predicted_sd_c']:.1f}",
                      _band(e, "temperature_c", "{:.1f}"), "; ".join(checks) or "none"))
-    return _table(["t (h)", "reading (°C)", "vs ceiling", "estimate before (°C)", "estimate after (°C) [90 %]",
-                   "warnings"], rows)
+    return hs.table(["t (h)", "reading (°C)", "vs ceiling", "estimate before (°C)", "estimate after (°C) [90 %]",
+                     "warnings"], rows)
+
+
+PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>bmctl campaign report</title>
+<style>body{{font-family:sans-serif;margin:1.5em;max-width:1400px}} img{{max-width:100%}}
+table{{border-collapse:collapse;font-size:0.9em;margin:0.4em 0}} td,th{{border:1px solid #bbb;padding:2px 8px;text-align:right}}
+dl{{display:grid;grid-template-columns:max-content auto;gap:2px 12px}} dt{{font-weight:bold}} dd{{margin:0}}
+.warnings li{{color:#a00}} section.advice{{border-top:1px solid #ccc;margin-top:1em}}</style>
+</head><body>
+<h1>Campaign report</h1>
+<p>{hours:g} h batch; target {tgt}; vial-temperature ceiling {ceiling}; controller {kind}; card {card};
+logged to {clock:g} h; {n_act} intervals, {n_smp} samples, {n_tmp} temperature readings, {n_adv} advices.</p>
+<h2>Warnings</h2>
+{warnings}
+<h2>Estimate now</h2>
+{estimate}
+<h2>Samples: the estimate against each sample's statistic of the same quantity</h2>
+{fig_estimate}
+{samples}
+{fig_hist}
+<h2>Advice and decisions</h2>
+{fig_actions}
+{advice}
+<h2>Vial temperature</h2>
+{fig_temperature}
+{temperatures}
+<h2>Log</h2>
+{log}
+</body></html>
+"""
 
 
 def html_page(c) -> str:
-    """The report page (a string)."""
+    """The report page (a string). Every value is escaped when the page is rendered
+    (:func:`bmctl.htmlsafe.render`): the templates in this module are the only markup."""
     d = ReportData(c)
     figs = figures(d)
     meta = d.meta
@@ -347,51 +366,33 @@ def html_page(c) -> str:
         y = temps.get(round(a.t1_h, 9))
         arows.append((f"{a.t0_h:g}", f"{a.t1_h:g}", f"{a.rpm:g}" if mm > 0 else "0 (rest)", f"{mm:.0f}",
                       f"{a.hours * 60 - mm:.0f}", "" if y is None else f"{y:g}", d.deviations.get(a.id, "")))
-    tgt = ", ".join(f"{k} = {v:g}" for k, v in meta["target"].items())
-    ceiling = "none" if d.ceiling_c is None else f"{d.ceiling_c:g} °C"
     warns = d.warnings()
-    wblock = ("<ul class=\"warnings\">" + "".join(f"<li>{esc(w)}</li>" for w in warns) + "</ul>") if warns else \
-        "<p>No temperature warnings.</p>"
+    wblock = (hs.render('<ul class="warnings">{items}</ul>', items=hs.join(hs.render("<li>{w}</li>", w=w)
+                                                                           for w in warns))
+              if warns else hs.Markup("<p>No temperature warnings.</p>"))
     last = d.nodes[-1][1] if d.nodes else None
     est_rows = [(k, _band(last, k)) for k in ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "temperature_c",
                                               "thermal_gain", "gamma_mult", "delta_mult") if last and k in last]
 
-    def img(k: str, alt: str) -> str:
-        if k not in figs:
-            return ""
-        return (f'<figure><img alt="{esc(alt)}" src="data:image/png;base64,{figs[k]}">'
-                f"<figcaption>{esc(alt)}</figcaption></figure>")
+    def img(k: str, alt: str) -> hs.Markup:
+        return hs.png_figure(base64.b64decode(figs[k]), alt) if k in figs else hs.Markup("")
 
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>bmctl campaign report</title>
-<style>body{{font-family:sans-serif;margin:1.5em;max-width:1400px}} img{{max-width:100%}}
-table{{border-collapse:collapse;font-size:0.9em;margin:0.4em 0}} td,th{{border:1px solid #bbb;padding:2px 8px;text-align:right}}
-dl{{display:grid;grid-template-columns:max-content auto;gap:2px 12px}} dt{{font-weight:bold}} dd{{margin:0}}
-.warnings li{{color:#a00}} section.advice{{border-top:1px solid #ccc;margin-top:1em}}</style>
-</head><body>
-<h1>Campaign report</h1>
-<p>{esc(format(meta['hours'], 'g'))} h batch; target {esc(tgt)}; vial-temperature ceiling {esc(ceiling)};
-controller {esc(meta['controller_kind'])}; card {esc(Path(meta['inputs']['card']['file']).name)};
-logged to {esc(format(d.clock_h, 'g'))} h; {esc(len(d.actions))} intervals, {esc(len(d.samples))} samples,
-{esc(len(d.temps))} temperature readings, {esc(len(d.plans))} advices.</p>
-<h2>Warnings</h2>
-{wblock}
-<h2>Estimate now</h2>
-{_table(['quantity', 'mean [90 % interval]'], est_rows)}
-<h2>Samples: the estimate against each sample's statistic of the same quantity</h2>
-{img('estimate', 'Estimate (mean and 90 % interval) of each quantity over batch time, each sample statistic of the same quantity, and the target')}
-{_samples_table(d)}
-{img('histograms', 'Measured size distributions against the filter size law at the estimate (density per ln s)')}
-<h2>Advice and decisions</h2>
-{img('actions', 'Logged intervals, recommendations and the plan advised at each step')}
-{_advice_section(d)}
-<h2>Vial temperature</h2>
-{img('temperature', 'Vial-temperature readings against the ceiling, with the estimate')}
-{_temperature_table(d)}
-<h2>Log</h2>
-{_table(['from (h)', 'to (h)', 'rpm', 'milling (min)', 'rest (min)', 'reading (°C)', 'deviation'], arows)}
-</body></html>
-"""
+    return hs.render(
+        PAGE, hours=meta["hours"], tgt=", ".join(f"{k} = {v:g}" for k, v in meta["target"].items()),
+        ceiling="none" if d.ceiling_c is None else f"{d.ceiling_c:g} °C", kind=meta["controller_kind"],
+        card=Path(str(meta["inputs"]["card"]["file"])).name, clock=d.clock_h, n_act=len(d.actions),
+        n_smp=len(d.samples), n_tmp=len(d.temps), n_adv=len(d.plans), warnings=wblock,
+        estimate=hs.table(["quantity", "mean [90 % interval]"], est_rows),
+        fig_estimate=img("estimate", "Estimate (mean and 90 % interval) of each quantity over batch time, each "
+                                     "sample statistic of the same quantity, and the target"),
+        samples=_samples_table(d),
+        fig_hist=img("histograms", "Measured size distributions against the filter size law at the estimate "
+                                   "(density per ln s)"),
+        fig_actions=img("actions", "Logged intervals, recommendations and the plan advised at each step"),
+        advice=_advice_section(d),
+        fig_temperature=img("temperature", "Vial-temperature readings against the ceiling, with the estimate"),
+        temperatures=_temperature_table(d),
+        log=hs.table(["from (h)", "to (h)", "rpm", "milling (min)", "rest (min)", "reading (°C)", "deviation"], arows))
 
 
 def write_report(c, path: Path) -> Path:

@@ -42,7 +42,7 @@ from . import db
 from . import targets as tg
 from .advice import _end_band, _measure, _schedule, _why
 from .readings import estimate_warning, reading_warnings
-from ..moments.modelcache import moment_model
+from ..moments.forcard import for_card
 
 EPS_H = 1e-9
 INPUTS = "inputs"
@@ -172,7 +172,7 @@ class Campaign:
         card_path = self._input("card")
         if "moments" in m["inputs"]:
             self._input("moments")
-        model = moment_model(card_path)  # constants cached on disk (modelcache)
+        model = for_card(card_path)  # the card's own coefficients; constants cached on disk (modelcache)
         cfg_path = self._input("controller")
         cfg = load_controller(cfg_path)
         ceiling = m["temperature_max_c"]
@@ -331,7 +331,7 @@ class Campaign:
 
 # --- verbs -----------------------------------------------------------------------------------------
 def init(folder, model, controller, target, hours: float | None = None, temperature_max_c: float | None = None,
-         seed: int = 0, particles: int = 1000) -> dict:
+         seed: int = 0, particles: int = 1000, identify: bool = False, progress=None) -> dict:
     """Start a campaign in ``folder``: copy the inputs, write the prior estimator state.
 
     Parameters
@@ -352,6 +352,11 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         Seed of the filter's generator.
     particles : int, optional
         Filter particles.
+    identify : bool, optional
+        Identify the card's moment coefficients first when it has none of its own
+        (:func:`bmctl.moments.for_card`); else such a card is refused.
+    progress : callable, optional
+        Progress lines of that identification.
 
     Returns
     -------
@@ -364,6 +369,7 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
 
     card_p, ctrl_p = Path(model), Path(controller)
     card = load_card(card_p)
+    for_card(card_p, identify=identify, progress=progress)  # the card's own coefficients, or refuse
     cfg = load_controller(ctrl_p)
     tgt = tg.parse(target) if isinstance(target, str) else {k: _finite(v, f"target: {k}", 0, strict=True)
                                                             for k, v in dict(target).items()}
@@ -527,6 +533,23 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
 def _insert_particles(con, rows) -> None:
     """Insert a sample's particles (a function of its own so that tests can interrupt here)."""
     con.executemany("INSERT INTO particles VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+
+
+def ensure_coefficients(folder, identify: bool = False, progress=None):
+    """The moment model of the campaign's copy of its card (:func:`bmctl.moments.for_card`): refuses
+    coefficients of another card, or identifies the copy with ``identify``.
+
+    Parameters
+    ----------
+    folder : path-like
+        The campaign.
+    identify : bool, optional
+        Identify the copy's coefficients when it has none of its own.
+    progress : callable, optional
+        Progress lines of that identification.
+    """
+    with Campaign(folder) as c:
+        return for_card(c._input("card"), identify=identify, progress=progress)
 
 
 def advise(folder, campaign: Campaign | None = None) -> dict:

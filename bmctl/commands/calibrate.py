@@ -2,13 +2,16 @@
 
 ``bmctl calibrate CARD.toml HISTORY.toml... --params alpha,beta,gamma,delta`` fits the named card
 parameters to the (s, r) samples of one or more histories (what the mill ran and what was
-measured when) and writes ``DIR/<card>-calibrated.toml``, ``DIR/calibration.json`` (estimates,
+measured when) and writes ``DIR/<card>-calibrated.toml`` with its moment coefficients
+(``<card>-calibrated.moments.toml``, identified on the spot), ``DIR/calibration.json`` (estimates,
 90 % intervals, the fit at the optimum, what the data do not identify) and one histogram
 figure per history. Plant runs go through Dask (a local cluster by default, ``--scheduler``
 for a running one). See docs/calibration-from-data.md.
 """
 
 from __future__ import annotations
+
+import sys
 
 from ._args import int_arg, output_path
 
@@ -56,7 +59,9 @@ def run(args) -> int:
     try:
         res = run_calibration(card, args.model, histories, names, out, seed=args.seed, settings=settings,
                               client=client, moment_stage=not args.no_moment_start, progress=bar.update,
-                              on_iteration=lambda e: bar.set_postfix(it=e["iteration"], chi2=f"{e['chi2']:.1f}"))
+                              on_iteration=lambda e: bar.set_postfix(it=e["iteration"], chi2=f"{e['chi2']:.1f}"),
+                              log=lambda msg: tqdm.write(f"identify (the calibrated card's moment coefficients): {msg}",
+                                                         file=sys.stderr))
     finally:
         bar.close()
         close_client(client)

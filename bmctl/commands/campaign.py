@@ -11,6 +11,7 @@ import argparse
 import json
 
 from ._args import float_arg, int_arg
+from ._model import add_identify_flag, progress_printer, warn_window
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -28,6 +29,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
                    help="vial-temperature ceiling (°C); default: the controller's")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the estimator")
     p.add_argument("--particles", type=int_arg("--particles", 50, 200_000), default=1000, help="filter particles")
+    add_identify_flag(p)
     p = sub.add_parser("log", help="record what the mill ran")
     p.add_argument("dir", metavar="DIR")
     p.add_argument("--rpm", required=True, type=float_arg("--rpm", 0), help="sun-disc speed (0: a rest, no milling)")
@@ -47,6 +49,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("advise", help="estimate, recommended next action, plan to the batch end, and why")
     p.add_argument("dir", metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the advice as JSON")
+    add_identify_flag(p)
     p = sub.add_parser("decide", help="accept or reject the latest advice")
     p.add_argument("dir", metavar="DIR")
     g = p.add_mutually_exclusive_group(required=True)
@@ -134,7 +137,8 @@ def _run(args: argparse.Namespace) -> int:
     v, d = args.verb, args.dir
     if v == "init":
         meta = cp.init(d, args.model, args.controller, tg.parse(args.target), hours=args.hours,
-                       temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles)
+                       temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles,
+                       identify=args.identify, progress=progress_printer())
         print(f"campaign: {d}: {meta['hours']:g} h batch, target "
               + ", ".join(f"{k} = {x:g}" for k, x in meta["target"].items())
               + f", controller {meta['controller_kind']}; inputs copied to {d}/inputs")
@@ -164,7 +168,10 @@ def _run(args: argparse.Namespace) -> int:
         else:
             print(f"held: the log reaches {r['clock_h']:g} h; the sample is used when it reaches {r['t_h']:g} h")
     elif v == "advise":
+        model = cp.ensure_coefficients(d, identify=args.identify, progress=progress_printer())
         a = cp.advise(d)
+        warn_window(model, [r["rpm"] for r in a.get("schedule") or [] if r.get("mill_min", 1) > 0]
+                    + ([a["next"]["rpm"]] if a.get("next") else []))
         print(json.dumps(a, indent=2) if args.json else "", end="\n" if args.json else "")
         if not args.json:
             _print_advice(a)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ._args import output_path
+from ._model import add_identify_flag, heldout_text, model_for, warn_window
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_CONTROLLER = "controllers/mpc-default.toml"
@@ -37,6 +38,7 @@ def configure(p):
     p.add_argument("--controller", default=None, metavar="FILE.toml",
                    help=f"MPC controller file (default {DEFAULT_CONTROLLER})")
     p.add_argument("--out", default="out/design", metavar="DIR", help="output folder (default out/design)")
+    add_identify_flag(p)
 
 
 def _controller_path(arg) -> Path:
@@ -49,7 +51,6 @@ def _controller_path(arg) -> Path:
 def run(args) -> int:
     from ..control.config import MPCConfig, load_controller, parse_target
     from ..control.design import design_schedule, write_design
-    from ..moments.modelcache import moment_model
 
     # all input checks first: nothing is written on bad input
     target = parse_target(args.target)
@@ -58,7 +59,7 @@ def run(args) -> int:
     if not isinstance(cfg, MPCConfig):
         raise InputError(f"{path}: kind: design needs an mpc controller (got {cfg.kind!r})")
     out = output_path(args.out)
-    model = moment_model(args.model)
+    model = model_for(args.model, args.identify)
     hours = args.hours if args.hours is not None else float(model.card.process.hours)
     from ..cards import check_work, design_work
 
@@ -76,6 +77,8 @@ def run(args) -> int:
     print(f"{d.card_name}: {d.hours:g} h ({d.objective}), {n} segment{'s' if n != 1 else ''}, {r.switches} switches, "
           f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} °C "
           f"(ceiling {d.ceiling_c:g} °C); {r.method} {r.status}, {r.solve_s:.1f} s")
+    print(f"  prediction's moment model: {heldout_text(model)} ({model.coeffs_source})")
+    warn_window(model, [rpm for _, rpm in d.segments])
     if d.pareto:
         from ..control.design import pareto_table
 

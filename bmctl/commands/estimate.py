@@ -15,6 +15,7 @@ from pathlib import Path
 
 from ..errors import InputError, finite_float
 from ._args import float_arg, int_arg, output_path
+from ._model import add_identify_flag, model_for, warn_window
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 
@@ -48,6 +49,7 @@ def configure(p):
                    help="ln s measurement noise (default 0.015)")
     p.add_argument("--write-card", default=None, metavar="OUT.toml",
                    help="also write the card with gamma, delta set to the last estimate (the next batch's start)")
+    add_identify_flag(p)
 
 
 def _parse_list(flag: str, text: str, allow_empty: bool = False) -> list[float | None]:
@@ -98,7 +100,6 @@ def _read_sample(path: Path, um_per_px: float | None):
 
 def run(args) -> int:
     from ..schedule import Schedule
-    from ..moments.model import make_moment_model
     from ..estimate.filter import FilterSettings
     from ..estimate.likelihood import LawSettings
     from .. import io
@@ -164,7 +165,8 @@ def run(args) -> int:
         tab = _read_sample(f, args.um_per_px)
         samples.append(check_sample(Sample(t, tab.s_um, tab.r, temp, str(f))))
 
-    model = make_moment_model(args.model)
+    model = model_for(args.model, args.identify)
+    warn_window(model, [rpm for _, rpm in segments])
     pf, estimates = run_filter(model, samples, segments, settings, seed=args.seed)
     header, rows = estimate_rows(estimates)
     fig_path = out.with_suffix(".png")

@@ -6,6 +6,7 @@ import math
 
 from ..errors import InputError
 from ._args import output_path
+from ._model import add_identify_flag
 
 
 def _float(name, lo=None):
@@ -21,12 +22,13 @@ def _float(name, lo=None):
 
 
 def configure(p):
-    p.add_argument("model", metavar="MODEL.toml", help="model card (its identified moment model is used if present)")
+    p.add_argument("model", metavar="MODEL.toml", help="model card (with its own moment coefficients, <card>.moments.toml)")
     p.add_argument("--rpm", type=_float("--rpm", 0.0), default=None, help="operating speed (default: the card's)")
     p.add_argument("--at-hours", type=_float("--at-hours", 0.0), default=6.0,
                    help="linearise at the state reached after this many hours at --rpm (default 6)")
     p.add_argument("--horizon", type=_float("--horizon", 0.0), default=2.0, help="gramian horizon in h (default 2)")
     p.add_argument("--out", default="out/linearize", metavar="DIR", help="output folder (default out/linearize)")
+    add_identify_flag(p)
 
 
 def run(args) -> int:
@@ -34,7 +36,7 @@ def run(args) -> int:
 
     from ..config import load_card
     from ..io import savefig
-    from ..moments import make_moment_model
+    from ._model import model_for, warn_window
     from ..moments.linear import analyse, operating_point, step_figure
 
     card = load_card(args.model)
@@ -44,7 +46,8 @@ def run(args) -> int:
     if args.horizon <= 0:
         raise InputError(f"--horizon: must be > 0 (got {args.horizon:g})")
     out = output_path(args.out)
-    model = make_moment_model(args.model)
+    model = model_for(args.model, args.identify)
+    warn_window(model, [rpm])
     x, u = operating_point(model, rpm, args.at_hours)
     a = analyse(model, x, u, horizon_h=args.horizon)
     names = model.state_names

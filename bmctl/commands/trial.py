@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ._args import int_arg, output_path
+from ._model import add_identify_flag, model_for, warn_window
 
 
 
@@ -20,6 +21,7 @@ def configure(p):
     p.add_argument("--campaign", action="store_true",
                    help="run the trial through the campaign verbs (the plant as the person at the mill); "
                         "leaves DIR/campaign/ for `bmctl campaign status/report` (no --resume)")
+    add_identify_flag(p)
 
 
 #: CPU seconds of one filter particle per sample and of one feedback solve (docs/estimation.md, docs/control.md)
@@ -59,6 +61,9 @@ def run(args) -> int:
     out = output_path(args.resume or args.out or f"out/trial-{sc.scenario.name}-seed{args.seed}",
                       "--resume" if args.resume else "--out")
     card = _check_trial_work(sc, args.scenario)
+    from ..scenario import resolve
+
+    model = model_for(resolve(sc.model, Path(args.scenario).resolve().parent), args.identify)
     bar = None
     if not args.no_progress:
         from tqdm import tqdm
@@ -88,6 +93,7 @@ def run(args) -> int:
         print(f"bmctl: warning: {card.card.name}: vial temperature {summary['max_temperature_c']:.0f} °C is above the "
               f"card's maximum {t_max:g} °C ({validity(card)['temperature_reason']}): the model does not hold there",
               file=sys.stderr)
+    warn_window(model, _milling_rpms(out / "trajectory.csv"))
     err = ", ".join(f"{k} {v:.1%}" for k, v in summary["final_error"].items()) or "(no target)"
     print(f"{sc.scenario.name} seed {args.seed}: final error {err}; max T {summary['max_temperature_c']:.1f} °C, "
           f"{summary['temperature_violations']} violations; energy {summary['energy_kj']:.0f} kJ; "
@@ -95,3 +101,11 @@ def run(args) -> int:
     print(f"  wrote {out}/trajectory.csv, summary.json, trial.png"
           + (f"; the campaign in {out}/campaign (bmctl campaign report {out}/campaign)" if args.campaign else ""))
     return 0
+
+
+def _milling_rpms(path: Path) -> set[float]:
+    """The speeds a trial milled at (its trajectory.csv's rpm where milling > 0)."""
+    import csv
+
+    with open(path, newline="") as f:
+        return {float(r["rpm"]) for r in csv.DictReader(f) if float(r["milling"]) > 0 and float(r["rpm"]) > 0}

@@ -159,7 +159,7 @@ def test_report_holds_estimates_against_samples_decisions_notes_plans_and_readin
     # every advice, with its decision, note, deviation and the plan that was advised
     assert n_plans >= 3
     assert page.count('<section class="advice"') == n_plans
-    assert page.count('<table class="plan">') == n_plans
+    assert page.count('<div class="plan">') == n_plans
     assert "<dd>accepted</dd>" in page and "<dd>rejected; instead 200 rpm</dd>" in page
     assert "<dd>ran as advised</dd>" in page
     assert "operator &lt;b&gt;cautious&lt;/b&gt; &amp; careful" in page and "<b>cautious</b>" not in page
