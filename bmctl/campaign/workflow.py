@@ -652,7 +652,8 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
 
 
 def status(folder, campaign: Campaign | None = None) -> dict:
-    """Where the campaign stands: clock, counts, the current estimate, the latest advice and decision."""
+    """Where the campaign stands: clock, counts, the current estimate, the latest advice and decision,
+    the deviations, and the temperature warnings since the latest advice."""
     c = campaign or Campaign(folder)
     try:
         with db.transaction(c.con, write=False, where=str(folder)):
@@ -667,6 +668,7 @@ def status(folder, campaign: Campaign | None = None) -> dict:
                 dec = c.con.execute("SELECT accepted, rpm, milling FROM decisions WHERE plan_id = ? ORDER BY id DESC "
                                     "LIMIT 1", (plan[0],)).fetchone()
             devs = [r[0] for r in c.con.execute("SELECT deviation FROM actions WHERE deviation != '' ORDER BY t0_h")]
+            warnings = c.temperature_warnings(since_h=None if plan is None else float(plan[1]))
     finally:
         if campaign is None:
             c.close()
@@ -675,7 +677,7 @@ def status(folder, campaign: Campaign | None = None) -> dict:
             "latest_advice": None if plan is None else {"id": plan[0], "t_h": plan[1], "rpm": plan[2],
                                                         "milling": plan[3], "current": abs(plan[1] - clock) < 1e-6},
             "decision": None if dec is None else {"accepted": bool(dec[0]), "rpm": dec[1], "milling": dec[2]},
-            "deviations": devs, "db_bytes": db.db_path(folder).stat().st_size}
+            "deviations": devs, "warnings": warnings, "db_bytes": db.db_path(folder).stat().st_size}
 
 
 def report(folder, out=None, campaign: Campaign | None = None) -> Path:

@@ -210,6 +210,8 @@ def _run(args: argparse.Namespace) -> int:
                   + ("; no decision" if dec is None else f"; {'accepted' if dec['accepted'] else 'rejected'}"))
         for dv in s["deviations"]:
             print(dv)
+        for w in s["warnings"]:
+            print(f"warning: {w}")
     elif v == "report":
         p = cp.report(d, args.out)
         print(f"report: wrote {p}")
