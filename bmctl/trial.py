@@ -145,12 +145,12 @@ def _append_row(path: Path, row: list) -> None:
 
 
 def _read_meta(path: Path) -> dict:
+    if not path.exists() and not path.is_symlink():
+        raise InputError(f"--resume: {path} not found")
     try:
-        meta = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"--resume: {path} not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        raise InputError(f"{path}: not a bmctl trial record (truncated or damaged)") from None
+        meta = io.read_json(path, max_bytes=1 << 20)
+    except InputError as exc:
+        raise InputError(f"{path}: not a bmctl trial record ({str(exc).removeprefix(str(path) + ': ')})") from None
     if not isinstance(meta, dict) or not {"scenario", "seed"} <= set(meta):
         raise InputError(f"{path}: not a bmctl trial record (no scenario and seed)")
     return meta
@@ -298,6 +298,19 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
         Stop after this many steps in this call (tests use it to simulate an interruption).
     progress : callable, optional
         Called after each step with (k, K).
+
+    Examples
+    --------
+    Two steps of the open-loop lab recipe, then the rest of the batch from the checkpoint:
+
+    >>> import tempfile
+    >>> from bmctl.trial import run_trial
+    >>> out = tempfile.mkdtemp()
+    >>> run_trial("scenarios/trial-lab-recipe.toml", out, seed=0, max_steps=2)
+    {'interrupted_at_step': 2}
+    >>> summary = run_trial("scenarios/trial-lab-recipe.toml", out, seed=0, resume=True)  # doctest: +ELLIPSIS
+    >>> summary["steps"]
+    24
     """
     sc = load_scenario(scenario_path)
     base = Path(scenario_path).resolve().parent

@@ -276,7 +276,7 @@ def test_design_refuses_a_solver_beyond_the_budget(tmp_path, capsys):
     assert main(["design", str(FAN), "--target", "s_mean_um=30", "--hours", "1000", "--controller", str(ctrl),
                  "--out", str(tmp_path / "o")]) == 2
     line = _err(capsys)
-    assert "--hours" in line and "BMCTL_BUDGET_CPU_H" in line and "over the budget of 24 h" in line
+    assert "--hours" in line and "BMCTL_BUDGET_CPU_H" in line and "over the budget of 1 h" in line
 
 
 @pytest.mark.parametrize("command", ["design", "identify"])
@@ -287,13 +287,13 @@ def test_solver_commands_obey_the_budget_variable(tmp_path, capsys, monkeypatch,
             ["identify", str(FAN), "--quick", "--quiet", "--out", str(tmp_path / "c.moments.toml")])
     assert main(argv) == 2
     line = _err(capsys)
-    assert "over the budget of 1e-06 h (BMCTL_BUDGET_CPU_H)" in line
+    assert "over the budget of 1e-06 h" in line and "BMCTL_BUDGET_CPU_H" in line
     assert ("--hours" if command == "design" else "--particles") in line
 
 
 def test_design_hours_beyond_a_batch_are_refused(tmp_path, capsys):
     assert main(["design", str(FAN), "--target", "s_mean_um=30", "--hours", "1e300", "--out", str(tmp_path)]) == 2
-    assert "--hours: 1e+300 h exceeds the longest batch, 1000 h" in _err(capsys)
+    assert "--hours: must be in [1 s, 1000 h] (got 1e300)" in _err(capsys)
 
 
 def test_design_work_is_finite_for_any_horizon():

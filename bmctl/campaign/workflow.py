@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..limits import HOURS_MIN
 from . import db
 from . import targets as tg
 from .advice import _end_band, _measure, _schedule, _why
@@ -131,6 +132,7 @@ class Campaign:
         try:
             db.check(self.con, where)
             self.meta = _check_meta(db.get_meta(self.con, where), where)
+            db.check_inputs(self.folder, self.meta["inputs"], where)
         except BaseException:
             self.con.close()
             raise
@@ -148,8 +150,8 @@ class Campaign:
     # --- objects ---------------------------------------------------------------------------
     def _input(self, key: str) -> Path:
         m = self.meta["inputs"][key]
-        p = self.folder / m["file"]
-        if not p.exists() or _sha(p) != m["sha256"]:
+        p = self.folder / m["file"]  # checked on open (db.check_inputs): a file under inputs/
+        if not p.is_file() or _sha(p) != m["sha256"]:
             raise InputError(f"{p}: changed or missing since `campaign init` (the campaign runs on the copy "
                              f"taken then; sha256 {m['sha256'][:12]}...)")
         return p
@@ -378,7 +380,7 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
             raise InputError(f"target: unknown key {k!r} (one of {', '.join(tg.known_keys())})")
     if not tgt and cfg.kind != "recipe":
         raise InputError(f"--target: a feedback controller ({cfg.kind}) needs a target")
-    H = float(card.process.hours) if hours is None else _finite(hours, "--hours", 0, MAX_HOURS, strict=True)
+    H = float(card.process.hours) if hours is None else _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)
     Tmax = None if temperature_max_c is None else _finite(temperature_max_c, "--temperature-max-c", -50, 400)
     if int(particles) < 50:
         raise InputError(f"--particles: must be >= 50 (got {particles})")
@@ -450,7 +452,7 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
         estimate; the estimate above the ceiling) and the new ``estimate``.
     """
     rpm = _finite(rpm, "--rpm", 0)
-    hours = _finite(hours, "--hours", 0, strict=True)
+    hours = _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)  # one second at least (bmctl.limits)
     milling = _finite(milling, "--milling", 0, 1)
     if rpm == 0 or milling == 0:  # a rest: the mill stood still for the whole interval
         rpm, milling = 0.0, 0.0

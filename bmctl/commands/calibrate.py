@@ -42,6 +42,7 @@ def run(args) -> int:
     from ..calibrate.params import parse_params
     from ..calibrate.run import run_calibration
     from ..config import load_card
+    from ..io import name_part
     from ..parallel import client_for, close_client
 
     out = output_path(args.out)
@@ -49,11 +50,16 @@ def run(args) -> int:
     names = parse_params(args.params, card)
     histories = [load_history(h, card) for h in args.histories]
     seen = set()
-    for h in histories:
-        if h.name in seen:
+    for h in histories:  # each history's figure is named by its name as a file name part (bmctl.io.name_part)
+        if name_part(h.name) in seen:
             raise_dup(h)
-        seen.add(h.name)
+        seen.add(name_part(h.name))
     settings = FitSettings(particles=args.particles, replicates=args.replicates)
+    from ..work import add, calibrate_work, check_work, identify_work
+
+    check_work(add(calibrate_work(card, histories, len(names), args.particles, args.replicates, settings.max_iter),
+                   identify_work(card, args.seed)), "--particles/--replicates/HISTORY.toml (and the calibrated "
+               "card's identification)")
     client = client_for(args.scheduler, args.workers)
     bar = tqdm(desc="plant runs", unit="run", total=None, leave=False)
     try:
@@ -82,4 +88,5 @@ def run(args) -> int:
 def raise_dup(h):
     from ..errors import InputError
 
-    raise InputError(f"{h.path}: name: history name {h.name!r} is used twice (give each history its own name)")
+    raise InputError(f"{h.path}: name: history name {h.name!r} is used twice, or gives the same figure name as another "
+                     "(give each history its own name)")

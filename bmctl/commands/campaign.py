@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from ._args import float_arg, int_arg
+from ._args import float_arg, hours_arg, int_arg, rpm_arg
 from ._model import add_identify_flag, progress_printer, warn_window
 
 
@@ -24,7 +24,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--controller", required=True, metavar="CONFIG", help="controller config (controllers/*.toml)")
     p.add_argument("--target", required=True, metavar="K=V[,K=V]",
                    help="target at the batch end, e.g. d50_um=45 or s_mean_um=40,r_mean=0.05")
-    p.add_argument("--hours", type=float_arg("--hours", 0, strict=True), default=None, help="batch length (h); default: the card's")
+    p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="batch length (h); default: the card's")
     p.add_argument("--temperature-max-c", type=float_arg("--temperature-max-c"), default=None, metavar="C",
                    help="vial-temperature ceiling (°C); default: the controller's")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the estimator")
@@ -32,17 +32,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     add_identify_flag(p)
     p = sub.add_parser("log", help="record what the mill ran")
     p.add_argument("dir", metavar="DIR")
-    p.add_argument("--rpm", required=True, type=float_arg("--rpm", 0), help="sun-disc speed (0: a rest, no milling)")
-    p.add_argument("--hours", required=True, type=float_arg("--hours", 0, strict=True), help="length of the interval (h)")
+    p.add_argument("--rpm", required=True, type=rpm_arg("--rpm"), help="sun-disc speed (0: a rest, no milling)")
+    p.add_argument("--hours", required=True, type=hours_arg("--hours"), help="length of the interval (h)")
     p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=1.0,
                    help="share of the interval spent milling, first (the rest of it is a rest; 0: a rest)")
     p.add_argument("--temperature-c", type=float_arg("--temperature-c"), default=None, metavar="C",
                    help="vial temperature read at the end of the interval (°C; enters the estimate, sigma 2 °C)")
-    p.add_argument("--from-h", type=float_arg("--from-h", 0), default=None, metavar="H",
+    p.add_argument("--from-h", type=hours_arg("--from-h", zero=True), default=None, metavar="H",
                    help="start of the interval (default: end of the last one); overlaps and gaps are refused")
     p = sub.add_parser("sample", help="measure a sample and update the estimate")
     p.add_argument("dir", metavar="DIR")
-    p.add_argument("--at-h", required=True, type=float_arg("--at-h", 0), metavar="H", help="batch time the sample was taken (h)")
+    p.add_argument("--at-h", required=True, type=hours_arg("--at-h", zero=True), metavar="H", help="batch time the sample was taken (h)")
     p.add_argument("inputs", nargs="+", metavar="IMAGE_OR_TABLE", help="micrographs and/or particle tables (.csv)")
     p.add_argument("--um-per-px", type=float_arg("--um-per-px", 0, strict=True), default=None, metavar="X",
                    help="pixel size (overrides the image metadata)")
@@ -55,7 +55,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--accept", action="store_true")
     g.add_argument("--reject", action="store_true")
-    p.add_argument("--rpm", type=float_arg("--rpm", 0), default=None, help="with --reject: what will be run instead")
+    p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="with --reject: what will be run instead")
     p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=None, help="with --reject: milling share instead")
     p.add_argument("--note", default="", help="free text kept with the decision")
     p = sub.add_parser("status", help="where the campaign stands")

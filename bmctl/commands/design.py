@@ -2,28 +2,15 @@
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import output_path
+from ._args import hours_arg, output_path
 from ._model import add_identify_flag, heldout_text, model_for, warn_window
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_CONTROLLER = "controllers/mpc-default.toml"
-
-
-def _hours(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputError(f"--hours: not a number: {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise InputError(f"--hours: must be a finite number > 0 (got {text})")
-    if v > 1000.0:  # the longest batch a card allows (bmctl.config.HOURS)
-        raise InputError(f"--hours: {v:g} h exceeds the longest batch, 1000 h")
-    return v
 
 
 def configure(p):
@@ -34,7 +21,7 @@ def configure(p):
     p.add_argument("--objective", choices=("target", "min_time", "min_energy"), default=None,
                    help="target: error + energy/time weights; min_time / min_energy: shortest or cheapest batch "
                         "within the tolerance (default: the controller's [objective] kind)")
-    p.add_argument("--hours", type=_hours, default=None, help="batch length in h (default: the card's)")
+    p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="batch length in h (default: the card's)")
     p.add_argument("--controller", default=None, metavar="FILE.toml",
                    help=f"MPC controller file (default {DEFAULT_CONTROLLER})")
     p.add_argument("--out", default="out/design", metavar="DIR", help="output folder (default out/design)")

@@ -35,6 +35,7 @@ def _check_trial_work(sc, path):
     from ..config import load_card
     from ..control.config import load_controller
     from ..scenario import resolve
+    from ..work import add, filter_work
 
     base = Path(path).resolve().parent
     card = load_card(resolve(sc.plant.model or sc.model, base))
@@ -42,6 +43,7 @@ def _check_trial_work(sc, path):
     work = simulation_work(card, [(sc.hours, card.mill.rpm_max)], sc.plant.particles, sc.sampling.every_h, raster=False)
     samples = sc.hours / sc.sampling.every_h + 1
     work["cpu_s"] += samples * sc.estimator.particles * FILTER_CPU_S_PER_PARTICLE
+    work = add(work, filter_work(sc.hours, sc.estimator.particles))  # the filter's propagation between samples
     if cfg.kind != "recipe":
         work["cpu_s"] += SOLVE_CPU_S * sc.hours / (getattr(cfg, "interval_h", None) or 0.5)
     check_work(work, f"{path}: hours/plant.particles/sampling.every_h/estimator.particles")

@@ -277,9 +277,16 @@ class ParticleFilter:
 
     Examples
     --------
-    >>> pf = ParticleFilter(model, np.random.default_rng(0))  # doctest: +SKIP
-    >>> pf.predict((300.0, 1.0), 1.0)  # doctest: +SKIP
-    >>> est = pf.update(s_um, r)  # doctest: +SKIP
+    >>> import numpy as np
+    >>> from bmctl.moments import make_moment_model
+    >>> from bmctl.estimate.filter import FilterSettings, ParticleFilter
+    >>> model = make_moment_model("models/alni-1to1-300rpm-lab.toml")
+    >>> pf = ParticleFilter(model, np.random.default_rng(0), FilterSettings(n_particles=200))
+    >>> pf.predict((300.0, 1.0), 1.0)
+    >>> rng = np.random.default_rng(1)
+    >>> est = pf.update(s_um=rng.lognormal(np.log(45.0), 0.3, 300), r=rng.uniform(0.0, 0.1, 300))
+    >>> est.t_h, len(est.mean) == len(est.names)
+    (1.0, True)
     """
 
     def __init__(self, model, rng: np.random.Generator, settings: FilterSettings | None = None, x0=None):

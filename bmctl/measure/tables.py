@@ -156,6 +156,15 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
         Missing or unreadable file, no header or no rows, missing columns, a value that is
         not a finite number, area/perimeter/s <= 0, r outside [0, 1), or a perimeter more
         than ``ISOPERIMETRIC_TOL`` below pi s.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
+    >>> _ = f.write_text("s_um,r\\n40.0,0.02\\n55.5,0.10\\n")
+    >>> t = read_table(f)
+    >>> len(t), t.s_um.tolist()
+    (2, [40.0, 55.5])
     """
     p = str(path)
     try:
