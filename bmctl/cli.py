@@ -50,7 +50,7 @@ def _budget_flags(p: argparse.ArgumentParser) -> None:
 
     g = p.add_argument_group("work budget (the run is estimated first and refused beyond it)")
     g.add_argument("--budget-cpu-h", type=float_arg("--budget-cpu-h", lo=0.0, hi=1e6, strict=True), default=None,
-                   metavar="H", help="CPU hours this run may take (default: BMCTL_BUDGET_CPU_H, else 0.5)")
+                   metavar="H", help="CPU hours this run may take (default: BMCTL_BUDGET_CPU_H, else 1)")
     g.add_argument("--budget-memory-gb", type=float_arg("--budget-memory-gb", lo=0.0, hi=1e6, strict=True),
                    default=None, metavar="G",
                    help="memory this run may use, GiB (default: BMCTL_BUDGET_MEMORY_GB, else half of this machine's)")

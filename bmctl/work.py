@@ -14,7 +14,8 @@ project's machine and rounded towards the slow side (docs/reliability.md lists t
 * the particle filter (``estimate``, ``trial``): :func:`filter_work` (moment-model steps of
   every particle over the hours it covers);
 * the moment model alone (``linearize``): :func:`moment_work`;
-* a calibration: :func:`calibrate_work` (its plant runs: design points x replicates x histories).
+* a calibration: :func:`calibrate_work` (its plant runs: design points x replicates x histories)
+  and :func:`identify_work` (the calibrated card's moment coefficients are identified with it).
 
 Examples
 --------
@@ -31,7 +32,7 @@ import os
 from .errors import InputError
 
 #: the default CPU budget (hours of CPU time): minutes of waiting, not a day
-DEFAULT_CPU_H = 0.5
+DEFAULT_CPU_H = 1.0
 #: CPU seconds of one moment-model step of one filter particle per hour of milling, and per hour
 #: for the whole ensemble (measured: 100 particles 0.073 s/h, 1,000: 0.134 s/h, 10,000: 0.57 s/h in the
 #: predict step; a whole `bmctl estimate` of 659 h at 100 particles: 0.14 s/h)
@@ -210,3 +211,30 @@ def calibrate_work(card, histories, n_params: int, particles: int, replicates: i
         segs = [s for s in segs if s[0] > 0] or [(1e-3, 0.0)]
         one = add(one, simulation_work(card, segs, particles, max(end, 1e-3), raster=False))
     return scale(one, points * replicates)
+
+
+def identify_work(card, seed: int = 0, quick: bool = False, particles: int | None = None,
+                  random_schedules: int | None = None) -> dict[str, float]:
+    """Estimated plant work of identifying ``card``'s moment coefficients as ``bmctl identify``
+    does (training, held-out and off-card experiments on their seeds).
+
+    Parameters
+    ----------
+    card : ModelCard
+    seed : int, optional
+        Seed of the design.
+    quick : bool, optional
+        The ``--quick`` design.
+    particles : int, optional
+        Plant particles (default: identify's).
+    random_schedules : int, optional
+        Random schedules in the design (default: identify's).
+    """
+    from .cards import identify_work as plant_identify_work
+    from .moments import identify as ident
+
+    n_train, n_valid = (1, 2) if quick else (len(ident.TRAIN_SEEDS), len(ident.VALID_SEEDS))
+    specs = ident.design(card, seed, quick, random_schedules)
+    vspecs = ident.validation_design(card, seed, 4 if quick else ident.N_VALID)
+    return plant_identify_work(card, [(specs, n_train), (vspecs, n_valid), (ident.off_card_design(card), n_valid)],
+                               particles or (2000 if quick else 4000), ident.DT_H)

@@ -377,7 +377,7 @@ def test_long_commands_are_estimated_and_refused_beyond_the_default_budget(tmp_p
     argv = [a.replace("@", str(tmp_path) + "/") if a.startswith("@") else a for a in argv]
     assert main(argv + ["--out", str(tmp_path / "o" / ("e.csv" if argv[0] == "estimate" else ""))]) == 2
     line = _err(capsys)
-    assert needle in line and ("over the budget of 0.5 h" in line or "must be" in line), line
+    assert needle in line and ("over the budget of 1 h" in line or "must be" in line), line
     assert not (tmp_path / "o").exists()
 
 
@@ -405,3 +405,19 @@ def test_errors_are_one_short_line(tmp_path, capsys, case):
     assert main(argv) == 2
     line = _err(capsys)
     assert len(line) <= 700 and "s.toml" in line or "--see" in line, line
+
+
+def test_calibrate_writes_only_inside_out_whatever_the_history_name(tmp_path, capsys, monkeypatch):
+    import bmctl.moments.forcard as forcard
+
+    # the calibrated card's own identification (minutes of plant runs) is not what is tested here
+    monkeypatch.setattr(forcard, "identification_text", lambda *a, **k: "# coefficients not identified in this test\n")
+    h = _history(tmp_path, name="../../../X")
+    out = tmp_path / "deep" / "er" / "out"
+    before = {p for p in tmp_path.rglob("*")}
+    assert main(["calibrate", str(LAB), str(h), "--params", "gamma", "--particles", "100", "--workers", "0",
+                 "--budget-cpu-h", "10", "--out", str(out)]) == 0
+    capsys.readouterr()
+    new = {p for p in tmp_path.rglob("*")} - before
+    assert new and all(p == out or out in p.parents or p in out.parents for p in new), sorted(new)
+    assert (out / "histograms-X.png").is_file()

@@ -81,7 +81,10 @@ def _read_sample(src: str, spec: SampleSpec, base: Path, k: int) -> MeasuredSamp
 
         if spec.um_per_px is not None:
             raise InputError(f"{where}.um_per_px: only for an image, not a table")
-        tab = read_table(io.inside(base, spec.table, f"{where}.table"))
+        path = io.inside(base, spec.table, f"{where}.table")
+        if not path.is_file():  # a folder, a FIFO, a device or nothing: name the field that names it
+            raise InputError(f"{where}.table: {spec.table[:80]!r} is not a regular file in {base}")
+        tab = read_table(path)
         name = spec.table
     else:
         from ..measure.segment import measure_image
@@ -89,10 +92,10 @@ def _read_sample(src: str, spec: SampleSpec, base: Path, k: int) -> MeasuredSamp
         path = io.inside(base, spec.image, f"{where}.image")
         if path.suffix.lower() not in IMAGE_SUFFIXES:
             raise InputError(f"{where}.image: {spec.image}: not an image ({', '.join(IMAGE_SUFFIXES)})")
-        if not path.exists():
-            raise InputError(f"{where}.image: {path}: no such file")
+        if not path.is_file():
+            raise InputError(f"{where}.image: {spec.image[:80]!r} is not a regular file in {base}")
         if spec.um_per_px is None:
-            raise InputError(f"{where}.um_per_px: required for an image (its pixel size in um)")
+            raise InputError(f"{where}.um_per_px: required for an image (its pixel size in µm)")
         tab = measure_image(str(path), spec.um_per_px)
         name = spec.image
     if len(tab) < MIN_PARTICLES:

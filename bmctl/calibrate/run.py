@@ -107,7 +107,8 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
         from ..moments.forcard import identification_text
 
         card_out = out / f"{stem}-calibrated.toml"
-        text = identification_text(new, card_out, seed=seed, log=log, client=client)
+        text = identification_text(new, card_out, seed=seed, log=log, client=client,
+                                   workers=0 if client is None else None)  # serial when the fit was
         with output_set():
             write_text(card_out, outputs.card_toml(new, f"{new.card.name}: {note}\nSee calibration.json next to this "
                                                         "file; its moment coefficients are in the .moments.toml beside it."))

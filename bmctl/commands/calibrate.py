@@ -55,10 +55,11 @@ def run(args) -> int:
             raise_dup(h)
         seen.add(name_part(h.name))
     settings = FitSettings(particles=args.particles, replicates=args.replicates)
-    from ..work import calibrate_work, check_work
+    from ..work import add, calibrate_work, check_work, identify_work
 
-    check_work(calibrate_work(card, histories, len(names), args.particles, args.replicates, settings.max_iter),
-               "--particles/--replicates/HISTORY.toml")
+    check_work(add(calibrate_work(card, histories, len(names), args.particles, args.replicates, settings.max_iter),
+                   identify_work(card, args.seed)), "--particles/--replicates/HISTORY.toml (and the calibrated "
+               "card's identification)")
     client = client_for(args.scheduler, args.workers)
     bar = tqdm(desc="plant runs", unit="run", total=None, leave=False)
     try:
