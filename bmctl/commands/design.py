@@ -62,8 +62,8 @@ def run(args) -> int:
     got = ", ".join(f"{k} {r.outputs[k]:.4g} (target {format_target(v)})" for k, v in target.items())
     n = len(d.segments)
     print(f"{d.card_name}: {d.hours:g} h ({d.objective}), {n} segment{'s' if n != 1 else ''}, {r.switches} switches, "
-          f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} C "
-          f"(ceiling {d.ceiling_c:g} C); {r.method} {r.status}, {r.solve_s:.1f} s")
+          f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} °C "
+          f"(ceiling {d.ceiling_c:g} °C); {r.method} {r.status}, {r.solve_s:.1f} s")
     print(f"  prediction's moment model: {heldout_text(model)} ({model.coeffs_source})")
     warn_window(model, [rpm for _, rpm in d.segments])
     if d.pareto:
