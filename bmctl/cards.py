@@ -233,12 +233,12 @@ def run_warnings(card, t_h, temperature_c, s_mean_um) -> list[str]:
     hot = [(t, T) for t, T in zip(t_h, temperature_c) if t_max is not None and T > t_max]
     if hot:
         t, T = max(hot, key=lambda x: x[1])
-        out.append(f"{card.card.name}: vial temperature {T:.0f} C at {t:g} h is above the card's maximum "
-                   f"{t_max:g} C ({val['temperature_reason']}): the model does not hold there")
+        out.append(f"{card.card.name}: vial temperature {T:.0f} °C at {t:g} h is above the card's maximum "
+                   f"{t_max:g} °C ({val['temperature_reason']}): the model does not hold there")
     for t, s in zip(t_h, s_mean_um):
         if not (val["s_min_um"] <= s <= val["s_max_um"]):
-            out.append(f"{card.card.name}: mean size {s:.3g} um at {t:g} h is outside the card's "
-                       f"[{val['s_min_um']:g}, {val['s_max_um']:g}] um")
+            out.append(f"{card.card.name}: mean size {s:.3g} µm at {t:g} h is outside the card's "
+                       f"[{val['s_min_um']:g}, {val['s_max_um']:g}] µm")
             break
     return out
 
@@ -487,7 +487,7 @@ def check_melting(card, segments, where: str) -> float:
     peak, at = peak_temperature_c(card, segments)
     limit, reason = melting_limit(card)
     if not peak <= limit:
-        raise InputError(f"{where}: the vial would reach {peak:.0f} C at {at:g} h, above {limit:g} C "
+        raise InputError(f"{where}: the vial would reach {peak:.0f} °C at {at:g} h, above {limit:g} °C "
                          f"({reason}; {card.card.name}): no model holds there; lower the rpm or add rests")
     return peak
 

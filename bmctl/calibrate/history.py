@@ -95,7 +95,7 @@ def _read_sample(src: str, spec: SampleSpec, base: Path, k: int) -> MeasuredSamp
         if not path.is_file():
             raise InputError(f"{where}.image: {spec.image[:80]!r} is not a regular file in {base}")
         if spec.um_per_px is None:
-            raise InputError(f"{where}.um_per_px: required for an image (its pixel size in um)")
+            raise InputError(f"{where}.um_per_px: required for an image (its pixel size in µm)")
         tab = measure_image(str(path), spec.um_per_px)
         name = spec.image
     if len(tab) < MIN_PARTICLES:

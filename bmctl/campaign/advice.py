@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from . import targets as tg
 from .band import propagate
 
 EPS_H = 1e-9
@@ -79,6 +78,7 @@ def _schedule(c, plan, t_h: float) -> list[dict]:
 
 def _end_band(c, sched: list[dict], plan=None) -> dict:
     """Median and 90 % band of the moments at the batch end: filter particles (a deterministic
+<<<<<<< HEAD
     weighted selection) propagated by the moment model under the schedule. A plan made on operable
     schedules has already predicted its spread particles (the same selection): those are used."""
     lp = c.loop
@@ -89,10 +89,25 @@ def _end_band(c, sched: list[dict], plan=None) -> dict:
         plan_cfg = getattr(lp.controller.cfg, "plan", None)
         substeps = plan_cfg.substeps if plan_cfg is not None and plan_cfg.method == "search" else None
         X = propagate(lp.model, pf.X[idx], pf.P[idx], sched, substeps=substeps)
+=======
+    weighted selection) propagated by the moment model under the schedule, each vial at its
+    own heating gain over the card's thermal law (as the filter propagates them); D50 read out
+    as the estimate's (:func:`bmctl.moments.model.size_stats_of_state`)."""
+    from ..moments.model import size_stats_of_state
+
+    lp = c.loop
+    pf = lp.estimator
+    idx = _band_indices(pf.weights, BAND_PARTICLES)
+    X0 = pf.X[idx].copy()
+    gain, amb = pf.gain[idx], pf.ambient_c
+    X0[:, 4] = amb + (X0[:, 4] - amb) / gain
+    X = propagate(lp.model, X0, pf.P[idx], sched)
+    X[:, 4] = amb + gain * (X[:, 4] - amb)
+>>>>>>> main
     out = {}
     names = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
     vals = {k: X[:, i] for i, k in enumerate(names)}
-    vals["d50_um"] = tg.d50_from_moments(vals["s_mean_um"], vals["s_std_um"])
+    vals["d50_um"] = size_stats_of_state(X)["d50_um"]
     for k, v in vals.items():
         q = np.quantile(v, [0.05, 0.5, 0.95])
         out[k] = {"median": float(q[1]), "q05": float(q[0]), "q95": float(q[2])}
@@ -133,7 +148,7 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
     if hasattr(cfg, "temperature") and plan.t_peak_c.size:
         ceil = plan.status.t_ceiling_c if math.isfinite(plan.status.t_ceiling_c) else cfg.temperature.ceiling_c
         if float(np.max(plan.t_peak_c)) >= ceil - 0.5:
-            binding.append(f"vial-temperature ceiling ({ceil:g} C)")
+            binding.append(f"vial-temperature ceiling ({ceil:g} °C)")
     if not all(reach.values()) and not binding:
         binding.append("batch time: the target is not reached by the batch end at the planned inputs")
     return reach, binding

@@ -103,14 +103,30 @@ class CampaignLoop(ClosedLoop):
     def observe_at(self, s_um=None, r=None, temperature_c: float | None = None) -> dict:
         """Weigh in what was observed now (a sample, a temperature reading, both or neither:
         then the estimate is read, which applies the deferred process noise); returns the estimate dict."""
+        predicted = None
         if s_um is None and temperature_c is None:
             est = self.estimator.estimate()
         else:
             if temperature_c is not None:
+                predicted = predicted_temperature(self.estimator)
                 self.mill.read_temperature(temperature_c)
             if s_um is not None:
                 self.sensor.queued = (np.asarray(s_um, dtype=float), np.asarray(r, dtype=float))
                 s_um, r = self.sensor.sample(self.mill, self.sample_rng)
             est = self.estimator.update(s_um, r, temperature_c=temperature_c)
         self.est = est.as_dict()
+        if predicted is not None:  # the reading and what the estimate expected just before it
+            self.est["reading_c"] = float(temperature_c)
+            self.est["reading_predicted_c"], self.est["reading_predicted_sd_c"] = predicted
         return self.est
+
+
+def predicted_temperature(estimator) -> tuple[float, float]:
+    """Weighted mean and std (degC) of a particle estimator's vial temperature now, before a
+    reading (NaN for an estimator without particles)."""
+    X, w = getattr(estimator, "X", None), getattr(estimator, "weights", None)
+    if X is None or w is None:
+        return math.nan, math.nan
+    T = np.asarray(X, dtype=float)[:, 4]
+    m = float(w @ T)
+    return m, float(math.sqrt(max(float(w @ (T - m) ** 2), 0.0)))

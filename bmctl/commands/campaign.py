@@ -26,18 +26,18 @@ def configure(parser: argparse.ArgumentParser) -> None:
                    help="target at the batch end, e.g. d50_um=45 or s_mean_um=40,r_mean=0.05")
     p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="batch length (h); default: the card's")
     p.add_argument("--temperature-max-c", type=float_arg("--temperature-max-c"), default=None, metavar="C",
-                   help="vial-temperature ceiling (degC); default: the controller's")
+                   help="vial-temperature ceiling (°C); default: the controller's")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the estimator")
     p.add_argument("--particles", type=int_arg("--particles", 50, 200_000), default=1000, help="filter particles")
     add_identify_flag(p)
     p = sub.add_parser("log", help="record what the mill ran")
     p.add_argument("dir", metavar="DIR")
-    p.add_argument("--rpm", required=True, type=rpm_arg("--rpm"), help="sun-disc speed (0: a rest)")
+    p.add_argument("--rpm", required=True, type=rpm_arg("--rpm"), help="sun-disc speed (0: a rest, no milling)")
     p.add_argument("--hours", required=True, type=hours_arg("--hours"), help="length of the interval (h)")
     p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=1.0,
-                   help="share of the interval spent milling, first (the rest of it is a rest)")
+                   help="share of the interval spent milling, first (the rest of it is a rest; 0: a rest)")
     p.add_argument("--temperature-c", type=float_arg("--temperature-c"), default=None, metavar="C",
-                   help="vial temperature read at the end of the interval")
+                   help="vial temperature read at the end of the interval (°C; enters the estimate, sigma 2 °C)")
     p.add_argument("--from-h", type=hours_arg("--from-h", zero=True), default=None, metavar="H",
                    help="start of the interval (default: end of the last one); overlaps and gaps are refused")
     p = sub.add_parser("sample", help="measure a sample and update the estimate")
@@ -74,19 +74,20 @@ def _band(est: dict, k: str, fmt: str = "{:.4g}") -> str:
     return s + (f"  [{fmt.format(lo)}, {fmt.format(hi)}]" if lo is not None else "")
 
 
-def _estimate_lines(est: dict) -> list[str]:
-    from ..campaign.targets import d50_from_moments
+#: the estimate's quantities as printed by ``status``, ``sample`` and ``advise`` (the JSON holds the same numbers)
+ESTIMATE_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "temperature_c", "thermal_gain",
+                 "gamma_mult", "delta_mult")
 
-    lines = [f"  {k:<14} {_band(est, k)}" for k in ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c",
-                                                    "gamma_mult", "delta_mult")]
-    lines.append(f"  {'d50_um':<14} {d50_from_moments(est['s_mean_um'], est['s_std_um']):.4g}"
-                 "  (volume-weighted median of the log-normal law at the mean moments)")
-    return lines
+
+def _estimate_lines(est: dict) -> list[str]:
+    return [f"  {k:<14} {_band(est, k)}" for k in ESTIMATE_KEYS if k in est]
 
 
 def _print_advice(a: dict) -> None:
     nx = a["next"]
     print(f"advice at t = {a['t_h']:g} h (plan {a['plan_id']}; {a['solver']}; advise {a['advise_ms']:.0f} ms)")
+    for w in a.get("warnings", []):
+        print(f"warning: {w}")
     print("estimate (mean [90 % interval]):")
     print("\n".join(_estimate_lines(a["estimate"])))
     tgt = ", ".join(f"{k} = {v:g}" for k, v in a["target"].items())
@@ -145,15 +146,22 @@ def _run(args: argparse.Namespace) -> int:
               + f", controller {meta['controller_kind']}; inputs copied to {d}/inputs")
     elif v == "log":
         r = cp.log(d, args.rpm, args.hours, args.milling, args.temperature_c, args.from_h)
-        print(f"logged {r['t0_h']:g}-{r['t1_h']:g} h: {args.rpm:g} rpm, milling {args.milling:g}"
-              + (f", {args.temperature_c:g} C at the end" if args.temperature_c is not None else ""))
+        h = r["t1_h"] - r["t0_h"]
+        mill_min = round(r["milling"] * h * 60)
+        what = (f"rest {round(h * 60)} min" if mill_min == 0 else
+                f"{r['rpm']:g} rpm, mill {mill_min} min, rest {round(h * 60) - mill_min} min")
+        print(f"logged {r['t0_h']:g}-{r['t1_h']:g} h: {what}"
+              + (f"; vial {args.temperature_c:g} °C at the end" if args.temperature_c is not None else ""))
         if r["deviation"]:
             print(r["deviation"])
+        for w in r["warnings"]:
+            print(f"warning: {w}")
         est = r["estimate"]
-        print(f"estimate at {est['t_h']:g} h: s_mean_um {_band(est, 's_mean_um')}")
+        print(f"estimate at {est['t_h']:g} h: s_mean_um {_band(est, 's_mean_um')}; temperature_c "
+              f"{_band(est, 'temperature_c', '{:.1f}')}")
     elif v == "sample":
         r = cp.sample(d, args.at_h, args.inputs, args.um_per_px)
-        print(f"sample {r['sample_id']} at {r['t_h']:g} h: {r['n']} particles, median s = {r['s_median_um']:.4g} um, "
+        print(f"sample {r['sample_id']} at {r['t_h']:g} h: {r['n']} particles, median s = {r['s_median_um']:.4g} µm, "
               f"median r = {r['r_median']:.3f}")
         if r["applied"]:
             est = r["estimate"]
@@ -204,6 +212,8 @@ def _run(args: argparse.Namespace) -> int:
                   + ("; no decision" if dec is None else f"; {'accepted' if dec['accepted'] else 'rejected'}"))
         for dv in s["deviations"]:
             print(dv)
+        for w in s["warnings"]:
+            print(f"warning: {w}")
     elif v == "report":
         p = cp.report(d, args.out)
         print(f"report: wrote {p}")

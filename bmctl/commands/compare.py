@@ -58,7 +58,7 @@ def run(args) -> int:
     compare_figure(out / "compare.png", table.s_um, table.r, s_pred, r_pred,
                    title=f"{args.sample} vs {args.model} at {args.at_h:g} h (seed {args.seed})")
     write_text(out / "compare.json", json.dumps(doc, indent=2) + "\n")
-    for name, st, unit in (("s", s_stat, " um"), ("r", r_stat, "")):
+    for name, st, unit in (("s", s_stat, " µm"), ("r", r_stat, "")):
         print(f"{name}: median measured {st.median_measured:.4g}{unit}, predicted {st.median_predicted:.4g}{unit}; "
               f"KS D = {st.ks:.3f} (p = {st.ks_p:.3g}), Anderson-Darling A = {st.ad:.2f} (p = {st.ad_p:.3g})")
     print(f"compare: wrote {out / 'compare.png'}, {out / 'compare.json'}")

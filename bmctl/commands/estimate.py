@@ -32,7 +32,7 @@ def configure(p):
     p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest); default: the card's recipe")
     p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="sun-disc speed of the card's recipe (default: the card's)")
     p.add_argument("--temperatures", default=None, metavar="T1,T2,...",
-                   help="vial-temperature readings (degC) per sample, comma separated; leave an entry empty for none")
+                   help="vial-temperature readings (°C) per sample, comma separated; leave an entry empty for none")
     p.add_argument("--um-per-px", type=float_arg("--um-per-px", lo=0.0, strict=True), default=None, metavar="X",
                    help="pixel size: measure micrographs instead of reading tables")
     p.add_argument("--out", default="out/estimate/estimate.csv", metavar="FILE.csv", help="estimate table (default out/estimate/estimate.csv)")
@@ -189,7 +189,7 @@ def run(args) -> int:
     last = estimates[-1]
     d = last.as_dict()
     print(f"{card.card.name}: {len(samples)} samples to t = {t_end:g} h, {what}; {health}")
-    print(f"  at {last.t_h:g} h: s mean {d['s_mean_um']:.1f} um [{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
+    print(f"  at {last.t_h:g} h: s mean {d['s_mean_um']:.1f} µm [{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
           f"r mean {d['r_mean']:.3f} [{d['r_mean_q05']:.3f}, {d['r_mean_q95']:.3f}], "
           f"gamma_mult {d['gamma_mult']:.2f} [{d['gamma_mult_q05']:.2f}, {d['gamma_mult_q95']:.2f}], "
           f"delta_mult {d['delta_mult']:.2f} [{d['delta_mult_q05']:.2f}, {d['delta_mult_q95']:.2f}]")

@@ -78,8 +78,8 @@ def run(args) -> int:
     last = res.records[-1]
     m = last.moments
     print(f"{card.card.name}: {total_h:g} h, M={args.particles or card.simulation.particles}, seed {args.seed}: "
-          f"s mean {m['s_mean_um']:.1f} um, std {m['s_std_um']:.1f} um, r mean {m['r_mean']:.3f}, "
-          f"T {last.temperature_c:.1f} C")
+          f"s mean {m['s_mean_um']:.1f} µm, std {m['s_std_um']:.1f} µm, r mean {m['r_mean']:.3f}, "
+          f"T {last.temperature_c:.1f} °C")
     for p in paths:
         print(f"  wrote {p}")
     return 0

@@ -92,12 +92,12 @@ def run(args) -> int:
 
     t_max = validity(card)["temperature_max_C"]
     if t_max is not None and summary["max_temperature_c"] > t_max:
-        print(f"bmctl: warning: {card.card.name}: vial temperature {summary['max_temperature_c']:.0f} C is above the "
-              f"card's maximum {t_max:g} C ({validity(card)['temperature_reason']}): the model does not hold there",
+        print(f"bmctl: warning: {card.card.name}: vial temperature {summary['max_temperature_c']:.0f} °C is above the "
+              f"card's maximum {t_max:g} °C ({validity(card)['temperature_reason']}): the model does not hold there",
               file=sys.stderr)
     warn_window(model, _milling_rpms(out / "trajectory.csv"))
     err = ", ".join(f"{k} {v:.1%}" for k, v in summary["final_error"].items()) or "(no target)"
-    print(f"{sc.scenario.name} seed {args.seed}: final error {err}; max T {summary['max_temperature_c']:.1f} C, "
+    print(f"{sc.scenario.name} seed {args.seed}: final error {err}; max T {summary['max_temperature_c']:.1f} °C, "
           f"{summary['temperature_violations']} violations; energy {summary['energy_kj']:.0f} kJ; "
           f"{summary['fallbacks']} fallbacks; median solve {summary['median_solve_ms']:.0f} ms")
     print(f"  wrote {out}/trajectory.csv, summary.json, trial.png"

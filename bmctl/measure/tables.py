@@ -196,9 +196,9 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
             raise InputError(f"{p}: row {lineno}, column {cols[0]}: must be > 0 (got {a:g})")
         s_um = a if cols[0] == "s_um" else float(size_from_area(a))
         if not S_MIN_UM <= s_um <= S_MAX_UM:
-            got = f"{a:g}" if cols[0] == "s_um" else f"{a:g} um^2, s = {s_um:.3g} um"
+            got = f"{a:g}" if cols[0] == "s_um" else f"{a:g} µm², s = {s_um:.3g} µm"
             raise InputError(f"{p}: row {lineno}, column {cols[0]}: size outside the physical range "
-                             f"[{S_MIN_UM:g}, {S_MAX_UM:g}] um, 1 nm to 10 mm (got {got})")
+                             f"[{S_MIN_UM:g}, {S_MAX_UM:g}] µm, 1 nm to 10 mm (got {got})")
         if cols[1] == "r" and not 0.0 <= b < 1.0:
             raise InputError(f"{p}: row {lineno}, column r: must be in [0, 1) (got {b:g})")
         if cols[1] == "perimeter_um":
@@ -239,7 +239,7 @@ def check_table(table: ParticleTable, source: str) -> ParticleTable:
             bad |= ~((v >= S_MIN_UM) & (v <= S_MAX_UM))
         if np.any(bad):
             k = int(np.argmax(bad))
-            rng = {"s_um": f"[{S_MIN_UM:g}, {S_MAX_UM:g}] um", "r": "[0, 1)"}.get(name, "> 0")
+            rng = {"s_um": f"[{S_MIN_UM:g}, {S_MAX_UM:g}] µm", "r": "[0, 1)"}.get(name, "> 0")
             raise InputError(f"{source}: particle {k + 1}: {name} = {v[k]:.4g} outside {rng}: check the scale "
                              "(--um-per-px, --scale-bar-um)")
     return table

@@ -217,4 +217,4 @@ def test_run_leaving_the_validity_range_warns(tmp_path, capsys):
     rc = main(["simulate", str(p), "--hours", "1", "--particles", "200", "--out", str(tmp_path / "o"),
                "--no-progress"])
     err = capsys.readouterr().err
-    assert rc == 0 and "warning" in err and "above the card's maximum 30 C" in err
+    assert rc == 0 and "warning" in err and "above the card's maximum 30 °C" in err
