@@ -77,7 +77,7 @@ def main() -> None:
     path = write_results("design_reach", out, settings={"card": str(CARD.relative_to(ROOT)),
                                                        "controller": str(CONTROLLER.relative_to(ROOT)),
                                                        "hours": 12.0, "plant_particles": 5000, "seed": 0},
-                         command="nice python benchmarks/design_reach.py")
+                         command="python benchmarks/design_reach.py")
     print(f"wrote {path}")
 
 

@@ -290,7 +290,7 @@ def main() -> None:
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
                                        "sample_every_h": SAMPLE_EVERY_H, "sample_particles": SAMPLE_PARTICLES,
                                        "need_tol": NEED_TOL},
-                             command="nice python benchmarks/hidden_mills.py")
+                             command="python benchmarks/hidden_mills.py")
         print(f"wrote {path}")
 
 

@@ -592,13 +592,10 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
             prev = c.plan_before(clock)
             if prev is not None:
                 lp.controller.set_state(db.unpack(prev[6], f"{folder}: controller state"))
-<<<<<<< HEAD
             else:
                 lp.controller.reset()
-=======
             earlier = c.con.execute("SELECT MAX(t_h) FROM plans WHERE t_h < ?", (clock - 1e-6,)).fetchone()[0]
             warnings = c.temperature_warnings(since_h=None if earlier is None else float(earlier))
->>>>>>> main
             ctrl_target = tg.controller_target(c.meta["target"], est)
             lp.controller.set_target(ctrl_target, t_end_h=c.meta["hours"])
             acts = c.actions()

@@ -89,7 +89,6 @@ def run(args) -> int:
     n = len(d.segments)
     print(f"{d.card_name}: {d.hours:g} h ({d.objective}), {n} segment{'s' if n != 1 else ''}, {r.switches} switches, "
           f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} °C "
-<<<<<<< HEAD
           f"(ceiling {d.ceiling_c:g} °C); {r.method} ({r.status}), {r.solve_s:.1f} s")
     if d.local is not None and d.local is not r:
         print(f"  local NLP (from the search's best schedules): error {100 * d.local.error:.2f} %, "
@@ -113,9 +112,6 @@ def run(args) -> int:
         if off:
             print(f"warning: the plant and the moment model disagree by more than the tolerance "
                   f"({100 * tol:g} %): {', '.join(off)}")
-=======
-          f"(ceiling {d.ceiling_c:g} °C); {r.method} {r.status}, {r.solve_s:.1f} s")
->>>>>>> main
     print(f"  prediction's moment model: {heldout_text(model)} ({model.coeffs_source})")
     warn_window(model, [rpm for _, rpm in d.segments])
     if d.pareto:
