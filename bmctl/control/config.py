@@ -177,7 +177,8 @@ class PlanSearch(Strict):
     rounds: Annotated[int, Field(ge=0, le=10)] = 1  # local-search rounds after the coarse batch
     pool: Annotated[int, Field(ge=1, le=200)] = 8  # plans scored on the spread (closest, cheapest, per family)
     pool_band: Annotated[float, Field(ge=0, lt=1)] = 0.03  # nominal error band of that pool
-    #: weight of the spread's variance in the pool's score e^2 + risk Var(e): 1 = the open-loop expected
+    #: weight of the variance a plan adds over the spread in the pool's score e^2 + risk (Var(e) - Var_rest(e));
+    #: 1 = as in the open-loop expected
     #: squared error; less counts on the feedback of later plans
     risk: Annotated[float, Field(ge=0, le=10)] = 0.25
 

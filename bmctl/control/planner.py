@@ -13,9 +13,9 @@ The estimator's (gamma, delta) enter every plan, with their spread: the search s
 (its mean state and gamma, delta) to the target; a pool of the plans that come within
 ``[plan] pool_band`` of the best is then predicted for ``[plan] spread`` of the filter's particles
 (a deterministic weighted selection, :func:`bmctl.control.robust.particle_scenarios`) and scored
-``e^2 + risk Var(e)``: a plan whose outcome the filter's uncertainty scatters (e.g. over the
-welding hump and back) loses to a safer one that is nearly as close. The vial ceiling holds for
-each particle's temperature.
+``e^2 + risk (Var(e) - Var_rest(e))``, the variance the plan adds to that of resting on: a plan
+whose outcome the filter's uncertainty scatters (e.g. over the welding hump and back) loses to a
+safer one that is nearly as close. The vial ceiling holds for each particle's temperature.
 
 A re-plan starts from the previous plan shifted to now: when it still comes within the tolerance
 (``[objective] tolerance``) of the target, a local search around it (its neighbours on the grid)

@@ -885,9 +885,12 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
     pool_band : float
         Relative-error band of the pool.
     risk : float
-        Weight of the spread's variance in the pool's score ``e_nominal^2 + risk Var(e) + `` a small
-        share of the secondary cost (:data:`RISK_COST`): 1 would be the expected squared error of the
-        plan run open loop; less counts on the feedback that later plans give (docs/control.md).
+        Weight of the variance the plan adds over the spread in the pool's score
+        ``e_nominal^2 + risk (Var(e) - Var_rest(e)) +`` a small share of the secondary cost
+        (:data:`RISK_COST`). ``Var_rest`` is the spread of resting on (the state's own uncertainty,
+        common to every plan and narrowed by the next samples); 1 would weigh the added variance as
+        in the expected squared error of the plan run open loop; less counts on the feedback that
+        later plans give (docs/control.md).
 
     Examples
     --------
@@ -1033,6 +1036,9 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         E0 = target_errors(np.array([C["x_end"][i] for i in cand]), target)  # (n, k)
         E1 = target_errors(ev.x_end, target)  # (S - 1, n, k)
         var = np.mean(np.sum((E1 - E1.mean(axis=0)) ** 2, axis=-1), axis=0)
+        # the spread the plan adds: what the state's own uncertainty gives a rest is common to every plan
+        Er = target_errors(x0s[1:], target)
+        var = np.maximum(var - np.mean(np.sum((Er - Er.mean(axis=0)) ** 2, axis=-1)), 0.0)
         e_nom = np.sqrt(np.sum(E0 * E0, axis=-1)) + DEFER_PENALTY * np.array([C["defer"][i] for i in cand])
         J = e_nom * e_nom + risk * var + RISK_COST * sc.secondary[cand]
         rms = np.sqrt(np.mean(np.sum(E1 * E1, axis=-1), axis=0))
