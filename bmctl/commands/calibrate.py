@@ -76,6 +76,9 @@ def run(args) -> int:
     print(f"{card.card.name}: {len(histories)} histories, {sum(len(h.samples) for h in histories)} samples; "
           f"{cal.plant_runs} plant runs ({engine}) in {res.wall_s:.0f} s; chi2 {cal.chi2:.1f} on "
           f"{cal.n_summaries} summaries{'' if cal.converged else ' (not converged)'}")
+    if not cal.converged:
+        print(f"  {cal.stop_reason}")
+        print(f"bmctl: note: calibration {cal.stop_reason}", file=sys.stderr)
     for i, n in enumerate(cal.names):
         flag = "" if cal.identified[i] else "  NOT IDENTIFIED"
         print(f"  {n:28s} {cal.values[i]:.4g}  90 % [{cal.lo90[i]:.4g}, {cal.hi90[i]:.4g}]  "
