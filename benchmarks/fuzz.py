@@ -206,3 +206,7 @@ def doc_table(values: dict) -> str:
     lines.append("| **total** | " + " | ".join(marked("fuzz", f"total.{o}", values["total"][o], "{}") for o in outs)
                  + " |")
     return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
