@@ -37,7 +37,8 @@ from ..errors import InputError
 from .base import Plan, Reference, Status, batch_end_h, check_p, check_u_prev, check_x
 from dataclasses import replace
 
-from .search import Carry, Grid, expand, fit_power, limits_of, make_grid, search, shift_params, thermal_peaks
+from .search import (Carry, Grid, _row, expand, fit_power, limits_of, make_grid, search, shift_params,
+                     thermal_peaks)
 
 
 class PlanController:
@@ -161,8 +162,13 @@ class PlanController:
         if prev is not None:
             s = (t - prev["t_h"]) / self.interval_h
             if s >= -1e-6 and abs(s - round(s)) < 1e-6:
-                extra.append((shift_params(np.array(prev["params"]), np.array(prev["minutes"]), int(round(s))),
-                              "previous"))
+                q = shift_params(np.array(prev["params"]), np.array(prev["minutes"]), int(round(s)))
+                extra.append((q, "previous"))
+                r_q, m_q = expand(q[None], grid, self.lim, carry)
+                if m_q.sum() > 0:  # the same milling, started now: a local move the phases cannot make
+                    on = m_q[0] > 0
+                    extra.append((np.array(_row(float(np.max(r_q[0][on])), grid.interval_min, 1, grid.K,
+                                                cap=float(m_q.sum()))), "constant"))
         ps_cfg = self.cfg.plan
         kw = dict(substeps=ps_cfg.substeps, rpm_step=ps_cfg.rpm_step, band=ps_cfg.error_band,
                   coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool, pool_band=ps_cfg.pool_band, risk=ps_cfg.risk)
