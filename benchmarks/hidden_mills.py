@@ -202,6 +202,35 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
             "advices": len(advise_wall), "steps": steps}
 
 
+def table(rows: list[dict], summary: dict) -> str:
+    """The Markdown table of docs/control.md, its measured numbers in results markers."""
+    from bmctl.results import marked
+
+    def m(i, key, fmt):
+        return marked("hidden_mills.json", f"cases.{i}.{key}", rows[i][key], fmt)
+
+    out = ["| mill | γ, δ | also changed | batch h | target s_mean µm | campaign error % | peak °C | "
+           "idle while needed h (longest) | plain schedule chosen on the card | its error % |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
+    for i, r in enumerate(rows):
+        out.append(f"| {r['case']} | ×{r['gamma_mult']:g}, ×{r['delta_mult']:g} | {r['field'].split('.')[1]} = "
+                   f"{r['value']:g} | {r['hours']:g} | {m(i, 'target_s_mean_um', '{:.2f}')} | "
+                   f"{m(i, 'error_pct', '{:+.2f}')} | {m(i, 'peak_c', '{:.1f}')} | {m(i, 'idle_needed_h', '{:.2f}')} "
+                   f"({m(i, 'longest_idle_needed_h', '{:.2f}')}) | {r['plain_schedule']} | "
+                   f"{m(i, 'plain_error_pct', '{:+.1f}')} |")
+    sm = {k: marked("hidden_mills.json", f"summary.{k}", summary[k], f) for k, f in (
+        ("median_error_pct", "{:.2f}"), ("worst_error_pct", "{:.2f}"), ("max_over_ceiling_c", "{:+.1f}"),
+        ("longest_idle_needed_h", "{:.2f}"), ("plain_median_error_pct", "{:.1f}"), ("plain_worst_error_pct", "{:.1f}"),
+        ("campaign_beats_plain", "{:d}"))}
+    out.append("")
+    out.append(f"Median |error| {sm['median_error_pct']} %, worst {sm['worst_error_pct']} %; the largest peak "
+               f"{sm['max_over_ceiling_c']} °C from the ceiling; the longest idle stretch while milling was still "
+               f"needed {sm['longest_idle_needed_h']} h. The plain schedules chosen on the card: median "
+               f"{sm['plain_median_error_pct']} %, worst {sm['plain_worst_error_pct']} %; accepting every advice "
+               f"was closer in {sm['campaign_beats_plain']} of {len(rows)} mills.")
+    return "\n".join(out)
+
+
 def main() -> None:
     from bmctl.config import load_card
     from bmctl.results import write_results
@@ -212,7 +241,14 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(ROOT / "out" / "hidden_mills"), help="campaign folders (replaced)")
     ap.add_argument("--no-results", action="store_true", help="do not write results/hidden_mills.json")
+    ap.add_argument("--table", action="store_true", help="print the docs table from results/hidden_mills.json")
     a = ap.parse_args()
+    if a.table:
+        from bmctl.results import load_results
+
+        rec = load_results("hidden_mills")
+        print(table(rec["cases"], rec["summary"]))
+        return
     names = [s.strip() for s in a.cases.split(",") if s.strip()]
     cases = [c for c in CASES if c.name in names]
     out = Path(a.out)
@@ -267,13 +303,7 @@ def main() -> None:
         "load_before": list(load0), "load_after": list(os.getloadavg()),
         "wall_s": time.perf_counter() - t_start,
     }
-    print("\n| case | γ, δ | changed | h | target µm | campaign error % | peak °C | idle while needed h | "
-          "plain schedule (chosen on the card) | its error % |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r['case']} | ×{r['gamma_mult']:g}, ×{r['delta_mult']:g} | {r['field'].split('.')[1]} = "
-              f"{r['value']:g} | {r['hours']:g} | {r['target_s_mean_um']:.2f} | {r['error_pct']:+.2f} | "
-              f"{r['peak_c']:.1f} | {r['idle_needed_h']:.2f} | {r['plain_schedule']} | {r['plain_error_pct']:+.1f} |")
+    print("\n" + table(rows, summary))
     print(f"\nmedian |error| {summary['median_error_pct']:.2f} %, worst {summary['worst_error_pct']:.2f} %; "
           f"largest excess over the ceiling {summary['max_over_ceiling_c']:+.1f} °C; longest idle stretch while "
           f"needed {summary['longest_idle_needed_h']:.2f} h; plain schedules: median {summary['plain_median_error_pct']:.2f}"
