@@ -49,7 +49,6 @@ PENDING = {
     "docs/calibration.md",
     "docs/control.md",
     "docs/estimation.md",
-    "docs/loop.md",
     "docs/measurement.md",
     "docs/moments.md",
     "docs/own-mill.md",
