@@ -95,7 +95,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-results", action="store_true")
     a = ap.parse_args(argv)
     cards = {k: load_card(ROOT / "models" / f"{v}.toml") for k, v in CARDS.items()}
-    out: dict = {"cards": {}, "seeds": {}, "a_sweep": {}, "delta_sweep": {}, "early_mode": {}}
+    out: dict = {"cards": {}, "seeds": {}, "a_sweep": [], "delta_sweep": [], "early_mode": {}}
     for seed in SEEDS:
         for name, card in cards.items():
             summ = card_summary(run(card, seed, a.particles))
@@ -121,9 +121,11 @@ def main(argv=None) -> int:
         out["early_mode"][name] = {"min_um": float(mode[k]), "at_h": float(res["t_h"][k]),
                                    "rises_above_start": bool(mode[1:].max() > mode[0])}
     for av in A_VALUES:
+        row: dict = {"a": av}
+        out["a_sweep"].append(row)
         for name, card in cards.items():
             m = run(modified(card, "partition", equiaxing_hardening=av), SEEDS[0], a.particles)["moments"]
-            out["a_sweep"].setdefault(f"{av:g}", {})[name] = {"r_mean_6h": float(m["r_mean"][6]),
+            row[name] = {"r_mean_6h": float(m["r_mean"][6]),
                                                            "r_mean_12h": float(m["r_mean"][12]),
                                                            "r_mode_12h": float(m["r_mode"][12])}
             print(f"a {av:g} {name}: r̄ {m['r_mean'][6]:.3f} → {m['r_mean'][12]:.3f}, r mode {m['r_mode'][12]:.3f}",
@@ -132,9 +134,9 @@ def main(argv=None) -> int:
     for dx in DELTA_X:
         card = modified(lab, "stochastic", delta_per_um2=lab.stochastic.delta_per_um2 * dx)
         res = run(card, SEEDS[0], a.particles)
-        out["delta_sweep"][f"{dx:g}"] = {"advantage_1h": res["advantage"][1],
+        out["delta_sweep"].append({"delta_factor": dx, "advantage_1h": res["advantage"][1],
                                          "mode_max_1_6h_um": float(res["moments"]["s_mode_um"][1:7].max()),
-                                         "mode_2h_um": float(res["moments"]["s_mode_um"][2])}
+                                         "mode_2h_um": float(res["moments"]["s_mode_um"][2])})
     if not a.no_results:
         from bmctl.results import write_results
 
