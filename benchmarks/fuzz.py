@@ -189,7 +189,23 @@ def main(argv=None) -> int:
                                                        "timeout_s": args.timeout, "start": args.start, "kinds": kinds},
                              command=cmd)
         print(f"wrote {path}")
+        print("\n" + doc_table(values))
     return 1 if any(counts[o] for o in BAD) else 0
+
+
+def doc_table(values: dict) -> str:
+    """The table of docs/reliability.md (a row per kind, a column per outcome) with its markers
+    into results/fuzz.json."""
+    from bmctl.results import marked
+
+    kinds, outs = values["kinds"], fuzzlib.OUTCOMES
+    lines = ["| kind | " + " | ".join(outs) + " |", "|---|" + "---:|" * len(outs)]
+    for k in kinds:
+        lines.append(f"| {k} | " + " | ".join(marked("fuzz", f"by_kind.{k}.{o}", values["by_kind"][k][o], "{}")
+                                             for o in outs) + " |")
+    lines.append("| **total** | " + " | ".join(marked("fuzz", f"total.{o}", values["total"][o], "{}") for o in outs)
+                 + " |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -53,8 +53,11 @@ REGISTRY: tuple[Study, ...] = (
     Study("calibrate_coverage", "python benchmarks/calibrate_accuracy.py coverage --first 1 --n 20 --workers 2", 10),
     Study("calibrate_four", "python benchmarks/calibrate_accuracy.py four --workers 2 --seed 1", 10),
     Study("calibrate_bias", "python benchmarks/calibrate_bias.py --workers 2", 30),
+    Study("design_reach", "python benchmarks/design_reach.py", 5),
+    Study("hidden_mills", "python benchmarks/hidden_mills.py", 60),
     # timings: re-measured at the end on a quiet machine (each file records the load)
     Study("calibrate_scaling", "python benchmarks/calibrate_accuracy.py scaling --calibration", 3, timing=True),
+    Study("campaign_advise", "python benchmarks/campaign_advise.py", 3, timing=True),
 )
 
 MARKER = re.compile(r"(<!--r:([^:>\s]+):([^>\s]+?)-->)(.*?)(<!--/r-->)", re.S)

@@ -26,8 +26,8 @@ sys.path.insert(0, str(ROOT))
 #: the commands as README.md gives them
 SHOWN = {"quick": 'python -m pytest -m "not slow" -n auto', "full": "python -m pytest -n auto"}
 SUITES = {
-    "quick": [sys.executable, "-m", "pytest", "-m", "not slow", "-n", "auto", "-q", "-p", "no:cacheprovider"],
-    "full": [sys.executable, "-m", "pytest", "-n", "auto", "-q", "-p", "no:cacheprovider"],
+    "quick": [sys.executable, "-m", "pytest", "-m", "not slow", "-n", "auto", "-p", "no:cacheprovider"],
+    "full": [sys.executable, "-m", "pytest", "-n", "auto", "-p", "no:cacheprovider"],
 }
 
 
@@ -54,7 +54,8 @@ def run_suite(name: str) -> dict:
                           env={**os.environ, "MPLBACKEND": "Agg"})
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    tail = (proc.stdout + proc.stderr).strip().splitlines()[-1:] or [""]
+    summary = [ln for ln in (proc.stdout + proc.stderr).splitlines() if re.search(r"\d+ (passed|failed)", ln)]
+    tail = summary[-1:] or [""]
     return {"command": SHOWN[name],
             "returncode": proc.returncode, **counts(tail[0]), "wall_s": round(wall, 1),
             "cpu_s": round((r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), 1),

@@ -192,7 +192,13 @@ class ClosedLoop:
         t_h = self.k * self.controller.interval_h
         x, p = estimate_vectors(self.est)
         t0 = time.perf_counter()
-        if getattr(self.controller, "n_scen", 1) > 1:  # scenario MPC: the filter's spread as further scenarios
+        n_spread = getattr(self.controller, "spread_particles", 0)
+        if n_spread:  # a plan on operable schedules: the filter's particles as its spread
+            from .control.robust import particle_scenarios
+
+            plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev,
+                                        scenarios=particle_scenarios(self.estimator, n_spread))
+        elif getattr(self.controller, "n_scen", 1) > 1:  # scenario MPC: the filter's spread as further scenarios
             from .control.robust import filter_scenarios
 
             plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev,

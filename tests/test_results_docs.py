@@ -51,7 +51,6 @@ PENDING = {
     "docs/moments.md",
     "docs/own-mill.md",
     "docs/performance.md",
-    "docs/reliability.md",
 }
 
 MARKER = re.compile(r"<!--r:([^:>\s]+):([^>\s]+?)-->(.*?)<!--/r-->", re.S)

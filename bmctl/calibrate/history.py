@@ -19,7 +19,8 @@ import numpy as np
 from pydantic import Field
 
 from .. import io
-from ..config import ModelCard, NonNeg, Pos, Strict, load_schedule, read_toml, validate
+from ..config import HOURS, RPM, ModelCard, Range, Strict, load_schedule, read_toml, validate
+from ..limits import HOURS_MAX
 from ..errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
@@ -27,16 +28,16 @@ MIN_PARTICLES = 10
 
 
 class HistorySegment(Strict):
-    hours: Pos
-    rpm: NonNeg
+    hours: HOURS  # 1 s to 1000 h, as every schedule (bmctl.limits)
+    rpm: RPM
     milling: Annotated[float, Field(ge=0, le=1)] = 1.0
 
 
 class SampleSpec(Strict):
-    t_h: NonNeg
+    t_h: Range(0.0, HOURS_MAX)
     table: str | None = None
     image: str | None = None
-    um_per_px: Pos | None = None
+    um_per_px: Range(1e-4, 1e3) | None = None  # as --um-per-px (bmctl.measure.scale.check_scale)
 
 
 class HistoryFile(Strict):

@@ -76,11 +76,26 @@ def _schedule(c, plan, t_h: float) -> list[dict]:
     return rows
 
 
-def _end_band(c, sched: list[dict]) -> dict:
+def _vial_through(model, T, h, sched: list[dict]):
+    """Vial temperature and hardening after the schedule's rows from (T, h): eq. (6) in closed form."""
+    from ..moments import equations as eq
+
+    c = model.const
+    for row in sched:
+        dt = row["t1_h"] - row["t0_h"]
+        a = float(row["milling"]) * dt if row["rpm"] > 0 else 0.0
+        T, h = eq.thermal_exact(eq.NP, c, T, h, float(row["rpm"]) / c.rpm_max, a)
+        T, h = eq.thermal_exact(eq.NP, c, T, h, 0.0, dt - a)
+    return T, h
+
+
+def _end_band(c, sched: list[dict], plan=None) -> dict:
     """Median and 90 % band of the moments at the batch end: filter particles (a deterministic
     weighted selection) propagated by the moment model under the schedule, each vial at its
     own heating gain over the card's thermal law (as the filter propagates them); D50 read out
-    as the estimate's (:func:`bmctl.moments.model.size_stats_of_state`)."""
+    as the estimate's (:func:`bmctl.moments.model.size_stats_of_state`). A plan made on operable
+    schedules has already predicted its spread particles (the same selection): their moments are
+    used, and only the vial temperatures are run through the schedule (closed form)."""
     from ..moments.model import size_stats_of_state
 
     lp = c.loop
@@ -89,7 +104,12 @@ def _end_band(c, sched: list[dict]) -> dict:
     X0 = pf.X[idx].copy()
     gain, amb = pf.gain[idx], pf.ambient_c
     X0[:, 4] = amb + (X0[:, 4] - amb) / gain
-    X = propagate(lp.model, X0, pf.P[idx], sched)
+    Xs = None if plan is None else plan.extra.get("spread_x_end")
+    if Xs is not None and len(Xs) == len(idx):
+        X = np.array(Xs, dtype=float)
+        X[:, 4], X[:, 5] = _vial_through(lp.model, X0[:, 4], X0[:, 5], sched)
+    else:
+        X = propagate(lp.model, X0, pf.P[idx], sched)
     X[:, 4] = amb + gain * (X[:, 4] - amb)
     out = {}
     names = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
@@ -114,6 +134,11 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
     cfg = c.loop.controller.cfg
     if getattr(cfg, "kind", "") == "recipe":
         return reach, ["open-loop recipe: the schedule is fixed, no constraint is weighed"]
+    if "binding" in plan.extra:  # a plan on operable schedules names the limits it runs against itself
+        binding = list(plan.extra["binding"])
+        if not all(reach.values()) and not binding:
+            binding.append("none of the mill's limits: the model cannot reach the target from this estimate")
+        return reach, binding
     U = np.asarray(plan.u, dtype=float)
     on = U[:, 1] > 1e-3
     b = getattr(cfg, "bounds", None)

@@ -75,19 +75,27 @@ class RecordedSensor:
 class CampaignLoop(ClosedLoop):
     """:class:`bmctl.loop.ClosedLoop` whose decisions and observations happen at logged times."""
 
-    def decide_at(self, t_h: float):
+    def decide_at(self, t_h: float, history=None):
         """The controller's plan at batch time ``t_h`` from the current estimate and ``u_prev``
         (as :meth:`ClosedLoop.decide`, which plans at ``k * interval_h``; a scenario MPC gets the
-        filter's scenarios as there)."""
+        filter's scenarios as there). ``history``: the logged intervals ``(hours, rpm, milling)``,
+        for a controller that plans from the mill's record (dwell periods and switches used)."""
         x, p = estimate_vectors(self.est)
         t0 = time.perf_counter()
-        if getattr(self.controller, "n_scen", 1) > 1:  # scenario MPC: the filter's spread, as ClosedLoop.decide
+        kw = {"history": history} if history is not None and getattr(self.controller, "uses_history", False) else {}
+        n_spread = getattr(self.controller, "spread_particles", 0)
+        if n_spread:  # a plan on operable schedules: the filter's particles as its spread
+            from ..control.robust import particle_scenarios
+
+            plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev,
+                                        scenarios=particle_scenarios(self.estimator, n_spread), **kw)
+        elif getattr(self.controller, "n_scen", 1) > 1:  # scenario MPC: the filter's spread, as ClosedLoop.decide
             from ..control.robust import filter_scenarios
 
             plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev,
-                                        scenarios=filter_scenarios(self.est, self.controller.n_scen - 1))
+                                        scenarios=filter_scenarios(self.est, self.controller.n_scen - 1), **kw)
         else:
-            plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev)
+            plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev, **kw)
         st = plan.status
         solve_ms = st.solve_ms if st.solve_ms else (time.perf_counter() - t0) * 1e3
         return plan, solve_ms

@@ -271,6 +271,14 @@ class Campaign:
                              "ORDER BY id DESC LIMIT 1").fetchone()
         return r
 
+    def plan_before(self, t_h: float):
+        """The latest advice given before batch time ``t_h`` (the controller's previous decision), or None.
+
+        An advice repeated at the same logged time starts from this one too, so the same database
+        gives the same advice however often ``advise`` runs."""
+        return self.con.execute("SELECT id, t_h, rpm, milling, interval_h, advice, controller_state FROM plans "
+                                "WHERE t_h < ? ORDER BY id DESC LIMIT 1", (t_h - EPS_H,)).fetchone()
+
     # --- the estimator's timeline ------------------------------------------------------------
     def _restore_node(self, node_id: int) -> float:
         blob, t = self.con.execute("SELECT state, t_h FROM estimator_states WHERE id = ?", (node_id,)).fetchone()
@@ -554,8 +562,10 @@ def ensure_coefficients(folder, identify: bool = False, progress=None):
         return for_card(c._input("card"), identify=identify, progress=progress)
 
 
-def advise(folder, campaign: Campaign | None = None) -> dict:
+def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
     """Recommend the next action from the current estimate.
+
+    ``progress``: called with one line per step (the command prints them on stderr).
 
     Returns
     -------
@@ -569,25 +579,35 @@ def advise(folder, campaign: Campaign | None = None) -> dict:
         ``advise_ms``; ``plan_id``.
     """
     t_start = time.perf_counter()
+    say = progress or (lambda text: None)
     c = campaign or Campaign(folder)
     try:
         with db.transaction(c.con, where=str(folder)):
+            if c._loop is None:
+                say("building the moment model, the filter and the controller")
             lp = c.loop
             clock = c.clock_h()
             _, t_node, est = c.last_node()
             c._restore_node(c.last_node()[0])
-            prev = c.latest_plan()
+            prev = c.plan_before(clock)
             if prev is not None:
                 lp.controller.set_state(db.unpack(prev[6], f"{folder}: controller state"))
+            else:
+                lp.controller.reset()
             earlier = c.con.execute("SELECT MAX(t_h) FROM plans WHERE t_h < ?", (clock - 1e-6,)).fetchone()[0]
             warnings = c.temperature_warnings(since_h=None if earlier is None else float(earlier))
             ctrl_target = tg.controller_target(c.meta["target"], est)
             lp.controller.set_target(ctrl_target, t_end_h=c.meta["hours"])
             acts = c.actions()
             lp.u_prev = (acts[-1].rpm, acts[-1].milling) if acts else None
-            plan, solve_ms = lp.decide_at(clock)
+            readings = dict(c.con.execute("SELECT action_id, temperature_c FROM temperatures WHERE action_id IS NOT NULL "
+                                          "ORDER BY id"))
+            history = [(a.hours, a.rpm, a.milling, readings.get(a.id)) for a in acts]
+            say(f"planning from {clock:g} h to the batch end ({c.meta['hours']:g} h)")
+            plan, solve_ms = lp.decide_at(clock, history=history)
+            say(f"planned in {solve_ms / 1e3:.1f} s: {plan.status.reason or plan.status.solver_status}")
             sched = _schedule(c, plan, clock)
-            end = _end_band(c, sched) if sched else {}
+            end = _end_band(c, sched, plan) if sched else {}
             reach, binding = _why(c, plan, sched, end, ctrl_target)
             x_end = np.asarray(plan.x[-1], dtype=float)
             dt = plan.interval_h

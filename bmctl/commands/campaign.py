@@ -99,7 +99,9 @@ def _print_advice(a: dict) -> None:
         print(f"next: {nx['rpm']:g} rpm, mill {nx['mill_min']} min, rest {nx['rest_min']} min "
               f"(interval {nx['interval_h'] * 60:.0f} min)")
     if a["schedule"]:
-        print("planned schedule to the batch end (from the controller's horizon on: its last input held):")
+        held = any(not r["planned"] for r in a["schedule"])
+        print("planned schedule to the batch end" + (" (from the controller's horizon on: its last input held):"
+                                                      if held else ":"))
         for r in a["schedule"]:
             mark = "" if r["planned"] else "  (held)"
             print(f"  {r['t0_h']:6.2f}-{r['t1_h']:6.2f} h  {r['rpm']:6.0f} rpm  mill {r['mill_min']:3d} min  "
@@ -169,7 +171,7 @@ def _run(args: argparse.Namespace) -> int:
             print(f"held: the log reaches {r['clock_h']:g} h; the sample is used when it reaches {r['t_h']:g} h")
     elif v == "advise":
         model = cp.ensure_coefficients(d, identify=args.identify, progress=progress_printer())
-        a = cp.advise(d)
+        a = cp.advise(d, progress=progress_printer("advise"))
         warn_window(model, [r["rpm"] for r in a.get("schedule") or [] if r.get("mill_min", 1) > 0]
                     + ([a["next"]["rpm"]] if a.get("next") else []))
         print(json.dumps(a, indent=2) if args.json else "", end="\n" if args.json else "")

@@ -35,7 +35,8 @@ def make_controller(config, model, target=None):
 
     Returns
     -------
-    MPCController, LQRController or RecipeController
+    PlanController, MPCController, LQRController or RecipeController
+        (an MPC file with ``[plan] method = "search"`` gives a PlanController)
         Each has ``interval_h``, ``t_end_h``, ``plan(x_est, t_h, p=None, u_prev=None) -> Plan``,
         ``set_target(target, t_end_h=None)`` and ``reset()``.
 
@@ -55,6 +56,10 @@ def make_controller(config, model, target=None):
         cfg = validate_controller(config, "controller")
     else:
         cfg = config
+    if isinstance(cfg, MPCConfig) and cfg.plan.method == "search":
+        from .planner import PlanController
+
+        return PlanController(cfg, model, target)
     if isinstance(cfg, MPCConfig):
         from .mpc import MPCController
 

@@ -156,6 +156,33 @@ class Objective(Strict):
     sweep: list[Annotated[float, Field(gt=0, le=1)]] = [0.25, 0.5, 0.75, 1.0]
 
 
+class PlanSearch(Strict):
+    """How plans are made (docs/control.md, "Global search").
+
+    ``method = "search"``: every call plans the rest of the batch on operable schedules (families
+    evaluated in one vectorised batch, then a local search on the same grid; the advice is the
+    plan's first interval). ``"nlp"``: the multiple-shooting NLP over the horizon, its continuous
+    milling shares rounded onto the mill's limits afterwards. The search settings serve
+    ``bmctl design``'s global search too.
+    """
+
+    method: Literal["nlp", "search"] = "nlp"
+    #: RKC substeps of the search's prediction per part of a milling period (its first 5 min, the rest)
+    substeps: Annotated[int, Field(ge=1, le=16)] = 2
+    #: filter particles (a deterministic weighted selection) the closest plans are also scored on; 0: the estimate only
+    spread: Annotated[int, Field(ge=0, le=1000)] = 64
+    rpm_step: Annotated[float, Field(gt=0)] = 20.0  # spacing of the coarse search's rpm grid
+    coarse_factor: Annotated[int, Field(ge=1, le=8)] = 2  # intervals per step of the coarse batch
+    error_band: Annotated[float, Field(ge=0, lt=0.5)] = 0.002  # errors within this band count as equal
+    rounds: Annotated[int, Field(ge=0, le=10)] = 1  # local-search rounds after the coarse batch
+    pool: Annotated[int, Field(ge=1, le=200)] = 8  # plans scored on the spread (closest, cheapest, per family)
+    pool_band: Annotated[float, Field(ge=0, lt=1)] = 0.03  # nominal error band of that pool
+    #: weight of the variance a plan adds over the spread in the pool's score e^2 + risk (Var(e) - Var_rest(e));
+    #: 1 = as in the open-loop expected
+    #: squared error; less counts on the feedback of later plans
+    risk: Annotated[float, Field(ge=0, le=10)] = 0.25
+
+
 class ReferencePoint(Target):
     """A time-varying reference: this target applies from ``from_h`` (batch time) on."""
 
@@ -202,6 +229,8 @@ class Weights(Strict):
     energy_per_kWh: NonNeg = 0.5  # dissipated energy: P_max (rpm/rpm_max)^3 * milling * hours
     time_per_h: NonNeg = 0.005  # per hour spent milling (machine time)
     rpm_move: NonNeg = 0.05  # per ((rpm_k - rpm_k-1) / rpm_max)^2, also from the last applied rpm
+    #: per on/off transition (the operator's work), in the global search's tie-break ([plan], `bmctl design`)
+    switch: NonNeg = 0.005
 
 
 class Solver(Strict):
@@ -300,6 +329,7 @@ class MPCConfig(_Common):
     adaptation: Adaptation = Adaptation()
     robust: Robust = Robust()
     objective: Objective = Objective()
+    plan: PlanSearch = PlanSearch()
 
 
 class LQRTuning(Strict):

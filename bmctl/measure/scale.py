@@ -137,7 +137,9 @@ def _jeol_sidecar(path: Path) -> tuple[float, str] | None:
     side = path.with_suffix(".txt")
     if not side.is_file():
         return None
-    text = side.read_text(encoding="latin-1", errors="replace")
+    from ..io import read_input_bytes
+
+    text = read_input_bytes(side, max_bytes=1 << 20).decode("latin-1", errors="replace")  # bounded, regular
     bar = re.search(r"\$\$?SM_MICRON_BAR\s+([0-9.]+)", text)
     marker = re.search(r"\$\$?SM_MICRON_MARKER\s+([0-9.]+)\s*([a-zA-Zµμ]+)", text)
     if not (bar and marker and _unit_to_um(marker.group(2)) and float(bar.group(1)) > 0):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..io import write_csv
 from ..plant.events import aspect_from_perimeter, perimeter_from_aspect, size_from_area
 
@@ -29,6 +29,9 @@ LOCATION_COLUMNS = ("particle_id", "image", "x_um", "y_um")  # written first by 
 ISOPERIMETRIC_TOL = 0.05  # relative shortfall of L below pi s accepted (and raised to pi s)
 #: physical range of a particle size: 1 nm to 10 mm (a powder particle outside it is a unit or scale error)
 S_MIN_UM, S_MAX_UM = 1e-3, 1e4
+
+#: the largest particle table read (a million particles as `s_um,r` take ~20 MB)
+TABLE_MAX_BYTES = 64 << 20
 
 
 @dataclass(frozen=True)
@@ -170,7 +173,7 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
     try:
         from ..io import read_input_bytes  # a regular file of a sane size (no FIFO, no device)
 
-        text = read_input_bytes(path).decode("utf-8-sig")
+        text = read_input_bytes(path, max_bytes=TABLE_MAX_BYTES).decode("utf-8-sig")
     except FileNotFoundError:
         raise InputError(f"{p}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -185,7 +188,7 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
     elif {"s_um", "r"} <= set(header):
         cols = ("s_um", "r")
     else:
-        raise InputError(f"{p}: missing columns: need area_um2,perimeter_um or s_um,r (header has {','.join(header)})")
+        raise InputError(f"{p}: missing columns: need area_um2,perimeter_um or s_um,r (header has {quote(','.join(header))})")
     idx = [header.index(c) for c in cols]
     vals = []
     for (lineno, _), row in zip(lines[1:], reader):

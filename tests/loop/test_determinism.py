@@ -31,7 +31,7 @@ particles = 200
 [estimator]
 particles = 300
 [controller]
-config = "{root}/controllers/mpc-default.toml"
+config = "{root}/controllers/mpc-nominal.toml"
 """
 
 TIMING = {"solve_ms"}  # wall-clock columns: the only ones allowed to differ
