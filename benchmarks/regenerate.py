@@ -53,10 +53,15 @@ REGISTRY: tuple[Study, ...] = (
     Study("calibrate_coverage", "python benchmarks/calibrate_accuracy.py coverage --first 1 --n 20 --workers 2", 10),
     Study("calibrate_four", "python benchmarks/calibrate_accuracy.py four --workers 2 --seed 1", 10),
     Study("calibrate_bias", "python benchmarks/calibrate_bias.py --workers 2", 30),
+    Study("pf_study", "python benchmarks/pf_study.py", 10),
+    Study("pf_study_laws", "python benchmarks/pf_study.py --laws", 2),
+    Study("pf_study_ablation", "python benchmarks/pf_study.py --ablation --seeds 10", 8),
+    Study("estimator_study", "python benchmarks/estimator_study.py --seeds 10", 15),
     Study("design_reach", "python benchmarks/design_reach.py", 5),
     Study("hidden_mills", "python benchmarks/hidden_mills.py", 60),
     # timings: re-measured at the end on a quiet machine (each file records the load)
     Study("calibrate_scaling", "python benchmarks/calibrate_accuracy.py scaling --calibration", 3, timing=True),
+    Study("bench_estimate", "python benchmarks/bench_estimate.py", 1, timing=True),
     Study("campaign_advise", "python benchmarks/campaign_advise.py", 3, timing=True),
 )
 
