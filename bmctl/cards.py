@@ -233,12 +233,12 @@ def run_warnings(card, t_h, temperature_c, s_mean_um) -> list[str]:
     hot = [(t, T) for t, T in zip(t_h, temperature_c) if t_max is not None and T > t_max]
     if hot:
         t, T = max(hot, key=lambda x: x[1])
-        out.append(f"{card.card.name}: vial temperature {T:.0f} C at {t:g} h is above the card's maximum "
-                   f"{t_max:g} C ({val['temperature_reason']}): the model does not hold there")
+        out.append(f"{card.card.name}: vial temperature {T:.0f} °C at {t:g} h is above the card's maximum "
+                   f"{t_max:g} °C ({val['temperature_reason']}): the model does not hold there")
     for t, s in zip(t_h, s_mean_um):
         if not (val["s_min_um"] <= s <= val["s_max_um"]):
-            out.append(f"{card.card.name}: mean size {s:.3g} um at {t:g} h is outside the card's "
-                       f"[{val['s_min_um']:g}, {val['s_max_um']:g}] um")
+            out.append(f"{card.card.name}: mean size {s:.3g} µm at {t:g} h is outside the card's "
+                       f"[{val['s_min_um']:g}, {val['s_max_um']:g}] µm")
             break
     return out
 
@@ -338,27 +338,7 @@ RASTER_BYTES_PER_BIN = 12
 PARTICLE_BYTES = 200
 
 
-def budget() -> dict[str, float]:
-    """The work budget: ``cpu_s`` (env ``BMCTL_BUDGET_CPU_H``, default 24 h) and ``memory_bytes``
-    (env ``BMCTL_BUDGET_MEMORY_GB``, default half of this machine's physical memory)."""
-    def env(name: str, default: float) -> float:
-        text = os.environ.get(name)
-        if text is None:
-            return default
-        try:
-            v = float(text)
-        except ValueError:
-            raise InputError(f"{name}: not a number: {text!r}") from None
-        if not (math.isfinite(v) and v > 0):
-            raise InputError(f"{name}: must be a positive number (got {text})")
-        return v
-
-    try:
-        phys = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
-        phys = 8 * 2**30
-    return {"cpu_s": env("BMCTL_BUDGET_CPU_H", 24.0) * 3600.0,
-            "memory_bytes": env("BMCTL_BUDGET_MEMORY_GB", phys / 2 / 2**30) * 2**30}
+from .work import budget, check_work  # noqa: E402,F401 - the budget and the check live in bmctl.work
 
 
 def simulation_work(card, segments, particles: int, every_h: float, raster: bool = True) -> dict[str, float]:
@@ -396,27 +376,6 @@ def simulation_work(card, segments, particles: int, every_h: float, raster: bool
         "cpu_s": impacts / IMPACTS_PER_CPU_S + steps * STEP_CPU_S,
         "memory_bytes": records * bins * RASTER_BYTES_PER_BIN + particles * PARTICLE_BYTES,
     }
-
-
-def check_work(work: dict[str, float], flags: str) -> None:
-    """Refuse a run whose estimate exceeds :func:`budget`, naming the flags and the limit.
-
-    Parameters
-    ----------
-    work : dict
-        From :func:`simulation_work` (or any dict with ``cpu_s`` and ``memory_bytes``).
-    flags : str
-        What the user can change, e.g. ``"--hours/--particles"``.
-    """
-    b = budget()
-    if work["cpu_s"] > b["cpu_s"]:
-        raise InputError(f"{flags}: the run would take ~{work['cpu_s'] / 3600:.3g} CPU hours "
-                         f"({work.get('impacts', 0):.3g} impacts, {work.get('steps', 0):.3g} steps), over the budget "
-                         f"of {b['cpu_s'] / 3600:g} h (BMCTL_BUDGET_CPU_H)")
-    if work["memory_bytes"] > b["memory_bytes"]:
-        raise InputError(f"{flags}: the run would need ~{work['memory_bytes'] / 2**30:.3g} GiB "
-                         f"({work.get('records', 0):.3g} recorded populations), over the budget of "
-                         f"{b['memory_bytes'] / 2**30:.3g} GiB (BMCTL_BUDGET_MEMORY_GB)")
 
 
 def design_work(hours: float, interval_h: float) -> dict[str, float]:
@@ -528,7 +487,7 @@ def check_melting(card, segments, where: str) -> float:
     peak, at = peak_temperature_c(card, segments)
     limit, reason = melting_limit(card)
     if not peak <= limit:
-        raise InputError(f"{where}: the vial would reach {peak:.0f} C at {at:g} h, above {limit:g} C "
+        raise InputError(f"{where}: the vial would reach {peak:.0f} °C at {at:g} h, above {limit:g} °C "
                          f"({reason}; {card.card.name}): no model holds there; lower the rpm or add rests")
     return peak
 

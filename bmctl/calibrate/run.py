@@ -13,6 +13,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..config import ModelCard
+from ..io import name_part
 from ..parallel import map_seeded
 from .fit import Calibration, FitSettings, calibrate
 from .history import History
@@ -106,7 +107,8 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
         from ..moments.forcard import identification_text
 
         card_out = out / f"{stem}-calibrated.toml"
-        text = identification_text(new, card_out, seed=seed, log=log, client=client)
+        text = identification_text(new, card_out, seed=seed, log=log, client=client,
+                                   workers=0 if client is None else None)  # serial when the fit was
         with output_set():
             write_text(card_out, outputs.card_toml(new, f"{new.card.name}: {note}\nSee calibration.json next to this "
                                                         "file; its moment coefficients are in the .moments.toml beside it."))
@@ -117,6 +119,6 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
                 "wall_s": wall}
         paths.append(outputs.write_json(out / "calibration.json", outputs.calibration_dict(cal, histories, dist, meta)))
         for h, k in zip(histories, kept):
-            paths.append(outputs.plot_history(out / f"histograms-{h.name}.png", h, k,
+            paths.append(outputs.plot_history(out / f"histograms-{name_part(h.name)}.png", h, k,
                                               f"{h.name}: measured vs calibrated {stem}"))
     return CalibrationRun(cal, info, kept, dist, paths, wall)

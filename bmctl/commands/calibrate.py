@@ -42,6 +42,7 @@ def run(args) -> int:
     from ..calibrate.params import parse_params
     from ..calibrate.run import run_calibration
     from ..config import load_card
+    from ..io import name_part
     from ..parallel import client_for, close_client
 
     out = output_path(args.out)
@@ -49,11 +50,16 @@ def run(args) -> int:
     names = parse_params(args.params, card)
     histories = [load_history(h, card) for h in args.histories]
     seen = set()
-    for h in histories:
-        if h.name in seen:
+    for h in histories:  # each history's figure is named by its name as a file name part (bmctl.io.name_part)
+        if name_part(h.name) in seen:
             raise_dup(h)
-        seen.add(h.name)
+        seen.add(name_part(h.name))
     settings = FitSettings(particles=args.particles, replicates=args.replicates)
+    from ..work import add, calibrate_work, check_work, identify_work
+
+    check_work(add(calibrate_work(card, histories, len(names), args.particles, args.replicates, settings.max_iter),
+                   identify_work(card, args.seed)), "--particles/--replicates/HISTORY.toml (and the calibrated "
+               "card's identification)")
     client = client_for(args.scheduler, args.workers)
     bar = tqdm(desc="plant runs", unit="run", total=None, leave=False)
     try:
@@ -70,6 +76,9 @@ def run(args) -> int:
     print(f"{card.card.name}: {len(histories)} histories, {sum(len(h.samples) for h in histories)} samples; "
           f"{cal.plant_runs} plant runs ({engine}) in {res.wall_s:.0f} s; chi2 {cal.chi2:.1f} on "
           f"{cal.n_summaries} summaries{'' if cal.converged else ' (not converged)'}")
+    if not cal.converged:
+        print(f"  {cal.stop_reason}")
+        print(f"bmctl: note: calibration {cal.stop_reason}", file=sys.stderr)
     for i, n in enumerate(cal.names):
         flag = "" if cal.identified[i] else "  NOT IDENTIFIED"
         print(f"  {n:28s} {cal.values[i]:.4g}  90 % [{cal.lo90[i]:.4g}, {cal.hi90[i]:.4g}]  "
@@ -82,4 +91,5 @@ def run(args) -> int:
 def raise_dup(h):
     from ..errors import InputError
 
-    raise InputError(f"{h.path}: name: history name {h.name!r} is used twice (give each history its own name)")
+    raise InputError(f"{h.path}: name: history name {h.name!r} is used twice, or gives the same figure name as another "
+                     "(give each history its own name)")

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError, finite_float
-from ._args import float_arg, int_arg, output_path
+from ._args import float_arg, int_arg, output_path, rpm_arg
 from ._model import add_identify_flag, model_for, warn_window
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
@@ -30,9 +30,9 @@ def configure(p):
                    help="particle tables (.csv) or micrographs (with --um-per-px), one per time; a folder is read sorted by name")
     p.add_argument("--times", required=True, metavar="T1,T2,...", help="milling time (h) of each sample, comma separated")
     p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest); default: the card's recipe")
-    p.add_argument("--rpm", type=float_arg("--rpm", lo=0.0), default=None, help="sun-disc speed of the card's recipe (default: the card's)")
+    p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="sun-disc speed of the card's recipe (default: the card's)")
     p.add_argument("--temperatures", default=None, metavar="T1,T2,...",
-                   help="vial-temperature readings (degC) per sample, comma separated; leave an entry empty for none")
+                   help="vial-temperature readings (°C) per sample, comma separated; leave an entry empty for none")
     p.add_argument("--um-per-px", type=float_arg("--um-per-px", lo=0.0, strict=True), default=None, metavar="X",
                    help="pixel size: measure micrographs instead of reading tables")
     p.add_argument("--out", default="out/estimate/estimate.csv", metavar="FILE.csv", help="estimate table (default out/estimate/estimate.csv)")
@@ -145,6 +145,9 @@ def run(args) -> int:
             raise InputError(f"{args.schedule}: covers {total:g} h, the last sample is at {t_end:g} h")
     else:
         segments = Schedule.from_card(card, max(card.process.hours, t_end), args.rpm).pairs()
+    from ..work import check_work, filter_work
+
+    check_work(filter_work(t_end, args.particles if args.estimator == "pf" else 25), "--times/--particles")
     out = output_path(args.out, folder=False)
     if args.write_card is not None:
         output_path(args.write_card, "--write-card", folder=False)
@@ -186,7 +189,7 @@ def run(args) -> int:
     last = estimates[-1]
     d = last.as_dict()
     print(f"{card.card.name}: {len(samples)} samples to t = {t_end:g} h, {what}; {health}")
-    print(f"  at {last.t_h:g} h: s mean {d['s_mean_um']:.1f} um [{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
+    print(f"  at {last.t_h:g} h: s mean {d['s_mean_um']:.1f} µm [{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
           f"r mean {d['r_mean']:.3f} [{d['r_mean_q05']:.3f}, {d['r_mean_q95']:.3f}], "
           f"gamma_mult {d['gamma_mult']:.2f} [{d['gamma_mult_q05']:.2f}, {d['gamma_mult_q95']:.2f}], "
           f"delta_mult {d['delta_mult']:.2f} [{d['delta_mult_q05']:.2f}, {d['delta_mult_q95']:.2f}]")

@@ -43,7 +43,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="IMAGE", help="micrograph(s) (png/tif/...) or particle table(s) (.csv)")
     parser.add_argument("--um-per-px", type=float, default=None, metavar="X", help="pixel size in micrometres (overrides the image metadata)")
     parser.add_argument("--scale-bar-um", type=float, default=None, metavar="L",
-                        help="length of the scale bar on the image, in um (used when the metadata has no pixel size)")
+                        help="length of the scale bar on the image, in µm (used when the metadata has no pixel size)")
     parser.add_argument("--out", default=None, metavar="CSV", help="write the pooled particle table here (overlays and measure.json beside it)")
     parser.add_argument("--min-area-px", type=_min_area, default="auto", metavar="N",
                         help="drop blobs below N px (default auto: 1/100 of the area-weighted median particle area, at least 30)")
@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
             results.append(res)
             reports.append(res.report())
             excl = f", data bar from row {res.info_bar_row} excluded" if res.info_bar_row is not None else ""
-            lines.append(f"{path}: {len(t)} particles; {res.scale.um_per_px:.5g} um/px from {res.scale.source} "
+            lines.append(f"{path}: {len(t)} particles; {res.scale.um_per_px:.5g} µm/px from {res.scale.source} "
                          f"({res.scale.detail}){excl}; min area {res.min_area_px} px")
             warned += [f"bmctl: warning: {path}: {w.message}" for w in res.warnings]
         ids = np.arange(next_id, next_id + len(t))
@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
                 ids = locs[i].particle_id
                 write_overlay(out_png, res.image, res.segmentation.labels, res.segmentation.offset, ids,
                               excluded_from_row=res.info_bar_row, scale_bar=res.scale_bar,
-                              title=f"{Path(res.name).name}: {len(res.table)} particles, {res.scale.um_per_px:.4g} um/px")
+                              title=f"{Path(res.name).name}: {len(res.table)} particles, {res.scale.um_per_px:.4g} µm/px")
                 reports[i]["overlay"] = str(out_png)
                 written.append(str(out_png))
         summ = table.summary()
@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     for w in warned:  # only once every input is read: a bad input still prints one line
         print(w, file=sys.stderr)
     print("\n".join(lines))
-    print(f"measure: {summ['count']} particles, median s = {summ['s_median_um']:.4g} um, median r = {summ['r_median']:.3f}"
+    print(f"measure: {summ['count']} particles, median s = {summ['s_median_um']:.4g} µm, median r = {summ['r_median']:.3f}"
           + (f"; wrote {args.out}, {Path(args.out).parent / 'measure.json'}" + (f" and {len(written)} overlay(s)" if written else "")
              if args.out else ""))
     return 0

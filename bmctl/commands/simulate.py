@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import InputError
-from ._args import float_arg, int_arg, output_path
+from ._args import hours_arg, int_arg, output_path, rpm_arg
 
 
 
@@ -14,12 +14,12 @@ from ._args import float_arg, int_arg, output_path
 
 def configure(p):
     p.add_argument("model", metavar="MODEL.toml", help="model card (see models/)")
-    p.add_argument("--hours", type=float_arg("--hours", lo=0.0, hi=1000.0), default=None, help="milling time (default: the card's)")
+    p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="milling time (default: the card's)")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
     p.add_argument("--particles", type=int_arg("--particles", 100, 10_000_000), default=None, help="simulated particles M")
-    p.add_argument("--rpm", type=float_arg("--rpm", lo=0.0), default=None, help="sun-disc speed (default: the card's)")
+    p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="sun-disc speed (default: the card's)")
     p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest)")
-    p.add_argument("--every", type=float_arg("--every", lo=0.0), default=None, help="recording interval in h (default 1)")
+    p.add_argument("--every", type=hours_arg("--every"), default=None, help="recording interval in h (default 1)")
     p.add_argument("--out", default="out/simulate", metavar="DIR", help="output folder (default out/simulate)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -78,8 +78,8 @@ def run(args) -> int:
     last = res.records[-1]
     m = last.moments
     print(f"{card.card.name}: {total_h:g} h, M={args.particles or card.simulation.particles}, seed {args.seed}: "
-          f"s mean {m['s_mean_um']:.1f} um, std {m['s_std_um']:.1f} um, r mean {m['r_mean']:.3f}, "
-          f"T {last.temperature_c:.1f} C")
+          f"s mean {m['s_mean_um']:.1f} µm, std {m['s_std_um']:.1f} µm, r mean {m['r_mean']:.3f}, "
+          f"T {last.temperature_c:.1f} °C")
     for p in paths:
         print(f"  wrote {p}")
     return 0

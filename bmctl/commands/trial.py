@@ -35,6 +35,7 @@ def _check_trial_work(sc, path):
     from ..config import load_card
     from ..control.config import load_controller
     from ..scenario import resolve
+    from ..work import add, filter_work
 
     base = Path(path).resolve().parent
     card = load_card(resolve(sc.plant.model or sc.model, base))
@@ -42,6 +43,7 @@ def _check_trial_work(sc, path):
     work = simulation_work(card, [(sc.hours, card.mill.rpm_max)], sc.plant.particles, sc.sampling.every_h, raster=False)
     samples = sc.hours / sc.sampling.every_h + 1
     work["cpu_s"] += samples * sc.estimator.particles * FILTER_CPU_S_PER_PARTICLE
+    work = add(work, filter_work(sc.hours, sc.estimator.particles))  # the filter's propagation between samples
     if cfg.kind != "recipe":
         work["cpu_s"] += SOLVE_CPU_S * sc.hours / (getattr(cfg, "interval_h", None) or 0.5)
     check_work(work, f"{path}: hours/plant.particles/sampling.every_h/estimator.particles")
@@ -90,12 +92,12 @@ def run(args) -> int:
 
     t_max = validity(card)["temperature_max_C"]
     if t_max is not None and summary["max_temperature_c"] > t_max:
-        print(f"bmctl: warning: {card.card.name}: vial temperature {summary['max_temperature_c']:.0f} C is above the "
-              f"card's maximum {t_max:g} C ({validity(card)['temperature_reason']}): the model does not hold there",
+        print(f"bmctl: warning: {card.card.name}: vial temperature {summary['max_temperature_c']:.0f} °C is above the "
+              f"card's maximum {t_max:g} °C ({validity(card)['temperature_reason']}): the model does not hold there",
               file=sys.stderr)
     warn_window(model, _milling_rpms(out / "trajectory.csv"))
     err = ", ".join(f"{k} {v:.1%}" for k, v in summary["final_error"].items()) or "(no target)"
-    print(f"{sc.scenario.name} seed {args.seed}: final error {err}; max T {summary['max_temperature_c']:.1f} C, "
+    print(f"{sc.scenario.name} seed {args.seed}: final error {err}; max T {summary['max_temperature_c']:.1f} °C, "
           f"{summary['temperature_violations']} violations; energy {summary['energy_kj']:.0f} kJ; "
           f"{summary['fallbacks']} fallbacks; median solve {summary['median_solve_ms']:.0f} ms")
     print(f"  wrote {out}/trajectory.csv, summary.json, trial.png"
