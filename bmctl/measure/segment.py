@@ -2,12 +2,20 @@
 
 Pipeline (:func:`segment`; ``docs/measurement.md`` gives the reasons and the numbers):
 
-1. crop and/or mask (e.g. an info bar); pixels outside count as image border;
-2. background flattening: a grey opening (footprint ``background_px``) of a block-min
+1. crop and/or mask (e.g. an info bar); drawn annotations (panel letters, scale bars, label
+   boxes: :mod:`bmctl.measure.annotations`) are masked too; masked pixels count as image border;
+2. polarity: particles brighter or darker than their surroundings, from the bend of the
+   strongest edges (:mod:`bmctl.measure.polarity`); a near-tie is decided by segmenting both
+   ways and keeping the one whose particles are more convex (:func:`convex_evidence`);
+3. background flattening: a grey opening (footprint ``background_px``) of a block-min
    downsampled copy, smoothed and subtracted (uneven illumination);
-3. Gaussian smoothing (``smooth_px``) and a global threshold at the valley between the
-   two histogram modes (``threshold="minimum"``; Otsu when there is no valley), holes filled;
-4. separation of touching particles:
+4. Gaussian smoothing (``smooth_px``) and a global threshold (:func:`threshold_level`): the
+   valley between the two histogram modes when each side holds at least
+   ``VALLEY_MIN_SHARE`` of the pixels, else the background mode plus ``NOISE_K`` times the
+   background's noise (a few particles on a dominant background have no second mode);
+   pixels at the image's extreme values (saturated, drawn) are left out of the histogram;
+   holes filled;
+5. separation of touching particles:
    a. thin dark lines inside the foreground (the shadows between overlapping particles)
       are cut (:func:`cut_dark_lines`);
    b. watershed of the distance transform from all its local maxima, then neighbours
@@ -16,10 +24,16 @@ Pipeline (:func:`segment`; ``docs/measurement.md`` gives the reasons and the num
       peaks (scale-free: two touching discs have a ratio near 0, a particle split along a
       ridge of its own medial axis near 1) (:func:`split_touching`);
    c. the labels are grown back over the cut lines (:func:`expand_labels_into`);
-5. per-particle boundary refinement: each particle is re-thresholded at the midpoint of
+   d. filled holes shared by two or more particles (the gap enclosed by a ring of touching
+      particles) go back to the background (:func:`drop_shared_holes`); a hole inside one
+      particle (a pore, a textured interior) stays filled;
+6. per-particle boundary refinement: each particle is re-thresholded at the midpoint of
    its own interior and surrounding background levels (:func:`refine_local`), which
    removes the size bias a single global threshold has on small or faint particles;
-6. removal of particles touching the image border (or the masked-out area) and of specks
+7. significance: a particle whose median level stands less than ``contrast_z`` robust
+   standard deviations above its surrounding background (locally, and against the whole
+   background's noise) is texture or noise, not a particle (:func:`drop_faint`);
+8. removal of particles touching the image border (or the masked-out area) and of specks
    below ``min_area_px``.
 
 :func:`measure_labels` then takes the area as the pixel count and the perimeter by the
@@ -39,18 +53,25 @@ from skimage import filters, measure, morphology, segmentation, transform
 from skimage.feature import peak_local_max
 
 from ..errors import InputError
+from .annotations import find_annotations
 from .perimeter import DEFAULT_METHOD, perimeter
 from .loading import as_gray_float, crop_slices, load_image, parse_crop  # noqa: F401 (re-exported)
+from .polarity import AMBIGUOUS, polarity_vote
 from .scale import check_scale  # noqa: F401 (re-exported)
 from .tables import ParticleTable
 
 MIN_AREA_PX = 30  # ~ 6 px across: the detection limit; r needs >= 10 px (docs/measurement.md)
 NECK_RATIO = 0.8
 SMOOTH_PX = 0.5
-THRESHOLD = "minimum"
+THRESHOLD = "auto"
 CUT_PX = 3.0
 CUT_CONTRAST = 0.08
 REFINE_RING_PX = 4
+VALLEY_MIN_SHARE = 0.005  # a histogram side with fewer pixels is a tail (specks, text), not a class
+NOISE_K = 3.0  # no valley: threshold at the background mode + 3 background standard deviations
+CONTRAST_Z = 3.0  # a particle stands >= 3 robust standard deviations above its background
+SATURATION = 0.012  # pixels this close (share of the range) to the extremes stay out of the histogram
+POLARITIES = ("auto", "bright", "dark")
 
 
 # --- steps ----------------------------------------------------------------------------------------
@@ -91,24 +112,93 @@ def flatten_background(img: np.ndarray, valid: np.ndarray, background_px: float)
     return img - bg
 
 
-THRESHOLDS = ("otsu", "li", "minimum", "triangle")
+THRESHOLDS = ("auto", "otsu", "li", "minimum", "triangle")
+
+
+def background_mode(vals: np.ndarray) -> tuple[float, float]:
+    """Level and noise of the dominant histogram mode.
+
+    The mode is the peak of a 256-bin histogram (1-99.9 % range, smoothed over 2 bins); the
+    noise is the root-mean-square distance from it of the values below it (the side without
+    particles, so the particles' own tail does not widen it).
+
+    Parameters
+    ----------
+    vals : ndarray of float
+
+    Returns
+    -------
+    mode, sigma : float
+    """
+    lo, hi = np.quantile(vals, [0.001, 0.999])
+    if hi <= lo:
+        return float(lo), 0.0
+    h, e = np.histogram(vals, 256, (lo, hi))
+    centres = 0.5 * (e[:-1] + e[1:])
+    mode = float(centres[int(np.argmax(ndi.gaussian_filter1d(h.astype(float), 2.0)))])
+    below = vals[vals <= mode]
+    sigma = float(np.sqrt(np.mean((below - mode) ** 2))) if below.size >= 50 else float(np.std(vals))
+    return mode, sigma
+
+
+def threshold_level(vals: np.ndarray, method="auto") -> tuple[float, str]:
+    """Global threshold on the smoothed, flattened values, and how it was found.
+
+    Parameters
+    ----------
+    vals : ndarray of float
+    method : {"auto", "minimum", "otsu", "li", "triangle"} or float
+        ``"auto"``: the valley between the two histogram modes
+        (``skimage.filters.threshold_minimum``) when each side holds at least
+        ``VALLEY_MIN_SHARE`` of the values, else the background mode + ``NOISE_K`` x its
+        noise (:func:`background_mode`). ``"minimum"`` is the valley with Otsu as fallback.
+
+    Returns
+    -------
+    level : float
+    how : str
+        ``"valley"``, ``"noise"``, the method name, or ``"user"``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> vals = np.r_[rng.normal(0.2, 0.05, 9000), rng.normal(0.6, 0.05, 1000)]
+    >>> t, how = threshold_level(vals)
+    >>> 0.3 < t < 0.5, how
+    (True, 'valley')
+    >>> t, how = threshold_level(np.r_[rng.normal(0.2, 0.05, 9990), rng.normal(0.6, 0.05, 10)])
+    >>> 0.3 < t < 0.45, how        # ten bright pixels are no class: mode + 3 sigma
+    (True, 'noise')
+    """
+    if not isinstance(method, str):
+        return float(method), "user"
+    if method == "auto":
+        try:
+            t = float(filters.threshold_minimum(vals))
+            share = float(np.mean(vals > t))
+            if VALLEY_MIN_SHARE <= share <= 1.0 - VALLEY_MIN_SHARE:
+                return t, "valley"
+        except RuntimeError:
+            pass
+        mode, sigma = background_mode(vals)
+        return mode + NOISE_K * sigma, "noise"
+    if method == "otsu":
+        return float(filters.threshold_otsu(vals)), method
+    if method == "li":
+        return float(filters.threshold_li(vals)), method
+    if method == "triangle":
+        return float(filters.threshold_triangle(vals)), method
+    if method == "minimum":
+        try:  # the valley between the two histogram modes; Otsu if there is no second mode
+            return float(filters.threshold_minimum(vals)), method
+        except RuntimeError:
+            return float(filters.threshold_otsu(vals)), "otsu"
+    raise ValueError(f"unknown threshold method {method!r}; expected a number or one of {THRESHOLDS}")
 
 
 def _threshold(vals: np.ndarray, method) -> float:
-    if not isinstance(method, str):
-        return float(method)
-    if method == "otsu":
-        return float(filters.threshold_otsu(vals))
-    if method == "li":
-        return float(filters.threshold_li(vals))
-    if method == "triangle":
-        return float(filters.threshold_triangle(vals))
-    if method == "minimum":
-        try:  # the valley between the two histogram modes; Otsu if there is no second mode
-            return float(filters.threshold_minimum(vals))
-        except RuntimeError:
-            return float(filters.threshold_otsu(vals))
-    raise ValueError(f"unknown threshold method {method!r}; expected a number or one of {THRESHOLDS}")
+    return threshold_level(vals, method)[0]
 
 
 def cut_dark_lines(sm: np.ndarray, fg: np.ndarray, valid: np.ndarray, cut_px: float, cut_contrast: float) -> np.ndarray:
@@ -309,6 +399,111 @@ def _merge_wide_necks(lab: np.ndarray, dist: np.ndarray, neck_ratio: float) -> n
     return root[lab]
 
 
+def drop_shared_holes(lab: np.ndarray, fg_raw: np.ndarray, fg: np.ndarray) -> np.ndarray:
+    """Return to the background the filled holes that border two or more particles.
+
+    Hole filling closes the gap enclosed by a ring of touching particles as well as the
+    pores of one textured particle. After the split the difference shows: a pore borders
+    one particle, an enclosed gap several.
+
+    Parameters
+    ----------
+    lab : ndarray of int
+        Labels after the split.
+    fg_raw, fg : ndarray of bool
+        Foreground before and after hole filling.
+
+    Returns
+    -------
+    ndarray of int
+    """
+    holes = fg & ~fg_raw
+    hl, nh = ndi.label(holes)
+    if nh == 0:
+        return lab
+    near = ndi.grey_dilation(hl, size=3)
+    m = ndi.binary_dilation(holes) & (lab > 0) & (near > 0)
+    pairs = np.unique(np.stack([near[m], lab[m]]), axis=1)
+    shared = np.bincount(pairs[0], minlength=nh + 1) >= 2
+    shared[0] = False
+    out = lab.copy()
+    out[shared[hl] & holes] = 0
+    return out
+
+
+def drop_faint(lab: np.ndarray, x: np.ndarray, fg: np.ndarray, valid: np.ndarray, z: float = CONTRAST_Z,
+               ring=(2, 6)) -> tuple[np.ndarray, int]:
+    """Drop particles that do not stand out from their background (texture, noise).
+
+    A particle's contrast is the median of its pixels minus the median of the background
+    pixels 3-6 px around it. It must exceed ``z`` times the robust standard deviation
+    (1.4826 x MAD) of that ring, and ``z`` times the noise of the whole background
+    (:func:`background_mode` of the pixels 4 px or more from the foreground). Particles with
+    no background around them (inside a dense cluster) are kept.
+
+    Parameters
+    ----------
+    lab : ndarray of int
+    x : ndarray of float
+        Flattened image (particles bright).
+    fg, valid : ndarray of bool
+    z : float, optional
+    ring : (int, int), optional
+        Inner and outer distance of the ring (px).
+
+    Returns
+    -------
+    labels : ndarray of int
+    dropped : int
+        Number of particles dropped.
+    """
+    bg = valid & ~ndi.binary_dilation(fg, iterations=3)
+    sigma_bg = 0.0
+    if bg.sum() > 100:
+        med = float(np.median(x[bg]))
+        sigma_bg = 1.4826 * float(np.median(np.abs(x[bg] - med)))
+    out = lab.copy()
+    h, w = lab.shape
+    pad = ring[1] + 2
+    dropped = 0
+    for i, sl in enumerate(ndi.find_objects(lab), start=1):
+        if sl is None:
+            continue
+        y0, y1 = max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)
+        x0, x1 = max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)
+        own = lab[y0:y1, x0:x1] == i
+        rg = (ndi.binary_dilation(own, iterations=ring[1]) & ~ndi.binary_dilation(own, iterations=ring[0])
+              & ~fg[y0:y1, x0:x1] & valid[y0:y1, x0:x1])
+        if rg.sum() < 10:
+            continue
+        xi = x[y0:y1, x0:x1]
+        level_b = float(np.median(xi[rg]))
+        contrast = float(np.median(xi[own])) - level_b
+        spread = 1.4826 * float(np.median(np.abs(xi[rg] - level_b)))
+        if contrast < z * max(spread, sigma_bg):
+            out[y0:y1, x0:x1][own] = 0
+            dropped += 1
+    return out, dropped
+
+
+def convex_evidence(labels: np.ndarray) -> float:
+    """Particle area weighted by convexity: sum of area x solidity^2 over the particles.
+
+    What a reading of the image (polarity) explains as convex particles; the reading with
+    the larger value wins a near-tie of :func:`bmctl.measure.polarity.polarity_vote`.
+
+    Parameters
+    ----------
+    labels : ndarray of int
+
+    Returns
+    -------
+    float
+    """
+    props = measure.regionprops(labels)
+    return float(sum(p.area * p.solidity ** 2 for p in props))
+
+
 def remove_edge_and_specks(lab: np.ndarray, valid: np.ndarray, min_area_px: int) -> np.ndarray:
     """Drop labels touching the image border or the invalid area, and those below ``min_area_px``.
 
@@ -341,13 +536,27 @@ class Segmentation:
     foreground : ndarray of bool
         Thresholded, hole-filled mask before splitting and removal.
     threshold : float
-        Otsu threshold on the flattened, smoothed image.
+        Global threshold on the flattened, smoothed image (particles bright).
     offset : (int, int)
         (row, column) of the cropped frame's origin in the input image.
     raw_labels : ndarray of int or None
         Labels before the border and speck removal (for the quality checks).
     valid : ndarray of bool or None
-        Valid pixels of the cropped frame.
+        Valid pixels of the cropped frame (crop, mask and annotations excluded).
+    polarity : {"bright", "dark"}
+        Particles brighter or darker than their surroundings.
+    polarity_source : {"user", "edges", "evidence"}
+        Given; from the edge vote; from the convexity evidence of both readings (near-tie).
+    polarity_vote : float or None
+        :func:`bmctl.measure.polarity.polarity_vote` (share voting "bright"), when computed.
+    threshold_method : str
+        How the threshold was found (``"valley"``, ``"noise"``, a method name, ``"user"``).
+    annotation_px : int
+        Pixels masked as drawn annotations.
+    smoothed : ndarray of float or None
+        The flattened, smoothed image the threshold applies to (particles bright).
+    faint_dropped : int
+        Candidates dropped as not standing out from their background (:func:`drop_faint`).
     """
 
     labels: np.ndarray
@@ -356,6 +565,42 @@ class Segmentation:
     offset: tuple[int, int]
     raw_labels: np.ndarray | None = None
     valid: np.ndarray | None = None
+    polarity: str = "bright"
+    polarity_source: str = "user"
+    polarity_vote: float | None = None
+    threshold_method: str = ""
+    annotation_px: int = 0
+    smoothed: np.ndarray | None = None
+    faint_dropped: int = 0
+
+
+def _one_polarity(img, valid, dark, *, flatten, background_px, smooth_px, neck_ratio, threshold, cut_px,
+                  cut_contrast, refine, contrast_z, extremes, name):
+    """Steps 3-7 of :func:`segment` for one polarity: (labels before removal, fg, thr, how, smoothed, dropped)."""
+    x = 1.0 - img if dark else img
+    if flatten:
+        bg_px = background_px if background_px is not None else max(32.0, min(x.shape) / 4.0)
+        x = flatten_background(x, valid, bg_px)
+    sm = ndi.gaussian_filter(x, smooth_px) if smooth_px > 0 else x
+    use = valid & ~extremes
+    vals = sm[use] if use.sum() >= 100 else sm[valid]
+    if np.ptp(vals) <= 1e-12:
+        raise InputError(f"{name}: image is uniform, nothing to segment")
+    thr, how = threshold_level(vals, threshold)
+    fg_raw = (sm > thr) & valid
+    fg = ndi.binary_fill_holes(fg_raw)
+    if cut_contrast and cut_contrast > 0 and fg.any() and (~fg & valid).any():
+        core = cut_dark_lines(sm, fg, valid, cut_px, cut_contrast)
+        lab = expand_labels_into(split_touching(core, neck_ratio), fg)
+    else:
+        lab = split_touching(fg, neck_ratio)
+    lab = drop_shared_holes(lab, fg_raw, fg)
+    if refine:
+        lab = refine_local(sm, lab, fg, valid)
+    dropped = 0
+    if contrast_z and contrast_z > 0:
+        lab, dropped = drop_faint(lab, x, fg, valid, contrast_z)
+    return lab, fg, thr, how, sm, dropped
 
 
 def segment(
@@ -368,11 +613,14 @@ def segment(
     background_px: float | None = None,
     smooth_px: float = SMOOTH_PX,
     neck_ratio: float = NECK_RATIO,
-    dark_particles: bool = False,
+    polarity: str = "auto",
+    dark_particles: bool | None = None,
     threshold=THRESHOLD,
     cut_px: float = CUT_PX,
     cut_contrast: float = CUT_CONTRAST,
     refine: bool = True,
+    annotations: bool = True,
+    contrast_z: float = CONTRAST_Z,
     name: str = "image",
 ) -> Segmentation:
     """Segment the particles of a grayscale micrograph.
@@ -397,14 +645,23 @@ def segment(
         Gaussian sigma before thresholding.
     neck_ratio : float, optional
         Merge criterion of :func:`split_touching`.
+    polarity : {"auto", "bright", "dark"}, optional
+        Particles brighter or darker than their surroundings; ``"auto"`` decides per image
+        (:mod:`bmctl.measure.polarity`).
     dark_particles : bool, optional
-        Particles darker than the background (default: brighter, as in SE images).
-    threshold : {"minimum", "otsu", "li", "triangle"} or float, optional
-        Global threshold method on the flattened, smoothed image, or the level itself.
+        Older spelling of ``polarity``: ``True`` = ``"dark"``, ``False`` = ``"bright"``.
+    threshold : {"auto", "minimum", "otsu", "li", "triangle"} or float, optional
+        Global threshold method on the flattened, smoothed image, or the level itself
+        (:func:`threshold_level`).
     cut_px, cut_contrast : float, optional
         Dark-line cut (:func:`cut_dark_lines`); ``cut_contrast=0`` switches it off.
     refine : bool, optional
         Per-particle boundary refinement (:func:`refine_local`).
+    annotations : bool, optional
+        Mask drawn panel letters, scale bars and label boxes
+        (:func:`bmctl.measure.annotations.find_annotations`).
+    contrast_z : float, optional
+        Significance of a particle against its background (:func:`drop_faint`); 0 keeps all.
     name : str, optional
         Name used in error messages.
 
@@ -417,9 +674,16 @@ def segment(
     >>> import numpy as np
     >>> from bmctl.measure.render import render_micrograph
     >>> m = render_micrograph(np.random.default_rng(0), n=8, shape=(160, 160), s_px=(20, 24))
-    >>> int(segment(m.image).labels.max()) == len(m.truth)
+    >>> seg = segment(m.image)
+    >>> int(seg.labels.max()) == len(m.truth), seg.polarity
+    (True, 'bright')
+    >>> int(segment(1.0 - m.image).labels.max()) == len(m.truth)
     True
     """
+    if dark_particles is not None:
+        polarity = "dark" if dark_particles else "bright"
+    if polarity not in POLARITIES:
+        raise InputError(f"{name}: polarity: expected one of {', '.join(POLARITIES)} (got {polarity!r})")
     if not isinstance(image, np.ndarray):
         name = str(image)
         image = load_image(image)
@@ -434,26 +698,34 @@ def segment(
         img, valid, offset = img[sy, sx], valid[sy, sx], (sy.start, sx.start)
     if valid.sum() < 64:
         raise InputError(f"{name}: fewer than 64 valid pixels after crop/mask")
-    if dark_particles:
-        img = 1.0 - img
-    if flatten:
-        bg_px = background_px if background_px is not None else max(32.0, min(img.shape) / 4.0)
-        img = flatten_background(img, valid, bg_px)
-    sm = ndi.gaussian_filter(img, smooth_px) if smooth_px > 0 else img
-    vals = sm[valid]
-    if np.ptp(vals) <= 1e-12:
-        raise InputError(f"{name}: image is uniform, nothing to segment")
-    thr = _threshold(vals, threshold)
-    fg = ndi.binary_fill_holes((sm > thr) & valid)
-    if cut_contrast and cut_contrast > 0 and fg.any() and (~fg & valid).any():
-        core = cut_dark_lines(sm, fg, valid, cut_px, cut_contrast)
-        lab = expand_labels_into(split_touching(core, neck_ratio), fg)
-    else:
-        lab = split_touching(fg, neck_ratio)
-    if refine:
-        lab = refine_local(sm, lab, fg, valid)
+    n_ann = 0
+    if annotations:
+        ann = find_annotations(img, valid)
+        n_ann = int(ann.sum())
+        if n_ann and (valid & ~ann).sum() >= 64:
+            valid = valid & ~ann
+    vals = img[valid]
+    lo, hi = float(vals.min()), float(vals.max())
+    tol = max(SATURATION * (hi - lo), 1.5 / 255)
+    extremes = (img <= lo + tol) | (img >= hi - tol)
+    kw = dict(flatten=flatten, background_px=background_px, smooth_px=smooth_px, neck_ratio=neck_ratio,
+              threshold=threshold, cut_px=cut_px, cut_contrast=cut_contrast, refine=refine,
+              contrast_z=contrast_z, extremes=extremes, name=name)
+    vote, source = None, "user"
+    if polarity == "auto":
+        vote = polarity_vote(img, valid)
+        if abs(vote - 0.5) >= AMBIGUOUS:
+            polarity, source = ("bright" if vote > 0.5 else "dark"), "edges"
+        else:
+            runs = {p: _one_polarity(img, valid, p == "dark", **kw) for p in ("bright", "dark")}
+            ev = {p: convex_evidence(remove_edge_and_specks(r[0], valid, int(min_area_px))) for p, r in runs.items()}
+            polarity = "dark" if ev["dark"] > ev["bright"] else "bright"
+            source = "evidence"
+            lab, fg, thr, how, sm, dropped = runs[polarity]
+    if source != "evidence":
+        lab, fg, thr, how, sm, dropped = _one_polarity(img, valid, polarity == "dark", **kw)
     kept = remove_edge_and_specks(lab, valid, int(min_area_px))
-    return Segmentation(kept, fg, thr, offset, lab, valid)
+    return Segmentation(kept, fg, thr, offset, lab, valid, polarity, source, vote, how, n_ann, sm, dropped)
 
 
 def measure_labels(labels: np.ndarray, um_per_px: float, method: str = DEFAULT_METHOD) -> ParticleTable:
@@ -496,7 +768,7 @@ def measure_image(image, um_per_px: float, *, min_area_px: int = MIN_AREA_PX, cr
         Window to keep, e.g. ``"0:423,:"`` to cut off an info bar.
     **kwargs
         Passed to :func:`segment` (``mask``, ``flatten``, ``background_px``,
-        ``smooth_px``, ``neck_ratio``, ``dark_particles``).
+        ``smooth_px``, ``neck_ratio``, ``polarity``, ...).
 
     Returns
     -------
