@@ -6,7 +6,8 @@ Pipeline (:func:`segment`; ``docs/measurement.md`` gives the reasons and the num
    boxes: :mod:`bmctl.measure.annotations`) are masked too; masked pixels count as image border;
 2. polarity: particles brighter or darker than their surroundings, from the bend of the
    strongest edges (:mod:`bmctl.measure.polarity`); a near-tie is decided by segmenting both
-   ways and keeping the one whose particles are more convex (:func:`convex_evidence`);
+   ways and keeping the reading with the better reliability verdict, then the one that
+   claims fewer particles (:func:`_near_tie`);
 3. background flattening: a grey opening (footprint ``background_px``) of a block-min
    downsampled copy, smoothed and subtracted (uneven illumination);
 4. Gaussian smoothing (``smooth_px``) and a global threshold (:func:`threshold_level`): the
@@ -72,6 +73,7 @@ NOISE_K = 3.0  # no valley: threshold at the background mode + 3 background stan
 CONTRAST_Z = 3.0  # a particle stands >= 3 robust standard deviations above its background
 SATURATION = 0.012  # pixels this close (share of the range) to the extremes stay out of the histogram
 POLARITIES = ("auto", "bright", "dark")
+VALLEY_SCALES = (1, 2, 4, 8)  # smoothing tried for a histogram valley, in units of smooth_px
 
 
 # --- steps ----------------------------------------------------------------------------------------
@@ -486,24 +488,6 @@ def drop_faint(lab: np.ndarray, x: np.ndarray, fg: np.ndarray, valid: np.ndarray
     return out, dropped
 
 
-def convex_evidence(labels: np.ndarray) -> float:
-    """Particle area weighted by convexity: sum of area x solidity^2 over the particles.
-
-    What a reading of the image (polarity) explains as convex particles; the reading with
-    the larger value wins a near-tie of :func:`bmctl.measure.polarity.polarity_vote`.
-
-    Parameters
-    ----------
-    labels : ndarray of int
-
-    Returns
-    -------
-    float
-    """
-    props = measure.regionprops(labels)
-    return float(sum(p.area * p.solidity ** 2 for p in props))
-
-
 def remove_edge_and_specks(lab: np.ndarray, valid: np.ndarray, min_area_px: int) -> np.ndarray:
     """Drop labels touching the image border or the invalid area, and those below ``min_area_px``.
 
@@ -546,7 +530,7 @@ class Segmentation:
     polarity : {"bright", "dark"}
         Particles brighter or darker than their surroundings.
     polarity_source : {"user", "edges", "evidence"}
-        Given; from the edge vote; from the convexity evidence of both readings (near-tie).
+        Given; from the edge vote; from the evidence of both readings (near-tie).
     polarity_vote : float or None
         :func:`bmctl.measure.polarity.polarity_vote` (share voting "bright"), when computed.
     threshold_method : str
@@ -581,12 +565,20 @@ def _one_polarity(img, valid, dark, *, flatten, background_px, smooth_px, neck_r
     if flatten:
         bg_px = background_px if background_px is not None else max(32.0, min(x.shape) / 4.0)
         x = flatten_background(x, valid, bg_px)
-    sm = ndi.gaussian_filter(x, smooth_px) if smooth_px > 0 else x
     use = valid & ~extremes
-    vals = sm[use] if use.sum() >= 100 else sm[valid]
-    if np.ptp(vals) <= 1e-12:
-        raise InputError(f"{name}: image is uniform, nothing to segment")
-    thr, how = threshold_level(vals, threshold)
+    use = use if use.sum() >= 100 else valid
+    scales = [smooth_px * f for f in VALLEY_SCALES] if threshold == "auto" and smooth_px > 0 else [smooth_px]
+    for k, sigma in enumerate(scales):  # the finest smoothing at which the histogram has a valley
+        sm = ndi.gaussian_filter(x, sigma) if sigma > 0 else x
+        vals = sm[use]
+        if np.ptp(vals) <= 1e-12:
+            raise InputError(f"{name}: image is uniform, nothing to segment")
+        thr, how = threshold_level(vals, threshold)
+        if how != "noise":
+            break
+    else:  # no valley at any scale: a few particles on a dominant background; finest scale
+        sm = ndi.gaussian_filter(x, scales[0]) if scales[0] > 0 else x
+        thr, how = threshold_level(sm[use], threshold)
     fg_raw = (sm > thr) & valid
     fg = ndi.binary_fill_holes(fg_raw)
     if cut_contrast and cut_contrast > 0 and fg.any() and (~fg & valid).any():
@@ -601,6 +593,28 @@ def _one_polarity(img, valid, dark, *, flatten, background_px, smooth_px, neck_r
     if contrast_z and contrast_z > 0:
         lab, dropped = drop_faint(lab, x, fg, valid, contrast_z)
     return lab, fg, thr, how, sm, dropped
+
+
+def _near_tie(img, valid, offset, min_area_px, kw):
+    """Both readings of an image whose edge vote is a near-tie; the one with the better evidence.
+
+    Ranked by the reliability verdict each reading earns on its own evidence
+    (:func:`bmctl.measure.quality.verdict`), then by fewer particles (under an unclear
+    polarity, the reading that claims less).
+    """
+    from .quality import VERDICTS, auto_min_area, evidence, verdict
+
+    ranked = []
+    for p in ("bright", "dark"):
+        run = _one_polarity(img, valid, p == "dark", **kw)
+        lab, fg, thr, how, sm, dropped = run
+        used = auto_min_area(lab, valid, min_area_px)
+        kept = remove_edge_and_specks(lab, valid, used)
+        seg = Segmentation(kept, fg, thr, offset, lab, valid, p, "evidence", None, how, 0, sm, dropped)
+        value, _ = verdict(evidence(seg, used))
+        ranked.append((VERDICTS.index(value), int(kept.max()), p, run))
+    ranked.sort(key=lambda r: r[:2])
+    return ranked[0][2], ranked[0][3]
 
 
 def segment(
@@ -717,11 +731,9 @@ def segment(
         if abs(vote - 0.5) >= AMBIGUOUS:
             polarity, source = ("bright" if vote > 0.5 else "dark"), "edges"
         else:
-            runs = {p: _one_polarity(img, valid, p == "dark", **kw) for p in ("bright", "dark")}
-            ev = {p: convex_evidence(remove_edge_and_specks(r[0], valid, int(min_area_px))) for p, r in runs.items()}
-            polarity = "dark" if ev["dark"] > ev["bright"] else "bright"
-            source = "evidence"
-            lab, fg, thr, how, sm, dropped = runs[polarity]
+            polarity, source = _near_tie(img, valid, offset, int(min_area_px), kw), "evidence"
+            lab, fg, thr, how, sm, dropped = polarity[1]
+            polarity = polarity[0]
     if source != "evidence":
         lab, fg, thr, how, sm, dropped = _one_polarity(img, valid, polarity == "dark", **kw)
     kept = remove_edge_and_specks(lab, valid, int(min_area_px))
