@@ -177,3 +177,76 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
     ev = evidence(seg, used)
     value, reasons = verdict(ev)
     return MicrographResult(name, img, seg, scale, bar, info_row, used, table, x_um, y_um, warns, ev, value, reasons)
+
+
+def table_reports(csv_path) -> list[dict]:
+    """Per-image reports of a particle table written by ``bmctl measure``, from the
+    ``measure.json`` beside it (empty when there is none or it belongs to another table).
+
+    Parameters
+    ----------
+    csv_path : path-like
+
+    Returns
+    -------
+    list of dict
+        The ``inputs`` entries of images (with ``image`` and ``verdict``).
+    """
+    import json
+    from pathlib import Path
+
+    from ..io import read_input_bytes
+
+    p = Path(csv_path)
+    side = p.parent / "measure.json"
+    if not side.is_file():
+        return []
+    try:
+        doc = json.loads(read_input_bytes(side).decode("utf-8"))
+    except (InputError, ValueError, RecursionError):
+        return []
+    if not isinstance(doc, dict) or Path(str(doc.get("table", ""))).name != p.name:
+        return []
+    return [r for r in doc.get("inputs", []) if isinstance(r, dict) and isinstance(r.get("verdict"), dict)]
+
+
+def check_verdicts(reports, accept_unusable: bool = False, flag: str = "--accept-unusable") -> list[str]:
+    """Refuse ``unusable`` images and list the ``doubtful`` ones.
+
+    Parameters
+    ----------
+    reports : list of dict
+        Per-input reports (:meth:`MicrographResult.report` or :func:`table_reports`).
+    accept_unusable : bool, optional
+        Warn instead of refusing.
+    flag : str, optional
+        The option named in the refusal.
+
+    Returns
+    -------
+    list of str
+        One warning line per doubtful (or accepted unusable) image.
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        An ``unusable`` image and ``accept_unusable`` is false.
+
+    Examples
+    --------
+    >>> check_verdicts([{"image": "a.png", "verdict": {"value": "doubtful", "reasons": ["polarity unclear"]}}])
+    ['a.png: verdict doubtful (polarity unclear): check its overlay before trusting its particles']
+    """
+    lines = []
+    for rep in reports:
+        v = rep.get("verdict") if isinstance(rep, dict) else None
+        if not isinstance(v, dict):
+            continue
+        value, why = v.get("value"), "; ".join(str(r) for r in v.get("reasons", []))
+        name = rep.get("image", "image")
+        if value == "unusable" and not accept_unusable:
+            raise InputError(f"{name}: verdict unusable ({why}); the measurement does not hold, "
+                             f"check its overlay (bmctl measure) or pass {flag}")
+        if value in ("doubtful", "unusable"):
+            lines.append(f"{name}: verdict {value} ({why}): check its overlay before trusting its particles")
+    return lines
