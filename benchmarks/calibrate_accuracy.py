@@ -8,6 +8,9 @@ Calibration starts from the card.
     python benchmarks/calibrate_accuracy.py coverage --n 20 --workers 2  # interval coverage over seeded cases
     python benchmarks/calibrate_accuracy.py four --workers 2           # alpha, beta, gamma, delta: 1 vs 2 rpm runs
     python benchmarks/calibrate_accuracy.py scaling                    # 64-plant ensemble and one calibration, 1 vs 2 workers
+
+``main``, ``coverage`` and ``four`` write ``results/calibrate_accuracy.json``, ``calibrate_coverage.json``
+and ``calibrate_four.json``; ``scaling`` writes ``calibrate_scaling.json`` (with the load average).
 """
 
 from __future__ import annotations
@@ -67,12 +70,27 @@ def one(seed: int, client, names=("gamma", "delta"), rpms=(300.0,), settings=Non
     return row
 
 
+def _write(name: str, values: dict, args, command: str) -> None:
+    if args.no_results:
+        return
+    import os
+
+    from bmctl.results import write_results
+
+    values = dict(values, load_average=list(os.getloadavg()))
+    write_results(name, values, settings={"workers": args.workers, "seed": args.seed, "truth": {"gamma": GAMMA_X,
+                  "delta": DELTA_X}, "times_h": list(TIMES), "sample_particles": N_SAMPLE,
+                  "true_particles": TRUE_PARTICLES, "first": args.first, "n": args.n}, command=command)
+
+
 def main_case(args):
     client = client_for(None, args.workers)
     try:
         row = one(args.seed, client, out=args.out)
     finally:
         close_client(client)
+    _write("calibrate_accuracy", {"case": row}, args,
+           f"python benchmarks/calibrate_accuracy.py main --workers {args.workers} --seed {args.seed}")
     print(json.dumps(row, indent=1), flush=True)
     for n in ("gamma", "delta"):
         r = row[n]
@@ -96,11 +114,19 @@ def coverage(args):
         close_client(client)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1, default=float))
+    summary = {}
     for n in ("gamma", "delta"):
         cov = np.mean([r[n]["covered"] for r in rows])
         within = np.mean([abs(r[n]["rel_err"]) <= 0.15 for r in rows])
+        err = np.array([r[n]["rel_err"] for r in rows])
+        summary[n] = {"coverage": float(cov), "covered": int(sum(r[n]["covered"] for r in rows)),
+                      "within_15pct": int(sum(abs(e) <= 0.15 for e in err)), "rms_error_pct": 100 * float(np.sqrt(np.mean(err**2))),
+                      "median_bias_pct": 100 * float(np.median(err)), "above_truth": int(np.sum(err > 0)),
+                      "median_width": float(np.median([r[n]["hi90"] / r[n]["lo90"] for r in rows]))}
         print(f"{n}: coverage of the 90 % interval {cov:.2f} over {len(rows)} cases; within +-15 %: {within:.2f}; "
               f"rms error {100 * np.sqrt(np.mean([r[n]['rel_err'] ** 2 for r in rows])):.1f} %")
+    _write("calibrate_coverage", {"summary": summary, "cases": rows}, args,
+           f"python benchmarks/calibrate_accuracy.py coverage --first {args.first} --n {args.n} --workers {args.workers}")
 
 
 def four(args):
@@ -110,6 +136,7 @@ def four(args):
     names = ("alpha", "beta", "gamma", "delta")
     u_true = np.log([1.0, 1.0, GAMMA_X, DELTA_X])
     client = client_for(None, args.workers)
+    out = {}
     try:
         for rpms in ((300.0,), (300.0, 400.0)):
             hs = [history(1000 * args.seed + k, rpm, f"h{rpm:.0f}") for k, rpm in enumerate(rpms)]
@@ -121,8 +148,13 @@ def four(args):
             for i, n in enumerate(names):
                 print(f"  {n}: posterior sd of ln {sd[i]:.3f} (90 % x/ {np.exp(1.645 * sd[i]):.2f}); "
                       f"identified {info['identified'][i]}: {info['why'][i]}", flush=True)
+            out["+".join(f"{r:.0f}" for r in rpms)] = {
+                "fisher_eigenvalues": np.linalg.eigvalsh(info["fisher"]).tolist(), "posterior_sd_ln": dict(zip(names, sd.tolist())),
+                "identified": dict(zip(names, info["identified"])), "plant_runs": info["plant_runs"],
+                "wall_s": time.perf_counter() - t0}
     finally:
         close_client(client)
+    _write("calibrate_four", out, args, f"python benchmarks/calibrate_accuracy.py four --workers {args.workers} --seed {args.seed}")
 
 
 def _ensemble_task(task, rng):
@@ -149,6 +181,8 @@ def scaling(args):
     print(f"ensemble of 64 plants ({args.particles} particles, {args.hours} h at 300 rpm): 1 worker "
           f"{res[1][0]:.1f} s, 2 workers {res[2][0]:.1f} s, ratio {res[1][0] / res[2][0]:.2f}; "
           f"identical results: {res[1][1] == res[2][1]}")
+    values = {"ensemble": {"particles": args.particles, "hours": args.hours, "wall_s_1": res[1][0], "wall_s_2": res[2][0],
+                           "ratio": res[1][0] / res[2][0], "identical": res[1][1] == res[2][1]}}
     if args.calibration:
         cal = {}
         for w in (1, 2):
@@ -160,6 +194,12 @@ def scaling(args):
         print(f"one calibration: 1 worker {cal[1]['wall_s']:.0f} s, 2 workers {cal[2]['wall_s']:.0f} s, "
               f"ratio {cal[1]['wall_s'] / cal[2]['wall_s']:.2f}; same estimates: "
               f"{cal[1]['gamma']['ratio'] == cal[2]['gamma']['ratio'] and cal[1]['delta']['ratio'] == cal[2]['delta']['ratio']}")
+        values["calibration"] = {"wall_s_1": cal[1]["wall_s"], "wall_s_2": cal[2]["wall_s"],
+                                 "ratio": cal[1]["wall_s"] / cal[2]["wall_s"], "plant_runs": cal[1]["plant_runs"],
+                                 "identical": cal[1]["gamma"]["ratio"] == cal[2]["gamma"]["ratio"]
+                                 and cal[1]["delta"]["ratio"] == cal[2]["delta"]["ratio"]}
+    _write("calibrate_scaling", values, args, "python benchmarks/calibrate_accuracy.py scaling --calibration"
+           if args.calibration else "python benchmarks/calibrate_accuracy.py scaling")
 
 
 if __name__ == "__main__":
@@ -175,5 +215,6 @@ if __name__ == "__main__":
     ap.add_argument("--particles", type=int, default=2000)
     ap.add_argument("--hours", type=float, default=2.0)
     ap.add_argument("--calibration", action="store_true")
+    ap.add_argument("--no-results", action="store_true", help="print only")
     a = ap.parse_args()
     {"main": main_case, "coverage": coverage, "four": four, "scaling": scaling}[a.what](a)

@@ -1,18 +1,22 @@
-"""Time `advise` on a campaign: the first call and warm calls, in one process and in fresh processes.
+"""Time `bmctl campaign advise` in fresh processes: the first advice of a fresh campaign (with empty
+caches, and with the caches another campaign left) and later ones.
 
-    python benchmarks/campaign_advise.py [--controller controllers/mpc-default.toml] [--repeat 3]
-                                         [--compare OTHER_CHECKOUT]
+    nice python benchmarks/campaign_advise.py [--controller controllers/mpc-default.toml] [--repeat 6]
 
-Builds a 12 h campaign (MPC, d50 target) with ``repeat + 1`` logged and sampled intervals, then
-runs ``bmctl campaign advise`` in fresh processes on copies of it. Prints wall time and CPU time
-(user + system of the child; on a shared machine the CPU time is what an idle machine would take)
-and the database size. ``--compare`` runs the same fresh-process advise from another checkout of
-bmctl (e.g. ``git archive <commit> | tar -x -C /tmp/old``), alternating, for a before/after table.
+A 12 h campaign on the laboratory card (target s_mean_um = 32). *First*: ``campaign init`` then
+``campaign advise --json`` in a new process, once with an empty cache folder (``XDG_CACHE_HOME``:
+nothing compiled, no model constants cached) and once more on a second fresh campaign with the cache
+the first left. *Later*: the advice is logged and a 300-particle sample added every interval, then
+``advise`` runs again in a new process, ``--repeat`` times. Prints wall and CPU seconds (user +
+system of the child) with the load average, and the ratios to the targets (first <= 10 s, later
+<= 2 s wall on two cores); writes ``results/campaign_advise.json`` (``bmctl.results``). On a shared
+machine the CPU seconds are what an idle one would take.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import resource
 import shutil
@@ -26,66 +30,78 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+FIRST_TARGET_S, LATER_TARGET_S = 10.0, 2.0
 
 
-def fresh_advise(src: Path, folder: Path) -> tuple[float, float, float]:
-    """(wall s, child CPU s, advise_ms / 1e3) of one ``python -m bmctl campaign advise --json`` run from ``src``."""
-    import json
-
+def run(args, env) -> tuple[str, float, float]:
+    """(stdout, wall s, child CPU s) of ``python -m bmctl ARGS``."""
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    out = subprocess.run([sys.executable, "-m", "bmctl", "campaign", "advise", str(folder), "--json"], cwd=src,
-                         env={**os.environ, "PYTHONPATH": str(src)}, check=True, capture_output=True, text=True)
+    out = subprocess.run([sys.executable, "-m", "bmctl", *args], cwd=ROOT, env=env, check=True, capture_output=True,
+                         text=True)
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
-    return wall, cpu, json.loads(out.stdout)["advise_ms"] / 1e3
+    return out.stdout, wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
 
 
 def main() -> None:
-    from bmctl import campaign as cp
-    from bmctl.measure.tables import ParticleTable
+    from bmctl.measure.tables import ParticleTable, write_table
+    from bmctl.results import write_results
 
-    ap = argparse.ArgumentParser()
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--controller", default=str(ROOT / "controllers" / "mpc-default.toml"))
-    ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--compare", default=None, help="another bmctl checkout to time side by side")
+    ap.add_argument("--repeat", type=int, default=6, help="later advices timed")
+    ap.add_argument("--no-results", action="store_true")
     a = ap.parse_args()
-    tmp = Path(tempfile.mkdtemp())
-    d = tmp / "c"
-    print(f"load: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    cp.init(d, ROOT / "models" / "alni-1to1-300rpm-lab.toml", a.controller, {"d50_um": 45.0}, hours=12.0)
+    tmp = Path(tempfile.mkdtemp(prefix="bmctl-advise-"))
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "XDG_CACHE_HOME": str(tmp / "cache"), "MPLBACKEND": "Agg"}
+    env.pop("BMCTL_MPC_COMPILE", None)
+    load0 = os.getloadavg()
+    print(f"load: {load0[0]:.1f} on {os.cpu_count()} cores")
+    init = ["--model", str(CARD), "--controller", a.controller, "--target", "s_mean_um=32", "--hours", "12"]
+    first = {}
+    for name in ("empty cache", "cache of another campaign"):
+        d = tmp / name.replace(" ", "-")
+        run(["campaign", "init", str(d), *init], env)
+        out, wall, cpu = run(["campaign", "advise", str(d), "--json"], env)
+        first[name] = {"wall_s": wall, "cpu_s": cpu, "advise_ms": json.loads(out)["advise_ms"]}
+        print(f"first advise ({name}): {wall:.2f} s wall, {cpu:.2f} s CPU", flush=True)
     rng = np.random.default_rng(0)
-    with cp.Campaign(d) as c:
-        for k in range(a.repeat + 1):
-            t0, c0 = time.perf_counter(), time.process_time()
-            adv = cp.advise(d, campaign=c)
-            print(f"in-process advise {k}: {time.perf_counter() - t0:.2f} s wall, {time.process_time() - c0:.2f} s CPU "
-                  f"(solve {adv['solve_ms'] / 1e3:.2f} s)")
-            cp.log(d, adv["next"]["rpm"], 0.5, adv["next"]["mill_min"] / 30.0, campaign=c)
-            cp.sample(d, c.clock_h(), [ParticleTable.from_size_aspect(rng.lognormal(np.log(50), 0.45, 300),
-                                                                       rng.uniform(0, 0.1, 300))], campaign=c)
-        cp.advise(d, campaign=c)  # the stored warm start for the fresh processes
-    srcs = {"this": ROOT} | ({"compare": Path(a.compare).resolve()} if a.compare else {})
-    for name, src in srcs.items():  # first run per checkout: fills its caches (gcc, model constants)
-        shutil.copytree(d, tmp / f"warm-{name}")
-        w, cpu, adv_s = fresh_advise(src, tmp / f"warm-{name}")
-        print(f"fresh-process advise [{name}] first: {w:.2f} s wall, {cpu:.2f} s CPU (advise {adv_s:.2f} s)")
-    res: dict[str, list] = {k: [] for k in srcs}
+    later = []
     for k in range(a.repeat):
-        for name, src in srcs.items():
-            f = tmp / f"{name}-{k}"
-            shutil.copytree(d, f)
-            res[name].append(fresh_advise(src, f))
-            w, cpu, adv_s = res[name][-1]
-            print(f"fresh-process advise [{name}] {k}: {w:.2f} s wall, {cpu:.2f} s CPU (advise {adv_s:.2f} s; "
-                  f"CLI, imports included)")
-    for name, r in res.items():
-        m = np.median(np.array(r), axis=0)
-        print(f"median fresh-process advise [{name}]: {m[0]:.2f} s wall, {m[1]:.2f} s CPU, advise {m[2]:.2f} s wall")
-    print(f"load: {os.getloadavg()[0]:.1f}")
-    print(f"database: {(d / 'campaign.sqlite').stat().st_size / 1e6:.2f} MB after {a.repeat + 1} intervals")
+        adv = json.loads(out)
+        nx = adv["next"]
+        run(["campaign", "decide", str(d), "--accept"], env)
+        run(["campaign", "log", str(d), "--rpm", f"{nx['rpm']:g}", "--hours", "0.5", "--milling",
+             f"{nx['mill_min'] / 30.0:.10g}", "--temperature-c", f"{40 + 5 * k:g}"], env)
+        tab = tmp / f"s{k}.csv"
+        write_table(tab, ParticleTable.from_size_aspect(rng.lognormal(np.log(48 - 2 * k), 0.45, 300),
+                                                         rng.uniform(0, 0.1, 300)))
+        run(["campaign", "sample", str(d), "--at-h", f"{0.5 * (k + 1):g}", str(tab)], env)
+        out, wall, cpu = run(["campaign", "advise", str(d), "--json"], env)
+        later.append({"t_h": 0.5 * (k + 1), "wall_s": wall, "cpu_s": cpu, "advise_ms": json.loads(out)["advise_ms"],
+                      "solver": json.loads(out)["solver"]})
+        print(f"later advise at {0.5 * (k + 1):g} h: {wall:.2f} s wall, {cpu:.2f} s CPU "
+              f"({json.loads(out)['solver'][:60]})", flush=True)
+    lw = float(np.median([r["wall_s"] for r in later]))
+    lc = float(np.median([r["cpu_s"] for r in later]))
+    fw = max(v["wall_s"] for v in first.values())
+    fc = max(v["cpu_s"] for v in first.values())
+    load1 = os.getloadavg()
+    print(f"first advise: at most {fw:.2f} s wall, {fc:.2f} s CPU ({fc / FIRST_TARGET_S:.2f} x the {FIRST_TARGET_S:g} s "
+          f"target in CPU); later: median {lw:.2f} s wall, {lc:.2f} s CPU ({lc / LATER_TARGET_S:.2f} x the "
+          f"{LATER_TARGET_S:g} s target in CPU); load {load0[0]:.1f} -> {load1[0]:.1f}")
     shutil.rmtree(tmp, ignore_errors=True)
+    if not a.no_results:
+        path = write_results("campaign_advise", {
+            "first": first, "later": later, "first_wall_s": fw, "first_cpu_s": fc, "later_median_wall_s": lw,
+            "later_median_cpu_s": lc, "load_before": list(load0), "load_after": list(load1),
+            "cpus": os.cpu_count()}, settings={"controller": os.path.relpath(a.controller, ROOT), "repeat": a.repeat,
+                                               "card": str(CARD.relative_to(ROOT)), "hours": 12.0,
+                                               "target": {"s_mean_um": 32.0}},
+            command="python benchmarks/campaign_advise.py")
+        print(f"wrote {path}")
 
 
 if __name__ == "__main__":

@@ -19,6 +19,9 @@ NRMSE as for the moments (identify.nrmse: RMSE over the recorded times / range o
 trajectory, floored at 10 % of its mean).
 
     python benchmarks/dvalues_accuracy.py --schedules 4 --particles 3000 --seeds 2   # ~3 min, small version
+
+Writes ``results/dvalues_accuracy.json``: per card and row, the mean and worst NRMSE (%) of each
+D-value over the schedules.
 """
 
 from __future__ import annotations
@@ -77,8 +80,10 @@ def main(argv=None) -> None:
     ap.add_argument("--schedules", type=int, default=4)
     ap.add_argument("--particles", type=int, default=3000)
     ap.add_argument("--seeds", type=int, default=2, help="plant seeds per schedule (from identify.VALID_SEEDS)")
+    ap.add_argument("--no-results", action="store_true", help="print only")
     a = ap.parse_args(argv)
     seeds = ident.VALID_SEEDS[: a.seeds]
+    record = {}
     print(f"{a.schedules} held-out schedules x {len(seeds)} seeds x M = {a.particles}; NRMSE % mean (worst)")
     print(f"{'card':32s} {'':18s}" + "".join(f"{k:>16s}" for k in KEYS))
     for name in CARDS:
@@ -100,10 +105,22 @@ def main(argv=None) -> None:
                      "law-weibull-exact": weibull_dvalues(Y[:, 0], Y[:, 1])}
             for k, v in preds.items():
                 rows[k].append(ident.nrmse(v, D))
+        short = {"alni-1to1-300rpm-lab": "lab", "alni-1to1-400rpm-fan": "400", "alni-1to3-300rpm-hadjiafxenti": "1:3"}
+        record[short[name]] = {}
         for lab, R in rows.items():
             R = np.array(R)
             print(f"{name:32s} {lab:18s}" + "".join(f"{100 * m:9.1f} ({100 * w:4.0f})" for m, w in
                                                        zip(R.mean(0), R.max(0))))
+            record[short[name]][lab] = {k: {"mean_pct": 100 * float(m), "worst_pct": 100 * float(w)}
+                                        for k, m, w in zip(KEYS, R.mean(0), R.max(0))}
+    if not a.no_results:
+        from bmctl.results import write_results
+
+        write_results("dvalues_accuracy", record,
+                      settings={"schedules": a.schedules, "particles": a.particles, "seeds": [int(x) for x in seeds],
+                                "dt_h": ident.DT_H},
+                      command=f"python benchmarks/dvalues_accuracy.py --schedules {a.schedules} --particles "
+                              f"{a.particles} --seeds {a.seeds}")
 
 
 if __name__ == "__main__":

@@ -7,7 +7,11 @@ statistics, temperatures, event rates per milling hour, and distribution-shape t
 mixture in ln s against one component by BIC) on a 3000-particle subsample.
 
     python benchmarks/fidelity_table.py --particles 20000 --seed 2024    # about 1 min on one core
-    python benchmarks/fidelity_table.py --no-equiaxing                   # the paper's shape law alone
+    python benchmarks/fidelity_table.py --particles 20000 --seed 2024 --no-equiaxing   # the paper's shape law alone
+
+Writes ``results/fidelity_table.json`` (``fidelity_table_no_equiaxing.json``): per card the hourly
+series, the shape tests, event rates and temperatures, and the derived numbers docs/fidelity.md
+quotes (``derived``: peaks over 1-6 h and their hours, 6 h and 12 h values, ranges over hours).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from bmctl.plant.plant import Plant
 
 ROOT = Path(__file__).resolve().parents[1]
 CARDS = ("alni-1to1-300rpm-lab", "alni-1to1-400rpm-fan", "alni-1to3-300rpm-hadjiafxenti")
+SHORT = {"alni-1to1-300rpm-lab": "lab", "alni-1to1-400rpm-fan": "400", "alni-1to3-300rpm-hadjiafxenti": "1:3"}
 KEYS = ("s_mean_um", "s_std_um", "s_mode_um", "s_mode_area_um", "s_mean_area_um", "d10_um", "d50_um", "d90_um",
         "span", "r_mean", "r_std", "r_mode")
 
@@ -66,6 +71,21 @@ def without_equiaxing(card):
     return type(card).model_validate(d)
 
 
+def fracture_probability(plant: Plant, s_um: float, n: int = 20000) -> float:
+    """Share of impacts on a particle of ``s_um`` (r = 0.05) that break it, against partners drawn
+    from the plant's population, in the plant's present state (temperature, hardening)."""
+    from bmctl.plant.kinematics import kinematics
+
+    rng = np.random.default_rng(12345)
+    kin = kinematics(plant.card, plant.card.process.rpm)
+    k = rng.integers(0, plant.M, n)
+    si, ri = np.full(n, s_um * 1e-6), np.full(n, 0.05)
+    u_in = plant.kernels.sample_energies(rng, kin.energy_scale, n)
+    c2 = plant.kernels.sample_cos2psi(plant, rng, n)
+    out, _ = plant.kernels.impact(plant, kin, si, ri, plant.s[k], plant.r[k], u_in, c2, rng)
+    return float(out.frac[:n].mean())
+
+
 def run_card(name: str, particles: int, seed: int, equiaxing: bool = True) -> dict:
     card = load_card(ROOT / "models" / f"{name}.toml")
     if not equiaxing:
@@ -74,11 +94,61 @@ def run_card(name: str, particles: int, seed: int, equiaxing: bool = True) -> di
     plant = Plant(card, np.random.default_rng(seed), particles)
     rng = np.random.default_rng(seed + 1)  # subsamples of the shape tests
     tests: list[dict] = []
-    recs = plant.run_schedule(segments, 1.0, on_record=lambda p: tests.append(shape_tests(p.s * 1e6, rng)))
+    pfrac: dict[str, float] = {}
+
+    def on_record(p):
+        tests.append(shape_tests(p.s * 1e6, rng))
+        if len(tests) == 3:  # at 2 h: where the welded hump peaks on the lab card
+            pfrac.update({f"{x:g}": fracture_probability(p, x) for x in (25.0, 40.0, 140.0)})
+
+    recs = plant.run_schedule(segments, 1.0, on_record=on_record)
     milling_h = sum(h for h, rpm in segments if rpm > 0)
     return {"series": {k: np.array([r.moments[k] for r in recs]) for k in KEYS},
             "temperature_c": np.array([r.temperature_c for r in recs]), "tests": tests,
-            "bonds_per_h": plant.counts.bonds / milling_h, "fractures_per_h": plant.counts.fractures / milling_h}
+            "bonds_per_h": plant.counts.bonds / milling_h, "fractures_per_h": plant.counts.fractures / milling_h,
+            "fracture_probability_2h": pfrac}
+
+
+def derived(res: dict) -> dict:
+    """The numbers docs/fidelity.md quotes, from one card's run (hour index = hours, 0..12)."""
+    ser, T = res["series"], res["temperature_c"]
+    early = slice(1, 7)  # 1-6 h
+
+    def peak(key):
+        v = np.asarray(ser[key])
+        k = 1 + int(np.argmax(v[early]))
+        return {"value": float(v[k]), "hour": k, "at_12h": float(v[12]), "at_0h": float(v[0]), "at_6h": float(v[6]),
+                "at_1h": float(v[1]), "at_2h": float(v[2])}
+
+    out = {k: peak(k) for k in KEYS}
+    out["d90_minus_d10"] = {"at_peak_d50": float(ser["d90_um"][out["d50_um"]["hour"]] - ser["d10_um"][out["d50_um"]["hour"]]),
+                            "at_12h": float(ser["d90_um"][12] - ser["d10_um"][12])}
+    out["span_at_peak_d50"] = float(ser["span"][out["d50_um"]["hour"]])
+    out["s_std_at_peak_mean"] = float(ser["s_std_um"][out["s_mean_um"]["hour"]])
+    out["r_std_at_peak_r_mean"] = float(ser["r_std"][out["r_mean"]["hour"]])
+    out["s_mode_max_1_6h"] = float(np.max(ser["s_mode_um"][early]))
+    out["r_mode_max_after_1h"] = float(np.max(ser["r_mode"][1:]))
+    tests = res["tests"][1:]
+    out["tests"] = {
+        "ll_gain_min": float(min(t["ll_lognormal_minus_normal"] for t in tests)),
+        "ll_gain_max": float(max(t["ll_lognormal_minus_normal"] for t in tests)),
+        "ks_p_lognormal_max": float(max(t["ks_p_lognormal"] for t in tests)),
+        "ks_p_normal_max": float(max(t["ks_p_normal"] for t in tests)),
+        "bic_gain_min": float(min(t["bic_gain_2_components"] for t in tests)),
+        "bic_gain_max": float(max(t["bic_gain_2_components"] for t in tests)),
+        "major_weight_min": float(min(max(t["lower_hump_weight"], 1 - t["lower_hump_weight"]) for t in tests)),
+        "major_weight_max": float(max(max(t["lower_hump_weight"], 1 - t["lower_hump_weight"]) for t in tests)),
+        "lower_hump_weight_1_4h_min": float(min(t["lower_hump_weight"] for t in tests[:4])),
+        "lower_hump_weight_1_4h_max": float(max(t["lower_hump_weight"] for t in tests[:4])),
+        "lower_hump_median_um_1_4h_min": float(min(t["lower_hump_median_um"] for t in tests[:4])),
+        "lower_hump_median_um_1_4h_max": float(max(t["lower_hump_median_um"] for t in tests[:4])),
+        "upper_hump_median_um_1_4h_min": float(min(t["upper_hump_median_um"] for t in tests[:4])),
+        "upper_hump_median_um_1_4h_max": float(max(t["upper_hump_median_um"] for t in tests[:4])),
+    }
+    out["temperature_c"] = {"max": float(np.max(T)), "min_after_1h": float(np.min(T[1:])), "at_12h": float(T[12])}
+    out["bonds_per_h"], out["fractures_per_h"] = float(res["bonds_per_h"]), float(res["fractures_per_h"])
+    out["fracture_probability_2h"] = res["fracture_probability_2h"]
+    return out
 
 
 def main(argv=None) -> None:
@@ -86,10 +156,15 @@ def main(argv=None) -> None:
     ap.add_argument("--particles", type=int, default=20000)
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--no-equiaxing", action="store_true", help="switch the equiaxing law off on every card")
+    ap.add_argument("--no-results", action="store_true", help="print only")
     a = ap.parse_args(argv)
     print(f"M = {a.particles}, seed {a.seed}; hourly values t = 0..12 h" + (", no equiaxing" if a.no_equiaxing else ""))
+    record = {}
     for name in CARDS:
         res = run_card(name, a.particles, a.seed, not a.no_equiaxing)
+        record[SHORT[name]] = {"series": {k: v.tolist() for k, v in res["series"].items()},
+                               "temperature_c": res["temperature_c"].tolist(), "tests": res["tests"],
+                               "derived": derived(res)}
         print(f"\n== {name}: bonds {res['bonds_per_h']:.0f} /milling h, fractures {res['fractures_per_h']:.0f} /milling h"
               f" (sample of M)")
         for k, v in res["series"].items():
@@ -97,6 +172,14 @@ def main(argv=None) -> None:
         print(f"  {'temperature_c':16s}" + " ".join(f"{x:7.3g}" for x in res["temperature_c"]))
         for k in res["tests"][1]:
             print(f"  {k:26s}" + " ".join(f"{t[k]:8.2g}" for t in res["tests"][1:]))
+    if not a.no_results:
+        from bmctl.results import write_results
+
+        stem = "fidelity_table_no_equiaxing" if a.no_equiaxing else "fidelity_table"
+        write_results(stem, record, settings={"particles": a.particles, "seed": a.seed, "hours": 12.0,
+                                              "equiaxing": not a.no_equiaxing, "cards": list(CARDS)},
+                      command=f"python benchmarks/fidelity_table.py --particles {a.particles} --seed {a.seed}"
+                              + (" --no-equiaxing" if a.no_equiaxing else ""))
 
 
 if __name__ == "__main__":

@@ -7,10 +7,11 @@ the kinds from seeds 0..N-1. Each case runs in a forked child of a worker that h
 bmctl once (so a case costs its own work, not Python's start-up), with stdout and stderr
 captured and a wall-clock limit; the outcome is classified by ``fuzzlib.classify``.
 
-    nice -n 5 python benchmarks/fuzz.py --cases 2100 --workers 2 --json out/fuzz.json
+    nice -n 5 python benchmarks/fuzz.py --cases 2100 --workers 2
 
-prints the counts by outcome (the table in docs/reliability.md) and lists every case that is
-not ``clean`` or ``accepted-ok``.
+prints the counts by outcome (the table in docs/reliability.md), lists every case that is not
+``clean`` or ``accepted-ok``, and writes ``results/fuzz.json`` (counts by kind and outcome, the
+slowest case, wall and CPU seconds, the load; ``--json FILE`` adds every case's record).
 """
 
 from __future__ import annotations
@@ -32,11 +33,10 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
-import fuzzlib  # noqa: E402
+from tests import fuzzlib  # noqa: E402  (not tests/ on sys.path: tests/control would shadow python-control)
 
-BAD = ("accepted-nonsense", "wrote-nonsense", "traceback", "hang", "unnamed")
+BAD = ("accepted-nonsense", "wrote-nonsense", "traceback", "hang", "unnamed", "unsafe")
 
 
 def _preload() -> None:
@@ -133,6 +133,7 @@ def main(argv=None) -> int:
     ap.add_argument("--kinds", default=",".join(fuzzlib.KINDS))
     ap.add_argument("--start", type=int, default=0, help="first case seed (default 0)")
     ap.add_argument("--json", default=None, help="write every case's record here")
+    ap.add_argument("--no-results", action="store_true", help="do not write results/fuzz.json")
     args = ap.parse_args(argv)
     kinds = args.kinds.split(",")
     jobs = [(kinds[i % len(kinds)], args.start + i // len(kinds), args.timeout) for i in range(args.cases)]
@@ -153,7 +154,8 @@ def main(argv=None) -> int:
     by_kind = collections.defaultdict(collections.Counter)
     for r in records:
         by_kind[r["kind"]][r["outcome"]] += 1
-    print(f"\n{len(records)} cases in {time.time() - t0:.0f} s ({args.workers} workers, {args.timeout:g} s limit)")
+    wall = time.time() - t0
+    print(f"\n{len(records)} cases in {wall:.0f} s ({args.workers} workers, {args.timeout:g} s limit)")
     print("| outcome | " + " | ".join(kinds) + " | total |")
     print("|---|" + "---|" * (len(kinds) + 1))
     for o in fuzzlib.OUTCOMES:
@@ -161,7 +163,49 @@ def main(argv=None) -> int:
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(records, indent=1))
+    if not args.no_results:
+        from bmctl.results import write_results
+
+        slowest = max(records, key=lambda r: r["seconds"])
+        cpu = os.times()
+        values = {
+            "cases": len(records),
+            "kinds": kinds,
+            "total": {o: counts[o] for o in fuzzlib.OUTCOMES},
+            "by_kind": {k: {o: by_kind[k][o] for o in fuzzlib.OUTCOMES} for k in kinds},
+            "refused_one_line": counts["clean"],
+            "bad": sum(counts[o] for o in BAD),
+            "findings": [{k: r[k] for k in ("kind", "seed", "label", "outcome", "detail")}
+                         for r in records if r["outcome"] in BAD],
+            "slowest_s": slowest["seconds"],
+            "slowest_case": f"{slowest['kind']}#{slowest['seed']}: {slowest['label']}",
+            "wall_s": round(wall, 1),
+            "cpu_s": round(cpu.children_user + cpu.children_system + cpu.user + cpu.system, 1),
+            "loadavg": list(os.getloadavg()),
+        }
+        cmd = "nice -n 5 python benchmarks/fuzz.py" + (f" --cases {args.cases}" if args.cases != 2100 else "") + (
+            f" --kinds {args.kinds}" if args.kinds != ",".join(fuzzlib.KINDS) else "")
+        path = write_results("fuzz", values, settings={"cases": args.cases, "workers": args.workers,
+                                                       "timeout_s": args.timeout, "start": args.start, "kinds": kinds},
+                             command=cmd)
+        print(f"wrote {path}")
+        print("\n" + doc_table(values))
     return 1 if any(counts[o] for o in BAD) else 0
+
+
+def doc_table(values: dict) -> str:
+    """The table of docs/reliability.md (a row per kind, a column per outcome) with its markers
+    into results/fuzz.json."""
+    from bmctl.results import marked
+
+    kinds, outs = values["kinds"], fuzzlib.OUTCOMES
+    lines = ["| kind | " + " | ".join(outs) + " |", "|---|" + "---:|" * len(outs)]
+    for k in kinds:
+        lines.append(f"| {k} | " + " | ".join(marked("fuzz", f"by_kind.{k}.{o}", values["by_kind"][k][o], "{}")
+                                             for o in outs) + " |")
+    lines.append("| **total** | " + " | ".join(marked("fuzz", f"total.{o}", values["total"][o], "{}") for o in outs)
+                 + " |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

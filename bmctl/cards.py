@@ -233,12 +233,12 @@ def run_warnings(card, t_h, temperature_c, s_mean_um) -> list[str]:
     hot = [(t, T) for t, T in zip(t_h, temperature_c) if t_max is not None and T > t_max]
     if hot:
         t, T = max(hot, key=lambda x: x[1])
-        out.append(f"{card.card.name}: vial temperature {T:.0f} C at {t:g} h is above the card's maximum "
-                   f"{t_max:g} C ({val['temperature_reason']}): the model does not hold there")
+        out.append(f"{card.card.name}: vial temperature {T:.0f} °C at {t:g} h is above the card's maximum "
+                   f"{t_max:g} °C ({val['temperature_reason']}): the model does not hold there")
     for t, s in zip(t_h, s_mean_um):
         if not (val["s_min_um"] <= s <= val["s_max_um"]):
-            out.append(f"{card.card.name}: mean size {s:.3g} um at {t:g} h is outside the card's "
-                       f"[{val['s_min_um']:g}, {val['s_max_um']:g}] um")
+            out.append(f"{card.card.name}: mean size {s:.3g} µm at {t:g} h is outside the card's "
+                       f"[{val['s_min_um']:g}, {val['s_max_um']:g}] µm")
             break
     return out
 
@@ -252,7 +252,7 @@ def report_rpms(card) -> list[float]:
     return sorted(r for r in rpms if 0 < r <= card.mill.rpm_max)
 
 
-def card_report(card, rpms: list[float] | None = None) -> dict[str, Any]:
+def card_report(card, rpms: list[float] | None = None, coeff_window: dict | None = None) -> dict[str, Any]:
     """Derived quantities a process engineer checks, per rpm, and the card's validity range.
 
     Parameters
@@ -260,6 +260,8 @@ def card_report(card, rpms: list[float] | None = None) -> dict[str, Any]:
     card : ModelCard
     rpms : list of float, optional
         Sun-disc speeds (default :func:`report_rpms`).
+    coeff_window : dict, optional
+        ``[window]`` of the card's moment coefficients (:class:`bmctl.moments.coeffs.CoeffFile`).
 
     Returns
     -------
@@ -268,8 +270,9 @@ def card_report(card, rpms: list[float] | None = None) -> dict[str, Any]:
         mixtures beside the stated values), ``rows`` (one dict per rpm: ``rpm``, ``v_ms``
         ball velocity (Burgio), ``collisions_per_s`` f = Z v / l, ``impact_energy_mJ`` mean
         m v^2 / 2, ``hertz_radius_um``, ``trapped_share``, ``hits_per_particle_per_h``,
-        ``power_W`` dissipated, ``steady_temperature_C`` = T_amb + P tau / C, ``valid``),
-        and ``validity``.
+        ``power_W`` dissipated, ``steady_temperature_C`` = T_amb + P tau / C, ``valid``,
+        ``in_window``: the steady temperature lies in :func:`operating_window`), ``validity`` and
+        ``window`` (:func:`operating_window`).
     """
     from .moments.physics import plant_hit_rate  # lazy: the kinematics' home may move
     from .plant.kinematics import kinematics
@@ -298,6 +301,8 @@ def card_report(card, rpms: list[float] | None = None) -> dict[str, Any]:
             "poisson": mix["poisson"],
         }
     val = validity(card)
+    win = operating_window(card, coeff_window)
+    lo, hi = win["temperature_c"] or (-math.inf, math.inf)
     rows = []
     for rpm in rpms or report_rpms(card):
         k = kinematics(card, float(rpm))
@@ -314,8 +319,10 @@ def card_report(card, rpms: list[float] | None = None) -> dict[str, Any]:
             "power_W": power,
             "steady_temperature_C": t_ss,
             "valid": rpm <= val["rpm_max"] and (val["temperature_max_C"] is None or t_ss <= val["temperature_max_C"]),
+            "in_window": lo <= t_ss <= hi,
         })
-    return {"name": card.card.name, "loading": loading, "powder": powder, "rows": rows, "validity": val}
+    return {"name": card.card.name, "loading": loading, "powder": powder, "rows": rows, "validity": val,
+            "window": win}
 
 
 # --- bounded work --------------------------------------------------------------------------------
@@ -331,27 +338,7 @@ RASTER_BYTES_PER_BIN = 12
 PARTICLE_BYTES = 200
 
 
-def budget() -> dict[str, float]:
-    """The work budget: ``cpu_s`` (env ``BMCTL_BUDGET_CPU_H``, default 24 h) and ``memory_bytes``
-    (env ``BMCTL_BUDGET_MEMORY_GB``, default half of this machine's physical memory)."""
-    def env(name: str, default: float) -> float:
-        text = os.environ.get(name)
-        if text is None:
-            return default
-        try:
-            v = float(text)
-        except ValueError:
-            raise InputError(f"{name}: not a number: {text!r}") from None
-        if not (math.isfinite(v) and v > 0):
-            raise InputError(f"{name}: must be a positive number (got {text})")
-        return v
-
-    try:
-        phys = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
-        phys = 8 * 2**30
-    return {"cpu_s": env("BMCTL_BUDGET_CPU_H", 24.0) * 3600.0,
-            "memory_bytes": env("BMCTL_BUDGET_MEMORY_GB", phys / 2 / 2**30) * 2**30}
+from .work import budget, check_work  # noqa: E402,F401 - the budget and the check live in bmctl.work
 
 
 def simulation_work(card, segments, particles: int, every_h: float, raster: bool = True) -> dict[str, float]:
@@ -389,27 +376,6 @@ def simulation_work(card, segments, particles: int, every_h: float, raster: bool
         "cpu_s": impacts / IMPACTS_PER_CPU_S + steps * STEP_CPU_S,
         "memory_bytes": records * bins * RASTER_BYTES_PER_BIN + particles * PARTICLE_BYTES,
     }
-
-
-def check_work(work: dict[str, float], flags: str) -> None:
-    """Refuse a run whose estimate exceeds :func:`budget`, naming the flags and the limit.
-
-    Parameters
-    ----------
-    work : dict
-        From :func:`simulation_work` (or any dict with ``cpu_s`` and ``memory_bytes``).
-    flags : str
-        What the user can change, e.g. ``"--hours/--particles"``.
-    """
-    b = budget()
-    if work["cpu_s"] > b["cpu_s"]:
-        raise InputError(f"{flags}: the run would take ~{work['cpu_s'] / 3600:.3g} CPU hours "
-                         f"({work.get('impacts', 0):.3g} impacts, {work.get('steps', 0):.3g} steps), over the budget "
-                         f"of {b['cpu_s'] / 3600:g} h (BMCTL_BUDGET_CPU_H)")
-    if work["memory_bytes"] > b["memory_bytes"]:
-        raise InputError(f"{flags}: the run would need ~{work['memory_bytes'] / 2**30:.3g} GiB "
-                         f"({work.get('records', 0):.3g} recorded populations), over the budget of "
-                         f"{b['memory_bytes'] / 2**30:.3g} GiB (BMCTL_BUDGET_MEMORY_GB)")
 
 
 def design_work(hours: float, interval_h: float) -> dict[str, float]:
@@ -521,6 +487,193 @@ def check_melting(card, segments, where: str) -> float:
     peak, at = peak_temperature_c(card, segments)
     limit, reason = melting_limit(card)
     if not peak <= limit:
-        raise InputError(f"{where}: the vial would reach {peak:.0f} C at {at:g} h, above {limit:g} C "
+        raise InputError(f"{where}: the vial would reach {peak:.0f} °C at {at:g} h, above {limit:g} °C "
                          f"({reason}; {card.card.name}): no model holds there; lower the rpm or add rests")
     return peak
+
+
+# --- the fingerprint the moment coefficients are tied to ------------------------------------------
+
+#: card tables whose every field the moment model's coefficients depend on: what the plant experiments of
+#: ``bmctl identify`` and the model's card-derived constants read (docs/moments.md, Sec. 6). Left out:
+#: [card] (names), [process] (the recipe: the model holds for any schedule), [powder] (its composition
+#: reaches the model only through the [material] values it resolves to, which are in), [validity],
+#: [simulation] (the plant's particle count, recording and step control; same laws) and
+#: ``mill.ball_material`` (a name; the density and modulus it resolves to are in).
+FINGERPRINT_TABLES = ("mill", "material", "stochastic", "partition", "thermal", "initial")
+FINGERPRINT_SKIP = frozenset({"mill.ball_material"})
+
+
+def fingerprint_values(card) -> dict[str, float]:
+    """The card fields the moment model depends on, as ``{"table.field": value}`` (sorted).
+
+    Parameters
+    ----------
+    card : ModelCard
+        A validated card (derived fields already filled in).
+
+    Returns
+    -------
+    dict
+        Numbers only (ints stay ints), keyed by dotted field name.
+
+    Examples
+    --------
+    >>> from bmctl.config import load_card
+    >>> v = fingerprint_values(load_card("models/alni-1to1-300rpm-lab.toml"))
+    >>> v["mill.ball_diameter_m"], v["stochastic.gamma_per_um2"]
+    (0.01, 0.000182)
+    >>> "process.rpm" in v
+    False
+    """
+    out: dict[str, float] = {}
+    for table in FINGERPRINT_TABLES:
+        for field, v in getattr(card, table).model_dump().items():
+            key = f"{table}.{field}"
+            if key in FINGERPRINT_SKIP or v is None:
+                continue
+            out[key] = v if isinstance(v, int) and not isinstance(v, bool) else float(v)
+    return dict(sorted(out.items()))
+
+
+def fingerprint(values: dict[str, float]) -> str:
+    """``sha256:<16 hex>`` of fingerprint values (:func:`fingerprint_values`): a short name to compare by eye.
+
+    Parameters
+    ----------
+    values : dict
+        ``{"table.field": number}``.
+
+    Examples
+    --------
+    >>> fingerprint({"mill.ball_count": 10}) == fingerprint({"mill.ball_count": 10.0})
+    True
+    """
+    import hashlib
+
+    text = "\n".join(f"{k}={float(v)!r}" for k, v in sorted(values.items()))
+    return "sha256:" + hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+#: relative tolerance of a fingerprint field (TOML keeps floats exactly; this absorbs a hand-typed 1e-4 vs 0.0001)
+FINGERPRINT_RTOL = 1e-9
+
+
+def fingerprint_diff(card_values: dict, recorded: dict) -> list[str]:
+    """The fields where a card and a coefficient file's recorded fingerprint differ, as
+    ``"table.field <card value> (coefficients: <recorded>)"``; empty when they match.
+
+    Parameters
+    ----------
+    card_values : dict
+        :func:`fingerprint_values` of the card in use.
+    recorded : dict
+        The values the coefficient file recorded.
+
+    Examples
+    --------
+    >>> fingerprint_diff({"a.x": 1.0, "a.y": 2.0}, {"a.x": 1.0, "a.y": 3.0})
+    ['a.y 2 (coefficients: 3)']
+    >>> fingerprint_diff({"a.x": 1.0}, {"a.x": 1.0})
+    []
+    """
+    out = []
+    for k in sorted(set(card_values) | set(recorded)):
+        a, b = card_values.get(k), recorded.get(k)
+        if a is None or b is None:
+            out.append(f"{k} {'-' if a is None else f'{a:g}'} (coefficients: {'-' if b is None else f'{b:g}'})")
+        elif not math.isclose(float(a), float(b), rel_tol=FINGERPRINT_RTOL, abs_tol=0.0):
+            out.append(f"{k} {a:g} (coefficients: {b:g})")
+    return out
+
+
+# --- the operating window: where the model was calibrated ------------------------------------------
+
+def steady_temperature_c(card, rpm: float) -> float:
+    """Steady vial temperature at ``rpm`` (°C): T_ss = T_amb + P(rpm) tau / C (docs/model.md Sec. 4).
+
+    Parameters
+    ----------
+    card : ModelCard
+    rpm : float
+        Sun-disc speed; 0 is a rest (ambient).
+
+    Examples
+    --------
+    >>> from bmctl.config import load_card
+    >>> round(steady_temperature_c(load_card("models/alni-1to1-300rpm-lab.toml"), 300.0), 1)
+    65.5
+    """
+    from .plant.kinematics import kinematics
+
+    th = card.thermal
+    power = kinematics(card, float(rpm)).mean_power_W if rpm > 0 else 0.0
+    return th.ambient_C + power * th.cooling_time_s / th.heat_capacity_J_per_K
+
+
+def operating_window(card, coeff_window: dict | None = None) -> dict[str, Any]:
+    """The steady vial temperatures the model was calibrated for, and where that is written down.
+
+    Two ranges meet here: the card's ``validity.calibrated_temperature_max_C`` (the hottest steady
+    vial of the data its constants were calibrated on; from the ambient up) and the coefficient file's
+    ``[window] temperature_c`` (the steady vial temperatures of the identification's plant experiments,
+    :func:`bmctl.moments.identify.design_window`). The window is their intersection.
+
+    Parameters
+    ----------
+    card : ModelCard
+    coeff_window : dict, optional
+        ``CoeffFile.window`` of the coefficients in use.
+
+    Returns
+    -------
+    dict
+        ``temperature_c`` (low, high) or None when nothing bounds it, and ``why`` (where each bound comes from).
+    """
+    lo, hi, why = -math.inf, math.inf, []
+    cal = card.validity.calibrated_temperature_max_C
+    if cal is not None:
+        lo, hi = card.thermal.ambient_C, float(cal)
+        why.append("the card's validity.calibrated_temperature_max_C")
+    win = (coeff_window or {}).get("temperature_c")
+    if win is not None:
+        lo, hi = max(lo, win[0]), min(hi, win[1])
+        why.append("the identification's [window]")
+    if not why:
+        return {"temperature_c": None, "why": ""}
+    return {"temperature_c": (lo, hi), "why": " and ".join(why)}
+
+
+def window_warnings(card, rpms, coeff_window: dict | None = None) -> list[str]:
+    """One warning line when the steady vial temperature at a milling speed in use leaves
+    :func:`operating_window` (the hottest or coldest offender is named); empty otherwise.
+
+    Parameters
+    ----------
+    card : ModelCard
+    rpms : iterable of float
+        The speeds the run mills at (0, a rest, is skipped).
+    coeff_window : dict, optional
+        ``CoeffFile.window`` of the coefficients in use.
+
+    Examples
+    --------
+    >>> from bmctl.config import load_card
+    >>> card = load_card("models/alni-1to1-300rpm-lab.toml")
+    >>> window_warnings(card, [300.0])
+    []
+    >>> print(window_warnings(card, [300.0, 500.0])[0])  # doctest: +NORMALIZE_WHITESPACE
+    alni-1to1-300rpm-lab: steady vial temperature 213 °C at 500 rpm is outside 25–121 °C, the range the model
+    was calibrated for (the card's validity.calibrated_temperature_max_C): its predictions there are extrapolations
+    """
+    win = operating_window(card, coeff_window)
+    if win["temperature_c"] is None:
+        return []
+    lo, hi = win["temperature_c"]
+    temps = {float(r): steady_temperature_c(card, float(r)) for r in set(rpms) if r > 0}
+    out = [(T, r) for r, T in temps.items() if not lo <= T <= hi]
+    if not out:
+        return []
+    T, r = max(out, key=lambda tr: max(tr[0] - hi, lo - tr[0]))
+    return [f"{card.card.name}: steady vial temperature {T:.0f} °C at {r:g} rpm is outside {lo:.0f}–{hi:.0f} °C, "
+            f"the range the model was calibrated for ({win['why']}): its predictions there are extrapolations"]

@@ -3,7 +3,9 @@
 Each subcommand lives in ``bmctl/commands/<name>.py`` and provides
 ``configure(parser)`` (adds its arguments) and ``run(args) -> int``.
 Bad input anywhere (:class:`bmctl.errors.InputError`, argparse errors) prints
-one line ``bmctl: error: ...`` on stderr and exits with status 2, no traceback.
+one line ``bmctl: error: ...`` on stderr and exits with status 2, no traceback: whatever the
+message quotes (a key or flag holding a newline, a 200,000-character name) is printed with its
+control characters escaped and cut to a bounded length (:func:`bmctl.errors.one_line`).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import sys
 for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from .errors import InputError
+from .errors import InputError, one_line
 
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -37,6 +39,21 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "campaign": ("bmctl.commands.campaign", "run a real mill: log, sample, advise, decide, report (SQLite log)"),
     "calibrate": ("bmctl.commands.calibrate", "fit card parameters to measured micrograph series (plant as simulator)"),
 }
+
+
+#: subcommands that estimate their work before starting and take the budget flags (bmctl.work)
+BUDGETED = ("simulate", "identify", "linearize", "estimate", "trial", "whatif", "design", "compare", "calibrate")
+
+
+def _budget_flags(p: argparse.ArgumentParser) -> None:
+    from .commands._args import float_arg
+
+    g = p.add_argument_group("work budget (the run is estimated first and refused beyond it)")
+    g.add_argument("--budget-cpu-h", type=float_arg("--budget-cpu-h", lo=0.0, hi=1e6, strict=True), default=None,
+                   metavar="H", help="CPU hours this run may take (default: BMCTL_BUDGET_CPU_H, else 1)")
+    g.add_argument("--budget-memory-gb", type=float_arg("--budget-memory-gb", lo=0.0, hi=1e6, strict=True),
+                   default=None, metavar="G",
+                   help="memory this run may use, GiB (default: BMCTL_BUDGET_MEMORY_GB, else half of this machine's)")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -72,6 +89,8 @@ def build_parser(available: dict[str, object] | None = None) -> argparse.Argumen
             continue
         p = sub.add_parser(name, help=help_, description=(mod.__doc__ or help_).strip().splitlines()[0])
         mod.configure(p)
+        if name in BUDGETED:
+            _budget_flags(p)
         p.set_defaults(_run=mod.run)
     return parser
 
@@ -108,13 +127,16 @@ def main(argv: list[str] | None = None) -> int:
         argv = sys.argv[1:] if argv is None else list(argv)
         parser = build_parser(_modules(_chosen(argv)))
         args = parser.parse_args(argv)
+        from .work import set_budget
+
+        set_budget(getattr(args, "budget_cpu_h", None), getattr(args, "budget_memory_gb", None))
         return int(args._run(args) or 0)
     except InputError as exc:
-        print(f"bmctl: error: {exc}", file=sys.stderr)
+        print(f"bmctl: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except OSError as exc:  # an output that cannot be written (disk full, permissions): one line, no traceback
         where = exc.filename if exc.filename is not None else "output"
-        print(f"bmctl: error: {where}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"bmctl: error: {one_line(f'{where}: {exc.strerror or exc}')}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("bmctl: interrupted (Ctrl-C): no output was left half-written (each file, or the whole set, is "

@@ -13,13 +13,14 @@ printed factors).
 from __future__ import annotations
 
 import math
-import tomllib
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal, TypeVar
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from .errors import InputError
+from .errors import InputError, quote
+from .limits import HOURS_MAX, HOURS_MIN, PHASE_MAX_MINUTES, PHASE_MIN_MINUTES, RPM_MAX
 
 T = TypeVar("T", bound=BaseModel)
 
@@ -49,19 +50,49 @@ def Range(lo: float, hi: float, lo_open: bool = False, hi_open: bool = False) ->
     return Annotated[float, Field(**bounds), AfterValidator(_finite)]
 
 
-#: sun-disc speeds of laboratory planetary mills reach ~1,100 rpm (Fritsch P-7 premium); 2,000 is
-#: a hard physical ceiling for the kinematics (Burgio) as implemented
-RPM = Range(0.0, 2000.0)
-#: one batch: up to 1,000 h of milling (the longest mechanical-alloying runs reported are ~500 h)
-HOURS = Range(0.0, 1000.0, lo_open=True)
+#: a sun-disc speed, [0, 2000] rpm (bmctl.limits.RPM_MAX)
+RPM = Range(0.0, RPM_MAX)
+#: a duration: one second to one batch of 1,000 h (bmctl.limits)
+HOURS = Range(HOURS_MIN, HOURS_MAX)
+#: a mill or rest phase in minutes: 6 s to a day
+MINUTES = Range(PHASE_MIN_MINUTES, PHASE_MAX_MINUTES)
+
+
+#: the longest text any settings field may hold (names, descriptions, paths)
+TEXT_MAX_CHARS = 1000
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def _plain_text(value, depth: int = 0):
+    """``value`` unchanged, or ValueError when a text in it (keys too) holds a control character."""
+    if isinstance(value, str):
+        m = _CONTROL.search(value)
+        if m:
+            raise ValueError(f"text with a control character ({m.group()!r}) is not allowed: names and "
+                             "descriptions are one line")
+    elif isinstance(value, (list, tuple)) and depth < 8:
+        for x in value:
+            _plain_text(x, depth + 1)
+    elif isinstance(value, dict) and depth < 8:
+        for k, x in value.items():
+            _plain_text(k, depth + 1)
+            _plain_text(x, depth + 1)
+    return value
 
 
 class Strict(BaseModel):
     """Base: unknown keys are errors, values are validated on assignment, and numbers must be
     numbers (strict mode: no string or boolean coercion; an integer is accepted for a float,
-    as TOML writes 300 for 300.0)."""
+    as TOML writes 300 for 300.0). Text is one line (no control characters) of at most
+    :data:`TEXT_MAX_CHARS` characters."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False, strict=True)
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False, strict=True,
+                              str_max_length=TEXT_MAX_CHARS)
+
+    @field_validator("*", mode="after")
+    @classmethod
+    def _one_line_text(cls, value):
+        return _plain_text(value)
 
 
 class CardInfo(Strict):
@@ -79,8 +110,8 @@ class Process(Strict):
     mode: Literal["continuous", "interrupted"] = "continuous"
     # interrupted cycles: 6 s to a day per phase (shorter phases would not be resolved by the
     # plant's time step and would multiply the schedule's segments)
-    mill_min: Range(0.1, 1440.0) | None = None  # interrupted: minutes milling per cycle
-    rest_min: Range(0.1, 1440.0) | None = None  # interrupted: minutes resting per cycle
+    mill_min: MINUTES | None = None  # interrupted: minutes milling per cycle
+    rest_min: MINUTES | None = None  # interrupted: minutes resting per cycle
 
 
 class Mill(Strict):
@@ -98,7 +129,7 @@ class Mill(Strict):
     ball_to_powder_ratio: Range(1.0, 100.0) = 10.0  # mass ratio; mechanical alloying uses 1:1-100:1
     ball_modulus_Pa: Range(1e9, 1.2e12) = 200e9  # polymers excluded; diamond is 1.2 TPa
     ball_density_kg_m3: Range(1000.0, 20000.0) = 7900.0  # nylon-coated to tungsten
-    rpm_max: Range(0.0, 2000.0, lo_open=True) = 600.0  # the mill's own limit (kinematics: RPM above)
+    rpm_max: Range(0.0, RPM_MAX, lo_open=True) = 600.0  # the mill's own limit (kinematics: RPM above)
 
 
 class Material(Strict):
@@ -123,11 +154,14 @@ class Powder(Strict):
 class Validity(Strict):
     """Where the card holds; runs that leave it warn (temperature, sizes) or are refused (rpm)."""
 
-    rpm_max: Range(0.0, 2000.0, lo_open=True) | None = None  # default: mill.rpm_max
+    rpm_max: Range(0.0, RPM_MAX, lo_open=True) | None = None  # default: mill.rpm_max
     s_min_um: Range(0.01, 1e5) | None = None  # default: 1 um (below, Hertzian trapping is unmodelled)
     s_max_um: Range(0.01, 1e5) | None = None  # default: simulation.s_max_um
     # default: the lowest melting point of the powder's materials (above it nothing here holds)
     temperature_max_C: Range(-200.0, 4000.0) | None = None
+    # the hottest steady vial temperature of the data the card's constants were calibrated on: runs whose
+    # steady vial temperature goes above it warn (bmctl.cards.window_warnings; docs/moments.md, Sec. 9)
+    calibrated_temperature_max_C: Range(-200.0, 4000.0) | None = None
 
 
 class Stochastic(Strict):
@@ -243,13 +277,17 @@ class Schedule(Strict):
     segment: list[Segment] = Field(min_length=1)
 
 
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]{1,60}")
+
+
 def _fmt_loc(loc: tuple) -> str:
     out = ""
     for part in loc:
         if isinstance(part, int):
             out += f"[{part}]"
         else:
-            out += ("." if out else "") + str(part)
+            key = str(part) if _BARE_KEY.fullmatch(str(part)) else quote(str(part))  # a key as TOML would quote it
+            out += ("." if out else "") + key
     return out or "(top level)"
 
 
@@ -265,7 +303,7 @@ def format_validation_error(source: str, err: ValidationError) -> str:
     elif e["type"] == "missing":
         msg = "required field is missing"
     elif "input" in e and not isinstance(e["input"], (dict, list)) and "got" not in msg:
-        msg += f" (got {e['input']!r})"
+        msg += f" (got {quote(e['input'])})"
     more = len(err.errors()) - 1
     tail = f" (+{more} more problem{'s' if more > 1 else ''})" if more else ""
     if not e["loc"]:  # a whole-model check: its message starts with the field it names
@@ -274,18 +312,18 @@ def format_validation_error(source: str, err: ValidationError) -> str:
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file; missing/unreadable/malformed files, and anything that is not a regular
-    file of a sane size (a FIFO, a device), raise InputError."""
-    from .io import read_input_bytes
+    """Read a TOML file; missing/unreadable/malformed files, anything that is not a regular
+    file of a sane size (a FIFO, a device) and documents nested deeper than
+    :data:`bmctl.io.MAX_DEPTH` raise InputError."""
+    from .io import loads_toml, read_input_bytes
 
     p = Path(path)
     raw = read_input_bytes(p, max_bytes=TOML_MAX_BYTES)
     try:
-        return tomllib.loads(raw.decode("utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{p}: malformed TOML: {exc}") from None
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise InputError(f"{p}: cannot read: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    return loads_toml(text, str(p))
 
 
 def validate(model: type[T], data: dict[str, Any], source: str) -> T:
@@ -339,8 +377,8 @@ def card_schedule(card: ModelCard, hours: float | None = None, rpm: float | None
     p = card.process
     total = p.hours if hours is None else hours
     speed = p.rpm if rpm is None else rpm
-    if not (0 < total <= 1000.0):  # bmctl.config.HOURS: bounds the number of segments below
-        raise InputError(f"hours: {total:g} h is outside (0, 1000] h, the longest batch")
+    if not (HOURS_MIN <= total <= HOURS_MAX):  # bmctl.config.HOURS: bounds the number of segments below
+        raise InputError(f"hours: {total:g} h is outside [1 s, {HOURS_MAX:g} h], the longest batch")
     if p.mode == "continuous" or rpm is not None and rpm == 0:
         return [(total, speed)]
     mill_h, rest_h = p.mill_min / 60.0, p.rest_min / 60.0

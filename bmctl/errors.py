@@ -3,6 +3,13 @@
 from __future__ import annotations
 
 import math
+import re
+
+#: the longest message printed (characters); a longer one keeps its head and its end
+MESSAGE_MAX_CHARS = 600
+#: the longest quoted value inside a message
+QUOTE_MAX_CHARS = 60
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
 
 
 class InputError(Exception):
@@ -36,3 +43,51 @@ def finite_float(text: str, where: str) -> float:
     if not math.isfinite(v):
         raise InputError(f"{where}: must be a finite number (got {text})")
     return v
+
+
+def quote(value, limit: int = QUOTE_MAX_CHARS) -> str:
+    """``repr(value)`` for a message: one line, at most ``limit`` characters (then ``...`` and the count).
+
+    Parameters
+    ----------
+    value : object
+        What to quote (text from a file, a flag's value).
+    limit : int, optional
+        Longest quotation.
+
+    Examples
+    --------
+    >>> quote("a\\nb")
+    "'a\\\\nb'"
+    >>> quote("x" * 100, 10)
+    "'xxxxxxxxx... (100 characters)"
+    """
+    size = len(value) if isinstance(value, (str, bytes, bytearray)) else None
+    text = one_line(repr(value[: limit + 1] if size is not None else value), 10 * limit)
+    if len(text) > limit:
+        return f"{text[:limit]}... ({size if size is not None else len(text)} characters)"
+    return text
+
+
+def one_line(text: str, limit: int = MESSAGE_MAX_CHARS) -> str:
+    """``text`` as one line of at most about ``limit`` characters: every control character
+    (a newline, a carriage return, a tab, an escape) written as its escape (``\\n``), and a
+    longer text cut in the middle (its head names the file and field, its end the reason).
+
+    Parameters
+    ----------
+    text : str
+        A message.
+    limit : int, optional
+        Longest result.
+
+    Examples
+    --------
+    >>> one_line("x.toml: key 'a\\nb': unknown field")
+    "x.toml: key 'a\\\\nb': unknown field"
+    """
+    text = _CONTROL.sub(lambda m: repr(m.group())[1:-1], str(text))
+    if len(text) > limit:
+        head, tail = limit * 2 // 3, limit // 3 - 30
+        text = f"{text[:head]} ... ({len(text) - head - tail} characters left out) ... {text[-tail:]}"
+    return text

@@ -2,7 +2,13 @@
 
 Input: :func:`read_input_bytes` is the one way bmctl reads a user's file -- a regular file
 of a sane size, or a one-line :class:`bmctl.errors.InputError` (a FIFO, a device such as
-/dev/zero, a folder or a huge file never hangs or exhausts memory).
+/dev/zero, a symbolic link to one, a folder or a huge file never hangs or exhausts memory).
+What is read is then parsed by a bounded reader: :func:`loads_json` and :func:`loads_toml`
+refuse documents nested deeper than :data:`MAX_DEPTH` before parsing them, :func:`load_npz`
+reads plain-data arrays whose headers declare no more than a size limit (checked before any
+array is allocated, never a pickle or object array). A path named inside an input file is
+taken only relative to that file's folder and must stay inside it (:func:`inside`), and a name
+read from an input file becomes part of a file name only through :func:`name_part`.
 
 Output: every file is written to a temporary sibling and renamed into place, with the
 permissions the user's umask gives a new file (as ``open`` would). A reader never sees a
@@ -18,11 +24,15 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import itertools
+import json
 import os
+import re
 import stat
 import tempfile
+import zipfile
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Sequence
 
 from .errors import InputError
 
@@ -86,6 +96,241 @@ def read_input_bytes(path: str | os.PathLike, max_bytes: int = INPUT_MAX_BYTES) 
     if len(data) > max_bytes:
         raise InputError(f"{p}: file too large (over {max_bytes} bytes)")
     return data
+
+
+#: the deepest nesting of lists and tables a JSON or TOML document may have (bmctl writes < 10)
+MAX_DEPTH = 64
+#: the most bytes the arrays of one ``.npz`` may declare (a trial checkpoint of 1e6 plant particles: ~50 MB)
+NPZ_MAX_BYTES = 1 << 30
+
+_JSON_STRINGS = re.compile(r'"(?:[^"\\]|\\.)*"', re.S)
+_TOML_STRINGS = re.compile(r'"""(?:\\.|[^\\])*?"""|\'\'\'.*?\'\'\'|"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'|#[^\n]*', re.S)
+_BRACKETS = re.compile(r"[^\[\]{}]+")
+
+
+def nesting_depth(text: str, toml: bool = False) -> int:
+    """The deepest nesting of ``[``/``{`` in a JSON (or TOML) text, strings and comments left out.
+
+    Linear in the text and without recursion, so it can be asked of any text before a
+    recursive parser sees it.
+
+    Parameters
+    ----------
+    text : str
+        The document.
+    toml : bool, optional
+        TOML quoting (basic, literal and multi-line strings; ``#`` comments) instead of JSON's.
+
+    Examples
+    --------
+    >>> nesting_depth('{"a": [1, [2, "[[["]]}')
+    3
+    """
+    bare = (_TOML_STRINGS if toml else _JSON_STRINGS).sub("", text)
+    steps = (1 if c in "[{" else -1 for c in _BRACKETS.sub("", bare))
+    return max(itertools.accumulate(steps, initial=0))
+
+
+def _too_deep(where: str, depth: int, max_depth: int) -> InputError:
+    return InputError(f"{where}: nested {depth} levels deep (lists or tables inside each other), "
+                      f"at most {max_depth}")
+
+
+def loads_json(text: str | bytes, where: str, max_depth: int = MAX_DEPTH) -> Any:
+    """Parse a JSON document bounded in depth; anything else is a one-line InputError naming ``where``.
+
+    Parameters
+    ----------
+    text : str or bytes
+        The document (bytes are decoded as UTF-8).
+    where : str
+        The file (and field) to name in a message.
+    max_depth : int, optional
+        Deepest nesting allowed (:data:`MAX_DEPTH`).
+
+    Examples
+    --------
+    >>> loads_json('{"a": [1, 2]}', "x.json")
+    {'a': [1, 2]}
+    >>> loads_json("[" * 100 + "]" * 100, "x.json")
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: x.json: nested 100 levels deep (lists or tables inside each other), at most 64
+    """
+    try:
+        if isinstance(text, (bytes, bytearray)):
+            text = bytes(text).decode("utf-8")
+        depth = nesting_depth(text)
+        if depth > max_depth:
+            raise _too_deep(where, depth, max_depth)
+        return json.loads(text)
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{where}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{where}: not JSON ({exc.msg} at line {exc.lineno}, column {exc.colno})") from None
+    except (RecursionError, ValueError, TypeError) as exc:  # backstop: the depth check above comes first
+        raise InputError(f"{where}: not a JSON document ({type(exc).__name__})") from None
+
+
+def read_json(path: str | os.PathLike, max_bytes: int = INPUT_MAX_BYTES, max_depth: int = MAX_DEPTH) -> Any:
+    """Read a JSON file through :func:`read_input_bytes` and :func:`loads_json`.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+    max_bytes : int, optional
+        Size limit.
+    max_depth : int, optional
+        Deepest nesting allowed.
+    """
+    return loads_json(read_input_bytes(path, max_bytes), str(path), max_depth)
+
+
+def loads_toml(text: str, where: str, max_depth: int = MAX_DEPTH) -> dict:
+    """Parse a TOML document bounded in depth (checked before parsing); one-line InputError otherwise.
+
+    Parameters
+    ----------
+    text : str
+        The document.
+    where : str
+        The file to name in a message.
+    max_depth : int, optional
+        Deepest nesting of arrays and inline tables allowed (:data:`MAX_DEPTH`).
+
+    Examples
+    --------
+    >>> loads_toml("a = [[1], [2]]", "x.toml")
+    {'a': [[1], [2]]}
+    """
+    import tomllib
+
+    depth = nesting_depth(text, toml=True)
+    if depth > max_depth:
+        raise _too_deep(where, depth, max_depth)
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{where}: malformed TOML: {exc}") from None
+    except RecursionError:  # backstop: the depth check above comes first
+        raise InputError(f"{where}: malformed TOML: nested too deep") from None
+
+
+def load_npz(source: str | os.PathLike | bytes, where: str, max_bytes: int = NPZ_MAX_BYTES) -> dict:
+    """The arrays of a plain-data ``.npz`` (a file read through :func:`read_input_bytes`, or bytes).
+
+    Every member must be a ``.npy`` array of a plain dtype (no object arrays, no pickles);
+    the shapes its headers declare are read first, and a member that declares more bytes
+    than it holds, or a file whose arrays declare more than ``max_bytes`` together, is
+    refused before anything is allocated.
+
+    Parameters
+    ----------
+    source : path-like or bytes
+        The file, or its bytes.
+    where : str
+        What to name in a message.
+    max_bytes : int, optional
+        Limit on the declared size of all arrays together.
+    """
+    import numpy as np
+
+    data = bytes(source) if isinstance(source, (bytes, bytearray)) else read_input_bytes(source)
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            total = 0
+            out = {}
+            for info in zf.infolist():
+                if not info.filename.endswith(".npy"):
+                    raise InputError(f"{where}: {info.filename[:60]!r} is not an array (not a bmctl .npz)")
+                with zf.open(info) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    if version == (1, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+                    elif version == (2, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+                    else:
+                        raise ValueError(f"npy format {version}")
+                    if dtype.hasobject:
+                        raise InputError(f"{where}: {info.filename[:-4][:60]!r}: an object array (plain data only)")
+                    nbytes = dtype.itemsize
+                    for n in shape:
+                        nbytes *= int(n)
+                    total += nbytes
+                    if nbytes > info.file_size or total > max_bytes:
+                        raise InputError(f"{where}: {info.filename[:-4][:60]!r}: declares a {shape} array "
+                                         f"({nbytes:.3g} bytes) beyond its data or the limit of {max_bytes:.3g} bytes")
+            with np.load(io.BytesIO(data), allow_pickle=False) as z:
+                for k in z.files:
+                    out[k] = z[k]
+            return out
+    except InputError:
+        raise
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, TypeError, OverflowError,
+            NotImplementedError, MemoryError) as exc:
+        raise InputError(f"{where}: not a plain-data .npz (truncated or damaged: {type(exc).__name__})") from None
+
+
+def inside(base: str | os.PathLike, ref: str, where: str) -> Path:
+    """The file ``ref`` named inside an input file whose folder is ``base``: relative to
+    ``base`` and, symbolic links resolved, inside it; otherwise a one-line InputError.
+
+    A file given on the command line is named by the user; a file named inside it is read
+    only from its own folder, so an input file cannot make bmctl read (or quote) anything
+    else on the machine.
+
+    Parameters
+    ----------
+    base : path-like
+        The folder of the file that names ``ref``.
+    ref : str
+        The path as written in that file.
+    where : str
+        The file and field, for the message.
+
+    Examples
+    --------
+    >>> inside("/tmp", "../etc/passwd", "h.toml: sample[0].table")
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: h.toml: sample[0].table: '../etc/passwd' leads outside the folder of the file that names it (/tmp)
+    """
+    if not ref or "\x00" in ref:
+        raise InputError(f"{where}: an empty or invalid path")
+    if Path(ref).is_absolute():
+        raise InputError(f"{where}: {ref[:80]!r} must be a path relative to the folder of the file that names it")
+    root = Path(os.path.realpath(base))
+    real = Path(os.path.realpath(root / ref))
+    if real != root and root not in real.parents:
+        raise InputError(f"{where}: {ref[:80]!r} leads outside the folder of the file that names it ({base})")
+    return Path(base) / ref
+
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9._+-]+")
+
+
+def name_part(text: str, max_len: int = 60) -> str:
+    """``text`` (a name read from an input file) as a safe part of a file name: letters,
+    digits and ``._+-`` kept, every other run of characters one ``_``, no leading dot,
+    at most ``max_len`` characters; never a path.
+
+    Parameters
+    ----------
+    text : str
+        The name.
+    max_len : int, optional
+        Longest result.
+
+    Examples
+    --------
+    >>> name_part("../../../X")
+    'X'
+    >>> name_part("run 1: 300 rpm")
+    'run_1_300_rpm'
+    """
+    out = _UNSAFE.sub("_", str(text)).strip("._-")[:max_len].rstrip("._-")
+    return out or "unnamed"
 
 
 def _umask() -> int:

@@ -166,6 +166,7 @@ class ClosedLoop:
     est: dict = field(default_factory=dict)
     next_sample_h: float = 0.0
     stats: dict = field(default_factory=dict)
+    peak_c: float = math.nan  # the highest vial temperature of the last applied interval (degC)
 
     def __post_init__(self):
         if not self.est:
@@ -191,7 +192,13 @@ class ClosedLoop:
         t_h = self.k * self.controller.interval_h
         x, p = estimate_vectors(self.est)
         t0 = time.perf_counter()
-        if getattr(self.controller, "n_scen", 1) > 1:  # scenario MPC: the filter's spread as further scenarios
+        n_spread = getattr(self.controller, "spread_particles", 0)
+        if n_spread:  # a plan on operable schedules: the filter's particles as its spread
+            from .control.robust import particle_scenarios
+
+            plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev,
+                                        scenarios=particle_scenarios(self.estimator, n_spread))
+        elif getattr(self.controller, "n_scen", 1) > 1:  # scenario MPC: the filter's spread as further scenarios
             from .control.robust import filter_scenarios
 
             plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev,
@@ -210,15 +217,18 @@ class ClosedLoop:
 
     def apply(self, rpm: float, milling: float, dt_h: float) -> None:
         """Run the mill for ``dt_h`` hours in sub-steps of at most :data:`SUBSTEP_H`, milling
-        first (``milling * dt_h`` hours), watching the vial temperature; propagate the estimator."""
+        first (``milling * dt_h`` hours), watching the vial temperature (its highest value in
+        the interval is kept as ``peak_c``); propagate the estimator."""
         n_sub = max(1, int(math.ceil(dt_h / SUBSTEP_H)))
         mill_h = dt_h * milling
         ceiling = self.cfg.ceiling_c
+        self.peak_c = self.mill.temperature_c
         for j in range(n_sub):
             a, b = j * dt_h / n_sub, (j + 1) * dt_h / n_sub
             m = max(0.0, min(b, mill_h) - a) / (b - a)
             self.mill.advance(rpm, b - a, milling=m)
             T = self.mill.temperature_c
+            self.peak_c = max(self.peak_c, T)
             self.stats["max_T"] = max(self.stats["max_T"], T)
             if ceiling is not None and T > ceiling + CEILING_EPS_C:
                 self.stats["violations"] += 1
@@ -252,7 +262,8 @@ class ClosedLoop:
         t_new = t_h + dt
         sampled = self.observe(t_new)
         self.u_prev = (rpm, milling)
-        rec = StepRecord(self.k, t_new, rpm, milling, self.mill.moments(), self.est, sampled, solve_ms, plan.status)
+        truth = {**self.mill.moments(), "peak_temperature_c": self.peak_c}
+        rec = StepRecord(self.k, t_new, rpm, milling, truth, self.est, sampled, solve_ms, plan.status)
         self.k += 1
         return rec
 

@@ -21,7 +21,7 @@ def pdf_over_time(path: Path, axis: np.ndarray, pdfs: np.ndarray, times_h: Seque
     for t, p in zip(times_h, pdfs):
         ax.plot(axis, p, color=cmap(t / tmax), lw=1.2)
     sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, tmax))
-    fig.colorbar(sm, ax=ax, label="milling time t (h)")
+    fig.colorbar(sm, ax=ax, label="batch time t (h)")
     ax.set_xlabel(xlabel)
     ax.set_ylabel("population fraction p per bin")
     ax.set_title(title)
@@ -64,16 +64,16 @@ def moments_over_time(path: Path, t_h: np.ndarray, cols: dict[str, np.ndarray], 
     for key, lab, c in (("s_mean_um", "mean (by number)", "tab:blue"), ("s_std_um", "std (by number)", "tab:purple"),
                         ("s_mode_um", "mode (by number)", "0.35")):
         ax.plot(t_h, cols[key], marker="o", ms=3, label=lab, color=c)
-    ax.set_xlabel("milling time t (h)"), ax.set_ylabel("particle size s (µm)")
+    ax.set_xlabel("batch time t (h)"), ax.set_ylabel("particle size s (µm)")
     ax.set_title("particle size"), ax.legend(fontsize=7), ax.grid(alpha=0.3)
     ax = axes[1]
     for key, lab in (("r_mean", "mean r"), ("r_std", "std r"), ("r_mode", "mode r")):
         ax.plot(t_h, cols[key], marker="o", ms=3, label=lab)
-    ax.set_xlabel("milling time t (h)"), ax.set_ylabel(R_LABEL), ax.set_title("particle shape (by number)")
+    ax.set_xlabel("batch time t (h)"), ax.set_ylabel(R_LABEL), ax.set_title("particle shape (by number)")
     ax.legend(fontsize=8), ax.grid(alpha=0.3)
     ax = axes[2]
     ax.plot(t_h, cols["temperature_c"], color="tab:red", marker="o", ms=3, label="vial wall")
-    ax.set_xlabel("milling time t (h)"), ax.set_ylabel("vial temperature (°C)"), ax.set_title("temperature")
+    ax.set_xlabel("batch time t (h)"), ax.set_ylabel("vial temperature (°C)"), ax.set_title("temperature")
     ax.legend(fontsize=8), ax.grid(alpha=0.3)
     fig.suptitle(title)
     fig.subplots_adjust(left=0.05, right=0.985, bottom=0.13, top=0.86, wspace=0.24)  # fixed: no measuring draw
@@ -134,8 +134,16 @@ def pick_times(times_h: Sequence[float], n: int = 6) -> list[int]:
 SIZE_TICKS_UM = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
 
 
-def _log_size_axis(ax, axis: str = "x") -> None:
-    """Log size axis with plain µm tick labels (1, 2, 5, 10, 20, ...)."""
+def log_size_axis(ax, axis: str = "x") -> None:
+    """Log size axis with plain µm tick labels (1, 2, 5, 10, 20, ...).
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+        Axes whose size axis is already on a log scale.
+    axis : {"x", "y"}
+        Which axis holds the sizes.
+    """
     from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
 
     a = ax.xaxis if axis == "x" else ax.yaxis
@@ -164,7 +172,7 @@ def size_distributions(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, time
         a.stairs(q0[k], edges, fill=True, color="tab:blue", alpha=0.45, label="number density per ln s")
         a.step(edges[:-1], q3[k], where="post", color="tab:orange", lw=1.6, label="volume density per ln s")
         a.set_xscale("log")
-        _log_size_axis(a)
+        log_size_axis(a)
         a.set_xlim(xlo, xhi), a.set_ylim(0, top)
         a.axvline(d50_um[k], color="k", lw=1, ls=":")
         a.text(d50_um[k], 0.93 * top, f" D50 {d50_um[k]:.0f} µm", fontsize=8, va="top", zorder=5,
@@ -219,8 +227,8 @@ def size_heatmap(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, times_h: S
             if key in cols:
                 ax.plot(t, cols[key], color=c, ls=ls, lw=1.4, label=name)
         ax.set_yscale("log"), ax.set_ylim(ylo, yhi)
-        _log_size_axis(ax, "y")
-        ax.set_xlabel("milling time t (h)")
+        log_size_axis(ax, "y")
+        ax.set_xlabel("batch time t (h)")
         ax.set_title(f"size distribution {lab}")
         ax.legend(fontsize=8, loc="upper right", facecolor="0.3", labelcolor="w", framealpha=0.6)
         fig.colorbar(im, ax=ax, extend="max", label=f"density per unit ln s ({lab}; t = 0 clipped)")

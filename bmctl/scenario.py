@@ -7,7 +7,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from .config import HOURS, NonNeg, Pos, Range, Strict, load
+from .config import HOURS, Range, Strict, load
 from .errors import InputError
 
 TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "d90_um", "span")  # = control.config.TARGET_KEYS
@@ -23,8 +23,9 @@ class PlantSpec(Strict):
 
     model: str | None = None  # default: the scenario's model card
     particles: Annotated[int, Field(ge=100, le=1_000_000)] = 5000
-    gamma_factor: Pos = 1.0
-    delta_factor: Pos = 1.0
+    # gamma, delta off the card by a factor: the filter's parameter walk covers ~[0.05, 20]
+    gamma_factor: Range(0.01, 100.0) = 1.0
+    delta_factor: Range(0.01, 100.0) = 1.0
 
 
 class SamplingSpec(Strict):
@@ -32,8 +33,8 @@ class SamplingSpec(Strict):
 
     every_h: Range(1 / 60, 1000.0) = 1.0
     particles: Annotated[int, Field(ge=5, le=100_000)] = 300
-    um_per_px: Pos | None = 1.0
-    noise: NonNeg = 0.03
+    um_per_px: Range(1e-4, 1e3) | None = 1.0  # as --um-per-px (bmctl.measure.scale.check_scale)
+    noise: Range(0.0, 1.0) = 0.03  # relative measurement noise
     render: bool = False
     temperature_reading: bool = True
 

@@ -69,7 +69,14 @@ class Segment:
 
 @dataclass(frozen=True)
 class Schedule:
-    """Segments of (hours, rpm, milling share); see the module."""
+    """Segments of (hours, rpm, milling share); see the module.
+
+    Examples
+    --------
+    >>> s = Schedule.from_pairs([(2.0, 300.0), (1.0, 0.0)], name="mill, then rest")
+    >>> s.hours, s.pairs()
+    (3.0, [(2.0, 300.0), (1.0, 0.0)])
+    """
 
     segments: tuple[Segment, ...]
     name: str = ""

@@ -136,12 +136,12 @@ def write_outputs(res: SimulationResult, out: Path) -> list[Path]:
     name = res.card.card.name
     cols = {k: res.column(k) for k in MOMENTS_HEADER}
     plots.size_distributions(paths[2], s_edges, ps, t_h, cols["d50_um"],
-                             f"{name}: particle size distribution at selected milling times")
+                             f"{name}: particle size distribution at selected batch times")
     plots.irregularity_distributions(paths[3], arrays["r_edges"], pr, t_h,
-                                     f"{name}: particle irregularity r at selected milling times")
-    plots.moments_over_time(paths[4], t_h, cols, f"{name}: size, shape and temperature over milling time")
+                                     f"{name}: particle irregularity r at selected batch times")
+    plots.moments_over_time(paths[4], t_h, cols, f"{name}: size, shape and temperature over batch time")
     plots.size_heatmap(paths[5], s_edges, ps, t_h, cols,
-                       f"{name}: size distribution over milling time (colour: density per ln s)")
+                       f"{name}: size distribution over batch time (colour: density per ln s)")
     return paths
 
 

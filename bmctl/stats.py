@@ -168,6 +168,17 @@ def size_stats(s_um: np.ndarray) -> dict[str, float]:
     dict
         ``d10_um, d50_um, d90_um, span`` (volume weight s^3) and ``s_mean_area_um``
         (= Sauter mean D[3,2]), ``s_mode_area_um`` (weight s^2): :data:`SIZE_STAT_NAMES`.
+
+    Examples
+    --------
+    Nine particles of 10 µm and one of 30 µm: by number the median is 10 µm, but the big
+    particle holds 27/36 of the volume, so the volume-weighted D50 lies between the two sizes
+    (midpoint rule on the weighted CDF), and the Sauter mean is 360/18 = 20 µm:
+
+    >>> import numpy as np
+    >>> st = size_stats(np.array([10.0] * 9 + [30.0]))
+    >>> round(st["d50_um"], 1), round(st["s_mean_area_um"], 2)
+    (23.6, 20.0)
     """
     out = dvalues(s_um, WEIGHT_POWER["volume"])
     out["s_mean_area_um"] = weighted_mean(s_um, WEIGHT_POWER["area"])

@@ -32,7 +32,8 @@ from .errors import InputError
 from .loop import ClosedLoop, LoopConfig, StepRecord
 from .scenario import TARGET_KEYS, Scenario, load_scenario, resolve
 
-TRUE_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
+#: the plant's state at each interval's end, and its highest vial temperature within the interval
+TRUE_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "peak_temperature_c")
 EST_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "gamma_mult", "delta_mult")
 CHECKPOINT = "checkpoint.npz"
 
@@ -80,9 +81,9 @@ def _model_and_controller(sc: Scenario, base: Path):
     """The moment model and the controller of a scenario (no random state: rebuilt on resume)."""
     from .control import make_controller
     from .control.config import load_controller, validate_controller
-    from .moments.modelcache import moment_model
+    from .moments.forcard import for_card
 
-    model = moment_model(resolve(sc.model, base))  # constants cached on disk (bmctl.moments.modelcache)
+    model = for_card(resolve(sc.model, base))  # this card's coefficients; constants cached on disk (modelcache)
     cfg_path = resolve(sc.controller.config, base)
     cfg = load_controller(cfg_path)
     if sc.temperature_max_c is not None and "temperature" in type(cfg).model_fields:
@@ -144,12 +145,12 @@ def _append_row(path: Path, row: list) -> None:
 
 
 def _read_meta(path: Path) -> dict:
+    if not path.exists() and not path.is_symlink():
+        raise InputError(f"--resume: {path} not found")
     try:
-        meta = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(f"--resume: {path} not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        raise InputError(f"{path}: not a bmctl trial record (truncated or damaged)") from None
+        meta = io.read_json(path, max_bytes=1 << 20)
+    except InputError as exc:
+        raise InputError(f"{path}: not a bmctl trial record ({str(exc).removeprefix(str(path) + ': ')})") from None
     if not isinstance(meta, dict) or not {"scenario", "seed"} <= set(meta):
         raise InputError(f"{path}: not a bmctl trial record (no scenario and seed)")
     return meta
@@ -297,6 +298,19 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
         Stop after this many steps in this call (tests use it to simulate an interruption).
     progress : callable, optional
         Called after each step with (k, K).
+
+    Examples
+    --------
+    Two steps of the open-loop lab recipe, then the rest of the batch from the checkpoint:
+
+    >>> import tempfile
+    >>> from bmctl.trial import run_trial
+    >>> out = tempfile.mkdtemp()
+    >>> run_trial("scenarios/trial-lab-recipe.toml", out, seed=0, max_steps=2)
+    {'interrupted_at_step': 2}
+    >>> summary = run_trial("scenarios/trial-lab-recipe.toml", out, seed=0, resume=True)  # doctest: +ELLIPSIS
+    >>> summary["steps"]
+    24
     """
     sc = load_scenario(scenario_path)
     base = Path(scenario_path).resolve().parent
@@ -381,29 +395,33 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
             lo_, hi_ = target_bounds(sc.target[k])
             ax.axhspan(lo_, hi_, color="C3", alpha=0.2) if hi_ > lo_ else ax.axhline(lo_, color="C3", ls="--",
                                                                                    label="target")
-        ax.set_title(quantity_label(k)), ax.set_xlabel("t (h)"), ax.set_ylabel(quantity_label(k)), ax.grid(alpha=0.3)
+        ax.set_title(quantity_label(k)), ax.set_xlabel("batch time (h)"), ax.set_ylabel(quantity_label(k)), ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)
     ax = axes[1][0]
     ax.step(t, data["rpm"], where="pre", color="C2")
-    ax.set_ylabel("rpm"), ax.set_xlabel("t (h)"), ax.set_title("rpm (bars: rest share)"), ax.grid(alpha=0.3)
+    ax.set_ylabel("rpm"), ax.set_xlabel("batch time (h)"), ax.set_title("rpm (bars: rest share)"), ax.grid(alpha=0.3)
+    ax.set_ylim(0, max(float(np.max(data["rpm"])), 1.0) * 1.1)
     ax2 = ax.twinx()
     width = float(np.diff(t).min()) if t.size > 1 else 0.5
     ax2.bar(t - width / 2, 1 - data["milling"], width=width * 0.9, color="C7", alpha=0.4)
     ax2.set_ylim(0, 1), ax2.set_ylabel("rest fraction")
     ax = axes[1][1]
-    ax.plot(t, data["true_temperature_c"], "C3-", label="plant")
-    ax.plot(t, data["est_temperature_c"], "C0--", label="estimate")
+    t0 = np.concatenate([[0.0], t[:-1]])
+    peak = data["true_peak_temperature_c"]
+    ax.hlines(peak, t0, t, color="C3", lw=2, label="plant, peak in each interval")
+    ax.plot(t, data["true_temperature_c"], "C3o", ms=3, alpha=0.6, label="plant at interval ends")
+    ax.plot(t, data["est_temperature_c"], "C0--", label="estimate at interval ends")
     if ceiling is not None:
-        ax.axhline(ceiling, color="k", ls=":", label="ceiling")
-    ax.set_title("vial temperature"), ax.set_ylabel("vial temperature (°C)"), ax.set_xlabel("t (h)")
-    ax.legend(fontsize=8), ax.grid(alpha=0.3)
+        ax.axhline(ceiling, color="k", ls=":", label=f"ceiling {ceiling:g} °C")
+    ax.set_title(f"vial temperature (highest {np.max(peak):.1f} °C)"), ax.set_ylabel("vial temperature (°C)")
+    ax.set_xlabel("batch time (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
     ax = axes[1][2]
     ax.plot(t, data["est_gamma_mult"], label=quantity_label("gamma_mult"))
     ax.plot(t, data["est_delta_mult"], label=quantity_label("delta_mult"))
     ax.fill_between(t, data["est_gamma_mult_q05"], data["est_gamma_mult_q95"], alpha=0.2)
     ax.fill_between(t, data["est_delta_mult_q05"], data["est_delta_mult_q95"], alpha=0.2)
     ax.set_title("estimated bonding γ and fracture δ factors"), ax.set_ylabel("factor relative to the card (1 = card)")
-    ax.set_xlabel("t (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
+    ax.set_xlabel("batch time (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
     fig.suptitle(f"{sc.scenario.name}: {sc.scenario.description}")
     # fixed margins: tight_layout would draw the figure once more only to measure it
     fig.subplots_adjust(left=0.055, right=0.965, bottom=0.075, top=0.91, wspace=0.36, hspace=0.32)

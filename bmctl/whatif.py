@@ -90,6 +90,17 @@ def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[f
     Returns
     -------
     WhatIfResult
+
+    Examples
+    --------
+    >>> from bmctl.config import load_card
+    >>> from bmctl.whatif import run_schedule_ensemble
+    >>> card = load_card("models/alni-1to1-300rpm-lab.toml")
+    >>> res = run_schedule_ensemble(card, "1 h at 300 rpm", [(1.0, 300.0)], seeds=2, particles=500)
+    >>> res.traj["s_mean_um"].shape          # (seeds, recorded times every 0.25 h)
+    (2, 5)
+    >>> bool((res.traj["s_mean_um"][:, -1] > 40.0).all())   # bonding outpaces fracture early
+    True
     """
     from .parallel import map_seeded
 
@@ -134,27 +145,47 @@ def write_outputs(results: Sequence[WhatIfResult], out: Path) -> list[Path]:
     header, rows = table_rows(results)
     paths = [out / "whatif.csv", out / "whatif_moments.png", out / "whatif_final.png"]
     io.write_csv(paths[0], header, rows)
-    fig, axes = plt.subplots(1, 5, figsize=(20, 3.8))
+    # bands over batch time: five quantities and the peak vial temperature, 2 x 3 panels
+    fig, axes = plt.subplots(2, 3, figsize=(13.5, 7.6))
     for i, res in enumerate(results):
-        for ax, key in zip(axes, KEYS):
+        for ax, key in zip(axes.flat, KEYS):
             m, lo, hi = res.band(key)
             ax.plot(res.t_h, m, color=f"C{i}", label=res.name)
             ax.fill_between(res.t_h, lo, hi, color=f"C{i}", alpha=0.2)
-            ax.set_title(plots.quantity_label(key), fontsize=9), ax.set_xlabel("milling time t (h)"), ax.grid(alpha=0.3)
-            ax.set_ylabel(plots.quantity_label(key), fontsize=8)
-    axes[0].legend(fontsize=8)
+    for ax, key in zip(axes.flat, KEYS):
+        ax.set_title(plots.quantity_label(key), fontsize=10), ax.set_xlabel("batch time (h)"), ax.grid(alpha=0.3)
+    axes.flat[4].set_title("vial temperature at the recording times (°C)", fontsize=10)
+    ax = axes.flat[5]
+    x = np.arange(len(results))
+    peak = np.array([r.peak_temperature_c.mean() for r in results])
+    p95 = np.array([np.percentile(r.peak_temperature_c, 95) for r in results])
+    for i in range(len(results)):
+        ax.plot(x[i], peak[i], "o", color=f"C{i}", ms=9, label="mean over seeds" if i == 0 else None)
+        ax.plot(x[i], p95[i], "v", color="k", ms=7, label="95th percentile" if i == 0 else None)
+    ax.set_xticks(x, [r.name for r in results], rotation=20, ha="right", fontsize=8)
+    ax.set_xlim(-0.6, len(results) - 0.4)
+    ax.set_title("highest vial temperature of the batch (°C)", fontsize=10), ax.grid(alpha=0.3, axis="y")
+    ax.legend(fontsize=8)
+    axes.flat[0].legend(fontsize=8)
     fig.suptitle("what-if schedules: ensemble mean and 90 % band")
     fig.tight_layout()
     io.savefig(fig, paths[1], dpi=110)
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8))
-    smax = max(np.percentile(r.final_s_um, 99.5) for r in results)
+    # the particles at the end: size on a log axis (density per ln s), r up to where the data are
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    s_all = np.concatenate([r.final_s_um for r in results])
+    s_all = s_all[s_all > 0]
+    edges = np.geomspace(max(np.percentile(s_all, 0.1), 1e-3) * 0.8, np.percentile(s_all, 99.9) * 1.25, 41)
+    r_hi = max(float(np.percentile(np.concatenate([r.final_r for r in results]), 99.5)) * 1.15, 0.02)
+    r_edges = np.linspace(0, min(r_hi, 1.0), 41)
     for i, res in enumerate(results):
-        axes[0].hist(res.final_s_um, bins=np.arange(0, smax + 2, 2), density=True, histtype="step", color=f"C{i}",
-                     label=res.name)
-        axes[1].hist(res.final_r, bins=np.linspace(0, 1, 51), density=True, histtype="step", color=f"C{i}")
-    axes[0].set_xlabel("final size s (µm)"), axes[1].set_xlabel(f"final {plots.R_LABEL}")
-    axes[0].set_ylabel("probability density per µm (by number)"), axes[0].legend(fontsize=8)
-    axes[1].set_ylabel("probability density per unit r (by number)")
+        s = res.final_s_um[res.final_s_um > 0]
+        h, _ = np.histogram(s, bins=edges)
+        axes[0].stairs(h / (s.size * np.diff(np.log(edges))), edges, color=f"C{i}", lw=1.5, label=res.name)
+        axes[1].hist(res.final_r, bins=r_edges, density=True, histtype="step", color=f"C{i}", lw=1.5)
+    axes[0].set_xscale("log"), plots.log_size_axis(axes[0])
+    axes[0].set_xlabel("final size s (µm, log scale)"), axes[1].set_xlabel(f"final {plots.R_LABEL}")
+    axes[0].set_ylabel("density per ln s (by number)"), axes[0].legend(fontsize=8)
+    axes[1].set_ylabel("density per unit r (by number)"), axes[1].set_xlim(0, r_edges[-1])
     fig.suptitle("what-if schedules: size and irregularity of the particles at the end (all seeds pooled)")
     for ax in axes:
         ax.grid(alpha=0.3)

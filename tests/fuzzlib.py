@@ -13,7 +13,10 @@ interrupted trial -- plus the names an error message about it may use.
 ``wrote-nonsense``   exit 0, an output file outside physical bounds
 ``traceback``        any other exception or exit status
 ``hang``             the per-case time limit ran out
-``unnamed``          exit 2 without naming the file, flag or field (or more than one line)
+``unnamed``          exit 2 without naming the file, flag or field (or more than one line, or a
+                     line over 1,000 characters)
+``unsafe``           a file written outside the case's ``out`` folder, the text of a file the
+                     command was not given in any output, or markup from input in an HTML output
 """
 
 from __future__ import annotations
@@ -40,7 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 CARDS = sorted(p for p in (ROOT / "models").glob("*.toml") if not p.name.endswith(".moments.toml"))
 CONTROLLERS = sorted((ROOT / "controllers").glob("*.toml"))
-OUTCOMES = ("clean", "accepted-ok", "accepted-nonsense", "wrote-nonsense", "traceback", "hang", "unnamed")
+OUTCOMES = ("clean", "accepted-ok", "accepted-nonsense", "wrote-nonsense", "traceback", "hang", "unnamed", "unsafe")
 #: physical bounds every output must keep
 T_MIN_C, T_MAX_C = -60.0, 4000.0  # the vial: -50 C readings at the lowest, a melting point at the highest
 AL_MELTING_C = 660.3  # the shipped cards are Al-Ni powders: no output may be hotter
@@ -138,7 +141,23 @@ def mutate_toml(rng: random.Random, text: str) -> tuple[bytes, list[str], str]:
     """One mutation of a TOML file; returns (bytes, field names it touched, a label)."""
     data = tomllib.loads(text)
     leaves = list(_leaves(data))
-    op = rng.choice(["delete", "swap", "swap", "swap", "truncate", "garbage", "drop-table", "unknown-key", "swap2"])
+    op = rng.choice(["delete", "swap", "swap", "swap", "truncate", "garbage", "drop-table", "unknown-key", "swap2",
+                     "deep", "odd-key", "long-text"])
+    if op == "deep":  # nested arrays or inline tables, deeper than any settings file
+        depth = rng.choice([65, 1000, 100_000])
+        value = deep_toml_value(depth) if rng.random() < 0.7 else "{a = " * depth + "1" + "}" * depth
+        return f"zz = {value}\n{text}".encode(), ["nested"], f"a value nested {depth} deep"
+    if op == "odd-key":  # a key holding a newline, a control character or 200,000 characters
+        key = rng.choice(['"bo\\ngus"', '"a\\rb"', '"\\u001b[31mred"', '"x\\u2028y"', json.dumps("k" * 200_000)])
+        return f"{key} = 1\n{text}".encode(), ["unknown field"], f"odd key {key[:12]}"
+    if op == "long-text":  # a text field (a name) of 200,000 characters, or one with a newline
+        strings = [(pth, v) for pth, v in leaves if isinstance(v, str)]
+        if strings:
+            pth, _ = rng.choice(strings)
+            nv = rng.choice(["x" * 200_000, "a\nb", "tab\there", "\x1b[2J"])
+            _set(data, pth, nv)
+            return toml_dumps(data).encode(), [str(pth[-1])], f"{'.'.join(map(str, pth))} = {nv[:8]!r}..."
+        op = "swap"
     if op == "truncate":
         cut = rng.random()
         raw = text.encode()
@@ -288,13 +307,19 @@ class Case:
     setup: Callable[[Path], None] | None = None
     #: further checks of the ``out`` folder after exit 0: a list of problems (empty: sane)
     verify: Callable[[Path], list[str]] | None = None
+    #: text in a file the command was not given: it must appear in no output (stdout, stderr, files)
+    sentinel: str | None = None
+    #: the case folder's files outside ``out`` once written (what the command may not add to)
+    before: frozenset | None = None
 
     def write(self, folder: Path) -> list[str]:
         """Write the case's files under ``folder``; returns argv with paths made absolute."""
         for name, data in self.files.items():
+            (folder / name).parent.mkdir(parents=True, exist_ok=True)
             (folder / name).write_bytes(data)
         if self.setup is not None:
             self.setup(folder)
+        self.before = frozenset(outside_out(folder))
         return self._abs(self.argv, folder)
 
     def _abs(self, argv: list[str], folder: Path) -> list[str]:
@@ -400,6 +425,8 @@ def make_case(kind: str, seed: int) -> Case:
         return _campaign_case(rng)
     if kind == "resume":
         return _resume_case(rng)
+    if kind in SECOND_ROUND:
+        return SECOND_ROUND[kind](rng)
     raise ValueError(kind)
 
 
@@ -408,7 +435,8 @@ FLAG_VALUES = ["0", "-1", "1e-300", "1e300", "nan", "inf", "1e9", "abc", "", "1e
 
 def _flag_case(rng: random.Random, out: str) -> Case:
     card = str(_card(rng))
-    cmd = rng.choice(["simulate", "simulate", "estimate", "whatif", "measure", "design", "identify"])
+    cmd = rng.choice(["simulate", "simulate", "estimate", "whatif", "measure", "design", "identify", "linearize",
+                      "compare", "card", "calibrate"])
     v = rng.choice(FLAG_VALUES)
     files: dict[str, bytes] = {}
     env: dict[str, str] = {}
@@ -449,6 +477,30 @@ def _flag_case(rng: random.Random, out: str) -> Case:
         args[flag] = v
         argv = ["design", card, *sum(([k, a] for k, a in args.items()), []), "--out", out]
         env["BMCTL_BUDGET_CPU_H"] = "1e-9"
+    elif cmd == "linearize":
+        flag = rng.choice(["--rpm", "--at-hours", "--horizon"])
+        v = rng.choice(FLAG_VALUES + ["2000", "1e6", "5e-324", "1001"])
+        argv = ["linearize", card, flag, v, "--out", out]
+    elif cmd == "compare":
+        flag = rng.choice(["--at-h", "--particles", "--seed"])
+        files["a.csv"] = _table_csv(rng)
+        args = {"--at-h": "0.2", "--particles": "300"}
+        args[flag] = rng.choice(FLAG_VALUES + ["1e9", "5000", "13"])
+        v = args[flag]
+        argv = ["compare", "@a.csv", "--model", card, *sum(([k, a] for k, a in args.items()), []), "--out", out]
+    elif cmd == "card":
+        flag = "--rpm"
+        v = rng.choice([v, f"300,{v}", "1e20", "300,,400", ",", "-5", "2001"])
+        argv = ["card", "show", card, "--rpm", v]
+    elif cmd == "calibrate":
+        flag = rng.choice(["--particles", "--replicates", "--seed", "--params", "--workers"])
+        files.update(_history_files(rng))
+        args = {"--particles": "100", "--workers": "0"}
+        args[flag] = v if flag != "--params" else rng.choice(["bogus", "alpha,alpha", "", "mill.rpm_max", "gamma;x",
+                                                                "card.name", "stochastic.alpha"])
+        v = args[flag]
+        argv = ["calibrate", card, "@h/h.toml", *sum(([k, a] for k, a in args.items()), []), "--out", out]
+        env["BMCTL_BUDGET_CPU_H"] = "1e-9"
     else:
         flag = rng.choice(["--particles", "--random-schedules", "--seed"])
         args = {"--particles": "200", "--random-schedules": "0"}
@@ -456,8 +508,8 @@ def _flag_case(rng: random.Random, out: str) -> Case:
         argv = ["identify", card, "--quick", "--quiet", *sum(([k, a] for k, a in args.items()), []),
                 "--out", "@c.moments.toml"]
         env["BMCTL_BUDGET_CPU_H"] = "1e-9"
-    return Case("flags", f"{cmd} {flag} {v!r}", argv, files, [flag, "BMCTL_BUDGET", "a.csv", "b.csv", "img.png", "s.toml"],
-                env)
+    return Case("flags", f"{cmd} {flag} {v!r}", argv, files, [flag, "BMCTL_BUDGET", "a.csv", "b.csv", "img.png", "s.toml",
+                                                          "--params", "h.toml"], env)
 
 
 # --- fixtures: a campaign and an interrupted trial, built once per process and copied per case ----
@@ -930,7 +982,8 @@ def _resume_case(rng: random.Random) -> Case:
     elif target == "checkpoint":
         names = ["checkpoint.npz", "checkpoint"]
         op = rng.choice(["truncated", "garbage", "empty", "missing", "foreign", "object", "json-garbage",
-                         "json-list", "other-step", "leaf", "leaf", "pickle", "pkl-beside", "folder"])
+                         "json-list", "other-step", "leaf", "leaf", "pickle", "pkl-beside", "folder", "npy-bomb",
+                         "npy-bomb"])
         label = f"checkpoint.npz {op}"
         if op == "truncated":
             cut = rng.random()
@@ -977,6 +1030,14 @@ def _resume_case(rng: random.Random) -> Case:
             step = lambda f: save_state(out(f, "checkpoint.npz"), state)  # noqa: E731
             names += [str(x) for x in path]
             exact = False
+        elif op == "npy-bomb":  # an array header declaring far more than the file holds
+            shape = rng.choice([(10**12,), (10**6, 10**6), (2**62,), (1000,), (-1,)])
+            dtype = rng.choice(["<f8", "|O", "<U100000000", "<c16"])
+            members = {"plant/s.npy": npy_bomb(shape, dtype)}
+            if rng.random() < 0.5:
+                members["__json__.npy"] = npy_bomb((), "<U10", b"x" * 40)
+            step = write("checkpoint.npz", npz_with(members))
+            label += f" {shape} {dtype}"
         elif op == "pickle":
             import pickle
 
@@ -1046,7 +1107,433 @@ def _swap_array(rng: random.Random, a: np.ndarray):
     return 1.0
 
 
-KINDS = ("card", "schedule", "scenario", "controller", "table", "image", "flags", "campaign", "resume")
+
+# --- second-round kinds: nesting, special files, histories, unbounded work, one-line errors, crafted
+# --- databases -------------------------------------------------------------------------------------------
+
+LAB_CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+RECIPE_CTRL = ROOT / "controllers" / "recipe-300rpm-continuous.toml"
+#: what a refusal of unbounded work names
+BUDGET_NAMES = ["over the budget", "must be", "BMCTL_BUDGET"]
+
+
+def _mkfifo(path: Path) -> None:
+    import os
+
+    if path.exists() or path.is_symlink():
+        path.unlink() if not path.is_dir() else shutil.rmtree(path)
+    os.mkfifo(path)
+
+
+def special_file(kind: str) -> Callable[[Path], None]:
+    """A setup step turning a path (relative to the case folder) into a FIFO, a link to a device,
+    a folder, or a link leading out of the folder."""
+    def make(path: Path) -> None:
+        if path.exists() or path.is_symlink():
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        if kind == "fifo":
+            _mkfifo(path)
+        elif kind in ("/dev/zero", "/dev/urandom", "/dev/null"):
+            path.symlink_to(kind)
+        elif kind == "folder":
+            path.mkdir()
+        elif kind == "dangling":
+            path.symlink_to(path.parent / "nowhere" / "x")
+        else:
+            raise ValueError(kind)
+    return make
+
+
+SPECIAL_KINDS = ("fifo", "fifo", "/dev/zero", "/dev/urandom", "/dev/null", "folder", "dangling")
+
+
+def _nesting_case(rng: random.Random) -> Case:
+    """A TOML value or JSON document nested deeper than bmctl reads, in any file a command reads."""
+    depth = rng.choice([65, 1000, 100_000])
+    target = rng.choice(["card", "schedule", "scenario", "controller", "history", "trial.json", "checkpoint",
+                         "advice", "estimate", "meta"])
+    deep_t = deep_toml_value(depth) if rng.random() < 0.6 else "{a = " * depth + "1" + "}" * depth
+    deep_j = deep_json(depth) if rng.random() < 0.6 else '{"a": ' * depth + "1" + "}" * depth
+    label = f"{target} nested {depth} deep"
+    names = ["nested", "not a bmctl", "damaged"]
+    files: dict[str, bytes] = {}
+    env = {"BMCTL_BUDGET_CPU_H": "0.01"}
+    if target == "card":
+        files["card.toml"] = (f"zz = {deep_t}\n" + LAB_CARD.read_text()).encode()
+        argv = rng.choice([["card", "show", "@card.toml"], ["simulate", "@card.toml", "--hours", "0.1", "--out", "@out"],
+                           ["linearize", "@card.toml", "--out", "@out"]])
+        return Case("nesting", label, argv, files, names + ["card.toml"], env)
+    if target == "schedule":
+        files["s.toml"] = f"zz = {deep_t}\n{_schedule_text(rng)}".encode()
+        return Case("nesting", label, ["whatif", str(LAB_CARD), "@s.toml", "--seeds", "1", "--particles", "200",
+                                       "--out", "@out"], files, names + ["s.toml"], env)
+    if target == "scenario":
+        files["sc.toml"] = SCENARIO_BASE.format(model=LAB_CARD, controller=RECIPE_CTRL).replace(
+            "hours = 0.5", f"hours = 0.5\nzz = {deep_t}").encode()
+        return Case("nesting", label, ["trial", "@sc.toml", "--out", "@out", "--no-progress"], files,
+                    names + ["sc.toml"], env)
+    if target == "controller":
+        files["c.toml"] = (f"zz = {deep_t}\n" + RECIPE_CTRL.read_text()).encode()
+        return Case("nesting", label, ["design", str(LAB_CARD), "--target", "s_mean_um=30", "--hours", "1",
+                                       "--controller", "@c.toml", "--out", "@out"], files, names + ["c.toml"],
+                    {"BMCTL_BUDGET_CPU_H": "1e-9"})
+    if target == "history":
+        files.update(_history_files(rng, extra=f"zz = {deep_t}\n"))
+        return Case("nesting", label, _calibrate_argv(), files, names + ["h.toml"], {"BMCTL_BUDGET_CPU_H": "1e-9"})
+    if target in ("trial.json", "checkpoint"):
+        base = rng.choice(["trial-1", "trial-3"])
+        if target == "trial.json":
+            step = lambda f: (f / "out" / "trial.json").write_text(deep_j)  # noqa: E731
+        else:
+            def step(f):
+                from bmctl.checkpoint import JSON_KEY
+
+                with np.load(f / "out" / "checkpoint.npz", allow_pickle=False) as z:
+                    arrays = {k: z[k] for k in z.files}
+                arrays[JSON_KEY] = np.array(deep_j)
+                with open(f / "out" / "checkpoint.npz", "wb") as fh:
+                    np.savez(fh, **arrays)
+        return Case("nesting", f"{base}: {label}", _resume_argv(), {}, names + [target],
+                    setup=_then(_copy_fixture(base), step))
+    col = {"advice": ("plans", "advice"), "estimate": ("estimator_states", "estimate"), "meta": ("meta", "value")}[target]
+    q = f"UPDATE {col[0]} SET {col[1]} = ?" + (f" WHERE key = '{rng.choice(['target', 'inputs', 'hours'])}'"
+                                                if target == "meta" else "")
+    verb = rng.choice(["status", "advise", "decide", "report", "log"])
+    return Case("nesting", f"campaign {label}: {verb}", _verb_argv(rng, verb, files), files,
+                names + ["campaign.sqlite", col[0]], env,
+                setup=_then(_copy_fixture(f"campaign-logged-{rng.choice(['recipe', 'lqr'])}"), _sql_args(q, deep_j)))
+
+
+def _sql_args(q: str, *args) -> Callable[[Path], None]:
+    def step(folder: Path) -> None:
+        con = sqlite3.connect(folder / "out" / "campaign.sqlite")
+        try:
+            con.execute(q, args)
+            con.commit()
+        finally:
+            con.close()
+    return step
+
+
+def _resume_argv() -> list[str]:
+    return ["trial", str(fixtures() / "resume.toml"), "--resume", "@out", "--no-progress"]
+
+
+def _special_case(rng: random.Random) -> Case:
+    """An input that is a FIFO, a link to a device, a folder or a dangling link, wherever a command reads."""
+    kind = rng.choice(SPECIAL_KINDS)
+    where = rng.choice(["card", "schedule", "table", "image", "scenario", "controller", "history-table",
+                        "trial.json", "checkpoint.npz", "trajectory.csv", "campaign-input", "campaign-sample"])
+    label = f"{where} is {kind}"
+    names = ["not a regular file", "is a directory", "not found", "no such file", "cannot read", "changed or missing",
+             "missing"]
+    files: dict[str, bytes] = {}
+    env = {"BMCTL_BUDGET_CPU_H": "0.01"}
+    if where in ("trial.json", "checkpoint.npz", "trajectory.csv"):
+        base = rng.choice(["trial-1", "trial-3"])
+        return Case("special", f"{base}: {label}", _resume_argv(), {}, names + [where],
+                    setup=_then(_copy_fixture(base), lambda f: special_file(kind)(f / "out" / where)))
+    if where == "campaign-input":
+        def step(f):
+            special_file(kind)(next((f / "out" / "inputs").glob("*.toml")))
+        verb = rng.choice(["status", "advise", "decide", "report"])
+        return Case("special", f"{label}: {verb}", _verb_argv(rng, verb, files), files,
+                    names + ["inputs", "campaign.sqlite"], env,
+                    setup=_then(_copy_fixture(f"campaign-logged-{rng.choice(['recipe', 'lqr'])}"), step))
+    if where == "campaign-sample":
+        return Case("special", label, ["campaign", "sample", "@out", "--at-h", "0.5", "@x.csv"], {},
+                    names + ["x.csv"], env, setup=_then(_copy_fixture("campaign-logged-recipe"),
+                                                       lambda f: special_file(kind)(f / "x.csv")))
+    if where == "history-table":
+        files.update(_history_files(rng))
+        return Case("special", label, _calibrate_argv(), files, names + ["t0.csv", "h.toml"],
+                    {"BMCTL_BUDGET_CPU_H": "1e-9"}, setup=lambda f: special_file(kind)(f / "h" / "t0.csv"))
+    name, argv = {
+        "card": ("x.toml", rng.choice([["card", "show", "@x.toml"], ["simulate", "@x.toml", "--out", "@out"],
+                                       ["linearize", "@x.toml", "--out", "@out"]])),
+        "schedule": ("x.toml", ["whatif", str(LAB_CARD), "@x.toml", "--seeds", "1", "--out", "@out"]),
+        "table": ("x.csv", rng.choice([["measure", "@x.csv", "--out", "@out/m.csv"],
+                                       ["estimate", str(LAB_CARD), "--samples", "@x.csv", "--times", "0.5",
+                                        "--out", "@out/e.csv"],
+                                       ["compare", "@x.csv", "--model", str(LAB_CARD), "--at-h", "0.5",
+                                        "--out", "@out"]])),
+        "image": ("x.png", ["measure", "@x.png", "--um-per-px", "0.5", "--out", "@out/m.csv"]),
+        "scenario": ("x.toml", ["trial", "@x.toml", "--out", "@out", "--no-progress"]),
+        "controller": ("x.toml", ["design", str(LAB_CARD), "--target", "s_mean_um=30", "--controller", "@x.toml",
+                                  "--out", "@out"]),
+    }[where]
+    return Case("special", label, argv, {}, names + [name], env, setup=lambda f: special_file(kind)(f / name))
+
+
+# --- calibrate histories -----------------------------------------------------------------------------------
+
+def _history_files(rng: random.Random, name: str = "run", tables: tuple[str, str] = ("t0.csv", "t1.csv"),
+                   extra: str = "", schedule: str | None = None) -> dict[str, bytes]:
+    """A history of two samples (tables in the case folder) and its tables."""
+    sched = (f"schedule = {json.dumps(schedule)}\n" if schedule is not None else "")
+    body = (f"name = {json.dumps(name)}\n{sched}{extra}"
+            + ("" if schedule is not None else "[[segment]]\nhours = 1.0\nrpm = 300\n")
+            + "".join(f"[[sample]]\nt_h = {t}\ntable = {json.dumps(tab)}\n" for t, tab in zip((0.5, 1.0), tables)))
+    return {"h/h.toml": body.encode(), "h/t0.csv": _table_csv(rng), "h/t1.csv": _table_csv(rng)}
+
+
+def _calibrate_argv(*extra: str) -> list[str]:
+    return ["calibrate", str(LAB_CARD), "@h/h.toml", "--params", "gamma", "--particles", "100", "--workers", "0",
+            "--out", "@out", *extra]
+
+
+SECRET = "BMCTL-SENTINEL-NEVER-READ"
+
+
+def _history_case(rng: random.Random) -> Case:
+    """A hostile calibrate history: mutated, a name that is a path, a table or schedule outside its folder."""
+    op = rng.choice(["mutate", "mutate", "name", "name", "table", "table", "schedule", "link-out", "run"])
+    files = _history_files(rng)
+    env = {"BMCTL_BUDGET_CPU_H": "1e-9"}  # the fit itself is refused by the work check unless the input is bad first
+    names = ["h.toml", "over the budget"]
+    setup = None
+    if op == "mutate":
+        data, n, label = mutate_toml(rng, files["h/h.toml"].decode())
+        files["h/h.toml"] = data
+        names += n
+    elif op in ("name", "run"):
+        name = rng.choice(["../../../X", "../X", "/tmp/X", "a/b", "..", ".", "", "x" * 300, "-rf", "con",
+                           "~/.bashrc", "run"])
+        files = _history_files(rng, name=name)
+        label = f"name = {name[:20]!r}"
+        if op == "run" or rng.random() < 0.3:  # run the fit to its end: figures must land inside --out
+            env = {"BMCTL_BUDGET_CPU_H": "0.05"}
+            label += " (run)"
+        names += ["name"]
+    elif op == "table":  # the history's folder is h/; secret.csv lies beside it, in the case folder
+        ref = rng.choice(["/etc/passwd", "../secret.csv", "../../../../../../../../etc/passwd", "@abs",
+                          "t0.csv/../../secret.csv", "sub/../../secret.csv", "", ".", "/dev/zero"])
+        label = f"table = {ref!r}"
+
+        def setup(f, ref=ref):
+            (f / "secret.csv").write_text(f"{SECRET},r\n40,0.05\n" * 20)
+            r = str(f / "secret.csv") if ref == "@abs" else ref
+            (f / "h" / "h.toml").write_text((f / "h" / "h.toml").read_text().replace('"t0.csv"', json.dumps(r), 1))
+        names += ["sample[0].table", "sample[0]"]
+    elif op == "schedule":
+        ref = rng.choice(["/etc/passwd", "../s.toml", "@abs"])
+        files = _history_files(rng, schedule="PLACEHOLDER")
+        label = f"schedule = {ref!r}"
+
+        def setup(f, ref=ref):
+            (f / "s.toml").write_text(f"name = \"{SECRET}\"\n[[segment]]\nhours = 1.0\nrpm = 300\n")
+            r = str(f / "s.toml") if ref == "@abs" else ref
+            (f / "h" / "h.toml").write_text((f / "h" / "h.toml").read_text().replace('"PLACEHOLDER"', json.dumps(r)))
+        names += ["schedule"]
+    else:  # a table that is a link leading out of the history's folder
+        label = "t0.csv links outside"
+
+        def setup(f):
+            (f / "secret.csv").write_text(f"{SECRET},r\n40,0.05\n" * 20)
+            (f / "h" / "t0.csv").unlink()
+            (f / "h" / "t0.csv").symlink_to(f / "secret.csv")
+        names += ["sample[0].table", "leads outside"]
+    return Case("history", f"history: {label}", _calibrate_argv(), files, names, env, setup=setup, sentinel=SECRET)
+
+
+# --- unbounded work under the default budget ------------------------------------------------------------------
+
+def _work_case(rng: random.Random) -> Case:
+    """A command asked for far more than an interactive run (refused under the default budget before
+    it starts), or for a modest run under a budget of 18 CPU seconds (it runs, or is refused naming
+    the flags): never a run past the time limit."""
+    files = {"a.csv": _table_csv(rng), "b.csv": _table_csv(rng), "s.toml": _schedule_text(rng).encode()}
+    files.update(_history_files(rng))
+    huge = rng.random() < 0.5
+    card = str(rng.choice(CARDS))
+    pick = rng.choice
+    choices = [  # (far beyond the default budget, modest)
+        (["simulate", card, "--particles", "10000000", "--out", "@out", "--no-progress"],
+         ["simulate", card, "--hours", pick(["0.05", "0.5", "12"]), "--particles", pick(["500", "20000", "200000"]),
+          "--out", "@out", "--no-progress"]),
+        (["simulate", card, "--hours", "1000", "--particles", pick(["1000000", "100000"]), "--out", "@out", "--no-progress"],
+         ["simulate", card, "--hours", pick(["0.1", "1000"]), "--every", pick(["0.01", "0.001"]), "--particles", "200",
+          "--out", "@out", "--no-progress"]),
+        (["compare", "@a.csv", "--model", card, "--at-h", "12", "--particles", pick(["10000000", "1000000000"]),
+          "--out", "@out"],
+         ["compare", "@a.csv", "--model", card, "--at-h", pick(["0.2", "12"]), "--particles", pick(["500", "200000"]),
+          "--out", "@out"]),
+        (["estimate", card, "--samples", "@a.csv", "@b.csv", "--times", pick(["0.5,1000", "1,900"]),
+          "--particles", pick(["1000000", "100000"]), "--out", "@out/e.csv"],
+         ["estimate", card, "--samples", "@a.csv", "@b.csv", "--times", pick(["0.5,1", "40,659", "10,100"]),
+          "--particles", pick(["100", "200", "20000"]), "--out", "@out/e.csv"]),
+        (["linearize", card, "--at-hours", pick(["1e6", "2000", "1e300"]), "--out", "@out"],
+         ["linearize", card, "--at-hours", pick(["0", "1000", "12"]), "--horizon", pick(["2", "1000"]), "--out", "@out"]),
+        (["whatif", card, "@s.toml", "--seeds", "1000", "--particles", "1000000", "--out", "@out"],
+         ["whatif", card, "@s.toml", "--seeds", pick(["1", "100"]), "--particles", pick(["200", "100000"]),
+          "--workers", "0", "--out", "@out"]),
+        (["identify", card, "--particles", "1000000", "--random-schedules", "200", "--out", "@c.moments.toml"],
+         ["identify", card, "--quick", "--quiet", "--particles", pick(["200", "1000000"]), "--out", "@c.moments.toml"]),
+        (_calibrate_argv("--particles", "1000000", "--replicates", "64"),
+         _calibrate_argv("--replicates", pick(["2", "64"]), "--particles", pick(["100", "100000"]))),
+        (["design", card, "--target", "s_mean_um=30", "--hours", "1000", "--out", "@out"],
+         ["design", card, "--target", "s_mean_um=30", "--hours", pick(["1", "1000"]), "--out", "@out"]),
+    ]
+    argv = rng.choice(choices)[0 if huge else 1]
+    env = {} if huge else {"BMCTL_BUDGET_CPU_H": "0.005"}
+    words = [a for a in argv[:1] + argv[2:] if not a.startswith("@")]
+    return Case("work", f"{'default budget' if huge else '18 CPU s'}: {' '.join(words)[:90]}", argv, files,
+                BUDGET_NAMES + ["--at-hours", "--particles", "--times"], env)
+
+
+# --- one line, whatever an error quotes ------------------------------------------------------------------------
+
+def _names_case(rng: random.Random) -> Case:
+    """A flag or value holding newlines, control characters or 200,000 characters, on any command."""
+    v = rng.choice(["a\nb", "x" * 200_000, "\r\n", "\x1b[2J", "\u2028", "\x00", "1e9\n", "é\u0301\u200b",
+                    "--out\nbmctl: error: fake"])
+    cmd = rng.choice(["simulate", "estimate", "whatif", "measure", "design", "linearize", "compare", "card",
+                      "campaign", "trial", "calibrate", "unknown-flag", "unknown-command"])
+    files = {"a.csv": _table_csv(rng), "s.toml": _schedule_text(rng).encode(), "img.png": synthetic_micrograph(rng)}
+    argv = {
+        "simulate": ["simulate", str(LAB_CARD), "--hours", v, "--out", "@out"],
+        "estimate": ["estimate", str(LAB_CARD), "--samples", "@a.csv", "--times", v, "--out", "@out/e.csv"],
+        "whatif": ["whatif", str(LAB_CARD), "@s.toml", "--seeds", v, "--out", "@out"],
+        "measure": ["measure", "@img.png", "--crop", v, "--um-per-px", "0.5", "--out", "@out/m.csv"],
+        "design": ["design", str(LAB_CARD), "--target", v, "--out", "@out"],
+        "linearize": ["linearize", str(LAB_CARD), "--rpm", v, "--out", "@out"],
+        "compare": ["compare", "@a.csv", "--model", str(LAB_CARD), "--at-h", v, "--out", "@out"],
+        "card": ["card", "show", str(LAB_CARD), "--rpm", v],
+        "campaign": ["campaign", "init", "@out", "--model", str(LAB_CARD), "--controller", str(RECIPE_CTRL),
+                     "--target", v],
+        "trial": ["trial", str(ROOT / "scenarios" / "trial-lab-recipe.toml"), "--seed", v, "--out", "@out"],
+        "calibrate": ["calibrate", str(LAB_CARD), "@a.csv", "--params", v, "--out", "@out"],
+        "unknown-flag": ["simulate", str(LAB_CARD), f"--{v}", "1", "--out", "@out"],
+        "unknown-command": [v, "x"],
+    }[cmd]
+    if rng.random() < 0.3:  # a file whose name holds the text
+        name = "f" + "".join(c for c in v[:50] if c not in "/\x00")
+        files[name] = b"not a card"
+        argv = ["card", "show", f"@{name}"]
+    return Case("names", f"{cmd}: {v[:12]!r}", argv, files,
+                ["--", "argument", "target", "crop", "invalid choice", "card", "calibrate", "a.csv", "f", "bmctl"],
+                {"BMCTL_BUDGET_CPU_H": "1e-9"})
+
+
+# --- crafted campaign databases --------------------------------------------------------------------------------
+
+INJECT = ['<script>alert(1)</script>', '"><img src=x onerror=alert(1)>', "</table><iframe src=//x>",
+          "' onmouseover='alert(1)", "<svg onload=alert(1)>", "javascript:alert(1)"]
+
+
+def _database_case(rng: random.Random) -> Case:
+    """A campaign database crafted (not merely damaged): well-formed SQL and JSON with content no verb
+    writes -- deep documents, missing or non-finite estimates, markup in text, crafted input paths."""
+    ctrl = rng.choice(["recipe", "lqr"])
+    op = rng.choice(["est-missing", "est-nan", "est-range", "est-type", "advice-type", "advice-markup",
+                     "advice-markup", "text-markup", "text-markup", "sources-markup", "inputs-path", "inputs-path",
+                     "inputs-fifo", "huge-text", "est-deep-doc"])
+    verb = rng.choice(["status", "advise", "decide", "report", "report", "report", "log"])
+    names = ["campaign.sqlite", "inputs", "changed or missing"]
+    steps = [_copy_fixture(f"campaign-logged-{ctrl}")]
+
+    def edit_json(table, col, fn, where=""):
+        def step(f):
+            con = sqlite3.connect(f / "out" / "campaign.sqlite")
+            try:
+                rows = con.execute(f"SELECT rowid, {col} FROM {table} {where}").fetchall()
+                for rowid, text in rows:
+                    con.execute(f"UPDATE {table} SET {col} = ? WHERE rowid = ?", (json.dumps(fn(json.loads(text))), rowid))
+                con.commit()
+            finally:
+                con.close()
+        return step
+
+    latest = "WHERE t_h = (SELECT MAX(t_h) FROM estimator_states)"
+    if op in ("est-missing", "est-nan", "est-range", "est-type"):
+        key = rng.choice(["s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "s_std_um_q05",
+                          "r_mean_q95", "t_h", "ess", "d50_um"])
+
+        def fn(e, key=key, op=op):
+            if op == "est-missing":
+                e.pop(key, None)
+            else:
+                e[key] = {"est-nan": rng.choice([float("nan"), float("inf")]), "est-range": rng.choice([-1.0, 1e9, 2.0]),
+                          "est-type": rng.choice(["40", [40], {"a": 1}, None, True])}[op]
+            return e
+        steps.append(edit_json("estimator_states", "estimate", fn, latest if rng.random() < 0.7 else ""))
+        label = f"estimate {op} {key}"
+        names += ["estimator_states", key]
+    elif op in ("advice-type", "advice-markup"):
+        key = rng.choice(["next.rpm", "next.mill_min", "next.rest_min", "t_h", "binding", "reachable", "end"])
+        val = rng.choice(INJECT) if op == "advice-markup" else rng.choice(["300", None, [1], {"x": 1}, float("nan"), -5])
+
+        def fn(a, key=key, val=val):
+            if key == "binding":
+                a["binding"] = [val] if isinstance(val, str) else val
+            elif key == "reachable":
+                a["reachable"] = {val: True} if isinstance(val, str) else val
+            elif key == "end":
+                a["end"] = {"d50_um": {"median": val, "q05": 1, "q95": 2}}
+            elif "." in key:
+                a["next"][key.split(".")[1]] = val
+            else:
+                a[key] = val
+            return a
+        steps.append(edit_json("plans", "advice", fn))
+        label = f"advice {key} = {str(val)[:20]!r}"
+        names += ["plans", "advice"]
+    elif op == "text-markup":
+        col = rng.choice([("actions", "deviation"), ("decisions", "note"), ("particles", "image")])
+        steps.append(_sql_args(f"UPDATE {col[0]} SET {col[1]} = ?", rng.choice(INJECT)))
+        label = f"{col[0]}.{col[1]} markup"
+    elif op == "sources-markup":
+        steps.append(_sql_args("UPDATE samples SET sources = ?", json.dumps([rng.choice(INJECT), "a/" + INJECT[0]])))
+        label = "samples.sources markup"
+    elif op == "huge-text":
+        col = rng.choice([("actions", "deviation"), ("decisions", "note")])
+        steps.append(_sql_args(f"UPDATE {col[0]} SET {col[1]} = ?", "x" * rng.choice([100_001, 5_000_000])))
+        label = f"{col[0]}.{col[1]} huge"
+        names += [col[0], col[1]]
+    elif op == "est-deep-doc":
+        steps.append(edit_json("estimator_states", "estimate", lambda e: {**e, "extra": [[[[1]]]]}))
+        label = "estimate with a nested extra entry"
+        names += ["estimator_states", "extra"]
+    elif op == "inputs-path":
+        how = rng.choice(["absolute", "dotdot", "other-key", "not-inputs"])
+
+        def step(f, how=how):
+            import hashlib
+
+            other = f / "elsewhere.toml"
+            other.write_text(LAB_CARD.read_text() if how != "other-key" else RECIPE_CTRL.read_text())
+            con = sqlite3.connect(f / "out" / "campaign.sqlite")
+            inp = json.loads(con.execute("SELECT value FROM meta WHERE key = 'inputs'").fetchone()[0])
+            path = {"absolute": str(other), "dotdot": f"inputs/../../{other.name}", "other-key": f"../{other.name}",
+                    "not-inputs": "campaign.sqlite"}[how]
+            key = "card" if how != "other-key" else "controller"
+            inp[key] = {"source": str(other), "file": path, "sha256": hashlib.sha256(
+                (f / "out" / path).read_bytes() if how == "not-inputs" else other.read_bytes()).hexdigest()}
+            con.execute("UPDATE meta SET value = ? WHERE key = 'inputs'", (json.dumps(inp),))
+            con.commit()
+            con.close()
+        steps.append(step)
+        label = f"meta.inputs {how}"
+        names += ["meta 'inputs'", "leads outside", "not a file under inputs"]
+    else:
+        steps.append(lambda f: special_file(rng.choice(["fifo", "/dev/zero"]))(next((f / "out" / "inputs").glob(
+            "controller-*.toml"))))
+        label = "inputs/controller is a FIFO or /dev/zero"
+        names += ["not a regular file"]
+    files: dict[str, bytes] = {}
+    argv = _verb_argv(rng, verb, files)
+    return Case("database", f"{label} on {ctrl}: {verb}", argv, files, names, {"BMCTL_BUDGET_CPU_H": "0.01"},
+                setup=_then(*steps), verify=check_campaign if op in ("text-markup", "sources-markup") else None)
+
+
+SECOND_ROUND = {"nesting": _nesting_case, "special": _special_case, "history": _history_case, "work": _work_case,
+                "names": _names_case, "database": _database_case}
+
+KINDS = ("card", "schedule", "scenario", "controller", "table", "image", "flags", "campaign", "resume",
+         "nesting", "special", "history", "work", "names", "database")
 
 
 # --- the checker --------------------------------------------------------------------------------
@@ -1077,6 +1564,9 @@ def check_outputs(folder: Path, t_max_c: float = T_MAX_C) -> list[str]:
             for k, text in row.items():
                 if k in ("schedule", "image", "x_um", "y_um", "particle_id") or k is None:
                     continue
+                if name == "predicted.csv" and i == len(rows) - 1 and k in ("rpm", "milling", "t_peak_c") and \
+                        text.lower() == "nan":
+                    continue  # the design's final state: no action follows it
                 try:
                     v = _num(text)
                 except (TypeError, ValueError):
@@ -1116,19 +1606,89 @@ def _summary_nonsense(stdout: str) -> str | None:
     return None
 
 
+#: tags and attributes bmctl's HTML pages use (anything else came from an input)
+HTML_TAGS = {"html", "head", "meta", "title", "style", "body", "h1", "h2", "h3", "p", "b", "i", "em", "strong", "br",
+             "figure", "img", "figcaption", "table", "thead", "tbody", "tr", "th", "td", "ul", "ol", "li", "span",
+             "div", "section", "code", "pre", "small", "sup", "sub", "caption", "a", "details", "summary", "dl", "dt",
+             "dd", "hr", "header", "footer", "main", "nav", "abbr", "col", "colgroup", "tfoot", "svg", "path"}
+HTML_ATTRS = {"lang", "charset", "alt", "src", "class", "id", "title", "colspan", "rowspan", "width", "height",
+              "name", "content", "style", "href", "open", "scope", "viewbox", "d", "fill", "stroke", "xmlns"}
+#: the longest error line bmctl may print
+MAX_ERROR_CHARS = 1000
+
+
+def outside_out(folder: Path) -> list[str]:
+    """Every path under a case folder but outside its ``out`` folder (the harness's own files aside)."""
+    found = []
+    for p in folder.rglob("*"):
+        rel = p.relative_to(folder)
+        if rel.parts[0] in ("out", ".stdout", ".stderr"):
+            continue
+        found.append(str(rel))
+    return found
+
+
+def html_problems(folder: Path) -> list[str]:
+    """Markup in an HTML output that bmctl's templates do not write (a tag or an attribute from input)."""
+    import html.parser
+
+    class Tags(html.parser.HTMLParser):
+        def __init__(self):
+            super().__init__()
+            self.bad = []
+
+        def handle_starttag(self, tag, attrs):
+            if tag not in HTML_TAGS:
+                self.bad.append(f"<{tag}>")
+            self.bad += [f"{tag} {a}=" for a, v in attrs if a not in HTML_ATTRS or a.startswith("on")
+                         or (a in ("src", "href") and v and not v.startswith(("data:image/png;base64,", "#")))]
+
+    bad = []
+    for path in sorted(folder.rglob("*.html")):
+        t = Tags()
+        t.feed(path.read_text(errors="replace"))
+        bad += [f"{path.name}: {b}" for b in t.bad[:3]]
+    return bad
+
+
+def _unsafe(case: Case, stdout: str, stderr: str, folder: Path) -> str | None:
+    """A write outside ``out``, a sentinel's text in any output, or markup from input in HTML."""
+    case_folder = folder.parent
+    if case.before is not None and case_folder.exists():
+        new = sorted(set(outside_out(case_folder)) - case.before)
+        if new:
+            return f"wrote outside --out: {', '.join(new[:3])}"
+    if case.sentinel:
+        if case.sentinel in stdout or case.sentinel in stderr:
+            return "a file it was not given was read and quoted"
+        for path in folder.rglob("*") if folder.exists() else []:
+            if path.is_file() and path.stat().st_size < 50_000_000 and case.sentinel.encode() in path.read_bytes():
+                return f"{path.name} holds the text of a file it was not given"
+    bad = html_problems(folder) if folder.exists() else []
+    if bad:
+        return "markup from input in HTML: " + "; ".join(bad)
+    return None
+
+
 def classify(case: Case, rc: int | None, stdout: str, stderr: str, folder: Path) -> tuple[str, str]:
-    """Sort one run into :data:`OUTCOMES`; returns (outcome, detail)."""
+    """Sort one run into :data:`OUTCOMES`; returns (outcome, detail). ``folder`` is the case's
+    ``out`` folder (its parent the case folder)."""
     if rc is None:
         return "hang", "time limit"
     if "Traceback" in stderr or rc not in (0, 2):
         tail = stderr.strip().splitlines()[-1] if stderr.strip() else f"exit {rc}"
         return "traceback", tail[:200]
+    why = _unsafe(case, stdout, stderr, folder)
+    if why:
+        return "unsafe", why[:200]
     lines = [ln for ln in stderr.splitlines() if ln.strip() and not ln.startswith("bmctl: warning:")]
     if rc == 2:
         errs = [ln for ln in lines if ln.startswith("bmctl: error:")]
         if len(errs) != 1 or len(lines) != 1:
             return "unnamed", f"{len(lines)} stderr lines"
         msg = errs[0]
+        if len(msg) > MAX_ERROR_CHARS:
+            return "unnamed", f"an error line of {len(msg)} characters"
         if any(n and n in msg for n in case.names):
             return "clean", msg[:200]
         return "unnamed", msg[:200]
@@ -1143,3 +1703,34 @@ def classify(case: Case, rc: int | None, stdout: str, stderr: str, folder: Path)
     if "ess 1," in stdout.lower().replace("min ess 1,", "ess 1,") and "degenerate" not in stderr:
         return "accepted-nonsense", "ESS collapsed to 1 without a warning"
     return "accepted-ok", ""
+
+
+# --- hostile building blocks of the second round (nesting, special files, crafted arrays) ---------
+
+def deep_toml_value(depth: int = 1000) -> str:
+    """A TOML value nested ``depth`` arrays deep."""
+    return "[" * depth + "1" + "]" * depth
+
+
+def deep_json(depth: int = 100_000) -> str:
+    """A JSON document nested ``depth`` lists deep."""
+    return "[" * depth + "]" * depth
+
+
+def npy_bomb(shape=(10**12,), dtype: str = "<f8", tail: bytes = b"\0" * 64) -> bytes:
+    """A ``.npy`` whose header declares ``shape`` (a few bytes of data behind it)."""
+    header = repr({"descr": dtype, "fortran_order": False, "shape": tuple(shape)}).encode()
+    pad = 64 - (10 + len(header) + 1) % 64
+    header += b" " * pad + b"\n"
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", len(header)) + header + tail
+
+
+def npz_with(members: dict[str, bytes]) -> bytes:
+    """A zip of raw ``.npy`` members (as ``numpy.savez`` writes them, without checking them)."""
+    import zipfile
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    return buf.getvalue()

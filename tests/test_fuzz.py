@@ -1,5 +1,7 @@
 """Seeded fuzz of the CLI: hostile cards, schedules, scenarios, controllers, tables, images, flags,
-campaign commands and databases, and damaged files of an interrupted trial.
+campaign commands and databases, damaged files of an interrupted trial, documents nested too deep,
+special files (FIFOs, devices), calibrate histories naming paths, unbounded work, errors quoting
+newlines or long text, and crafted campaign databases.
 
 Each example is one case of tests/fuzzlib.py run in-process through ``bmctl.cli.main``: it must
 exit 0 with every output within physical bounds, or exit 2 with exactly one stderr line naming
@@ -167,6 +169,48 @@ def test_fuzz_resume(seed, capsys, monkeypatch):
     _check("resume", seed, capsys)
 
 
+@settings(max_examples=6, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_nesting(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("nesting", seed, capsys)
+
+
+@settings(max_examples=6, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_special_files(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("special", seed, capsys)
+
+
+@settings(max_examples=5, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_histories(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("history", seed, capsys)
+
+
+@settings(max_examples=6, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_unbounded_work(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("work", seed, capsys)
+
+
+@settings(max_examples=6, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_one_line_errors(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("names", seed, capsys)
+
+
+@settings(max_examples=6, **FUZZ)
+@given(seed=SEEDS)
+def test_fuzz_crafted_databases(seed, capsys, monkeypatch):
+    monkeypatch.chdir(fuzzlib.ROOT)
+    _check("database", seed, capsys)
+
+
 # --- the checker itself must be able to fail ------------------------------------------------------
 
 def test_checker_flags_outputs_outside_physical_bounds(tmp_path):
@@ -186,6 +230,21 @@ def test_classify_sorts_outcomes(tmp_path):
     assert fuzzlib.classify(case, 1, "", "Traceback (most recent call last):\n", tmp_path)[0] == "traceback"
     assert fuzzlib.classify(case, None, "", "", tmp_path)[0] == "hang"
     assert fuzzlib.classify(case, 0, "s mean nan um", "", tmp_path)[0] == "accepted-nonsense"
+    assert fuzzlib.classify(case, 2, "", "bmctl: error: card.toml: " + "x" * 2000 + "\n", tmp_path)[0] == "unnamed"
+
+
+def test_classify_flags_writes_outside_out_leaks_and_markup(tmp_path):
+    case = fuzzlib.Case("history", "x", [], files={"h.toml": b"x"}, names=["h.toml"], sentinel="SENTINEL")
+    case.write(tmp_path)
+    (tmp_path / "out").mkdir()
+    assert fuzzlib.classify(case, 2, "", "bmctl: error: h.toml: bad\n", tmp_path / "out")[0] == "clean"
+    assert fuzzlib.classify(case, 2, "", "bmctl: error: h.toml: SENTINEL\n", tmp_path / "out")[0] == "unsafe"
+    (tmp_path / "out" / "r.html").write_text('<p>ok</p><img src=x onerror="alert(1)">')
+    assert fuzzlib.classify(case, 0, "", "", tmp_path / "out")[0] == "unsafe"
+    (tmp_path / "out" / "r.html").write_text("<p>&lt;script&gt;</p>")
+    assert fuzzlib.classify(case, 0, "", "", tmp_path / "out")[0] == "accepted-ok"
+    (tmp_path / "X.png").write_bytes(b"")
+    assert fuzzlib.classify(case, 0, "", "", tmp_path / "out")[0] == "unsafe"
 
 
 def test_campaign_checker_flags_nonsense_in_the_database(tmp_path):

@@ -73,6 +73,7 @@ class Calibration:
     converged: bool
     plant_runs: int
     iterations: list[dict] = field(default_factory=list)
+    stop_reason: str = ""  # why the Gauss-Newton steps stopped, and (when not converged) what would help
     start_choice: dict = field(default_factory=dict)
     ridge: dict = field(default_factory=dict)  # the scan along the least-informed direction (empty: Laplace)
     sim_var: np.ndarray | None = None
@@ -275,6 +276,7 @@ def calibrate(card: ModelCard, histories: Sequence[History], names: Sequence[str
             converged = True
             break
         u = u + delta
+    stop_reason = _stop_reason(log, converged, s, chi2, y.size)
     u_hat = (prev[0] + prev[2]) if prev is not None else u
     cov = np.linalg.inv(H)
     sd = np.sqrt(np.diag(cov))
@@ -292,8 +294,30 @@ def calibrate(card: ModelCard, histories: Sequence[History], names: Sequence[str
         lo90=cv * np.exp(lo), hi90=cv * np.exp(hi), u=u_hat, cov_u=cov,
         prior_sd=s.prior_sd, chi2=chi2, n_summaries=y.size, fisher=F, identified=identified, why=why,
         converged=converged, plant_runs=ev.runs, iterations=log, sim_var=sim_var, obs_cov=obs_cov,
-        start_choice=start_choice, ridge=ridge,
+        start_choice=start_choice, ridge=ridge, stop_reason=stop_reason,
     )
+
+
+def _stop_reason(log: list[dict], converged: bool, s: FitSettings, chi2: float, n: int) -> str:
+    """One line: why the Gauss-Newton steps stopped and, when they did not converge, what would help."""
+    steps = [e["step_in_sd"] for e in log if "step_in_sd" in e]
+    if converged:
+        return f"converged: step {steps[-1]:.2f} posterior sd < {s.tol:g} after {len(log)} iterations"
+    last = f"{steps[-1]:.2f}" if steps else "n/a"
+    halved = sum(1 for e in log[-3:] if e.get("action", "").startswith("worse"))
+    if n and chi2 > 3.0 * n:
+        helps = (f"the model does not reach the data (chi2 {chi2:.0f} on {n} summaries): check the card's "
+                 "fixed parameters or fit more of them")
+    elif halved:
+        helps = ("the objective is noisy at this scale (steps were halved): more simulated particles "
+                 "(--particles) or replicates (--replicates)")
+    elif len(steps) >= 2 and steps[-1] < steps[-2]:
+        helps = "the steps were still shrinking: more iterations (FitSettings.max_iter) would likely converge"
+    else:
+        helps = ("the data constrain the parameters weakly along a ridge: more or larger samples, or samples at "
+                 "another time or rpm")
+    return (f"not converged: iteration cap {s.max_iter} reached with a last step of {last} posterior sd "
+            f"(tolerance {s.tol:g}); {helps}")
 
 
 def ridge_posterior(ev: _Evaluator, y: np.ndarray, W: np.ndarray, P: np.ndarray, J: np.ndarray, H: np.ndarray,

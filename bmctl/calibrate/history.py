@@ -4,7 +4,9 @@ A history (TOML) names the schedule the mill ran (a schedule file, or inline
 ``[[segment]]`` tables with ``hours``, ``rpm``, optional ``milling`` share) and the samples
 taken (``[[sample]]`` with ``t_h`` and either ``table`` = a particle table CSV or ``image``
 = a micrograph measured as ``bmctl measure`` does, with ``um_per_px``). Paths are relative
-to the history file. Every problem is one line naming the file and the field.
+to the history file and stay inside its folder (:func:`bmctl.io.inside`: an absolute path or
+one leading out of the folder is refused, and nothing outside it is read). Every problem is
+one line naming the file and the field.
 """
 
 from __future__ import annotations
@@ -16,7 +18,9 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field
 
-from ..config import ModelCard, NonNeg, Pos, Strict, load_schedule, read_toml, validate
+from .. import io
+from ..config import HOURS, RPM, ModelCard, Range, Strict, load_schedule, read_toml, validate
+from ..limits import HOURS_MAX
 from ..errors import InputError
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
@@ -24,16 +28,16 @@ MIN_PARTICLES = 10
 
 
 class HistorySegment(Strict):
-    hours: Pos
-    rpm: NonNeg
+    hours: HOURS  # 1 s to 1000 h, as every schedule (bmctl.limits)
+    rpm: RPM
     milling: Annotated[float, Field(ge=0, le=1)] = 1.0
 
 
 class SampleSpec(Strict):
-    t_h: NonNeg
+    t_h: Range(0.0, HOURS_MAX)
     table: str | None = None
     image: str | None = None
-    um_per_px: Pos | None = None
+    um_per_px: Range(1e-4, 1e3) | None = None  # as --um-per-px (bmctl.measure.scale.check_scale)
 
 
 class HistoryFile(Strict):
@@ -78,18 +82,21 @@ def _read_sample(src: str, spec: SampleSpec, base: Path, k: int) -> MeasuredSamp
 
         if spec.um_per_px is not None:
             raise InputError(f"{where}.um_per_px: only for an image, not a table")
-        tab = read_table(base / spec.table)
+        path = io.inside(base, spec.table, f"{where}.table")
+        if not path.is_file():  # a folder, a FIFO, a device or nothing: name the field that names it
+            raise InputError(f"{where}.table: {spec.table[:80]!r} is not a regular file in {base}")
+        tab = read_table(path)
         name = spec.table
     else:
         from ..measure.segment import measure_image
 
-        path = base / spec.image
+        path = io.inside(base, spec.image, f"{where}.image")
         if path.suffix.lower() not in IMAGE_SUFFIXES:
             raise InputError(f"{where}.image: {spec.image}: not an image ({', '.join(IMAGE_SUFFIXES)})")
-        if not path.exists():
-            raise InputError(f"{where}.image: {path}: no such file")
+        if not path.is_file():
+            raise InputError(f"{where}.image: {spec.image[:80]!r} is not a regular file in {base}")
         if spec.um_per_px is None:
-            raise InputError(f"{where}.um_per_px: required for an image (its pixel size in um)")
+            raise InputError(f"{where}.um_per_px: required for an image (its pixel size in µm)")
         tab = measure_image(str(path), spec.um_per_px)
         name = spec.image
     if len(tab) < MIN_PARTICLES:
@@ -122,7 +129,7 @@ def load_history(path: str | Path, card: ModelCard | None = None) -> History:
     if (h.schedule is None) == (h.segment is None):
         raise InputError(f"{src}: schedule: give exactly one of schedule = \"FILE.toml\" or [[segment]] tables")
     if h.schedule is not None:
-        sched = load_schedule(base / h.schedule)
+        sched = load_schedule(io.inside(base, h.schedule, f"{src}: schedule"))
         segments = [(s.hours, s.rpm, 1.0) for s in sched.segment]
         seg_src = f"{base / h.schedule}: segment"
     else:

@@ -97,7 +97,7 @@ def calibration_dict(cal: Calibration, histories: Sequence[History], distances: 
         "fisher_rank": int(np.sum(lam > 1.0 / cal.prior_sd**2)),
         "chi2_at_optimum": cal.chi2, "n_summaries": cal.n_summaries,
         "sample_distances": distances,
-        "converged": cal.converged, "plant_runs": cal.plant_runs, "start_choice": cal.start_choice,
+        "converged": cal.converged, "stop_reason": cal.stop_reason, "plant_runs": cal.plant_runs, "start_choice": cal.start_choice,
         "iterations": cal.iterations, "ridge": cal.ridge,
         "histories": [{"name": h.name, "file": h.path, "times_h": h.times_h,
                        "particles_measured": [int(s.s_um.size) for s in h.samples]} for h in histories],

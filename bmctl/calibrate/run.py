@@ -13,6 +13,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..config import ModelCard
+from ..io import name_part
 from ..parallel import map_seeded
 from .fit import Calibration, FitSettings, calibrate
 from .history import History
@@ -47,7 +48,8 @@ def model_samples_at(cal: Calibration, card: ModelCard, histories: Sequence[Hist
 def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[History], names: Sequence[str],
                     out: str | Path | None, seed: int = 0, settings: FitSettings | None = None, client=None,
                     moment_stage: bool = True, progress: Callable[[int], None] | None = None,
-                    on_iteration: Callable[[dict], None] | None = None) -> CalibrationRun:
+                    on_iteration: Callable[[dict], None] | None = None,
+                    log: Callable[[str], None] | None = None) -> CalibrationRun:
     """Moment-model start, plant fit, final model run, outputs (when ``out`` is given).
 
     Parameters
@@ -68,6 +70,8 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
         Start gamma and delta from the moment model's maximum likelihood (default True).
     progress, on_iteration : callable, optional
         Progress hooks (see :func:`bmctl.calibrate.fit.calibrate`).
+    log : callable, optional
+        Progress lines of the calibrated card's moment identification.
 
     Returns
     -------
@@ -95,12 +99,26 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
         note = (f"calibrated by bmctl calibrate (seed {seed}) from " + ", ".join(h.path for h in histories)
                 + f": {', '.join(names)}")
         new = outputs.calibrated_card(card, names, cal.values, note)
-        paths.append(outputs.write_card(out / f"{stem}-calibrated.toml", new,
-                                        header=f"{new.card.name}: {note}\nSee calibration.json next to this file."))
+        # the calibrated card's own moment coefficients (bmctl.moments.for_card refuses a card without them):
+        # identified first, then card and coefficients written as one set
+        from ..config import load_card
+        from ..io import output_set, write_text
+        from ..moments.coeffs import coeffs_path
+        from ..moments.forcard import identification_text
+
+        card_out = out / f"{stem}-calibrated.toml"
+        text = identification_text(new, card_out, seed=seed, log=log, client=client,
+                                   workers=0 if client is None else None)  # serial when the fit was
+        with output_set():
+            write_text(card_out, outputs.card_toml(new, f"{new.card.name}: {note}\nSee calibration.json next to this "
+                                                        "file; its moment coefficients are in the .moments.toml beside it."))
+            write_text(coeffs_path(card_out), text)
+        load_card(card_out)  # the written card loads (as outputs.write_card checks)
+        paths += [card_out, coeffs_path(card_out)]
         meta = {"card": str(card_path), "seed": seed, "settings": s.model_dump(), "moment_stage": info,
                 "wall_s": wall}
         paths.append(outputs.write_json(out / "calibration.json", outputs.calibration_dict(cal, histories, dist, meta)))
         for h, k in zip(histories, kept):
-            paths.append(outputs.plot_history(out / f"histograms-{h.name}.png", h, k,
+            paths.append(outputs.plot_history(out / f"histograms-{name_part(h.name)}.png", h, k,
                                               f"{h.name}: measured vs calibrated {stem}"))
     return CalibrationRun(cal, info, kept, dist, paths, wall)

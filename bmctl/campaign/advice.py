@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from . import targets as tg
 from .band import propagate
 
 EPS_H = 1e-9
@@ -84,17 +83,45 @@ def _schedule(c, plan, t_h: float) -> list[dict]:
     return rows
 
 
-def _end_band(c, sched: list[dict]) -> dict:
+def _vial_through(model, T, h, sched: list[dict]):
+    """Vial temperature and hardening after the schedule's rows from (T, h): eq. (6) in closed form."""
+    from ..moments import equations as eq
+
+    c = model.const
+    for row in sched:
+        dt = row["t1_h"] - row["t0_h"]
+        a = float(row["milling"]) * dt if row["rpm"] > 0 else 0.0
+        T, h = eq.thermal_exact(eq.NP, c, T, h, float(row["rpm"]) / c.rpm_max, a)
+        T, h = eq.thermal_exact(eq.NP, c, T, h, 0.0, dt - a)
+    return T, h
+
+
+def _end_band(c, sched: list[dict], plan=None) -> dict:
     """Median and 90 % band of the moments at the batch end: filter particles (a deterministic
-    weighted selection) propagated by the moment model under the schedule."""
+    weighted selection) propagated by the moment model under the schedule, each vial at its
+    own heating gain over the card's thermal law (as the filter propagates them); D50 read out
+    as the estimate's (:func:`bmctl.moments.model.size_stats_of_state`). A plan made on operable
+    schedules has already predicted its spread particles (the same selection): their moments are
+    used, and only the vial temperatures are run through the schedule (closed form)."""
+    from ..moments.model import size_stats_of_state
+
     lp = c.loop
     pf = lp.estimator
     idx = _band_indices(pf.weights, BAND_PARTICLES)
-    X = propagate(lp.model, pf.X[idx], pf.P[idx], sched)
+    X0 = pf.X[idx].copy()
+    gain, amb = pf.gain[idx], pf.ambient_c
+    X0[:, 4] = amb + (X0[:, 4] - amb) / gain
+    Xs = None if plan is None else plan.extra.get("spread_x_end")
+    if Xs is not None and len(Xs) == len(idx):
+        X = np.array(Xs, dtype=float)
+        X[:, 4], X[:, 5] = _vial_through(lp.model, X0[:, 4], X0[:, 5], sched)
+    else:
+        X = propagate(lp.model, X0, pf.P[idx], sched)
+    X[:, 4] = amb + gain * (X[:, 4] - amb)
     out = {}
     names = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
     vals = {k: X[:, i] for i, k in enumerate(names)}
-    vals["d50_um"] = tg.d50_from_moments(vals["s_mean_um"], vals["s_std_um"])
+    vals["d50_um"] = size_stats_of_state(X)["d50_um"]
     for k, v in vals.items():
         q = np.quantile(v, [0.05, 0.5, 0.95])
         out[k] = {"median": float(q[1]), "q05": float(q[0]), "q95": float(q[2])}
@@ -114,6 +141,11 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
     cfg = c.loop.controller.cfg
     if getattr(cfg, "kind", "") == "recipe":
         return reach, ["open-loop recipe: the schedule is fixed, no constraint is weighed"]
+    if "binding" in plan.extra:  # a plan on operable schedules names the limits it runs against itself
+        binding = list(plan.extra["binding"])
+        if not all(reach.values()) and not binding:
+            binding.append("none of the mill's limits: the model cannot reach the target from this estimate")
+        return reach, binding
     U = np.asarray(plan.u, dtype=float)
     on = U[:, 1] > 1e-3
     b = getattr(cfg, "bounds", None)
@@ -130,7 +162,7 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
     if hasattr(cfg, "temperature") and plan.t_peak_c.size:
         ceil = plan.status.t_ceiling_c if math.isfinite(plan.status.t_ceiling_c) else cfg.temperature.ceiling_c
         if float(np.max(plan.t_peak_c)) >= ceil - 0.5:
-            binding.append(f"vial-temperature ceiling ({ceil:g} C)")
+            binding.append(f"vial-temperature ceiling ({ceil:g} °C)")
     if not all(reach.values()) and not binding:
         binding.append("batch time: the target is not reached by the batch end at the planned inputs")
     return reach, binding

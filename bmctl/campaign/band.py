@@ -28,8 +28,12 @@ from ..control.compiled import compiled_step, step_function  # the step lives wi
 __all__ = ["compiled_step", "propagate", "step_function"]
 
 
-def propagate(model, X: np.ndarray, P: np.ndarray, schedule: list[dict]) -> np.ndarray:
+def propagate(model, X: np.ndarray, P: np.ndarray, schedule: list[dict], substeps: int | None = None) -> np.ndarray:
     """States of the particles ``X`` (n, 6) with parameters ``P`` (n, 2) after the schedule's rows.
+
+    With ``substeps`` (a plan made on the operable grid: the substeps its search predicted with)
+    the numpy step is used with that many RKC substeps per row, so the band and the plan come from
+    the same prediction and nothing is compiled; else the compiled step when cached (see above).
 
     Parameters
     ----------
@@ -45,6 +49,15 @@ def propagate(model, X: np.ndarray, P: np.ndarray, schedule: list[dict]) -> np.n
     """
     X = np.asarray(X, dtype=float)
     P = np.asarray(P, dtype=float)
+    if substeps is not None:
+        from ..control.search import interval_step
+
+        n = X.shape[0]
+        for row in schedule:
+            L = (row["t1_h"] - row["t0_h"]) * 60.0
+            a = float(row["milling"]) * L if row["rpm"] > 0 else 0.0
+            X = interval_step(model, X, P, np.full(n, float(row["rpm"])), np.full(n, a), L, substeps)
+        return X
     fns: dict[float, object] = {}
     for row in schedule:
         dt = row["t1_h"] - row["t0_h"]

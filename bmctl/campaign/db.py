@@ -26,18 +26,25 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import hashlib
 import io
 import json
+import math
 import sqlite3
-import zipfile
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, StrictBool, StringConstraints
 
+from .. import io as bio
+from ..config import Range
 from ..checkpoint import ARRAY_TAG, JSON_KEY, _join, _split
 from ..errors import InputError
 
 DB_NAME = "campaign.sqlite"
+#: the folder of a campaign that holds the copies of its inputs
+INPUTS = "inputs"
 SCHEMA_VERSION = 1
 #: seconds a command waits for another command on the same campaign before it is refused
 LOCK_TIMEOUT_S = 30.0
@@ -160,10 +167,9 @@ def get_meta(con: sqlite3.Connection, where: str = "meta") -> dict:
     """All meta keys as a dict (a value that is not JSON is an InputError naming its key)."""
     out = {}
     for k, v in con.execute("SELECT key, value FROM meta"):
-        try:
-            out[k] = json.loads(v)
-        except (TypeError, ValueError):
-            raise InputError(f"{where}: meta {k!r}: not a JSON value (damaged or edited)") from None
+        if not isinstance(v, str):
+            raise InputError(f"{where}: meta {str(k)[:40]!r}: not a JSON value (damaged or edited)")
+        out[k] = bio.loads_json(v, f"{where}: meta {str(k)[:40]!r}")
     return out
 
 
@@ -187,18 +193,111 @@ NUMERIC = (
     ("decisions", "plan_id", 1, 2**62, False), ("decisions", "accepted", 0, 1, False),
     ("decisions", "rpm", 0.0, 1e5, True), ("decisions", "milling", 0.0, 1.0, True),
 )
-#: columns of JSON text, and of plain-data state BLOBs
-JSON_TEXT = (("estimator_states", "estimate"), ("plans", "advice"), ("samples", "sources"), ("samples", "report"))
+#: columns of plain-data state BLOBs
 BLOBS = (("estimator_states", "state"), ("plans", "controller_state"))
 TEXT = (("actions", "deviation"), ("decisions", "note"), ("particles", "image"))
+
+
+#: what every stored estimate holds (``init`` writes the prior with all of them): a finite
+#: number in the range, and the same for its 90 % band ``_q05``/``_q95``
+ESTIMATE_RANGES = {"s_mean_um": (1e-3, 1e4), "s_std_um": (0.0, 1e4), "r_mean": (0.0, 1.0), "r_std": (0.0, 1.0),
+                   "temperature_c": (-273.15, 4000.0)}
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _check_estimate(doc, where: str) -> None:
+    """An estimate document as the filter writes it: a table of finite numbers (text, booleans
+    and null allowed for other keys), with every key of :data:`ESTIMATE_RANGES` and its band."""
+    if not isinstance(doc, dict):
+        raise InputError(f"{where}: not an estimate table")
+    for k, v in doc.items():
+        if _number(v) and not math.isfinite(v):
+            raise InputError(f"{where}: {k[:60]!r} = {v}: not finite")
+        if isinstance(v, (dict, list)):
+            raise InputError(f"{where}: {k[:60]!r}: a {type(v).__name__}, expected a number")
+    for k, (lo, hi) in ESTIMATE_RANGES.items():
+        for key in (k, f"{k}_q05", f"{k}_q95"):
+            v = doc.get(key)
+            if not _number(v) or not lo <= v <= hi:
+                raise InputError(f"{where}: {key}: " + ("missing" if key not in doc else f"{str(v)[:40]} is not a "
+                                                        f"number in [{lo:g}, {hi:g}]"))
+
+
+class _Doc(BaseModel):
+    model_config = ConfigDict(extra="allow", strict=True)
+
+
+class _Next(_Doc):
+    rpm: Range(0.0, 1e5)
+    milling: Range(0.0, 1.0)
+    interval_h: Range(0.0, 1000.0, lo_open=True)
+    mill_min: Range(0.0, 60_000.0)
+    rest_min: Range(0.0, 60_000.0)
+
+
+class _Band(_Doc):
+    median: Range(-1e300, 1e300)
+    q05: Range(-1e300, 1e300)
+    q95: Range(-1e300, 1e300)
+
+
+class AdviceDoc(_Doc):
+    """What :func:`check` requires of a stored advice (``plans.advice``); other keys are kept."""
+
+    t_h: Range(0.0, 1000.0)
+    next: _Next
+    reachable: dict[Annotated[str, StringConstraints(max_length=60)], StrictBool]
+    binding: list[Annotated[str, StringConstraints(max_length=2000)]]
+    end: dict[str, _Band] = {}
+    schedule: list[dict] = []
+
+
+def _check_advice(doc, where: str) -> None:
+    """An advice document as ``advise`` writes it: the next action (finite rpm, milling share,
+    interval and minutes), reachability per target key, binding limits as text, end bands."""
+    from pydantic import ValidationError
+
+    from ..config import format_validation_error
+    from .targets import known_keys
+
+    try:
+        a = AdviceDoc.model_validate(doc)
+    except ValidationError as exc:
+        raise InputError(format_validation_error(where, exc)) from None
+    for k in a.reachable:
+        if k not in known_keys():
+            raise InputError(f"{where}: reachable: {k[:60]!r} is not a target key")
+    if "estimate" in doc:
+        _check_estimate(doc["estimate"], f"{where}: estimate")
+
+
+def _check_sources(doc, where: str) -> None:
+    if not isinstance(doc, list) or not all(isinstance(x, str) and len(x) <= 4096 for x in doc):
+        raise InputError(f"{where}: not a list of file names")
+
+
+def _check_report(doc, where: str) -> None:
+    if not isinstance(doc, list) or not all(isinstance(x, dict) for x in doc):
+        raise InputError(f"{where}: not a list of tables")
+
+
+#: columns of JSON text and the check of their documents
+JSON_CHECKS = {("estimator_states", "estimate"): _check_estimate, ("plans", "advice"): _check_advice,
+               ("samples", "sources"): _check_sources, ("samples", "report"): _check_report}
 
 
 def check(con: sqlite3.Connection, path) -> None:
     """Refuse a damaged or edited database with one line naming the table, row and column.
 
     Every table of the schema must be there; every numeric column a number (not text or a
-    BLOB) within its range (:data:`NUMERIC`), JSON columns valid JSON objects or lists, state
-    columns BLOBs. The states themselves are checked when they are read (:func:`unpack`).
+    BLOB) within its range (:data:`NUMERIC`); every JSON column a document of bounded depth
+    (:func:`bmctl.io.loads_json`) with the content its verb writes (:data:`JSON_CHECKS`:
+    estimates with every moment and band finite and in range, advice with a finite next
+    action); state columns BLOBs. The states themselves are checked when they are read
+    (:func:`unpack`).
     """
     try:
         have = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
@@ -211,26 +310,46 @@ def check(con: sqlite3.Connection, path) -> None:
             row = con.execute(f"SELECT rowid, {col} FROM {table} WHERE {null}(typeof({col}) NOT IN ('real', 'integer') "
                               f"OR NOT ({col} BETWEEN ? AND ?)) LIMIT 1", (lo, hi)).fetchone()
             if row is not None:
-                raise InputError(f"{path}: {table} row {row[0]}: {col} = {row[1]!r:.40}: not a number in "
+                raise InputError(f"{path}: {table} row {row[0]}: {col} = {str(row[1])[:40]!r}: not a number in "
                                  f"[{lo:g}, {hi:g}] (damaged or edited)")
         for table, col in BLOBS:
             row = con.execute(f"SELECT rowid FROM {table} WHERE typeof({col}) != 'blob' LIMIT 1").fetchone()
             if row is not None:
                 raise InputError(f"{path}: {table} row {row[0]}: {col}: not a stored state (damaged or edited)")
         for table, col in TEXT:
-            row = con.execute(f"SELECT rowid FROM {table} WHERE typeof({col}) != 'text' LIMIT 1").fetchone()
+            row = con.execute(f"SELECT rowid FROM {table} WHERE typeof({col}) != 'text' OR length({col}) > 100000 "
+                              "LIMIT 1").fetchone()
             if row is not None:
-                raise InputError(f"{path}: {table} row {row[0]}: {col}: not text (damaged or edited)")
-        for table, col in JSON_TEXT:
+                raise InputError(f"{path}: {table} row {row[0]}: {col}: not text of at most 100,000 characters "
+                                 "(damaged or edited)")
+        for (table, col), check_doc in JSON_CHECKS.items():
             for rowid, text in con.execute(f"SELECT rowid, {col} FROM {table}"):
-                try:
-                    ok = isinstance(text, str) and isinstance(json.loads(text), (dict, list))
-                except ValueError:
-                    ok = False
-                if not ok:
-                    raise InputError(f"{path}: {table} row {rowid}: {col}: not a JSON document (damaged or edited)")
+                where = f"{path}: {table} row {rowid}: {col}"
+                if not isinstance(text, str):
+                    raise InputError(f"{where}: not a JSON document (damaged or edited)")
+                check_doc(bio.loads_json(text, where), where)
     except sqlite3.DatabaseError as exc:
         raise InputError(f"{path}: damaged campaign database ({exc})") from None
+
+
+def check_inputs(folder: str | Path, inputs: dict, where: str) -> None:
+    """Every input copied at ``init`` (``meta.inputs``): a file under ``DIR/inputs/`` (no other
+    path), a regular file, with the checksum recorded then. A crafted path or an edited copy is
+    refused by every verb, before anything is read from it."""
+    folder = Path(folder)
+    for key, m in inputs.items():
+        name = f"{where}: meta 'inputs': {key[:40]!r}"
+        rel = Path(m["file"])
+        if rel.parts[:1] != (INPUTS,) or len(rel.parts) < 2:
+            raise InputError(f"{name}: {m['file'][:80]!r} is not a file under {INPUTS}/ (damaged or edited)")
+        p = bio.inside(folder / INPUTS, str(Path(*rel.parts[1:])), name)
+        try:
+            digest = hashlib.sha256(bio.read_input_bytes(p)).hexdigest()
+        except InputError:
+            digest = None
+        if digest != m["sha256"]:
+            raise InputError(f"{p}: changed or missing since `campaign init` (the campaign runs on the copy taken "
+                             f"then; sha256 {str(m['sha256'])[:12]}...)")
 
 
 # --- plain-data states as BLOBs -----------------------------------------------------------------
@@ -244,14 +363,19 @@ def pack(state: dict) -> bytes:
 
 
 def unpack(blob: bytes, where: str = "state") -> dict:
-    """Inverse of :func:`pack` (``allow_pickle=False``); damaged bytes are an InputError."""
+    """Inverse of :func:`pack` (plain data only, bounded: :func:`bmctl.io.load_npz`,
+    :func:`bmctl.io.loads_json`); damaged bytes are an InputError."""
+    if not isinstance(blob, (bytes, bytearray)):
+        raise InputError(f"{where}: damaged state (not a stored state)")
+    arrays = bio.load_npz(bytes(blob), f"{where}: damaged state")
+    if JSON_KEY not in arrays or arrays[JSON_KEY].dtype.kind != "U" or arrays[JSON_KEY].ndim != 0:
+        raise InputError(f"{where}: damaged state (no JSON part)")
+    doc = bio.loads_json(str(arrays.pop(JSON_KEY)), f"{where}: damaged state")
     try:
-        with np.load(io.BytesIO(blob), allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-        return _join(json.loads(str(arrays.pop(JSON_KEY))), arrays)
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, json.JSONDecodeError, TypeError) as exc:
-        raise InputError(f"{where}: damaged state ({type(exc).__name__})") from None
+        return _join(doc, arrays)
+    except (KeyError, TypeError):
+        raise InputError(f"{where}: damaged state (an array reference without its array)") from None
 
 
 __all__ = ["ARRAY_TAG", "DB_NAME", "SCHEMA_VERSION", "LOCK_TIMEOUT_S", "create", "open_db", "transaction",
-           "init_schema", "set_meta", "get_meta", "check", "pack", "unpack", "now", "db_path"]
+           "init_schema", "set_meta", "get_meta", "check", "check_inputs", "pack", "unpack", "now", "db_path"]

@@ -1,15 +1,26 @@
-"""The campaign report: one self-contained HTML page, figures embedded as base64 PNG.
+"""The campaign report: one self-contained HTML page an engineer files with the batch.
 
-Figures: the estimate and its 90 % band against the target over time (with the measured
-sample statistics), the measured size histograms against the model's law at the estimate,
-the actions taken and recommended, the vial temperature (readings and estimate); then a
-table of the samples and of the log. No scripts, no external resources.
+What it holds, in order:
+
+1. the batch (card, controller, target, ceiling, logged time) and every temperature warning;
+2. per sample, the estimate at its time with the 90 % interval next to the sample's own
+   statistic of the *same* quantity (number mean and std of s, mean of r, volume-weighted D50
+   by :func:`bmctl.stats.dvalues`), and the target; as a figure over time and as a table;
+3. the measured size histograms against the filter's size law at the estimate;
+4. every advice: the estimate it saw, the recommended interval, reachability, binding
+   constraints, warnings, the decision (accepted / rejected, what instead, the note), what was
+   then logged and the deviation, and the plan to the batch end that was advised (a table per
+   advice, and all plans in one figure);
+5. the vial-temperature readings against the ceiling, with the estimate and each reading's check;
+6. the log as recorded.
+
+The page is built with :mod:`bmctl.htmlsafe` (trusted templates, every value escaped at
+render). Figures are base64 PNG; no scripts, no external resources.
 """
 
 from __future__ import annotations
 
 import base64
-import html
 import io as _io
 import json
 import math
@@ -17,8 +28,44 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import htmlsafe as hs
 from .. import io
-from . import targets as tg
+from .readings import estimate_warning, reading_warnings
+
+#: the estimate's quantities shown against the samples: key -> (title, the sample statistic of it)
+QUANTITIES = {
+    "s_mean_um": ("mean size s (µm), number-weighted", "sample mean"),
+    "s_std_um": ("std of s (µm), number-weighted", "sample std"),
+    "r_mean": ("mean irregularity r", "sample mean"),
+    "d50_um": ("D50 (µm), volume-weighted", "sample D50"),
+}
+
+
+def sample_statistics(s_um: np.ndarray, r: np.ndarray) -> dict[str, float]:
+    """A sample's own statistics of the estimate's quantities (:data:`QUANTITIES`).
+
+    Parameters
+    ----------
+    s_um, r : ndarray
+        Sizes (µm) and irregularities of the sample's particles.
+
+    Returns
+    -------
+    dict
+        ``s_mean_um, s_std_um`` (number-weighted), ``r_mean``, ``r_std`` and ``d50_um``
+        (volume-weighted, :func:`bmctl.stats.dvalues`).
+
+    Examples
+    --------
+    >>> st = sample_statistics(np.array([10.0, 20.0, 30.0]), np.array([0.1, 0.2, 0.3]))
+    >>> round(st["s_mean_um"], 6), round(st["r_mean"], 6)
+    (20.0, 0.2)
+    """
+    from ..stats import dvalues
+
+    s_um, r = np.asarray(s_um, dtype=float), np.asarray(r, dtype=float)
+    return {"s_mean_um": float(s_um.mean()), "s_std_um": float(s_um.std()), "r_mean": float(r.mean()),
+            "r_std": float(r.std()), "d50_um": float(dvalues(s_um)["d50_um"])}
 
 
 def _legend(ax) -> None:
@@ -36,138 +83,316 @@ def _png(fig) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _lognormal_pdf(s, mean, std):
-    """Number-weighted log-normal density of s with the given mean and std (the law's shape
-    for the figure; the filter's likelihood uses its own size law)."""
-    sig2 = math.log1p((std / mean) ** 2)
-    mu = math.log(mean) - sig2 / 2
-    return np.exp(-(np.log(s) - mu) ** 2 / (2 * sig2)) / (s * math.sqrt(2 * math.pi * sig2))
+def _law_pdf(s, mean, std):
+    """Number-weighted density of s under the filter's size law (Weibull of that mean and std,
+    :func:`bmctl.stats.weibull_params`), per µm."""
+    from ..stats import weibull_params
+
+    k, lam = weibull_params(float(mean), float(std))
+    u = np.asarray(s, dtype=float) / lam
+    return k / lam * u ** (k - 1) * np.exp(-u**k)
 
 
-def figures(c) -> dict[str, str]:
+class ReportData:
+    """Everything the page shows, read once from the campaign (inside its read transaction)."""
+
+    def __init__(self, c):
+        self.meta = c.meta
+        self.clock_h = c.clock_h()
+        self.ceiling_c = c.ceiling_c()
+        from ..estimate import FilterSettings
+
+        self.sigma_reading_c = FilterSettings().sigma_temperature_c
+        self.nodes = c.estimates()
+        self.actions = c.actions()
+        self.deviations = {r[0]: r[1] for r in c.con.execute("SELECT id, deviation FROM actions")}
+        self.temps = c.con.execute("SELECT t_h, temperature_c FROM temperatures ORDER BY t_h, id").fetchall()
+        self.samples = []
+        for sid, t, n, src in c.con.execute("SELECT id, t_h, n, sources FROM samples ORDER BY t_h, id").fetchall():
+            s, r = c.particles(sid)
+            self.samples.append({"id": sid, "t_h": float(t), "n": int(n), "s_um": s, "r": r,
+                                 "sources": [Path(x).name for x in json.loads(src)], "stats": sample_statistics(s, r),
+                                 "estimate": self.node_at(float(t))})
+        self.plans = []
+        for pid, t, advice in c.con.execute("SELECT id, t_h, advice FROM plans ORDER BY id").fetchall():
+            dec = c.con.execute("SELECT accepted, rpm, milling, note FROM decisions WHERE plan_id = ? ORDER BY id",
+                                (pid,)).fetchall()
+            act = c.con.execute("SELECT id FROM actions WHERE plan_id = ? ORDER BY t0_h", (pid,)).fetchall()
+            self.plans.append({"id": pid, "t_h": float(t), "advice": json.loads(advice), "decisions": dec,
+                               "actions": [a[0] for a in act]})
+
+    def node_at(self, t_h: float) -> dict | None:
+        """The estimate of the timeline node at ``t_h`` (None when the log has not reached it)."""
+        hits = [e for t, e in self.nodes if abs(t - t_h) < 1e-6]
+        return hits[-1] if hits else None
+
+    def warnings(self) -> list[str]:
+        out = []
+        for _, est in self.nodes:
+            out += reading_warnings(est, self.ceiling_c, self.sigma_reading_c)
+        if self.nodes:
+            out += estimate_warning(self.nodes[-1][1], self.ceiling_c)
+        return out
+
+
+# --- figures ----------------------------------------------------------------------------------------
+def figures(d: ReportData) -> dict[str, str]:
     """The report's figures as base64 PNG strings, by name."""
     plt = io.pyplot()
-    est = c.estimates()
-    t = np.array([e[0] for e in est])
-    meta = c.meta
-    target = meta["target"]
-    out = {}
-    samples = c.con.execute("SELECT id, t_h, n, s_median_um, r_median FROM samples ORDER BY t_h, id").fetchall()
+    from ..plots import log_size_axis
 
-    # 1. estimate and band against the target
-    keys = ["s_mean_um", "s_std_um", "r_mean", "d50_um"]
-    fig, axes = plt.subplots(1, 4, figsize=(15, 3.6))
-    for ax, k in zip(axes, keys):
+    out = {}
+    H = d.meta["hours"]
+    t = np.array([n[0] for n in d.nodes])
+    target = d.meta["target"]
+
+    # 1. estimate and band of each quantity; each sample's statistic of the same quantity; the target
+    fig, axes = plt.subplots(2, 2, figsize=(11, 6.4))
+    for ax, (k, (title, stat)) in zip(axes.flat, QUANTITIES.items()):
         if t.size:
-            if k == "d50_um":
-                v = np.array([tg.value_of(k, e[1]) for e in est])
-                ax.plot(t, v, "C0-o", ms=3, label="estimate (at the mean moments)")
-            else:
-                ax.plot(t, [e[1][k] for e in est], "C0-o", ms=3, label="estimate")
-                ax.fill_between(t, [e[1][f"{k}_q05"] for e in est], [e[1][f"{k}_q95"] for e in est], color="C0",
-                                alpha=0.25, label="90 % band")
+            ax.fill_between(t, [e[f"{k}_q05"] for _, e in d.nodes], [e[f"{k}_q95"] for _, e in d.nodes],
+                            color="C0", alpha=0.25, lw=0, label="estimate, 90 % interval")
+            ax.plot(t, [e[k] for _, e in d.nodes], "C0-o", ms=3, label="estimate (mean)")
+        if d.samples:
+            ax.plot([s["t_h"] for s in d.samples], [s["stats"][k] for s in d.samples], "kx", ms=7, mew=1.5,
+                    label=stat)
         if k in target:
             ax.axhline(target[k], color="C3", ls="--", label="target")
-        if k == "s_mean_um" and samples:
-            ax.plot([s[1] for s in samples], [s[3] for s in samples], "kx", label="sample median")
-        unit = " (µm)" if k.endswith("_um") else ""
-        ax.set_title(k.replace("_um", "") + unit), ax.set_xlabel("t (h)"), ax.grid(alpha=0.3)
-        ax.set_xlim(0, meta["hours"])
-    _legend(axes[0])
+        ax.set_title(title, fontsize=10), ax.set_xlabel("batch time (h)"), ax.grid(alpha=0.3)
+        ax.set_xlim(0, H)
+        _legend(ax)
     fig.tight_layout()
     out["estimate"] = _png(fig)
 
-    # 2. measured histograms against the model's law at the estimate of that time
-    if samples:
-        show = samples[-6:]
-        fig, axes = plt.subplots(1, len(show), figsize=(3.2 * len(show), 3.0), squeeze=False)
-        for ax, (sid, ts, n, _, _) in zip(axes[0], show):
-            s, _ = c.particles(sid)
-            e = min(est, key=lambda x: abs(x[0] - ts))[1] if est else None
-            bins = np.geomspace(max(s.min() * 0.8, 1e-3), s.max() * 1.25, 25)
-            ax.hist(s, bins=bins, density=True, color="C7", alpha=0.6, label=f"measured (n={n})")
-            if e is not None:
-                g = np.geomspace(bins[0], bins[-1], 200)
-                ax.plot(g, _lognormal_pdf(g, e["s_mean_um"], e["s_std_um"]), "C0-", label="model at the estimate")
-            ax.set_xscale("log"), ax.set_title(f"sample {sid} at {ts:g} h"), ax.set_xlabel("s (µm)")
+    # 2. measured histograms against the filter's size law at the estimate of that time
+    shown = [s for s in d.samples if s["estimate"] is not None][-6:]
+    if shown:
+        ncol = min(3, len(shown))
+        nrow = math.ceil(len(shown) / ncol)
+        fig, axes = plt.subplots(nrow, ncol, figsize=(3.8 * ncol, 3.0 * nrow), squeeze=False)
+        for ax, s in zip(axes.flat, shown):
+            x = s["s_um"]
+            bins = np.geomspace(max(x.min() * 0.8, 1e-3), x.max() * 1.25, 25)
+            g = np.geomspace(bins[0], bins[-1], 200)
+            # density per unit ln s (s f(s)) on a log axis: the shape is not flattened by the axis
+            w = np.full(x.size, 1.0 / (x.size * np.log(bins[1] / bins[0])))
+            ax.hist(x, bins=bins, weights=w, color="C7", alpha=0.6, label=f"measured (n = {s['n']})")
+            e = s["estimate"]
+            ax.plot(g, g * _law_pdf(g, e["s_mean_um"], e["s_std_um"]), "C0-", label="size law at the estimate")
+            ax.set_xscale("log"), log_size_axis(ax), ax.set_title(f"sample {s['id']} at {s['t_h']:g} h", fontsize=10)
+            ax.set_xlabel("s (µm)"), ax.set_ylabel("density per ln s")
+        for ax in list(axes.flat)[len(shown):]:
+            ax.set_visible(False)
         _legend(axes[0][0])
         fig.tight_layout()
         out["histograms"] = _png(fig)
 
-    # 3. actions taken and recommended; 4. temperature
-    acts = c.actions()
-    plans = c.con.execute("SELECT t_h, rpm, milling, interval_h FROM plans ORDER BY id").fetchall()
-    temps = c.con.execute("SELECT t_h, temperature_c FROM temperatures ORDER BY t_h").fetchall()
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(15, 3.6))
-    for a in acts:
-        ax.fill_between([a.t0_h, a.t0_h + a.milling * a.hours], 0, a.rpm, color="C2", alpha=0.5, step="pre", lw=0)
-    if acts:
-        ax.plot([], [], color="C2", lw=6, alpha=0.5, label="milled (logged)")
-    if plans:
-        ax.plot([p[0] + p[2] * p[3] / 2 for p in plans], [p[1] for p in plans], "C3v", label="recommended rpm")
-    ax.set_xlim(0, meta["hours"]), ax.set_xlabel("t (h)"), ax.set_ylabel("rpm"), ax.grid(alpha=0.3)
-    ax.set_title("actions: milled intervals (gaps are rests) and recommendations"), _legend(ax)
-    if t.size:
-        ax2.plot(t, [e[1]["temperature_c"] for e in est], "C0-", label="estimate")
-        ax2.fill_between(t, [e[1]["temperature_c_q05"] for e in est], [e[1]["temperature_c_q95"] for e in est],
-                         color="C0", alpha=0.25, label="90 % band")
-    if temps:
-        ax2.plot([x[0] for x in temps], [x[1] for x in temps], "C3o", label="reading")
-    if meta.get("temperature_max_c") is not None:
-        ax2.axhline(meta["temperature_max_c"], color="k", ls=":", label="ceiling")
-    ax2.set_xlim(0, meta["hours"]), ax2.set_xlabel("t (h)"), ax2.set_title("vial temperature (°C)")
-    ax2.grid(alpha=0.3), _legend(ax2)
+    # 3. what was run, what was advised (the next interval and the whole plan at each advice)
+    fig, ax = plt.subplots(figsize=(11, 3.4))
+    for a in d.actions:
+        if a.milling > 0 and a.rpm > 0:
+            ax.fill_between([a.t0_h, a.t0_h + a.milling * a.hours], 0, a.rpm, color="C2", alpha=0.5, lw=0)
+    if d.actions:
+        ax.plot([], [], color="C2", lw=6, alpha=0.5, label="milled (logged; gaps are rests)")
+    cmap = plt.get_cmap("viridis")
+    for i, p in enumerate(d.plans):
+        rows = p["advice"].get("schedule", [])
+        if not rows:
+            continue
+        col = cmap(i / max(len(d.plans) - 1, 1))
+        ts = [r["t0_h"] for r in rows] + [rows[-1]["t1_h"]]
+        rpm = [r["rpm"] if r["mill_min"] > 0 else 0.0 for r in rows]
+        ax.step(ts, rpm + rpm[-1:], where="post", color=col, lw=1, alpha=0.7,
+                label="plan at each advice (early → late)" if i == 0 else None)
+        nx = p["advice"]["next"]
+        ax.plot([p["t_h"]], [nx["rpm"]], "v", color="C3", ms=7, label="recommended next" if i == 0 else None)
+    ax.set_xlim(0, H), ax.set_xlabel("batch time (h)"), ax.set_ylabel("rpm"), ax.grid(alpha=0.3)
+    ax.set_title("mill: logged intervals, recommendations and the plan advised at each step", fontsize=10)
+    _legend(ax)
     fig.tight_layout()
     out["actions"] = _png(fig)
+
+    # 4. vial temperature: readings against the ceiling, the estimate and its interval
+    fig, ax = plt.subplots(figsize=(11, 3.4))
+    if t.size:
+        ax.fill_between(t, [e["temperature_c_q05"] for _, e in d.nodes], [e["temperature_c_q95"] for _, e in d.nodes],
+                        color="C0", alpha=0.25, lw=0, label="estimate, 90 % interval")
+        ax.plot(t, [e["temperature_c"] for _, e in d.nodes], "C0-", label="estimate (mean)")
+    if d.temps:
+        ty = np.array(d.temps, dtype=float)
+        over = ty[:, 1] > (d.ceiling_c if d.ceiling_c is not None else np.inf)
+        ax.plot(ty[~over, 0], ty[~over, 1], "o", color="C1", label="reading")
+        if over.any():
+            ax.plot(ty[over, 0], ty[over, 1], "X", color="C3", ms=9, label="reading above the ceiling")
+    if d.ceiling_c is not None:
+        ax.axhline(d.ceiling_c, color="k", ls=":", label=f"ceiling {d.ceiling_c:g} °C")
+    ax.set_xlim(0, H), ax.set_xlabel("batch time (h)"), ax.set_ylabel("vial temperature (°C)"), ax.grid(alpha=0.3)
+    ax.set_title("vial temperature: readings (σ 2 °C) against the ceiling", fontsize=10)
+    _legend(ax)
+    fig.tight_layout()
+    out["temperature"] = _png(fig)
     return out
 
 
-def _table(header, rows) -> str:
-    h = "".join(f"<th>{html.escape(str(x))}</th>" for x in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(x))}</td>" for x in r) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table>"
+# --- page -----------------------------------------------------------------------------------------
+def _band(est: dict | None, k: str, fmt: str = "{:.4g}") -> str:
+    """``mean  [q05, q95]`` of an estimate dict, as ``bmctl campaign status`` prints it."""
+    if est is None or k not in est:
+        return "n/a"
+    return f"{fmt.format(est[k])}  [{fmt.format(est[f'{k}_q05'])}, {fmt.format(est[f'{k}_q95'])}]"
+
+
+def _samples_table(d: ReportData) -> hs.Markup:
+    header = ["sample", "t (h)", "particles"]
+    for k, (title, stat) in QUANTITIES.items():
+        header += [f"{k}: estimate [90 %]", f"{k}: {stat}"]
+    header += ["sources"]
+    rows = []
+    for s in d.samples:
+        row = [s["id"], f"{s['t_h']:g}", s["n"]]
+        for k in QUANTITIES:
+            row += [_band(s["estimate"], k) if s["estimate"] else "waits for the log", f"{s['stats'][k]:.4g}"]
+        rows.append(row + [", ".join(s["sources"])])
+    return hs.table(header, rows)
+
+
+def _advice_section(d: ReportData) -> hs.Markup:
+    acts = {a.id: a for a in d.actions}
+    parts = []
+    for p in d.plans:
+        a = p["advice"]
+        nx = a["next"]
+        rec = ("batch finished" if nx["interval_h"] <= 0 else
+               f"{nx['rpm']:g} rpm, mill {nx['mill_min']} min, rest {nx['rest_min']} min")
+        if p["decisions"]:
+            acc, rpm, mil, note = p["decisions"][-1]
+            dec = "accepted" if acc else "rejected"
+            if not acc and rpm is not None:
+                dec += f"; instead {rpm:g} rpm"
+            if not acc and mil is not None:
+                dec += f", milling {mil:g}"
+            if len(p["decisions"]) > 1:
+                dec += f" (replaces {len(p['decisions']) - 1} earlier decision(s))"
+        else:
+            dec, note = "no decision recorded", ""
+        ran = []
+        for aid in p["actions"]:
+            x = acts.get(aid)
+            if x is None:
+                continue
+            mm = round(x.milling * x.hours * 60)
+            ran.append(f"{x.t0_h:g}-{x.t1_h:g} h: " + (f"rest {round(x.hours * 60)} min" if mm == 0 else
+                                                         f"{x.rpm:g} rpm, mill {mm} min, rest {round(x.hours * 60) - mm} min"))
+        dev = "; ".join(d.deviations.get(aid, "") for aid in p["actions"] if d.deviations.get(aid)) or "none"
+        est = a["estimate"]
+        reach = "; ".join(f"{k} {'reachable' if ok else 'NOT reachable'}" for k, ok in a.get("reachable", {}).items())
+        items = [("recommended next", rec),
+                 ("estimate seen", "; ".join(f"{k} {_band(est, k)}" for k in ("s_mean_um", "d50_um", "temperature_c")
+                                             if k in est)),
+                 ("target", ", ".join(f"{k} = {v:g}" for k, v in a["target"].items())),
+                 ("reachable by the batch end", reach or "n/a"),
+                 ("binding", "; ".join(map(str, a.get("binding", []))) or "no constraint binds"),
+                 ("warnings", "; ".join(map(str, a.get("warnings", []))) or "none"),
+                 ("solver", a.get("solver", "")),
+                 ("decision", dec), ("note", note or "none"),
+                 ("then logged", "; ".join(ran) or "nothing yet"), ("deviation", dev)]
+        dl = hs.join(hs.render("<dt>{k}</dt><dd>{v}</dd>", k=k, v=v) for k, v in items)
+        sched = [(f"{r['t0_h']:.2f}-{r['t1_h']:.2f}", f"{r['rpm']:.0f}", r["mill_min"], r["rest_min"],
+                  "" if r["planned"] else "held") for r in a.get("schedule", [])]
+        end = [(k, f"{e['median']:.4g}", f"[{e['q05']:.4g}, {e['q95']:.4g}]") for k, e in a.get("end", {}).items()]
+        parts.append(hs.render(
+            '<section class="advice" id="advice-{pid}"><h3>Advice {pid} at {t:g} h</h3><dl>{dl}</dl>'
+            "<details><summary>plan advised to the batch end ({n} intervals) and the predicted end state</summary>"
+            '<div class="plan">{plan}</div><div class="end">{end}</div></details></section>',
+            pid=p["id"], t=p["t_h"], dl=dl, n=len(sched),
+            plan=hs.table(["interval (h)", "rpm", "mill (min)", "rest (min)", ""], sched),
+            end=hs.table(["at the batch end", "median", "90 % band"], end)))
+    return hs.join(parts) if parts else hs.Markup("<p>No advice was asked for.</p>")
+
+
+def _temperature_table(d: ReportData) -> hs.Markup:
+    rows = []
+    for t, y in d.temps:
+        e = d.node_at(float(t))
+        checks = reading_warnings(e, d.ceiling_c, d.sigma_reading_c) if e else []
+        rows.append((f"{t:g}", f"{y:g}", "n/a" if d.ceiling_c is None else ("ABOVE" if y > d.ceiling_c else "below"),
+                     "n/a" if e is None or "reading_predicted_c" not in e else
+                     f"{e['reading_predicted_c']:.1f} ± {e['reading_predicted_sd_c']:.1f}",
+                     _band(e, "temperature_c", "{:.1f}"), "; ".join(checks) or "none"))
+    return hs.table(["t (h)", "reading (°C)", "vs ceiling", "estimate before (°C)", "estimate after (°C) [90 %]",
+                     "warnings"], rows)
+
+
+PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>bmctl campaign report</title>
+<style>body{{font-family:sans-serif;margin:1.5em;max-width:1400px}} img{{max-width:100%}}
+table{{border-collapse:collapse;font-size:0.9em;margin:0.4em 0}} td,th{{border:1px solid #bbb;padding:2px 8px;text-align:right}}
+dl{{display:grid;grid-template-columns:max-content auto;gap:2px 12px}} dt{{font-weight:bold}} dd{{margin:0}}
+.warnings li{{color:#a00}} section.advice{{border-top:1px solid #ccc;margin-top:1em}}</style>
+</head><body>
+<h1>Campaign report</h1>
+<p>{hours:g} h batch; target {tgt}; vial-temperature ceiling {ceiling}; controller {kind}; card {card};
+logged to {clock:g} h; {n_act} intervals, {n_smp} samples, {n_tmp} temperature readings, {n_adv} advices.</p>
+<h2>Warnings</h2>
+{warnings}
+<h2>Estimate now</h2>
+{estimate}
+<h2>Samples: the estimate against each sample's statistic of the same quantity</h2>
+{fig_estimate}
+{samples}
+{fig_hist}
+<h2>Advice and decisions</h2>
+{fig_actions}
+{advice}
+<h2>Vial temperature</h2>
+{fig_temperature}
+{temperatures}
+<h2>Log</h2>
+{log}
+</body></html>
+"""
 
 
 def html_page(c) -> str:
-    """The report page (a string)."""
-    meta = c.meta
-    figs = figures(c)
-    samples = c.con.execute("SELECT id, t_h, n, s_median_um, r_median, sources FROM samples ORDER BY t_h, id").fetchall()
-    srows = [(sid, f"{t:g}", n, f"{s:.4g}", f"{r:.3f}", ", ".join(Path(x).name for x in json.loads(src)))
-             for sid, t, n, s, r, src in samples]
-    arows = [(f"{a.t0_h:g}", f"{a.t1_h:g}", f"{a.rpm:g}", f"{a.milling * a.hours * 60:.0f}",
-              f"{(1 - a.milling) * a.hours * 60:.0f}", dev)
-             for a, dev in zip(c.actions(), [r[0] for r in c.con.execute("SELECT deviation FROM actions ORDER BY t0_h")])]
-    plan = c.latest_plan()
-    advice = ""
-    if plan is not None:
-        a = json.loads(plan[5])
-        nx = a["next"]
-        advice = (f"<p>Latest advice at {a['t_h']:g} h: <b>{nx['rpm']:g} rpm, mill {nx['mill_min']} min, rest "
-                  f"{nx['rest_min']} min</b>; binding: {html.escape('; '.join(a['binding']) or 'none')}; "
-                  + "; ".join(f"{k} {'reachable' if ok else 'not reachable'}" for k, ok in a["reachable"].items())
-                  + "</p>")
-    tgt = ", ".join(f"{k} = {v:g}" for k, v in meta["target"].items())
-    img = lambda k, alt: (f'<figure><img alt="{alt}" src="data:image/png;base64,{figs[k]}"><figcaption>{alt}'
-                          "</figcaption></figure>") if k in figs else ""
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>bmctl campaign report</title>
-<style>body{{font-family:sans-serif;margin:1.5em;max-width:1400px}} img{{max-width:100%}}
-table{{border-collapse:collapse;font-size:0.9em}} td,th{{border:1px solid #bbb;padding:2px 8px;text-align:right}}</style>
-</head><body>
-<h1>Campaign report</h1>
-<p>{meta['hours']:g} h batch; target {html.escape(tgt)}; controller {html.escape(meta['controller_kind'])};
-card {html.escape(Path(meta['inputs']['card']['file']).name)}; logged to {c.clock_h():g} h.</p>
-{advice}
-{img('estimate', 'Estimate and its 90 % band against the target over time')}
-{img('histograms', 'Measured size histograms against the model law at the estimate')}
-{img('actions', 'Actions taken and recommended; vial temperature')}
-<h2>Samples</h2>
-{_table(['id', 't (h)', 'particles', 'median s (µm)', 'median r', 'sources'], srows)}
-<h2>Log</h2>
-{_table(['from (h)', 'to (h)', 'rpm', 'milling (min)', 'rest (min)', 'deviation'], arows)}
-</body></html>
-"""
+    """The report page (a string). Every value is escaped when the page is rendered
+    (:func:`bmctl.htmlsafe.render`): the templates in this module are the only markup."""
+    d = ReportData(c)
+    figs = figures(d)
+    meta = d.meta
+    temps = {round(t, 9): y for t, y in d.temps}
+    arows = []
+    for a in d.actions:
+        mm = a.milling * a.hours * 60
+        y = temps.get(round(a.t1_h, 9))
+        arows.append((f"{a.t0_h:g}", f"{a.t1_h:g}", f"{a.rpm:g}" if mm > 0 else "0 (rest)", f"{mm:.0f}",
+                      f"{a.hours * 60 - mm:.0f}", "" if y is None else f"{y:g}", d.deviations.get(a.id, "")))
+    warns = d.warnings()
+    wblock = (hs.render('<ul class="warnings">{items}</ul>', items=hs.join(hs.render("<li>{w}</li>", w=w)
+                                                                           for w in warns))
+              if warns else hs.Markup("<p>No temperature warnings.</p>"))
+    last = d.nodes[-1][1] if d.nodes else None
+    est_rows = [(k, _band(last, k)) for k in ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "temperature_c",
+                                              "thermal_gain", "gamma_mult", "delta_mult") if last and k in last]
+
+    def img(k: str, alt: str) -> hs.Markup:
+        return hs.png_figure(base64.b64decode(figs[k]), alt) if k in figs else hs.Markup("")
+
+    return hs.render(
+        PAGE, hours=meta["hours"], tgt=", ".join(f"{k} = {v:g}" for k, v in meta["target"].items()),
+        ceiling="none" if d.ceiling_c is None else f"{d.ceiling_c:g} °C", kind=meta["controller_kind"],
+        card=Path(str(meta["inputs"]["card"]["file"])).name, clock=d.clock_h, n_act=len(d.actions),
+        n_smp=len(d.samples), n_tmp=len(d.temps), n_adv=len(d.plans), warnings=wblock,
+        estimate=hs.table(["quantity", "mean [90 % interval]"], est_rows),
+        fig_estimate=img("estimate", "Estimate (mean and 90 % interval) of each quantity over batch time, each "
+                                     "sample statistic of the same quantity, and the target"),
+        samples=_samples_table(d),
+        fig_hist=img("histograms", "Measured size distributions against the filter size law at the estimate "
+                                   "(density per ln s)"),
+        fig_actions=img("actions", "Logged intervals, recommendations and the plan advised at each step"),
+        advice=_advice_section(d),
+        fig_temperature=img("temperature", "Vial-temperature readings against the ceiling, with the estimate"),
+        temperatures=_temperature_table(d),
+        log=hs.table(["from (h)", "to (h)", "rpm", "milling (min)", "rest (min)", "reading (°C)", "deviation"], arows))
 
 
 def write_report(c, path: Path) -> Path:

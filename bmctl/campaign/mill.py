@@ -75,19 +75,27 @@ class RecordedSensor:
 class CampaignLoop(ClosedLoop):
     """:class:`bmctl.loop.ClosedLoop` whose decisions and observations happen at logged times."""
 
-    def decide_at(self, t_h: float):
+    def decide_at(self, t_h: float, history=None):
         """The controller's plan at batch time ``t_h`` from the current estimate and ``u_prev``
         (as :meth:`ClosedLoop.decide`, which plans at ``k * interval_h``; a scenario MPC gets the
-        filter's scenarios as there)."""
+        filter's scenarios as there). ``history``: the logged intervals ``(hours, rpm, milling)``,
+        for a controller that plans from the mill's record (dwell periods and switches used)."""
         x, p = estimate_vectors(self.est)
         t0 = time.perf_counter()
-        if getattr(self.controller, "n_scen", 1) > 1:  # scenario MPC: the filter's spread, as ClosedLoop.decide
+        kw = {"history": history} if history is not None and getattr(self.controller, "uses_history", False) else {}
+        n_spread = getattr(self.controller, "spread_particles", 0)
+        if n_spread:  # a plan on operable schedules: the filter's particles as its spread
+            from ..control.robust import particle_scenarios
+
+            plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev,
+                                        scenarios=particle_scenarios(self.estimator, n_spread), **kw)
+        elif getattr(self.controller, "n_scen", 1) > 1:  # scenario MPC: the filter's spread, as ClosedLoop.decide
             from ..control.robust import filter_scenarios
 
             plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev,
-                                        scenarios=filter_scenarios(self.est, self.controller.n_scen - 1))
+                                        scenarios=filter_scenarios(self.est, self.controller.n_scen - 1), **kw)
         else:
-            plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev)
+            plan = self.controller.plan(x, float(t_h), p=p, u_prev=self.u_prev, **kw)
         st = plan.status
         solve_ms = st.solve_ms if st.solve_ms else (time.perf_counter() - t0) * 1e3
         return plan, solve_ms
@@ -95,14 +103,30 @@ class CampaignLoop(ClosedLoop):
     def observe_at(self, s_um=None, r=None, temperature_c: float | None = None) -> dict:
         """Weigh in what was observed now (a sample, a temperature reading, both or neither:
         then the estimate is read, which applies the deferred process noise); returns the estimate dict."""
+        predicted = None
         if s_um is None and temperature_c is None:
             est = self.estimator.estimate()
         else:
             if temperature_c is not None:
+                predicted = predicted_temperature(self.estimator)
                 self.mill.read_temperature(temperature_c)
             if s_um is not None:
                 self.sensor.queued = (np.asarray(s_um, dtype=float), np.asarray(r, dtype=float))
                 s_um, r = self.sensor.sample(self.mill, self.sample_rng)
             est = self.estimator.update(s_um, r, temperature_c=temperature_c)
         self.est = est.as_dict()
+        if predicted is not None:  # the reading and what the estimate expected just before it
+            self.est["reading_c"] = float(temperature_c)
+            self.est["reading_predicted_c"], self.est["reading_predicted_sd_c"] = predicted
         return self.est
+
+
+def predicted_temperature(estimator) -> tuple[float, float]:
+    """Weighted mean and std (degC) of a particle estimator's vial temperature now, before a
+    reading (NaN for an estimator without particles)."""
+    X, w = getattr(estimator, "X", None), getattr(estimator, "weights", None)
+    if X is None or w is None:
+        return math.nan, math.nan
+    T = np.asarray(X, dtype=float)[:, 4]
+    m = float(w @ T)
+    return m, float(math.sqrt(max(float(w @ (T - m) ** 2), 0.0)))

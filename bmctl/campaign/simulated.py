@@ -111,7 +111,8 @@ def trial_steps(scenario_path, folder, seed: int = 0):
                 trial_loop.next_sample_h += sc.sampling.every_h
                 est = wf.sample(folder, t_new, [ParticleTable.from_size_aspect(s_um, rr)], campaign=c)["estimate"]
             trial_loop.k, trial_loop.est, trial_loop.u_prev = k + 1, est, (rpm, milling)
-            yield trial_loop, StepRecord(k, t_new, rpm, milling, plant.moments(), est, int(due),
+            truth = {**plant.moments(), "peak_temperature_c": trial_loop.peak_c}
+            yield trial_loop, StepRecord(k, t_new, rpm, milling, truth, est, int(due),
                                          advice["solve_ms"], status), advice
 
 

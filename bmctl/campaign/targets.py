@@ -1,17 +1,17 @@
 """Campaign targets: what the user asks for, mapped onto what the controller tracks.
 
-The controller tracks the four micrograph moments (:data:`bmctl.control.config.TARGET_KEYS`):
-those keys pass through unchanged. Other keys are registered in :data:`TARGETS` with a
-function that maps their value onto controller moments, given the current estimate, so the
-key set grows by adding an entry.
+The controller tracks the four micrograph moments and the volume-weighted D-values
+(:data:`bmctl.control.config.TARGET_KEYS`): those keys pass through unchanged. Other keys can
+be registered in :data:`TARGETS` with a function that maps their value onto controller
+targets, given the current estimate, so the key set grows by adding an entry.
 
-``d50_um`` -- the volume-weighted median size (laser-diffraction D50). With a log-normal
-size law fitted to the number-weighted mean m and std sd (Hatch-Choate), sigma^2 =
-ln(1 + (sd/m)^2) and the volume-weighted median is ``m * (1 + (sd/m)^2)^2.5``. The controller
-does not carry a D50 target yet, so ``d50_um`` is tracked as the number-weighted mean
-``s_mean_um = d50_um / (1 + cv^2)^2.5`` at the currently estimated spread cv = s_std / s_mean
-(re-evaluated at every ``advise``). The report and ``advise`` show the D50 implied by the
-estimate next to it.
+``d50_um`` -- the volume-weighted median size (laser-diffraction D50) -- has one definition
+everywhere: the closed form of the size law of a state's number-weighted mean and std
+(:func:`bmctl.stats.law_size_stats` of the projected moments,
+:func:`bmctl.moments.model.size_stats_of_state`). The particle filter reports it per particle
+(mean and 90 % interval over the filter's particles), the controller's D50 target uses the
+same closed form, and ``status``, ``advise``, ``status --json`` and the report print the
+estimate's ``d50_um`` and its interval as they are.
 """
 
 from __future__ import annotations
@@ -22,27 +22,13 @@ from typing import Callable
 from ..control.config import TARGET_KEYS
 from ..errors import InputError, finite_float
 
-
-def d50_from_moments(s_mean_um: float, s_std_um: float) -> float:
-    """Volume-weighted median size (um) of a log-normal law with number mean and std (um)."""
-    cv2 = (s_std_um / s_mean_um) ** 2
-    return s_mean_um * (1.0 + cv2) ** 2.5
-
-
-def _d50_target(value: float, est: dict) -> dict[str, float]:
-    cv2 = (est["s_std_um"] / est["s_mean_um"]) ** 2
-    return {"s_mean_um": value / (1.0 + cv2) ** 2.5}
-
-
 #: extra target keys: name -> (maps value and estimate dict to controller targets, one-line meaning)
-TARGETS: dict[str, tuple[Callable[[float, dict], dict[str, float]], str]] = {
-    "d50_um": (_d50_target, "volume-weighted median size (um), tracked as s_mean_um at the estimated spread"),
-}
+TARGETS: dict[str, tuple[Callable[[float, dict], dict[str, float]], str]] = {}
 
 
 def known_keys() -> tuple[str, ...]:
     """Every key a campaign target may name."""
-    return tuple(dict.fromkeys(tuple(TARGET_KEYS) + tuple(TARGETS)))  # d50_um is in both: named once
+    return tuple(dict.fromkeys(tuple(TARGET_KEYS) + tuple(TARGETS)))
 
 
 def parse(text: str, where: str = "--target") -> dict[str, float]:
@@ -80,9 +66,5 @@ def controller_target(target: dict[str, float], est: dict) -> dict[str, float]:
 
 
 def value_of(key: str, values: dict) -> float:
-    """The quantity ``key`` of a moment dict (``s_mean_um``, ``s_std_um``, ...); NaN if absent."""
-    if key in TARGET_KEYS:
-        return float(values.get(key, math.nan))
-    if key == "d50_um":
-        return d50_from_moments(values["s_mean_um"], values["s_std_um"])
-    return math.nan
+    """The quantity ``key`` of an estimate dict (``s_mean_um``, ``d50_um``, ...); NaN if absent."""
+    return float(values.get(key, math.nan))

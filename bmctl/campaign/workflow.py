@@ -38,10 +38,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..limits import HOURS_MIN
 from . import db
 from . import targets as tg
 from .advice import _end_band, _measure, _schedule, _why
-from ..moments.modelcache import moment_model
+from .readings import estimate_warning, reading_warnings
+from ..moments.forcard import for_card
 
 EPS_H = 1e-9
 INPUTS = "inputs"
@@ -82,7 +84,7 @@ def _check_meta(meta: dict, where: str) -> dict:
         raise bad("hours", f"{h!r} is not a batch length in (0, {MAX_HOURS:g}] h")
     T = meta["temperature_max_c"]
     if T is not None and (not isinstance(T, num) or isinstance(T, bool) or not -50 <= T <= 400):
-        raise bad("temperature_max_c", f"{T!r} is not a ceiling in [-50, 400] C")
+        raise bad("temperature_max_c", f"{T!r} is not a ceiling in [-50, 400] °C")
     if not isinstance(meta["seed"], int) or isinstance(meta["seed"], bool) or meta["seed"] < 0:
         raise bad("seed", f"{meta['seed']!r} is not a seed")
     n = meta["particles"]
@@ -130,6 +132,7 @@ class Campaign:
         try:
             db.check(self.con, where)
             self.meta = _check_meta(db.get_meta(self.con, where), where)
+            db.check_inputs(self.folder, self.meta["inputs"], where)
         except BaseException:
             self.con.close()
             raise
@@ -147,8 +150,8 @@ class Campaign:
     # --- objects ---------------------------------------------------------------------------
     def _input(self, key: str) -> Path:
         m = self.meta["inputs"][key]
-        p = self.folder / m["file"]
-        if not p.exists() or _sha(p) != m["sha256"]:
+        p = self.folder / m["file"]  # checked on open (db.check_inputs): a file under inputs/
+        if not p.is_file() or _sha(p) != m["sha256"]:
             raise InputError(f"{p}: changed or missing since `campaign init` (the campaign runs on the copy "
                              f"taken then; sha256 {m['sha256'][:12]}...)")
         return p
@@ -171,7 +174,7 @@ class Campaign:
         card_path = self._input("card")
         if "moments" in m["inputs"]:
             self._input("moments")
-        model = moment_model(card_path)  # constants cached on disk (modelcache)
+        model = for_card(card_path)  # the card's own coefficients; constants cached on disk (modelcache)
         cfg_path = self._input("controller")
         cfg = load_controller(cfg_path)
         ceiling = m["temperature_max_c"]
@@ -191,6 +194,31 @@ class Campaign:
         loop = CampaignLoop(OperatorMill(model.card.thermal.ambient_C), RecordedSensor(), pf, controller, g_sample, lcfg)
         loop.model = model
         return loop
+
+    def ceiling_c(self) -> float | None:
+        """The vial-temperature ceiling the campaign runs under (degC): ``init``'s, else the
+        controller config's (None for a controller without one); builds nothing."""
+        if self.meta["temperature_max_c"] is not None:
+            return float(self.meta["temperature_max_c"])
+        from ..control.config import load_controller
+
+        cfg = load_controller(self._input("controller"))
+        return float(cfg.temperature.ceiling_c) if "temperature" in type(cfg).model_fields else None
+
+    def temperature_warnings(self, since_h: float | None = None) -> list[str]:
+        """Warnings of the readings weighed in after ``since_h`` (all when None; each node's check,
+        :mod:`bmctl.campaign.readings`) and of the latest estimate against the ceiling."""
+        from ..estimate import FilterSettings
+
+        ceiling, sigma = self.ceiling_c(), FilterSettings().sigma_temperature_c  # the campaign's filter settings
+        out = []
+        for t, est in self.estimates():
+            if since_h is None or t > since_h + EPS_H:
+                out += reading_warnings(est, ceiling, sigma)
+        _, t_node, est = self.last_node()
+        if t_node >= 0:
+            out += estimate_warning(est, ceiling)
+        return out
 
     def rpm_max(self) -> float:
         """The highest sun-disc speed of the card's mill (rpm): a logged or stated rpm above it is refused."""
@@ -242,6 +270,14 @@ class Campaign:
         r = self.con.execute("SELECT id, t_h, rpm, milling, interval_h, advice, controller_state FROM plans "
                              "ORDER BY id DESC LIMIT 1").fetchone()
         return r
+
+    def plan_before(self, t_h: float):
+        """The latest advice given before batch time ``t_h`` (the controller's previous decision), or None.
+
+        An advice repeated at the same logged time starts from this one too, so the same database
+        gives the same advice however often ``advise`` runs."""
+        return self.con.execute("SELECT id, t_h, rpm, milling, interval_h, advice, controller_state FROM plans "
+                                "WHERE t_h < ? ORDER BY id DESC LIMIT 1", (t_h - EPS_H,)).fetchone()
 
     # --- the estimator's timeline ------------------------------------------------------------
     def _restore_node(self, node_id: int) -> float:
@@ -305,7 +341,7 @@ class Campaign:
 
 # --- verbs -----------------------------------------------------------------------------------------
 def init(folder, model, controller, target, hours: float | None = None, temperature_max_c: float | None = None,
-         seed: int = 0, particles: int = 1000) -> dict:
+         seed: int = 0, particles: int = 1000, identify: bool = False, progress=None) -> dict:
     """Start a campaign in ``folder``: copy the inputs, write the prior estimator state.
 
     Parameters
@@ -326,6 +362,11 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         Seed of the filter's generator.
     particles : int, optional
         Filter particles.
+    identify : bool, optional
+        Identify the card's moment coefficients first when it has none of its own
+        (:func:`bmctl.moments.for_card`); else such a card is refused.
+    progress : callable, optional
+        Progress lines of that identification.
 
     Returns
     -------
@@ -338,6 +379,7 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
 
     card_p, ctrl_p = Path(model), Path(controller)
     card = load_card(card_p)
+    for_card(card_p, identify=identify, progress=progress)  # the card's own coefficients, or refuse
     cfg = load_controller(ctrl_p)
     tgt = tg.parse(target) if isinstance(target, str) else {k: _finite(v, f"target: {k}", 0, strict=True)
                                                             for k, v in dict(target).items()}
@@ -346,7 +388,7 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
             raise InputError(f"target: unknown key {k!r} (one of {', '.join(tg.known_keys())})")
     if not tgt and cfg.kind != "recipe":
         raise InputError(f"--target: a feedback controller ({cfg.kind}) needs a target")
-    H = float(card.process.hours) if hours is None else _finite(hours, "--hours", 0, MAX_HOURS, strict=True)
+    H = float(card.process.hours) if hours is None else _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)
     Tmax = None if temperature_max_c is None else _finite(temperature_max_c, "--temperature-max-c", -50, 400)
     if int(particles) < 50:
         raise InputError(f"--particles: must be >= 50 (got {particles})")
@@ -375,21 +417,28 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
 
 
 def _deviation(c: Campaign, t0: float, rpm: float, milling: float, hours: float) -> tuple[int | None, str]:
-    """(plan id, text) comparing a logged action with the advice (and decision) for its start time."""
-    row = c.con.execute("SELECT id, rpm, milling, interval_h FROM plans WHERE abs(t_h - ?) < 1e-6 "
-                        "ORDER BY id DESC LIMIT 1", (t0,)).fetchone()
+    """(plan id, text) comparing a logged action with the advice (and decision) for its start time:
+    the advice as printed (rpm, milling and rest minutes, interval); empty when they agree."""
+    row = c.con.execute("SELECT id, advice FROM plans WHERE abs(t_h - ?) < 1e-6 ORDER BY id DESC LIMIT 1",
+                        (t0,)).fetchone()
     if row is None:
         return None, ""
-    pid, p_rpm, p_m, p_dt = row
+    pid = row[0]
+    nx = json.loads(row[1])["next"]
+    p_rpm, p_mill_min, p_h = float(nx["rpm"]), float(nx["mill_min"]), float(nx["interval_h"])
     dec = c.con.execute("SELECT accepted, rpm, milling FROM decisions WHERE plan_id = ? ORDER BY id DESC LIMIT 1",
                         (pid,)).fetchone()
+    mill_min = milling * hours * 60.0
     diffs = []
-    if abs(rpm - p_rpm) > 0.5 and (milling > 0 or p_m > 0):
+    if mill_min >= 1.0 and p_mill_min >= 1.0 and abs(rpm - p_rpm) > 0.5:
         diffs.append(f"rpm {rpm:g} (recommended {p_rpm:g})")
-    if abs(milling * hours - p_m * p_dt) * 60 >= 1.0:
-        diffs.append(f"milling {milling * hours * 60:.0f} min (recommended {p_m * p_dt * 60:.0f})")
-    if abs(hours - p_dt) * 60 >= 1.0:
-        diffs.append(f"interval {hours * 60:.0f} min (recommended {p_dt * 60:.0f})")
+    if abs(mill_min - p_mill_min) >= 1.0:
+        if mill_min < 1.0:
+            diffs.append(f"rest instead of milling (recommended {p_rpm:g} rpm for {p_mill_min:.0f} min)")
+        else:
+            diffs.append(f"milling {mill_min:.0f} min (recommended {p_mill_min:.0f})")
+    if abs(hours - p_h) * 60 >= 1.0:
+        diffs.append(f"interval {hours * 60:.0f} min (recommended {p_h * 60:.0f})")
     if not diffs:
         return pid, ""
     how = "no decision recorded" if dec is None else ("advice accepted" if dec[0] else "advice rejected")
@@ -399,17 +448,22 @@ def _deviation(c: Campaign, t0: float, rpm: float, milling: float, hours: float)
 def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: float | None = None,
         from_h: float | None = None, campaign: Campaign | None = None) -> dict:
     """Record what the mill ran: ``rpm`` for ``milling * hours``, then rest, from ``from_h``
-    (default: the end of the last logged interval); a vial-temperature reading at its end is
-    used by the estimator. Overlaps (time going backwards) and gaps are refused.
+    (default: the end of the last logged interval); ``rpm = 0`` or ``milling = 0`` is a rest
+    (recorded as 0 rpm, no milling). A vial-temperature reading at its end enters the
+    estimator. Overlaps (time going backwards) and gaps are refused.
 
     Returns
     -------
     dict
-        ``t0_h, t1_h, deviation`` and the new ``estimate``.
+        ``t0_h, t1_h, rpm, milling`` (as recorded), ``deviation`` (empty when the advice for the
+        interval's start was followed), ``warnings`` (the reading above the ceiling or far from the
+        estimate; the estimate above the ceiling) and the new ``estimate``.
     """
     rpm = _finite(rpm, "--rpm", 0)
-    hours = _finite(hours, "--hours", 0, strict=True)
+    hours = _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)  # one second at least (bmctl.limits)
     milling = _finite(milling, "--milling", 0, 1)
+    if rpm == 0 or milling == 0:  # a rest: the mill stood still for the whole interval
+        rpm, milling = 0.0, 0.0
     T = None if temperature_c is None else _finite(temperature_c, "--temperature-c", -50, 400)
     c = campaign or Campaign(folder)
     try:
@@ -436,10 +490,12 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
                               (t1, T, cur.lastrowid, db.now()))
             c._replay()
             est = c.last_node()[2]
+            warnings = c.temperature_warnings(since_h=t0)
     finally:
         if campaign is None:
             c.close()
-    return {"t0_h": t0, "t1_h": t1, "deviation": dev, "estimate": est}
+    return {"t0_h": t0, "t1_h": t1, "rpm": rpm, "milling": milling, "deviation": dev, "warnings": warnings,
+            "estimate": est}
 
 
 def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign: Campaign | None = None,
@@ -492,13 +548,33 @@ def _insert_particles(con, rows) -> None:
     con.executemany("INSERT INTO particles VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
 
 
-def advise(folder, campaign: Campaign | None = None) -> dict:
+def ensure_coefficients(folder, identify: bool = False, progress=None):
+    """The moment model of the campaign's copy of its card (:func:`bmctl.moments.for_card`): refuses
+    coefficients of another card, or identifies the copy with ``identify``.
+
+    Parameters
+    ----------
+    folder : path-like
+        The campaign.
+    identify : bool, optional
+        Identify the copy's coefficients when it has none of its own.
+    progress : callable, optional
+        Progress lines of that identification.
+    """
+    with Campaign(folder) as c:
+        return for_card(c._input("card"), identify=identify, progress=progress)
+
+
+def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
     """Recommend the next action from the current estimate.
+
+    ``progress``: called with one line per step (the command prints them on stderr).
 
     Returns
     -------
     dict
-        ``t_h``; ``estimate`` (values with ``_q05``/``_q95``); ``target`` and ``controller_target``;
+        ``t_h``; ``warnings`` (readings since the previous advice above the ceiling or far from the
+        estimate; the estimate above the ceiling); ``estimate`` (values with ``_q05``/``_q95``); ``target`` and ``controller_target``;
         ``next`` (rpm, milling share, milling and rest minutes, interval); ``schedule`` to the batch
         end; ``end`` (median and 90 % band of each moment at the batch end; ``end_nominal``: the
         controller's own prediction); ``reachable`` per target; ``binding`` constraints;
@@ -506,30 +582,43 @@ def advise(folder, campaign: Campaign | None = None) -> dict:
         ``advise_ms``; ``plan_id``.
     """
     t_start = time.perf_counter()
+    say = progress or (lambda text: None)
     c = campaign or Campaign(folder)
     try:
         with db.transaction(c.con, where=str(folder)):
+            if c._loop is None:
+                say("building the moment model, the filter and the controller")
             lp = c.loop
             clock = c.clock_h()
             _, t_node, est = c.last_node()
             c._restore_node(c.last_node()[0])
-            prev = c.latest_plan()
+            prev = c.plan_before(clock)
             if prev is not None:
                 lp.controller.set_state(db.unpack(prev[6], f"{folder}: controller state"))
+            else:
+                lp.controller.reset()
+            earlier = c.con.execute("SELECT MAX(t_h) FROM plans WHERE t_h < ?", (clock - 1e-6,)).fetchone()[0]
+            warnings = c.temperature_warnings(since_h=None if earlier is None else float(earlier))
             ctrl_target = tg.controller_target(c.meta["target"], est)
             lp.controller.set_target(ctrl_target, t_end_h=c.meta["hours"])
             acts = c.actions()
             lp.u_prev = (acts[-1].rpm, acts[-1].milling) if acts else None
-            plan, solve_ms = lp.decide_at(clock)
+            readings = dict(c.con.execute("SELECT action_id, temperature_c FROM temperatures WHERE action_id IS NOT NULL "
+                                          "ORDER BY id"))
+            history = [(a.hours, a.rpm, a.milling, readings.get(a.id)) for a in acts]
+            say(f"planning from {clock:g} h to the batch end ({c.meta['hours']:g} h)")
+            plan, solve_ms = lp.decide_at(clock, history=history)
+            say(f"planned in {solve_ms / 1e3:.1f} s: {plan.status.reason or plan.status.solver_status}")
             sched = _schedule(c, plan, clock)
-            end = _end_band(c, sched) if sched else {}
+            end = _end_band(c, sched, plan) if sched else {}
             reach, binding = _why(c, plan, sched, end, ctrl_target)
             x_end = np.asarray(plan.x[-1], dtype=float)
             dt = plan.interval_h
             h_next = min(dt, c.meta["hours"] - clock) if clock < c.meta["hours"] - EPS_H else 0.0
             mill_min = round(plan.milling * dt * 60.0)
             advice = {
-                "t_h": clock, "estimate": est, "target": c.meta["target"], "controller_target": ctrl_target,
+                "t_h": clock, "warnings": warnings, "estimate": est, "target": c.meta["target"],
+                "controller_target": ctrl_target,
                 "next": {"rpm": plan.rpm if mill_min > 0 else 0.0, "milling": plan.milling, "interval_h": h_next,
                          "mill_min": min(mill_min, round(h_next * 60)),
                          "rest_min": max(0, round(h_next * 60) - mill_min)},
@@ -588,7 +677,8 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
 
 
 def status(folder, campaign: Campaign | None = None) -> dict:
-    """Where the campaign stands: clock, counts, the current estimate, the latest advice and decision."""
+    """Where the campaign stands: clock, counts, the current estimate, the latest advice and decision,
+    the deviations, and the temperature warnings since the latest advice."""
     c = campaign or Campaign(folder)
     try:
         with db.transaction(c.con, write=False, where=str(folder)):
@@ -603,6 +693,7 @@ def status(folder, campaign: Campaign | None = None) -> dict:
                 dec = c.con.execute("SELECT accepted, rpm, milling FROM decisions WHERE plan_id = ? ORDER BY id DESC "
                                     "LIMIT 1", (plan[0],)).fetchone()
             devs = [r[0] for r in c.con.execute("SELECT deviation FROM actions WHERE deviation != '' ORDER BY t0_h")]
+            warnings = c.temperature_warnings(since_h=None if plan is None else float(plan[1]))
     finally:
         if campaign is None:
             c.close()
@@ -611,7 +702,7 @@ def status(folder, campaign: Campaign | None = None) -> dict:
             "latest_advice": None if plan is None else {"id": plan[0], "t_h": plan[1], "rpm": plan[2],
                                                         "milling": plan[3], "current": abs(plan[1] - clock) < 1e-6},
             "decision": None if dec is None else {"accepted": bool(dec[0]), "rpm": dec[1], "milling": dec[2]},
-            "deviations": devs, "db_bytes": db.db_path(folder).stat().st_size}
+            "deviations": devs, "warnings": warnings, "db_bytes": db.db_path(folder).stat().st_size}
 
 
 def report(folder, out=None, campaign: Campaign | None = None) -> Path:

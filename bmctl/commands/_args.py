@@ -95,3 +95,40 @@ def float_arg(name: str, lo: float | None = None, hi: float | None = None, stric
         return v
 
     return parse
+
+
+def hours_arg(name: str, zero: bool = False):
+    """argparse ``type=`` for a duration or a time in hours: in [1 s, 1000 h] (``zero``: 0 allowed
+    too), the range every schedule, scenario and campaign shares (:mod:`bmctl.limits`).
+
+    Parameters
+    ----------
+    name : str
+        The flag, named in error messages.
+    zero : bool, optional
+        Whether 0 h is a valid value (a time, not a duration).
+    """
+    from ..limits import HOURS_MAX, HOURS_MIN
+
+    def parse(text: str) -> float:
+        v = finite_float(text, name)
+        if not (v == 0 and zero) and not HOURS_MIN <= v <= HOURS_MAX:
+            lo = "0 or " if zero else ""
+            raise InputError(f"{name}: must be {lo}in [{HOURS_MIN * 3600:g} s, {HOURS_MAX:g} h] (got {text})")
+        return v
+
+    return parse
+
+
+def rpm_arg(name: str):
+    """argparse ``type=`` for a sun-disc speed in [0, 2000] rpm (:data:`bmctl.limits.RPM_MAX`; a
+    card's ``mill.rpm_max`` caps it further where the command knows the card).
+
+    Parameters
+    ----------
+    name : str
+        The flag, named in error messages.
+    """
+    from ..limits import RPM_MAX
+
+    return float_arg(name, lo=0.0, hi=RPM_MAX)

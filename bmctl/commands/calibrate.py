@@ -2,13 +2,16 @@
 
 ``bmctl calibrate CARD.toml HISTORY.toml... --params alpha,beta,gamma,delta`` fits the named card
 parameters to the (s, r) samples of one or more histories (what the mill ran and what was
-measured when) and writes ``DIR/<card>-calibrated.toml``, ``DIR/calibration.json`` (estimates,
+measured when) and writes ``DIR/<card>-calibrated.toml`` with its moment coefficients
+(``<card>-calibrated.moments.toml``, identified on the spot), ``DIR/calibration.json`` (estimates,
 90 % intervals, the fit at the optimum, what the data do not identify) and one histogram
 figure per history. Plant runs go through Dask (a local cluster by default, ``--scheduler``
 for a running one). See docs/calibration-from-data.md.
 """
 
 from __future__ import annotations
+
+import sys
 
 from ._args import int_arg, output_path
 
@@ -39,6 +42,7 @@ def run(args) -> int:
     from ..calibrate.params import parse_params
     from ..calibrate.run import run_calibration
     from ..config import load_card
+    from ..io import name_part
     from ..parallel import client_for, close_client
 
     out = output_path(args.out)
@@ -46,17 +50,24 @@ def run(args) -> int:
     names = parse_params(args.params, card)
     histories = [load_history(h, card) for h in args.histories]
     seen = set()
-    for h in histories:
-        if h.name in seen:
+    for h in histories:  # each history's figure is named by its name as a file name part (bmctl.io.name_part)
+        if name_part(h.name) in seen:
             raise_dup(h)
-        seen.add(h.name)
+        seen.add(name_part(h.name))
     settings = FitSettings(particles=args.particles, replicates=args.replicates)
+    from ..work import add, calibrate_work, check_work, identify_work
+
+    check_work(add(calibrate_work(card, histories, len(names), args.particles, args.replicates, settings.max_iter),
+                   identify_work(card, args.seed)), "--particles/--replicates/HISTORY.toml (and the calibrated "
+               "card's identification)")
     client = client_for(args.scheduler, args.workers)
     bar = tqdm(desc="plant runs", unit="run", total=None, leave=False)
     try:
         res = run_calibration(card, args.model, histories, names, out, seed=args.seed, settings=settings,
                               client=client, moment_stage=not args.no_moment_start, progress=bar.update,
-                              on_iteration=lambda e: bar.set_postfix(it=e["iteration"], chi2=f"{e['chi2']:.1f}"))
+                              on_iteration=lambda e: bar.set_postfix(it=e["iteration"], chi2=f"{e['chi2']:.1f}"),
+                              log=lambda msg: tqdm.write(f"identify (the calibrated card's moment coefficients): {msg}",
+                                                         file=sys.stderr))
     finally:
         bar.close()
         close_client(client)
@@ -65,6 +76,9 @@ def run(args) -> int:
     print(f"{card.card.name}: {len(histories)} histories, {sum(len(h.samples) for h in histories)} samples; "
           f"{cal.plant_runs} plant runs ({engine}) in {res.wall_s:.0f} s; chi2 {cal.chi2:.1f} on "
           f"{cal.n_summaries} summaries{'' if cal.converged else ' (not converged)'}")
+    if not cal.converged:
+        print(f"  {cal.stop_reason}")
+        print(f"bmctl: note: calibration {cal.stop_reason}", file=sys.stderr)
     for i, n in enumerate(cal.names):
         flag = "" if cal.identified[i] else "  NOT IDENTIFIED"
         print(f"  {n:28s} {cal.values[i]:.4g}  90 % [{cal.lo90[i]:.4g}, {cal.hi90[i]:.4g}]  "
@@ -77,4 +91,5 @@ def run(args) -> int:
 def raise_dup(h):
     from ..errors import InputError
 
-    raise InputError(f"{h.path}: name: history name {h.name!r} is used twice (give each history its own name)")
+    raise InputError(f"{h.path}: name: history name {h.name!r} is used twice, or gives the same figure name as another "
+                     "(give each history its own name)")

@@ -11,7 +11,8 @@ import argparse
 import json
 import sys
 
-from ._args import float_arg, int_arg
+from ._args import float_arg, hours_arg, int_arg, rpm_arg
+from ._model import add_identify_flag, progress_printer, warn_window
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
@@ -24,24 +25,25 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--controller", required=True, metavar="CONFIG", help="controller config (controllers/*.toml)")
     p.add_argument("--target", required=True, metavar="K=V[,K=V]",
                    help="target at the batch end, e.g. d50_um=45 or s_mean_um=40,r_mean=0.05")
-    p.add_argument("--hours", type=float_arg("--hours", 0, strict=True), default=None, help="batch length (h); default: the card's")
+    p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="batch length (h); default: the card's")
     p.add_argument("--temperature-max-c", type=float_arg("--temperature-max-c"), default=None, metavar="C",
-                   help="vial-temperature ceiling (degC); default: the controller's")
+                   help="vial-temperature ceiling (°C); default: the controller's")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the estimator")
     p.add_argument("--particles", type=int_arg("--particles", 50, 200_000), default=1000, help="filter particles")
+    add_identify_flag(p)
     p = sub.add_parser("log", help="record what the mill ran")
     p.add_argument("dir", metavar="DIR")
-    p.add_argument("--rpm", required=True, type=float_arg("--rpm", 0), help="sun-disc speed (0: a rest)")
-    p.add_argument("--hours", required=True, type=float_arg("--hours", 0, strict=True), help="length of the interval (h)")
+    p.add_argument("--rpm", required=True, type=rpm_arg("--rpm"), help="sun-disc speed (0: a rest, no milling)")
+    p.add_argument("--hours", required=True, type=hours_arg("--hours"), help="length of the interval (h)")
     p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=1.0,
-                   help="share of the interval spent milling, first (the rest of it is a rest)")
+                   help="share of the interval spent milling, first (the rest of it is a rest; 0: a rest)")
     p.add_argument("--temperature-c", type=float_arg("--temperature-c"), default=None, metavar="C",
-                   help="vial temperature read at the end of the interval")
-    p.add_argument("--from-h", type=float_arg("--from-h", 0), default=None, metavar="H",
+                   help="vial temperature read at the end of the interval (°C; enters the estimate, sigma 2 °C)")
+    p.add_argument("--from-h", type=hours_arg("--from-h", zero=True), default=None, metavar="H",
                    help="start of the interval (default: end of the last one); overlaps and gaps are refused")
     p = sub.add_parser("sample", help="measure a sample and update the estimate")
     p.add_argument("dir", metavar="DIR")
-    p.add_argument("--at-h", required=True, type=float_arg("--at-h", 0), metavar="H", help="batch time the sample was taken (h)")
+    p.add_argument("--at-h", required=True, type=hours_arg("--at-h", zero=True), metavar="H", help="batch time the sample was taken (h)")
     p.add_argument("inputs", nargs="+", metavar="IMAGE_OR_TABLE", help="micrographs and/or particle tables (.csv)")
     p.add_argument("--um-per-px", type=float_arg("--um-per-px", 0, strict=True), default=None, metavar="X",
                    help="pixel size (overrides the image metadata)")
@@ -50,12 +52,13 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("advise", help="estimate, recommended next action, plan to the batch end, and why")
     p.add_argument("dir", metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the advice as JSON")
+    add_identify_flag(p)
     p = sub.add_parser("decide", help="accept or reject the latest advice")
     p.add_argument("dir", metavar="DIR")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--accept", action="store_true")
     g.add_argument("--reject", action="store_true")
-    p.add_argument("--rpm", type=float_arg("--rpm", 0), default=None, help="with --reject: what will be run instead")
+    p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="with --reject: what will be run instead")
     p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=None, help="with --reject: milling share instead")
     p.add_argument("--note", default="", help="free text kept with the decision")
     p = sub.add_parser("status", help="where the campaign stands")
@@ -74,19 +77,20 @@ def _band(est: dict, k: str, fmt: str = "{:.4g}") -> str:
     return s + (f"  [{fmt.format(lo)}, {fmt.format(hi)}]" if lo is not None else "")
 
 
-def _estimate_lines(est: dict) -> list[str]:
-    from ..campaign.targets import d50_from_moments
+#: the estimate's quantities as printed by ``status``, ``sample`` and ``advise`` (the JSON holds the same numbers)
+ESTIMATE_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "temperature_c", "thermal_gain",
+                 "gamma_mult", "delta_mult")
 
-    lines = [f"  {k:<14} {_band(est, k)}" for k in ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c",
-                                                    "gamma_mult", "delta_mult")]
-    lines.append(f"  {'d50_um':<14} {d50_from_moments(est['s_mean_um'], est['s_std_um']):.4g}"
-                 "  (volume-weighted median of the log-normal law at the mean moments)")
-    return lines
+
+def _estimate_lines(est: dict) -> list[str]:
+    return [f"  {k:<14} {_band(est, k)}" for k in ESTIMATE_KEYS if k in est]
 
 
 def _print_advice(a: dict) -> None:
     nx = a["next"]
     print(f"advice at t = {a['t_h']:g} h (plan {a['plan_id']}; {a['solver']}; advise {a['advise_ms']:.0f} ms)")
+    for w in a.get("warnings", []):
+        print(f"warning: {w}")
     print("estimate (mean [90 % interval]):")
     print("\n".join(_estimate_lines(a["estimate"])))
     tgt = ", ".join(f"{k} = {v:g}" for k, v in a["target"].items())
@@ -98,7 +102,9 @@ def _print_advice(a: dict) -> None:
         print(f"next: {nx['rpm']:g} rpm, mill {nx['mill_min']} min, rest {nx['rest_min']} min "
               f"(interval {nx['interval_h'] * 60:.0f} min)")
     if a["schedule"]:
-        print("planned schedule to the batch end (from the controller's horizon on: its last input held):")
+        held = any(not r["planned"] for r in a["schedule"])
+        print("planned schedule to the batch end" + (" (from the controller's horizon on: its last input held):"
+                                                      if held else ":"))
         for r in a["schedule"]:
             mark = "" if r["planned"] else "  (held)"
             print(f"  {r['t0_h']:6.2f}-{r['t1_h']:6.2f} h  {r['rpm']:6.0f} rpm  mill {r['mill_min']:3d} min  "
@@ -136,23 +142,31 @@ def _run(args: argparse.Namespace) -> int:
     v, d = args.verb, args.dir
     if v == "init":
         meta = cp.init(d, args.model, args.controller, tg.parse(args.target), hours=args.hours,
-                       temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles)
+                       temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles,
+                       identify=args.identify, progress=progress_printer())
         print(f"campaign: {d}: {meta['hours']:g} h batch, target "
               + ", ".join(f"{k} = {x:g}" for k, x in meta["target"].items())
               + f", controller {meta['controller_kind']}; inputs copied to {d}/inputs")
     elif v == "log":
         r = cp.log(d, args.rpm, args.hours, args.milling, args.temperature_c, args.from_h)
-        print(f"logged {r['t0_h']:g}-{r['t1_h']:g} h: {args.rpm:g} rpm, milling {args.milling:g}"
-              + (f", {args.temperature_c:g} C at the end" if args.temperature_c is not None else ""))
+        h = r["t1_h"] - r["t0_h"]
+        mill_min = round(r["milling"] * h * 60)
+        what = (f"rest {round(h * 60)} min" if mill_min == 0 else
+                f"{r['rpm']:g} rpm, mill {mill_min} min, rest {round(h * 60) - mill_min} min")
+        print(f"logged {r['t0_h']:g}-{r['t1_h']:g} h: {what}"
+              + (f"; vial {args.temperature_c:g} °C at the end" if args.temperature_c is not None else ""))
         if r["deviation"]:
             print(r["deviation"])
+        for w in r["warnings"]:
+            print(f"warning: {w}")
         est = r["estimate"]
-        print(f"estimate at {est['t_h']:g} h: s_mean_um {_band(est, 's_mean_um')}")
+        print(f"estimate at {est['t_h']:g} h: s_mean_um {_band(est, 's_mean_um')}; temperature_c "
+              f"{_band(est, 'temperature_c', '{:.1f}')}")
     elif v == "sample":
         r = cp.sample(d, args.at_h, args.inputs, args.um_per_px, accept_unusable=args.accept_unusable)
         for w in r.get("warnings", []):
             print(f"bmctl: warning: {w}", file=sys.stderr)
-        print(f"sample {r['sample_id']} at {r['t_h']:g} h: {r['n']} particles, median s = {r['s_median_um']:.4g} um, "
+        print(f"sample {r['sample_id']} at {r['t_h']:g} h: {r['n']} particles, median s = {r['s_median_um']:.4g} µm, "
               f"median r = {r['r_median']:.3f}")
         if r["applied"]:
             est = r["estimate"]
@@ -161,7 +175,10 @@ def _run(args: argparse.Namespace) -> int:
         else:
             print(f"held: the log reaches {r['clock_h']:g} h; the sample is used when it reaches {r['t_h']:g} h")
     elif v == "advise":
-        a = cp.advise(d)
+        model = cp.ensure_coefficients(d, identify=args.identify, progress=progress_printer())
+        a = cp.advise(d, progress=progress_printer("advise"))
+        warn_window(model, [r["rpm"] for r in a.get("schedule") or [] if r.get("mill_min", 1) > 0]
+                    + ([a["next"]["rpm"]] if a.get("next") else []))
         print(json.dumps(a, indent=2) if args.json else "", end="\n" if args.json else "")
         if not args.json:
             _print_advice(a)
@@ -200,6 +217,8 @@ def _run(args: argparse.Namespace) -> int:
                   + ("; no decision" if dec is None else f"; {'accepted' if dec['accepted'] else 'rejected'}"))
         for dv in s["deviations"]:
             print(dv)
+        for w in s["warnings"]:
+            print(f"warning: {w}")
     elif v == "report":
         p = cp.report(d, args.out)
         print(f"report: wrote {p}")

@@ -1,4 +1,5 @@
-"""Model cards: show what a card implies (derived masses, law of mixtures, kinematics per rpm, validity)."""
+"""Model cards: show what a card implies (derived masses, law of mixtures, kinematics per rpm, validity,
+its moment coefficients and the operating window they were calibrated for)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ def configure(p):
     show = sub.add_parser("show", help="derived quantities a process engineer checks, as a table",
                           description="Derived quantities of a model card: loading, law of mixtures, and per rpm "
                                       "ball velocity, collision frequency, impact energy, Hertz radius, trapped "
-                                      "share, hits per particle per hour, dissipated power, steady vial temperature.")
+                                      "share, hits per particle per hour, dissipated power, steady vial temperature; "
+                                      "whether the card has moment coefficients of its own and their held-out error; "
+                                      "the steady vial temperatures the model was calibrated for.")
     show.add_argument("model", metavar="CARD.toml", help="model card")
     show.add_argument("--rpm", type=_rpm_list, default=None, metavar="R1,R2,...",
                       help="speeds of the table (default: the card's rpm x 0.5, 0.75, 1, 1.25 and rpm_max)")
@@ -27,8 +30,16 @@ def _rpm_list(text: str) -> list[float]:
     return [parse(t) for t in items]
 
 
-def format_report(rep: dict) -> str:
-    """The report of :func:`bmctl.cards.card_report` as text (one table per section)."""
+def format_report(rep: dict, coeffs=None) -> str:
+    """The report of :func:`bmctl.cards.card_report` as text (one table per section).
+
+    Parameters
+    ----------
+    rep : dict
+        From :func:`bmctl.cards.card_report`.
+    coeffs : bmctl.moments.forcard.Status, optional
+        The card's moment coefficients (:func:`bmctl.moments.forcard.status`); a section when given.
+    """
     ld, val = rep["loading"], rep["validity"]
     lines = [f"card {rep['name']}", "", "loading"]
     lines.append(f"  ball mass          {ld['ball_mass_g']:.4g} g (rho pi d^3/6: {ld['ball_mass_from_geometry_g']:.4g} g)")
@@ -42,33 +53,56 @@ def format_report(rep: dict) -> str:
         lines.append(f"  yield stress       {pw['sigma_MPa'][0]:.4g} / {pw['sigma_MPa'][1]:.4g} MPa")
         lines.append(f"  density            {pw['density_kg_m3'][0]:.5g} / {pw['density_kg_m3'][1]:.5g} kg/m^3")
         lines.append(f"  Poisson ratio      {pw['poisson']:.3g} (reported; not used by the model)")
-    head = ("rpm", "v m/s", "coll./s", "E_imp mJ", "a_H um", "trapped", "hits/p/h", "P W", "T_ss C", "")
+    head = ("rpm", "v m/s", "coll./s", "E_imp mJ", "a_H µm", "trapped", "hits/p/h", "P W", "T_ss °C", "")
     lines += ["", "per rpm (Burgio kinematics; Hertz radius after Maurice & Courtney)",
               "  " + "".join(f"{h:>10}" for h in head)]
     for r in rep["rows"]:
         cells = (f"{r['rpm']:.0f}", f"{r['v_ms']:.3g}", f"{r['collisions_per_s']:.4g}", f"{r['impact_energy_mJ']:.3g}",
                  f"{r['hertz_radius_um']:.3g}", f"{r['trapped_share']:.2e}", f"{r['hits_per_particle_per_h']:.3g}",
-                 f"{r['power_W']:.3g}", f"{r['steady_temperature_C']:.0f}", "" if r["valid"] else "outside")
+                 f"{r['power_W']:.3g}", f"{r['steady_temperature_C']:.0f}",
+                 "outside" if not r["valid"] else ("" if r.get("in_window", True) else "uncalib."))
         lines.append("  " + "".join(f"{c:>10}" for c in cells))
     t_max = val["temperature_max_C"]
     lines += ["", "validity",
               f"  rpm                0 to {val['rpm_max']:g}",
-              f"  sizes              {val['s_min_um']:g} to {val['s_max_um']:g} um",
+              f"  sizes              {val['s_min_um']:g} to {val['s_max_um']:g} µm",
               f"  vial temperature   " + ("no stated maximum" if t_max is None
-                                         else f"up to {t_max:g} C ({val['temperature_reason']})")]
+                                         else f"up to {t_max:g} °C ({val['temperature_reason']})")]
+    win = rep.get("window") or {}
+    if win.get("temperature_c") is not None:
+        lo, hi = win["temperature_c"]
+        lines.append(f"  calibrated for     steady vial {lo:.0f}–{hi:.0f} °C ({win['why']}; 'uncalib.' above: "
+                     "predictions there are extrapolations)")
+    if coeffs is not None:
+        lines += ["", "moment coefficients", f"  file               {coeffs.line()}"]
+        f = coeffs.file
+        if f is not None and f.heldout_mean:
+            worst = ", ".join(f"{k.removesuffix('_um')} {100 * float(v):.1f} %" for k, v in f.heldout_max.items()
+                              if k != "temperature_c")
+            lines.append(f"  held-out NRMSE     mean over schedules: " + f.heldout_line().removeprefix("held-out NRMSE "))
+            if worst:
+                lines.append(f"                     worst schedule: {worst}")
+        if f is not None and f.window:
+            r_lo, r_hi = f.window.get("rpm", (float("nan"),) * 2)
+            lines.append(f"  identified on      {r_lo:g}–{r_hi:g} rpm")
+        if not coeffs.ok:
+            lines.append("  commands that run the moment model refuse this card until `bmctl identify` gives it its own")
     return "\n".join(lines)
 
 
 def run(args) -> int:
     from ..cards import card_report
     from ..config import load_card
+    from ..moments.forcard import status
 
     card = load_card(args.model)
+    st = status(card, args.model)
     if args.rpm is not None:
         for r in args.rpm:
             if r > card.mill.rpm_max:
                 from ..errors import InputError
 
                 raise InputError(f"--rpm: {r:g} exceeds the mill's rpm_max {card.mill.rpm_max:g} ({args.model})")
-    print(format_report(card_report(card, args.rpm)))
+    win = st.file.window if st.ok else None
+    print(format_report(card_report(card, args.rpm, win), st))
     return 0

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 
-from ._args import float_arg, int_arg, output_path
+from ._args import hours_arg, int_arg, output_path
 
 
 def configure(p):
@@ -19,9 +19,9 @@ def configure(p):
     p.add_argument("sample", metavar="SAMPLE.csv", help="measured particle table")
     p.add_argument("--model", required=True, metavar="CARD.toml", help="model card")
     p.add_argument("--schedule", default=None, metavar="S.toml", help="[[segment]] hours, rpm (default: the card's recipe)")
-    p.add_argument("--at-h", type=float_arg("--at-h", lo=0.0), required=True, metavar="T", help="milling time of the sample (h)")
+    p.add_argument("--at-h", type=hours_arg("--at-h", zero=True), required=True, metavar="T", help="milling time of the sample (h)")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="plant seed (default 0)")
-    p.add_argument("--particles", type=int_arg("--particles", 100), default=None, metavar="M", help="simulated particles")
+    p.add_argument("--particles", type=int_arg("--particles", 100, 10_000_000), default=None, metavar="M", help="simulated particles")
     p.add_argument("--out", default="out/compare", metavar="DIR", help="output folder (default out/compare)")
 
 
@@ -41,6 +41,13 @@ def run(args) -> int:
         segments = Schedule.load(args.schedule).pairs()
     else:
         segments = Schedule.from_card(card).pairs()
+    from ..cards import simulation_work
+    from ..measure.compare import truncate_schedule
+    from ..work import check_work
+
+    check_work(simulation_work(card, truncate_schedule(segments, args.at_h) or [(1e-3, 0.0)],
+                               args.particles or card.simulation.particles, max(args.at_h, 1e-3), raster=False),
+               "--at-h/--particles/--schedule")
     out = output_path(args.out)
     rng = np.random.default_rng(args.seed)
     s_pred, r_pred = predicted_population(card, segments, args.at_h, rng, args.particles)
@@ -51,7 +58,7 @@ def run(args) -> int:
     compare_figure(out / "compare.png", table.s_um, table.r, s_pred, r_pred,
                    title=f"{args.sample} vs {args.model} at {args.at_h:g} h (seed {args.seed})")
     write_text(out / "compare.json", json.dumps(doc, indent=2) + "\n")
-    for name, st, unit in (("s", s_stat, " um"), ("r", r_stat, "")):
+    for name, st, unit in (("s", s_stat, " µm"), ("r", r_stat, "")):
         print(f"{name}: median measured {st.median_measured:.4g}{unit}, predicted {st.median_predicted:.4g}{unit}; "
               f"KS D = {st.ks:.3f} (p = {st.ks_p:.3g}), Anderson-Darling A = {st.ad:.2f} (p = {st.ad_p:.3g})")
     print(f"compare: wrote {out / 'compare.png'}, {out / 'compare.json'}")

@@ -2,27 +2,15 @@
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import output_path
+from ._args import hours_arg, int_arg, output_path
+from ._model import add_identify_flag, heldout_text, model_for, warn_window
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_CONTROLLER = "controllers/mpc-default.toml"
-
-
-def _hours(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise InputError(f"--hours: not a number: {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise InputError(f"--hours: must be a finite number > 0 (got {text})")
-    if v > 1000.0:  # the longest batch a card allows (bmctl.config.HOURS)
-        raise InputError(f"--hours: {v:g} h exceeds the longest batch, 1000 h")
-    return v
 
 
 def configure(p):
@@ -33,10 +21,18 @@ def configure(p):
     p.add_argument("--objective", choices=("target", "min_time", "min_energy"), default=None,
                    help="target: error + energy/time weights; min_time / min_energy: shortest or cheapest batch "
                         "within the tolerance (default: the controller's [objective] kind)")
-    p.add_argument("--hours", type=_hours, default=None, help="batch length in h (default: the card's)")
+    p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="batch length in h (default: the card's)")
     p.add_argument("--controller", default=None, metavar="FILE.toml",
                    help=f"MPC controller file (default {DEFAULT_CONTROLLER})")
     p.add_argument("--out", default="out/design", metavar="DIR", help="output folder (default out/design)")
+    p.add_argument("--plant-seeds", type=int_arg("--plant-seeds", 0, 64), default=3, metavar="N",
+                   help="plants the designed schedule is checked on (seeded ensemble; 0: no check; default 3)")
+    p.add_argument("--plant-particles", type=int_arg("--plant-particles", 100, 1_000_000), default=5000,
+                   metavar="N", help="simulated particles per plant of the check (default 5000)")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the plant check (default 0)")
+    p.add_argument("--workers", type=int_arg("--workers", 0, 256), default=None,
+                   help="Dask workers of the plant check (default: serial for a small ensemble)")
+    add_identify_flag(p)
 
 
 def _controller_path(arg) -> Path:
@@ -49,7 +45,6 @@ def _controller_path(arg) -> Path:
 def run(args) -> int:
     from ..control.config import MPCConfig, load_controller, parse_target
     from ..control.design import design_schedule, write_design
-    from ..moments.modelcache import moment_model
 
     # all input checks first: nothing is written on bad input
     target = parse_target(args.target)
@@ -58,24 +53,67 @@ def run(args) -> int:
     if not isinstance(cfg, MPCConfig):
         raise InputError(f"{path}: kind: design needs an mpc controller (got {cfg.kind!r})")
     out = output_path(args.out)
-    model = moment_model(args.model)
+    model = model_for(args.model, args.identify)
     hours = args.hours if args.hours is not None else float(model.card.process.hours)
     from ..cards import check_work, design_work
 
-    check_work(design_work(hours, cfg.interval_h), f"--hours/{path}: interval_h")
+    work = design_work(hours, cfg.interval_h)
+    if args.plant_seeds:  # the plant check, at the top speed throughout (an upper bound)
+        from ..cards import simulation_work
+        from ..work import add, scale
 
-    d = design_schedule(model, target, hours, cfg, objective=args.objective)
-    if not d.reach.reachable:  # said up front, before the schedule; exit status stays 0
-        print(f"warning: {d.reach.line(target)}")
-    paths = write_design(d, out)
+        top = min(cfg.bounds.rpm_max, model.rpm_max)
+        work = add(work, scale(simulation_work(model.card, [(hours, top)], args.plant_particles, 0.05, raster=False),
+                               args.plant_seeds))
+    check_work(work, f"--hours/--plant-seeds/--plant-particles/{path}: interval_h")
+
+    def progress(text):
+        print(f"design: {text}", file=sys.stderr, flush=True)
+
+    d = design_schedule(model, target, hours, cfg, objective=args.objective, progress=progress)
     from ..control.config import format_target
 
+    if not d.reach.reachable:  # said up front, before the schedule; exit status stays 0
+        print(f"warning: {d.reach.line(target)}")
+        print("best schedule per family of the global search (moment model):")
+        print("\n".join(d.reach.family_lines()))
+    if args.plant_seeds:
+        from ..control.design import plant_check
+
+        progress(f"checking the schedule on {args.plant_seeds} plants of {args.plant_particles} particles")
+        d.plant = plant_check(model.card, d.segments, target, args.plant_seeds, args.plant_particles, args.seed,
+                              args.workers)
+    paths = write_design(d, out)
     r = d.result
     got = ", ".join(f"{k} {r.outputs[k]:.4g} (target {format_target(v)})" for k, v in target.items())
     n = len(d.segments)
     print(f"{d.card_name}: {d.hours:g} h ({d.objective}), {n} segment{'s' if n != 1 else ''}, {r.switches} switches, "
-          f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} C "
-          f"(ceiling {d.ceiling_c:g} C); {r.method} {r.status}, {r.solve_s:.1f} s")
+          f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} °C "
+          f"(ceiling {d.ceiling_c:g} °C); {r.method} ({r.status}), {r.solve_s:.1f} s")
+    if d.local is not None and d.local is not r:
+        print(f"  local NLP (from the search's best schedules): error {100 * d.local.error:.2f} %, "
+              f"{d.local.switches} switches, peak T {d.local.peak_c:.1f} °C: not better")
+    elif d.local is not None:
+        print(f"  global search's best: error {100 * d.search.error:.2f} %; the local NLP improved on it")
+    if args.plant_seeds:
+        pc = d.plant
+        tol = cfg.objective.tolerance
+        parts, off = [], []
+        from ..control.outputs import relative_error
+
+        for k, v in target.items():
+            m = pc[k]["mean"]
+            parts.append(f"{k} {m:.4g} [{pc[k]['min']:.4g}, {pc[k]['max']:.4g}] (moment model {r.outputs[k]:.4g})")
+            dev = abs(m - r.outputs[k]) / max(abs(r.outputs[k]), 1e-12)
+            if dev > tol:
+                off.append(f"{k} {100 * dev:.1f} %")
+        print(f"plant check ({pc['seeds']} plants, seed {args.seed}): " + "; ".join(parts)
+              + f"; peak T {pc['temperature_peak_c']:.1f} °C")
+        if off:
+            print(f"warning: the plant and the moment model disagree by more than the tolerance "
+                  f"({100 * tol:g} %): {', '.join(off)}")
+    print(f"  prediction's moment model: {heldout_text(model)} ({model.coeffs_source})")
+    warn_window(model, [rpm for _, rpm in d.segments])
     if d.pareto:
         from ..control.design import pareto_table
 

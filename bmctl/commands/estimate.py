@@ -14,7 +14,8 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError, finite_float
-from ._args import float_arg, int_arg, output_path
+from ._args import float_arg, int_arg, output_path, rpm_arg
+from ._model import add_identify_flag, model_for, warn_window
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 
@@ -29,9 +30,9 @@ def configure(p):
                    help="particle tables (.csv) or micrographs (with --um-per-px), one per time; a folder is read sorted by name")
     p.add_argument("--times", required=True, metavar="T1,T2,...", help="milling time (h) of each sample, comma separated")
     p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest); default: the card's recipe")
-    p.add_argument("--rpm", type=float_arg("--rpm", lo=0.0), default=None, help="sun-disc speed of the card's recipe (default: the card's)")
+    p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="sun-disc speed of the card's recipe (default: the card's)")
     p.add_argument("--temperatures", default=None, metavar="T1,T2,...",
-                   help="vial-temperature readings (degC) per sample, comma separated; leave an entry empty for none")
+                   help="vial-temperature readings (°C) per sample, comma separated; leave an entry empty for none")
     p.add_argument("--um-per-px", type=float_arg("--um-per-px", lo=0.0, strict=True), default=None, metavar="X",
                    help="pixel size: measure micrographs instead of reading tables")
     p.add_argument("--accept-unusable", action="store_true",
@@ -50,6 +51,7 @@ def configure(p):
                    help="ln s measurement noise (default 0.015)")
     p.add_argument("--write-card", default=None, metavar="OUT.toml",
                    help="also write the card with gamma, delta set to the last estimate (the next batch's start)")
+    add_identify_flag(p)
 
 
 def _parse_list(flag: str, text: str, allow_empty: bool = False) -> list[float | None]:
@@ -103,7 +105,6 @@ def _read_sample(path: Path, um_per_px: float | None, accept_unusable: bool = Fa
 
 def run(args) -> int:
     from ..schedule import Schedule
-    from ..moments.model import make_moment_model
     from ..estimate.filter import FilterSettings
     from ..estimate.likelihood import LawSettings
     from .. import io
@@ -149,6 +150,9 @@ def run(args) -> int:
             raise InputError(f"{args.schedule}: covers {total:g} h, the last sample is at {t_end:g} h")
     else:
         segments = Schedule.from_card(card, max(card.process.hours, t_end), args.rpm).pairs()
+    from ..work import check_work, filter_work
+
+    check_work(filter_work(t_end, args.particles if args.estimator == "pf" else 25), "--times/--particles")
     out = output_path(args.out, folder=False)
     if args.write_card is not None:
         output_path(args.write_card, "--write-card", folder=False)
@@ -172,7 +176,8 @@ def run(args) -> int:
 
     for w in warned:
         print(f"bmctl: warning: {w}", file=sys.stderr)
-    model = make_moment_model(args.model)
+    model = model_for(args.model, args.identify)
+    warn_window(model, [rpm for _, rpm in segments])
     pf, estimates = run_filter(model, samples, segments, settings, seed=args.seed)
     header, rows = estimate_rows(estimates)
     fig_path = out.with_suffix(".png")
@@ -192,7 +197,7 @@ def run(args) -> int:
     last = estimates[-1]
     d = last.as_dict()
     print(f"{card.card.name}: {len(samples)} samples to t = {t_end:g} h, {what}; {health}")
-    print(f"  at {last.t_h:g} h: s mean {d['s_mean_um']:.1f} um [{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
+    print(f"  at {last.t_h:g} h: s mean {d['s_mean_um']:.1f} µm [{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
           f"r mean {d['r_mean']:.3f} [{d['r_mean_q05']:.3f}, {d['r_mean_q95']:.3f}], "
           f"gamma_mult {d['gamma_mult']:.2f} [{d['gamma_mult_q05']:.2f}, {d['gamma_mult_q95']:.2f}], "
           f"delta_mult {d['delta_mult']:.2f} [{d['delta_mult_q05']:.2f}, {d['delta_mult_q95']:.2f}]")

@@ -3,8 +3,8 @@
 Runs a design of plant experiments (speeds across the mill's range, interrupted milling,
 steps, rests, branches from other states, random schedules) on a seeded ensemble, fits
 the free coefficients by least squares, validates on held-out random schedules and writes
-``models/<card-name>.moments.toml`` next to the card (or ``--out``). Every run starts from
-the built-in defaults, so re-running regenerates the file from the current card and plant.
+``<card>.moments.toml`` next to the card (or ``--out``), with the fingerprint of the card fields
+the coefficients belong to. A shipped file (``models/``) is not overwritten without ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -21,7 +21,9 @@ def configure(p):
     p.add_argument("model", metavar="MODEL.toml", help="model card (see models/)")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the plant ensemble and the design (default 0)")
     p.add_argument("--out", default=None, metavar="FILE",
-                   help="coefficient file (default: models/<card-name>.moments.toml next to the card)")
+                   help="coefficient file (default: <card>.moments.toml next to the card)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="allow writing over a shipped coefficient file in models/")
     p.add_argument("--particles", type=int_arg("--particles", 200, 1_000_000), default=None,
                    help="simulated particles per plant (default 4000; --quick 2000)")
     p.add_argument("--random-schedules", type=int_arg("--random-schedules", 0, 200), default=None, metavar="N",
@@ -45,6 +47,11 @@ def _out_path(args) -> Path:
         raise InputError(f"--out: {out} must end in .toml")
     if not out.parent.exists():
         raise InputError(f"--out: folder {out.parent} does not exist")
+    from ..moments.forcard import is_shipped
+
+    if is_shipped(out) and not args.overwrite:
+        raise InputError(f"--out: {out} is a shipped coefficient file; write elsewhere with --out FILE, "
+                         "or replace it with --overwrite")
     return out
 
 

@@ -2,39 +2,27 @@
 
 from __future__ import annotations
 
-import math
-
 from ..errors import InputError
-from ._args import output_path
-
-
-def _float(name, lo=None):
-    def parse(text):
-        try:
-            v = float(text)
-        except ValueError:
-            raise InputError(f"{name}: not a number: {text!r}") from None
-        if not math.isfinite(v) or (lo is not None and v < lo):
-            raise InputError(f"{name}: must be a finite number >= {lo:g} (got {text})")
-        return v
-    return parse
+from ._args import hours_arg, output_path, rpm_arg
+from ._model import add_identify_flag
 
 
 def configure(p):
     p.add_argument("model", metavar="MODEL.toml", help="model card (its identified moment model is used if present)")
-    p.add_argument("--rpm", type=_float("--rpm", 0.0), default=None, help="operating speed (default: the card's)")
-    p.add_argument("--at-hours", type=_float("--at-hours", 0.0), default=6.0,
+    p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="operating speed (default: the card's)")
+    p.add_argument("--at-hours", type=hours_arg("--at-hours", zero=True), default=6.0,
                    help="linearise at the state reached after this many hours at --rpm (default 6)")
-    p.add_argument("--horizon", type=_float("--horizon", 0.0), default=2.0, help="gramian horizon in h (default 2)")
+    p.add_argument("--horizon", type=hours_arg("--horizon"), default=2.0, help="gramian horizon in h (default 2)")
     p.add_argument("--out", default="out/linearize", metavar="DIR", help="output folder (default out/linearize)")
+    add_identify_flag(p)
 
 
 def run(args) -> int:
     import numpy as np
 
     from ..config import load_card
-    from ..io import savefig
-    from ..moments import make_moment_model
+    from ..io import name_part, savefig
+    from ._model import model_for, warn_window
     from ..moments.linear import analyse, operating_point, step_figure
 
     card = load_card(args.model)
@@ -43,8 +31,12 @@ def run(args) -> int:
         raise InputError(f"--rpm: must be in (0, {card.mill.rpm_max:g}] (got {rpm:g})")
     if args.horizon <= 0:
         raise InputError(f"--horizon: must be > 0 (got {args.horizon:g})")
+    from ..work import check_work, moment_work
+
+    check_work(moment_work(args.at_hours + args.horizon), "--at-hours/--horizon")
     out = output_path(args.out)
-    model = make_moment_model(args.model)
+    model = model_for(args.model, args.identify)
+    warn_window(model, [rpm])
     x, u = operating_point(model, rpm, args.at_hours)
     a = analyse(model, x, u, horizon_h=args.horizon)
     names = model.state_names
@@ -61,7 +53,7 @@ def run(args) -> int:
     print(f"  gramian condition numbers over {args.horizon:g} h (scaled units): "
           f"controllability {a['gram_c_cond']:.3g}, observability {a['gram_o_cond']:.3g}")
     fig = step_figure(model, x, u)
-    path = out / f"{card.card.name}-step-rpm{rpm:g}-at{args.at_hours:g}h.png"
+    path = out / f"{name_part(card.card.name)}-step-rpm{rpm:g}-at{args.at_hours:g}h.png"
     savefig(fig, path, dpi=110)
     print(f"  wrote {path}")
     return 0

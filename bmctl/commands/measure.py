@@ -45,7 +45,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="IMAGE", help="micrograph(s) (png/tif/...) or particle table(s) (.csv)")
     parser.add_argument("--um-per-px", type=float, default=None, metavar="X", help="pixel size in micrometres (overrides the image metadata)")
     parser.add_argument("--scale-bar-um", type=float, default=None, metavar="L",
-                        help="length of the scale bar on the image, in um (used when the metadata has no pixel size)")
+                        help="length of the scale bar on the image, in µm (used when the metadata has no pixel size)")
     parser.add_argument("--out", default=None, metavar="CSV", help="write the pooled particle table here (overlays and measure.json beside it)")
     parser.add_argument("--min-area-px", type=_min_area, default="auto", metavar="N",
                         help="drop blobs below N px (default auto: 1/100 of the area-weighted median particle area, at least 30)")
@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
             results.append(res)
             reports.append(res.report())
             excl = f", data bar from row {res.info_bar_row} excluded" if res.info_bar_row is not None else ""
-            lines.append(f"{path}: {len(t)} particles; {res.scale.um_per_px:.5g} um/px from {res.scale.source} "
+            lines.append(f"{path}: {len(t)} particles; {res.scale.um_per_px:.5g} µm/px from {res.scale.source} "
                          f"({res.scale.detail}){excl}; min area {res.min_area_px} px")
             warned.append(f"bmctl: {path}: {_polarity_text(res)}; verdict {res.verdict}"
                           + (f" ({'; '.join(res.verdict_reasons)})" if res.verdict_reasons else ""))
@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
     for w in warned:  # only once every input is read: a bad input still prints one line
         print(w, file=sys.stderr)
     print("\n".join(lines))
-    print(f"measure: {summ['count']} particles, median s = {summ['s_median_um']:.4g} um, median r = {summ['r_median']:.3f}"
+    print(f"measure: {summ['count']} particles, median s = {summ['s_median_um']:.4g} µm, median r = {summ['r_median']:.3f}"
           + (f"; wrote {args.out}, {Path(args.out).parent / 'measure.json'}" + (f" and {len(written)} overlay(s)" if written else "")
              if args.out else ""))
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import InputError
-from ._args import float_arg, int_arg, output_path
+from ._args import hours_arg, int_arg, output_path, rpm_arg
 
 
 
@@ -14,12 +14,12 @@ from ._args import float_arg, int_arg, output_path
 
 def configure(p):
     p.add_argument("model", metavar="MODEL.toml", help="model card (see models/)")
-    p.add_argument("--hours", type=float_arg("--hours", lo=0.0, hi=1000.0), default=None, help="milling time (default: the card's)")
+    p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="milling time (default: the card's)")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
     p.add_argument("--particles", type=int_arg("--particles", 100, 10_000_000), default=None, help="simulated particles M")
-    p.add_argument("--rpm", type=float_arg("--rpm", lo=0.0), default=None, help="sun-disc speed (default: the card's)")
+    p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="sun-disc speed (default: the card's)")
     p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest)")
-    p.add_argument("--every", type=float_arg("--every", lo=0.0), default=None, help="recording interval in h (default 1)")
+    p.add_argument("--every", type=hours_arg("--every"), default=None, help="recording interval in h (default 1)")
     p.add_argument("--out", default="out/simulate", metavar="DIR", help="output folder (default out/simulate)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -45,7 +45,7 @@ def run(args) -> int:
     if args.every is not None and args.every <= 0:
         raise InputError(f"--every: must be > 0 (got {args.every:g})")
     out = output_path(args.out)
-    from ..cards import check_melting, check_work, run_warnings, simulation_work
+    from ..cards import check_melting, check_work, run_warnings, simulation_work, window_warnings
 
     check_melting(card, segments, args.schedule or ("--rpm" if args.rpm is not None else f"{args.model}: process.rpm"))
 
@@ -72,13 +72,14 @@ def run(args) -> int:
 
     with io.output_set():  # a late failure leaves none of the run's files
         paths = write_outputs(res, out)
-    for line in run_warnings(card, res.column("t_h"), res.column("temperature_c"), res.column("s_mean_um")):
+    for line in (run_warnings(card, res.column("t_h"), res.column("temperature_c"), res.column("s_mean_um"))
+                 + window_warnings(card, [rpm for _, rpm in segments])):
         print(f"bmctl: warning: {line}", file=sys.stderr)
     last = res.records[-1]
     m = last.moments
     print(f"{card.card.name}: {total_h:g} h, M={args.particles or card.simulation.particles}, seed {args.seed}: "
-          f"s mean {m['s_mean_um']:.1f} um, std {m['s_std_um']:.1f} um, r mean {m['r_mean']:.3f}, "
-          f"T {last.temperature_c:.1f} C")
+          f"s mean {m['s_mean_um']:.1f} µm, std {m['s_std_um']:.1f} µm, r mean {m['r_mean']:.3f}, "
+          f"T {last.temperature_c:.1f} °C")
     for p in paths:
         print(f"  wrote {p}")
     return 0

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ._args import int_arg, output_path
+from ._model import add_identify_flag, model_for, warn_window
 
 
 
@@ -20,6 +21,7 @@ def configure(p):
     p.add_argument("--campaign", action="store_true",
                    help="run the trial through the campaign verbs (the plant as the person at the mill); "
                         "leaves DIR/campaign/ for `bmctl campaign status/report` (no --resume)")
+    add_identify_flag(p)
 
 
 #: CPU seconds of one filter particle per sample and of one feedback solve (docs/estimation.md, docs/control.md)
@@ -33,6 +35,7 @@ def _check_trial_work(sc, path):
     from ..config import load_card
     from ..control.config import load_controller
     from ..scenario import resolve
+    from ..work import add, filter_work
 
     base = Path(path).resolve().parent
     card = load_card(resolve(sc.plant.model or sc.model, base))
@@ -40,6 +43,7 @@ def _check_trial_work(sc, path):
     work = simulation_work(card, [(sc.hours, card.mill.rpm_max)], sc.plant.particles, sc.sampling.every_h, raster=False)
     samples = sc.hours / sc.sampling.every_h + 1
     work["cpu_s"] += samples * sc.estimator.particles * FILTER_CPU_S_PER_PARTICLE
+    work = add(work, filter_work(sc.hours, sc.estimator.particles))  # the filter's propagation between samples
     if cfg.kind != "recipe":
         work["cpu_s"] += SOLVE_CPU_S * sc.hours / (getattr(cfg, "interval_h", None) or 0.5)
     check_work(work, f"{path}: hours/plant.particles/sampling.every_h/estimator.particles")
@@ -59,6 +63,9 @@ def run(args) -> int:
     out = output_path(args.resume or args.out or f"out/trial-{sc.scenario.name}-seed{args.seed}",
                       "--resume" if args.resume else "--out")
     card = _check_trial_work(sc, args.scenario)
+    from ..scenario import resolve
+
+    model = model_for(resolve(sc.model, Path(args.scenario).resolve().parent), args.identify)
     bar = None
     if not args.no_progress:
         from tqdm import tqdm
@@ -85,13 +92,22 @@ def run(args) -> int:
 
     t_max = validity(card)["temperature_max_C"]
     if t_max is not None and summary["max_temperature_c"] > t_max:
-        print(f"bmctl: warning: {card.card.name}: vial temperature {summary['max_temperature_c']:.0f} C is above the "
-              f"card's maximum {t_max:g} C ({validity(card)['temperature_reason']}): the model does not hold there",
+        print(f"bmctl: warning: {card.card.name}: vial temperature {summary['max_temperature_c']:.0f} °C is above the "
+              f"card's maximum {t_max:g} °C ({validity(card)['temperature_reason']}): the model does not hold there",
               file=sys.stderr)
+    warn_window(model, _milling_rpms(out / "trajectory.csv"))
     err = ", ".join(f"{k} {v:.1%}" for k, v in summary["final_error"].items()) or "(no target)"
-    print(f"{sc.scenario.name} seed {args.seed}: final error {err}; max T {summary['max_temperature_c']:.1f} C, "
+    print(f"{sc.scenario.name} seed {args.seed}: final error {err}; max T {summary['max_temperature_c']:.1f} °C, "
           f"{summary['temperature_violations']} violations; energy {summary['energy_kj']:.0f} kJ; "
           f"{summary['fallbacks']} fallbacks; median solve {summary['median_solve_ms']:.0f} ms")
     print(f"  wrote {out}/trajectory.csv, summary.json, trial.png"
           + (f"; the campaign in {out}/campaign (bmctl campaign report {out}/campaign)" if args.campaign else ""))
     return 0
+
+
+def _milling_rpms(path: Path) -> set[float]:
+    """The speeds a trial milled at (its trajectory.csv's rpm where milling > 0)."""
+    import csv
+
+    with open(path, newline="") as f:
+        return {float(r["rpm"]) for r in csv.DictReader(f) if float(r["milling"]) > 0 and float(r["rpm"]) > 0}

@@ -38,7 +38,7 @@ def run(args) -> int:
                 raise InputError(f"{path}: segment[{i}].rpm: {seg.rpm:g} exceeds the mill's rpm_max "
                                  f"{card.mill.rpm_max:g}")
         scheds.append((sched.name or Path(path).stem, sched.pairs()))
-    from ..cards import check_melting, check_work, run_warnings, simulation_work
+    from ..cards import check_melting, check_work, run_warnings, simulation_work, window_warnings
 
     for (_, segs), path in zip(scheds, args.schedules):
         check_melting(card, segs, path)
@@ -55,8 +55,9 @@ def run(args) -> int:
     finally:
         close_client(client)
     header, rows = table_rows(results)
-    for res in results:  # the validity range, on the ensemble mean
-        for line in run_warnings(card, res.t_h, res.band("temperature_c")[0], res.band("s_mean_um")[0]):
+    for res, (_, segs) in zip(results, scheds):  # the validity range, on the ensemble mean
+        for line in (run_warnings(card, res.t_h, res.band("temperature_c")[0], res.band("s_mean_um")[0])
+                     + window_warnings(card, [rpm for _, rpm in segs])):
             print(f"bmctl: warning: {res.name}: {line}", file=sys.stderr)
     print(f"{'schedule':28s} {'h':>5s} {'kJ':>7s} {'Tpeak':>6s} {'s_mean':>16s} {'s_std':>16s} {'r_mean':>17s}")
     for r in rows:

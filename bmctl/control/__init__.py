@@ -35,9 +35,20 @@ def make_controller(config, model, target=None):
 
     Returns
     -------
-    MPCController, LQRController or RecipeController
+    PlanController, MPCController, LQRController or RecipeController
+        (an MPC file with ``[plan] method = "search"`` gives a PlanController)
         Each has ``interval_h``, ``t_end_h``, ``plan(x_est, t_h, p=None, u_prev=None) -> Plan``,
         ``set_target(target, t_end_h=None)`` and ``reset()``.
+
+    Examples
+    --------
+    >>> from bmctl.control import make_controller
+    >>> from bmctl.moments import make_moment_model
+    >>> model = make_moment_model("models/alni-1to1-300rpm-lab.toml")
+    >>> ctrl = make_controller("controllers/recipe-300rpm-continuous.toml", model)
+    >>> plan = ctrl.plan(model.x0(), 0.0)
+    >>> plan.u_apply.tolist()
+    [300.0, 1.0]
     """
     if isinstance(config, (str, Path)):
         cfg = load_controller(config)
@@ -45,6 +56,10 @@ def make_controller(config, model, target=None):
         cfg = validate_controller(config, "controller")
     else:
         cfg = config
+    if isinstance(cfg, MPCConfig) and cfg.plan.method == "search":
+        from .planner import PlanController
+
+        return PlanController(cfg, model, target)
     if isinstance(cfg, MPCConfig):
         from .mpc import MPCController
 

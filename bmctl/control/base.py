@@ -196,7 +196,7 @@ class Status:
         if self.reason:
             s += f" ({self.reason})"
         if self.slack_max_c > 1e-3:
-            s += f", T slack {self.slack_max_c:.2f} C"
+            s += f", T slack {self.slack_max_c:.2f} °C"
         if self.binary_loss is not None:
             s += f", binary loss {self.binary_loss:.3g}"
         return s

@@ -21,10 +21,14 @@ Decisions
   by others is refused (compiled code is code). No path given by the user is ever loaded.
 * **Atomic.** gcc writes a temporary file in the same folder, renamed into place when it
   succeeded, so a reader never loads a half-written library.
-* **In the background.** The first process that needs a library starts gcc in the background
-  and keeps using the interpreted solver; the compiled one is picked up at the next solve after
-  gcc finished (in this or any later process). A first run is therefore never slower than
-  without compilation.
+* **In the background, while the command runs.** The first process that needs a library starts gcc
+  in the background and keeps using the interpreted solver; the compiled one is picked up at the
+  next solve after gcc finished (in this or any later process). A first run is therefore never
+  slower than without compilation. A compile still running when the command ends is stopped (its
+  files and lock removed; one note on stderr): nothing of bmctl outlives its command. To compile
+  anyway: ``BMCTL_MPC_COMPILE=wait`` compiles in the foreground, ``BMCTL_MPC_COMPILE=detach``
+  leaves the compile running after the command (its lock file ``<name>.so.lock`` in the cache folder
+  holds the compiler's process id: ``cat`` it to see, ``kill`` it to stop).
 * **One compile per library.** A lock file next to the library (``<name>.so.lock``, created
   exclusively, removed by the compile's shell when gcc ends) keeps concurrent processes (trial
   workers, a second terminal) from compiling the same library twice; the others keep solving
@@ -50,11 +54,13 @@ from pathlib import Path
 #: gcc flags; part of the key
 CFLAGS = ("-O1", "-fPIC", "-shared")
 #: "0": casadi's interpreter only (no compilation, no cache); "wait": compile in the foreground
-#: (benchmarks, tests); anything else: compile in the background
+#: (benchmarks, tests); "detach": compile in the background and leave it running after the command;
+#: anything else: compile in the background, stopped when the command ends
 ENV_SWITCH = "BMCTL_MPC_COMPILE"
 
 _notices: set[str] = set()
 _running: dict[str, subprocess.Popen] = {}
+_files: dict[str, tuple[str, ...]] = {}  # library path -> (generated C file, temporary library, lock)
 
 
 def notice(text: str) -> None:
@@ -233,9 +239,65 @@ def start_compile(solver, path: Path, wait: bool = False) -> None:
     proc = subprocess.Popen(["sh", "-c", script], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     _running[str(path)] = proc
+    try:  # the lock names the compile's process (group): `cat` it to see, `kill` it to stop
+        lock.write_text(str(proc.pid))
+    except OSError:
+        pass
+    if os.environ.get(ENV_SWITCH, "1") != "detach":
+        _files[str(path)] = (c_file, tmp_so, str(lock))
+        _register_stop()
     if wait:
         proc.wait()
         ready(path)
+
+
+_stop_registered = False
+
+
+def _register_stop() -> None:
+    global _stop_registered
+    if not _stop_registered:
+        import atexit
+
+        atexit.register(stop_running)
+        _stop_registered = True
+
+
+def stop_running() -> list[str]:
+    """Stop the background compiles this process started that are still running (at exit unless
+    ``BMCTL_MPC_COMPILE=detach``): the compiler's process group is terminated and its generated
+    source, temporary library and lock removed. Returns the libraries whose compile was stopped."""
+    import signal
+
+    stopped = []
+    for key, proc in list(_running.items()):
+        if key not in _files or proc.poll() is not None:
+            continue
+        try:
+            os.killpg(proc.pid, signal.SIGTERM)
+        except (ProcessLookupError, PermissionError):  # not yet its own group: the child itself
+            try:
+                proc.send_signal(signal.SIGTERM)
+            except OSError:
+                pass
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            pass
+        try:  # whatever of the group is left (a compiler forked while the signal went out)
+            os.killpg(proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        proc.wait()
+        for f in _files.pop(key):
+            Path(f).unlink(missing_ok=True)
+        _running.pop(key, None)
+        stopped.append(Path(key).name)
+    if stopped:
+        print(f"bmctl: note: stopped {len(stopped)} unfinished background compile(s) ({', '.join(stopped)}); the "
+              "solver ran interpreted. BMCTL_MPC_COMPILE=wait compiles in the foreground, =detach leaves the compile "
+              "running after the command", file=sys.stderr)
+    return stopped
 
 
 #: a compile lock older than this is taken to be left by a killed process (the slowest compile,

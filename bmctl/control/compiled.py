@@ -41,18 +41,22 @@ class CompiledSolvers:
         if not cache.ready(path):
             import casadi as ca
 
-            if self._nlp is None:
-                self._build()  # the Gauss-Newton Hessian
-            if self._nlp_c is None:
-                self._nlp_c = self._nlp_dict(_call_step(self.model, self.interval_h, self.cfg.solver.substeps),
-                                             keep=False)
-            gen = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp_c, {**lib_opts, **(
+            gen = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._called_nlp(), {**lib_opts, **(
                 {"hess_lag": self._hess} if key[1] == "gauss-newton" else {})})
             cache.start_compile(gen, path, wait=cache.wait_for_compile())
             if not cache.ready(path):
                 self._pending[key] = (path, lib_opts)
                 return None
         return self._load(path, key, lib_opts)
+
+    def _called_nlp(self) -> dict:
+        """The NLP the compiled libraries are generated from (the step calls the rate field); the
+        interpreted solvers solve this one too, so compiled and interpreted iterates agree bit for bit."""
+        if self._nlp is None:
+            self._build()  # the Gauss-Newton Hessian and the cost function
+        if self._nlp_c is None:
+            self._nlp_c = self._nlp_dict(_call_step(self.model, self.interval_h, self.cfg.solver.substeps), keep=False)
+        return self._nlp_c
 
     def _library_inputs(self) -> dict:
         """What the NLP is built from, as plain data (the compiled library's key)."""

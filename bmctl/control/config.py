@@ -18,7 +18,8 @@ from typing import Annotated, Any, Literal, Union
 
 from pydantic import Field, model_validator
 
-from ..config import Finite, Frac, NonNeg, Pos, Range, Strict, read_toml, validate
+from ..config import HOURS, MINUTES, RPM, Finite, Frac, NonNeg, Pos, Range, Strict, read_toml, validate
+from ..limits import HOURS_MAX, PHASE_MAX_MINUTES, RPM_MAX
 from ..errors import InputError, finite_float
 
 #: moments a target may name (state components 0..3 of the moment model)
@@ -120,11 +121,11 @@ class Mill(Strict):
     limit); while milling, rpm >= ``rpm_min_milling`` and rpm is a multiple of ``rpm_step``.
     """
 
-    min_mill_min: NonNeg = 0.0
-    min_rest_min: NonNeg = 0.0
-    max_switches: Annotated[int, Field(ge=0)] | None = None
-    rpm_min_milling: NonNeg = 0.0
-    rpm_step: Pos | None = None
+    min_mill_min: Range(0.0, PHASE_MAX_MINUTES) = 0.0  # minutes, at most a day (bmctl.limits)
+    min_rest_min: Range(0.0, PHASE_MAX_MINUTES) = 0.0
+    max_switches: Annotated[int, Field(ge=0, le=100_000)] | None = None
+    rpm_min_milling: RPM = 0.0
+    rpm_step: Range(0.0, RPM_MAX, lo_open=True) | None = None
 
 
 class Robust(Strict):
@@ -155,21 +156,48 @@ class Objective(Strict):
     sweep: list[Annotated[float, Field(gt=0, le=1)]] = [0.25, 0.5, 0.75, 1.0]
 
 
+class PlanSearch(Strict):
+    """How plans are made (docs/control.md, "Global search").
+
+    ``method = "search"``: every call plans the rest of the batch on operable schedules (families
+    evaluated in one vectorised batch, then a local search on the same grid; the advice is the
+    plan's first interval). ``"nlp"``: the multiple-shooting NLP over the horizon, its continuous
+    milling shares rounded onto the mill's limits afterwards. The search settings serve
+    ``bmctl design``'s global search too.
+    """
+
+    method: Literal["nlp", "search"] = "nlp"
+    #: RKC substeps of the search's prediction per part of a milling period (its first 5 min, the rest)
+    substeps: Annotated[int, Field(ge=1, le=16)] = 2
+    #: filter particles (a deterministic weighted selection) the closest plans are also scored on; 0: the estimate only
+    spread: Annotated[int, Field(ge=0, le=1000)] = 64
+    rpm_step: Annotated[float, Field(gt=0)] = 20.0  # spacing of the coarse search's rpm grid
+    coarse_factor: Annotated[int, Field(ge=1, le=8)] = 2  # intervals per step of the coarse batch
+    error_band: Annotated[float, Field(ge=0, lt=0.5)] = 0.002  # errors within this band count as equal
+    rounds: Annotated[int, Field(ge=0, le=10)] = 1  # local-search rounds after the coarse batch
+    pool: Annotated[int, Field(ge=1, le=200)] = 8  # plans scored on the spread (closest, cheapest, per family)
+    pool_band: Annotated[float, Field(ge=0, lt=1)] = 0.03  # nominal error band of that pool
+    #: weight of the variance a plan adds over the spread in the pool's score e^2 + risk (Var(e) - Var_rest(e));
+    #: 1 = as in the open-loop expected
+    #: squared error; less counts on the feedback of later plans
+    risk: Annotated[float, Field(ge=0, le=10)] = 0.25
+
+
 class ReferencePoint(Target):
     """A time-varying reference: this target applies from ``from_h`` (batch time) on."""
 
-    from_h: NonNeg
+    from_h: Range(0.0, HOURS_MAX)
 
 
 class Bounds(Strict):
     """Input bounds and the rpm rate limit."""
 
-    rpm_min: NonNeg = 100.0
-    rpm_max: Pos = 500.0  # the mill's rpm_max (model card) caps it further
+    rpm_min: RPM = 100.0
+    rpm_max: Range(0.0, RPM_MAX, lo_open=True) = 500.0  # the mill's rpm_max (model card) caps it further
     milling_min: Frac = 0.0
     milling_max: Frac = 1.0
     #: largest change of the rpm setpoint between consecutive intervals (rpm); none = unlimited
-    rpm_step_max: Pos | None = 100.0
+    rpm_step_max: Range(0.0, RPM_MAX, lo_open=True) | None = 100.0
 
     @model_validator(mode="after")
     def _order(self):
@@ -201,6 +229,8 @@ class Weights(Strict):
     energy_per_kWh: NonNeg = 0.5  # dissipated energy: P_max (rpm/rpm_max)^3 * milling * hours
     time_per_h: NonNeg = 0.005  # per hour spent milling (machine time)
     rpm_move: NonNeg = 0.05  # per ((rpm_k - rpm_k-1) / rpm_max)^2, also from the last applied rpm
+    #: per on/off transition (the operator's work), in the global search's tie-break ([plan], `bmctl design`)
+    switch: NonNeg = 0.005
 
 
 class Solver(Strict):
@@ -280,7 +310,7 @@ class _Common(Strict):
     name: str = ""
     description: str = ""
     interval_h: Range(1 / 60, 24.0) = 0.5  # control interval, a minute to a day (called once per interval)
-    batch_hours: Pos | None = None  # batch length; default: the model card's process.hours
+    batch_hours: HOURS | None = None  # batch length; default: the model card's process.hours
     target: Target = Target()
     reference: list[ReferencePoint] = []
     mill: Mill = Mill()
@@ -299,6 +329,7 @@ class MPCConfig(_Common):
     adaptation: Adaptation = Adaptation()
     robust: Robust = Robust()
     objective: Objective = Objective()
+    plan: PlanSearch = PlanSearch()
 
 
 class LQRTuning(Strict):
@@ -309,7 +340,7 @@ class LQRTuning(Strict):
     q_dx: NonNeg = 1e-3  # on the state increments (scaled)
     r_du: Pos = 1.0  # on the rpm increments (rpm / rpm_max)
     milling: Frac = 1.0  # nominal milling fraction (the temperature guard may lower it)
-    rpm_start: Pos = 300.0  # rpm of the first interval when no previous input is known
+    rpm_start: Range(0.0, RPM_MAX, lo_open=True) = 300.0  # rpm of the first interval when no previous input is known
 
 
 class LQRConfig(_Common):
@@ -328,15 +359,18 @@ class RecipeConfig(_Common):
 
     kind: Literal["recipe"]
     interval_h: Range(1 / 60, 24.0) | None = None  # default: one mill/rest cycle, or 0.5 h when continuous
-    rpm: Pos
-    mill_min: Pos | None = None
-    rest_min: Pos | None = None
+    rpm: Range(0.0, RPM_MAX, lo_open=True)
+    mill_min: MINUTES | None = None  # 6 s to a day (bmctl.limits), as a card's process
+    rest_min: MINUTES | None = None
     round_minutes: bool = True
 
     @model_validator(mode="after")
     def _cycle(self):
         if (self.mill_min is None) != (self.rest_min is None):
             raise ValueError("mill_min and rest_min go together (both or neither)")
+        if self.mill_min is not None and self.interval_h is None and (self.mill_min + self.rest_min) / 60 > 24.0:
+            raise ValueError(f"rest_min: a cycle of {self.mill_min + self.rest_min:g} min is longer than the "
+                             "longest control interval (24 h); give interval_h")
         return self
 
 

@@ -38,6 +38,10 @@ class Design:
     reach : Reach
     pareto : list of PatternResult
         The batch-length sweep behind min_time / min_energy (empty for "target").
+    local : PatternResult or None
+        The local NLP's result (started from the search's best schedules).
+    search : SearchResult
+        The global search (its best row per family: ``search.per_family``).
     """
 
     card_name: str
@@ -53,6 +57,9 @@ class Design:
     reach: object
     objective: str = "target"
     pareto: list = field(default_factory=list)
+    local: object = None  # the local NLP's PatternResult (None when not run)
+    search: object = None  # the global search's SearchResult
+    plant: dict | None = None  # the plant check (:func:`plant_check`), when run
 
     @property
     def times_h(self) -> np.ndarray:
@@ -67,9 +74,163 @@ class Design:
         return self.result.energy_kWh
 
 
+def simulate_segments(model, segs, p=None):
+    """Exact moment-model prediction of (hours, rpm) segments from ``model.x0()`` (the model's own
+    integration, segment by segment): (final state, peak T, energy kWh, milling h, states at the ends).
+
+    Parameters
+    ----------
+    model : MomentModel
+    segs : list of (hours, rpm)
+        rpm 0 is a rest.
+    p : array_like, optional
+        (gamma_mult, delta_mult).
+    """
+    c = model.const
+    pp = model.p0() if p is None else np.asarray(p, dtype=float)
+    x = model.x0()
+    peak, energy, mh, states = float(x[4]), 0.0, 0.0, [x]
+    for h, r in segs:
+        x = model.simulate(x, np.array([[r, 1.0 if r > 0 else 0.0]]), h, pp)[-1]
+        states.append(x)
+        peak = max(peak, float(x[4]))
+        if r > 0:
+            energy += c.power_max_W * (r / c.rpm_max) ** 3 * h / 1000.0
+            mh += h
+    return x, peak, energy, mh, states
+
+
+def interval_segments(rpm, minutes, lengths_min) -> list:
+    """(hours, rpm) segments of a schedule on the interval grid (mill first, then rest; equal
+    neighbours merged; a trailing rest dropped: it does nothing to the powder).
+
+    Parameters
+    ----------
+    rpm, minutes, lengths_min : array_like, (K,)
+
+    Examples
+    --------
+    >>> interval_segments([300, 300, 0], [30, 10, 0], [30, 30, 30])
+    [(0.6666666666666666, 300.0)]
+    """
+    out = []
+    for r, a, L in zip(rpm, minutes, lengths_min):
+        for mnt, rr in ((float(a), float(r)), (float(L) - float(a), 0.0)):
+            if mnt <= 1e-9:
+                continue
+            if out and abs(out[-1][1] - rr) < 1e-9:
+                out[-1][0] += mnt
+            else:
+                out.append([mnt, rr])
+    while len(out) > 1 and out[-1][1] == 0.0:
+        out.pop()
+    if out and out[-1][1] == 0.0:
+        out = []
+    return [(mnt / 60.0, r) for mnt, r in out]
+
+
+def searched_pattern(model, cfg, target: dict, hours: float, p=None):
+    """The global search's best operable schedule for a batch of ``hours`` from the card's state, as a
+    :class:`~bmctl.control.pattern.PatternResult` (exact moment-model numbers), with the search result.
+
+    Parameters
+    ----------
+    model : MomentModel
+    cfg : MPCConfig
+    target : dict
+    hours : float
+    p : array_like, optional
+    """
+    import time
+
+    from .outputs import output_dict, relative_error
+    from .pattern import PatternResult
+    from .planner import plan_binding
+    from .search import Carry, limits_of, make_grid, search
+
+    t0 = time.perf_counter()
+    pp = model.p0() if p is None else np.asarray(p, dtype=float)
+    grid = make_grid(0.0, hours, cfg.interval_h)
+    lim = limits_of(cfg, model)
+    ps = cfg.plan
+    sr = search(model, model.x0()[None], pp[None], target, grid, lim, cfg.weights, Carry(), substeps=ps.substeps,
+                rpm_step=ps.rpm_step, band=ps.error_band, rounds=max(2, ps.rounds), keep=8, coarse_factor=1)
+    segs = interval_segments(sr.rpm, sr.minutes, grid.lengths_min)
+    x, peak, energy, mh, states = simulate_segments(model, segs, pp)
+    outs = output_dict(x)
+    err = max((relative_error(outs[k], v) for k, v in target.items()), default=0.0)
+    L = grid.lengths_min
+    res = PatternResult(float(hours), sr.rpm.copy(), sr.minutes / L, np.ones(grid.K), (sr.minutes < L).astype(float),
+                        segs, x, peak, energy, mh, err, outs, time.perf_counter() - t0, float(sr.rms), "search",
+                        f"{sr.family}, {sr.evaluated} schedules", 0.0, states,
+                        plan_binding(sr, grid, lim, Carry(), cfg.temperature.ceiling_c))
+    return res, sr, grid
+
+
+def _better(a, b, tol: float, band: float, ceiling_c: float, weights) -> bool:
+    """Whether design result ``a`` beats ``b``: under the ceiling first, then the lower error unless
+    both are within ``band`` of each other (then the lower energy, milling-time and switch cost)."""
+    def key(r):
+        return (weights.energy_per_kWh * r.energy_kWh + weights.time_per_h * r.milling_h
+                + getattr(weights, "switch", 0.0) * r.switches)
+
+    oa, ob = a.peak_c <= ceiling_c + 0.05, b.peak_c <= ceiling_c + 0.05
+    if oa != ob:
+        return oa
+    ea, eb = max(a.error, 0.0), max(b.error, 0.0)
+    if abs(ea - eb) > band:
+        return ea < eb
+    return key(a) < key(b) - 1e-12
+
+
+def design_one(model, target: dict, hours: float, cfg, p=None, method: str = "relax-round", local: bool = True):
+    """Global search, then the phase-pattern NLP started from its best schedules; the better of the two.
+
+    Parameters
+    ----------
+    model : MomentModel
+    target : dict
+    hours : float
+    cfg : MPCConfig
+    p : array_like, optional
+    method : str
+        "relax-round" or "bonmin" (the local solve).
+    local : bool
+        Run the local NLP.
+
+    Returns
+    -------
+    (PatternResult, PatternResult or None, SearchResult)
+        The chosen result, the local NLP's (None when not run) and the search's.
+    """
+    from .pattern import PatternDesigner
+
+    res_s, sr, grid = searched_pattern(model, cfg, target, hours, p)
+    res_l = None
+    if local:
+        d = PatternDesigner(model, hours, cfg, target, p)
+        fams = sorted(sr.per_family.values(), key=lambda f: (f["error"], f["energy_kWh"]))
+        from .search import expand, limits_of
+
+        rows = [np.asarray(sr.params)] + [np.asarray(f["params"]) for f in fams if f["family"] != sr.family][:1]
+        starts = []
+        for row in rows:
+            r, m = expand(row[None], grid, limits_of(cfg, model))
+            starts.append(d.start_from(r[0], m[0], grid.interval_min))
+        d.starts = starts
+        res_l = d.solve(method)
+    tol, band = cfg.objective.tolerance, cfg.plan.error_band
+    best = res_s
+    if res_l is not None and _better(res_l, res_s, tol, band, cfg.temperature.ceiling_c, cfg.weights):
+        best = res_l
+    return best, res_l, sr
+
+
 def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, objective: str | None = None,
-                    method: str | None = None) -> Design:
-    """Design a phase-pattern schedule over ``hours`` from ``model.x0()`` under the mill's limits.
+                    method: str | None = None, local: bool = True, progress=None) -> Design:
+    """Design a schedule over ``hours`` from ``model.x0()`` under the mill's limits: a global search
+    over operable schedule families (:mod:`bmctl.control.search`), then the phase-pattern NLP
+    (:mod:`bmctl.control.pattern`) started from its best schedules; the better of the two.
 
     Parameters
     ----------
@@ -79,45 +240,113 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
     hours : float
         Batch length (> 0).
     cfg : MPCConfig
-        Bounds, ceiling, weights, ``[mill]`` and ``[objective]``.
+        Bounds, ceiling, weights, ``[mill]``, ``[objective]`` and ``[plan]`` (the search).
     p : array_like, optional
         (gamma_mult, delta_mult); default (1, 1).
     objective : str, optional
         "target", "min_time" or "min_energy" (default: ``cfg.objective.kind``).
     method : str, optional
         "relax-round" or "bonmin" (default: ``cfg.objective.integer_method``).
+    local : bool, optional
+        Run the local NLP after the search (default True).
+    progress : callable, optional
+        Called with one line of text per step.
     """
-    from .pattern import PatternDesigner
-    from .reach import reachability
+    from .reach import Reach
 
     if not (isinstance(hours, (int, float)) and math.isfinite(hours) and hours > 0):
         raise InputError(f"hours: must be a finite number > 0 (got {hours})")
     if not target:
         raise InputError("target: names no moment")
+    say = progress or (lambda text: None)
     obj = objective or cfg.objective.kind
     meth = method or cfg.objective.integer_method
     tol = cfg.objective.tolerance
     pareto = []
     if obj == "target":
-        res = PatternDesigner(model, hours, cfg, target, p).solve(meth)
+        say(f"searching operable schedules over {hours:g} h, then the local NLP")
+        res, res_l, sr = design_one(model, target, hours, cfg, p, meth, local)
     else:
+        runs = []
         for frac in sorted(cfg.objective.sweep):
-            pareto.append(PatternDesigner(model, hours * frac, cfg, target, p).solve(meth))
-        ok = [r for r in pareto if r.error <= tol]
+            say(f"batch of {hours * frac:g} h: searching, then the local NLP")
+            runs.append(design_one(model, target, hours * frac, cfg, p, meth, local))
+        pareto = [r[0] for r in runs]
+        ok = [i for i, r in enumerate(pareto) if r.error <= tol]
         if not ok:
-            res = min(pareto, key=lambda r: r.error)
+            i = min(range(len(pareto)), key=lambda j: pareto[j].error)
         elif obj == "min_time":
-            res = min(ok, key=lambda r: (r.hours, r.energy_kWh))
+            i = min(ok, key=lambda j: (pareto[j].hours, pareto[j].energy_kWh))
         else:
-            res = min(ok, key=lambda r: (r.energy_kWh, r.hours))
-    reach = reachability(model, target, hours, cfg, p, result=res if res.hours >= hours - 1e-9 else None) \
-        if res.error > tol else reachability(model, target, hours, cfg, p, result=res)
+            i = min(ok, key=lambda j: (pareto[j].energy_kWh, pareto[j].hours))
+        res, res_l, sr = runs[i]
+    if res.error <= tol:
+        reach = Reach(True, res.error, res.outputs, [], sr.per_family)
+    else:
+        reach = Reach(False, res.error, res.outputs, list(res.active), sr.per_family)
     segs = res.segments
     U = np.array([[r, 1.0 if r > 0 else 0.0] for _, r in segs]).reshape(-1, 2)
     X = np.array(res.seg_states)
     Tpk = np.maximum(X[:-1, 4], X[1:, 4]) if len(segs) else np.zeros(0)
-    return Design(model.card.card.name, cfg.name, dict(target), float(res.hours), cfg.temperature.ceiling_c,
-                  U, X, Tpk, segs, res, reach, obj, pareto)
+    d = Design(model.card.card.name, cfg.name, dict(target), float(res.hours), cfg.temperature.ceiling_c,
+               U, X, Tpk, segs, res, reach, obj, pareto)
+    d.local = res_l
+    d.search = sr
+    return d
+
+
+def plant_check(card, segments, target: dict, seeds: int = 3, particles: int = 5000, seed: int = 0,
+                workers: int | None = None, scheduler: str | None = None) -> dict:
+    """The plant's result for a schedule: a small seeded ensemble (on Dask when it pays).
+
+    Plant k draws from ``SeedSequence(seed).spawn(seeds)[k]``; the numbers do not depend on the
+    worker count.
+
+    Parameters
+    ----------
+    card : ModelCard
+        The plant's card.
+    segments : list of (hours, rpm)
+    target : dict
+    seeds, particles, seed : int
+    workers, scheduler : optional
+        As ``bmctl whatif`` (default: serial for a small ensemble, :func:`bmctl.parallel.auto_workers`).
+
+    Returns
+    -------
+    dict
+        ``{key: {"mean", "min", "max"}}`` for every target key and ``temperature_peak_c``, ``seeds``.
+    """
+    from ..parallel import auto_workers, client_for, close_client, map_seeded, seed_sequences
+
+    hours = sum(h for h, _ in segments)
+    task = (card, tuple((float(h), float(r)) for h, r in segments), int(particles))
+    cpu_s = 0.6 * hours * particles / 5000.0 * seeds  # ~2.6 s per 12 h plant of 5000 particles
+    n = auto_workers(seeds, cpu_s, workers, scheduler)
+    client = client_for(scheduler, n) if (scheduler or n) else None
+    try:
+        members = map_seeded(_plant_member, [task] * seeds, seed_sequences(seed, seeds), client)
+    finally:
+        if client is not None:
+            close_client(client)
+    out = {"seeds": int(seeds), "particles": int(particles)}
+    for k in list(target) + ["s_mean_um", "temperature_c"]:
+        v = np.array([m[0][k] for m in members], dtype=float)
+        out[k] = {"mean": float(v.mean()), "min": float(v.min()), "max": float(v.max())}
+    out["temperature_peak_c"] = float(max(m[1] for m in members))
+    return out
+
+
+def _plant_member(task, rng) -> tuple:
+    """One plant on the schedule: (final moments, peak vial temperature)."""
+    from ..loop import run_open_loop
+    from ..plant.plant import Plant
+
+    card, segs, particles = task
+    plant = Plant(card, rng, particles)
+    peak = [plant.temperature_c]
+    run_open_loop(plant, list(segs), 0.05, lambda t, mill: peak.append(mill.temperature_c))
+    return plant.moments(), max(peak)
 
 
 def pareto_table(d: Design) -> str:
@@ -137,10 +366,17 @@ def schedule_toml(d: Design) -> str:
     lines = [
         f"# Designed by `bmctl design` for {d.card_name}: target {tgt} at {d.hours:g} h (objective {d.objective})",
         f"# controller {d.controller_name or 'mpc'}; {r.method}: {r.status}, {r.solve_s:.1f} s; "
-        f"{r.switches} on/off switches; predicted D50 {r.outputs['d50_um']:.2f} um, error {100 * r.error:.2f} %",
-        f"# predicted (moment model): s mean {last[0]:.2f} um, s std {last[1]:.2f} um, r mean {last[2]:.4f}, "
-        f"r std {last[3]:.4f}; peak vial T {np.max(d.t_peak_c):.1f} C (ceiling {d.ceiling_c:g} C)",
+        f"{r.switches} on/off switches; predicted D50 {r.outputs['d50_um']:.2f} µm, error {100 * r.error:.2f} %",
+        f"# predicted (moment model): s mean {last[0]:.2f} µm, s std {last[1]:.2f} µm, r mean {last[2]:.4f}, "
+        f"r std {last[3]:.4f}; peak vial T {np.max(d.t_peak_c):.1f} °C (ceiling {d.ceiling_c:g} °C)",
         "# rpm 0 = rest; milling times are whole minutes",
+    ]
+    if d.plant:
+        pc = d.plant
+        lines.append(f"# plant check ({pc['seeds']} plants of {pc['particles']} particles): "
+                     + ", ".join(f"{k} {pc[k]['mean']:.4g} [{pc[k]['min']:.4g}, {pc[k]['max']:.4g}]" for k in d.target)
+                     + f"; peak vial T {pc['temperature_peak_c']:.1f} °C")
+    lines += [
         f'name = "design-{d.card_name}"',
     ]
     for h, r in d.segments:

@@ -235,10 +235,12 @@ class MPCController(CompiledSolvers):
         step from bmctl's cache (:func:`bmctl.control.compiled.compiled_step`; the same equations,
         nothing built symbolically in a process that finds it), else the casadi step."""
         if self._step_fn is None:
-            from .compiled import compiled_step
+            from .compiled import compiled_step, step_function
 
+            # interpreted, the library's own graph: same bits as the compiled step (the initial guess,
+            # and so the plan, must not depend on whether gcc has finished)
             self._step_fn = (compiled_step(self.model, self.interval_h, self.cfg.solver.substeps)
-                             or self.model.casadi_step(self.interval_h, self.cfg.solver.substeps))
+                             or step_function(self.model, self.interval_h, self.cfg.solver.substeps))
         return np.asarray(self._step_fn(x, u, pp), dtype=float).ravel()
 
     def _predict(self, x0, U, pp) -> np.ndarray:
@@ -448,7 +450,13 @@ class MPCController(CompiledSolvers):
                     "ipopt.print_level": s.print_level, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
                     "ipopt.tol": s.tol, "ipopt.acceptable_tol": s.acceptable_tol,
                     "ipopt.acceptable_iter": s.acceptable_iter}
-            if s.expand == "all" or (s.expand == "warm" and warm and hessian != "exact"):
+            from . import cache
+
+            # with compiled solvers on, the interpreted solver (used until gcc is done) solves the
+            # library's NLP as it is, unexpanded: it then gives the compiled solver's iterates to the
+            # last bit, and a run's plans do not depend on the cache (tests/control/test_mpc_cache.py)
+            same_as_library = cache.enabled()
+            if not same_as_library and (s.expand == "all" or (s.expand == "warm" and warm and hessian != "exact")):
                 opts["expand"] = True
             if s.max_wall_s is not None:
                 opts["ipopt.max_wall_time"] = s.max_wall_s
@@ -465,10 +473,11 @@ class MPCController(CompiledSolvers):
                     self._build()
                 if hessian == "gauss-newton":
                     opts["hess_lag"] = self._hess
-                okey = (key, repr(sorted((k, v) for k, v in opts.items() if k != "hess_lag")))
+                okey = (key, same_as_library, repr(sorted((k, v) for k, v in opts.items() if k != "hess_lag")))
                 compiled = self._built["solvers"].get(okey)
                 if compiled is None:
-                    compiled = self._built["solvers"][okey] = ca.nlpsol(f"mpc_{key[0]}", "ipopt", self._nlp, opts)
+                    nlp = self._called_nlp() if same_as_library else self._nlp
+                    compiled = self._built["solvers"][okey] = ca.nlpsol(f"mpc_{key[0]}", "ipopt", nlp, opts)
             self._solvers[key] = compiled
         elif key in self._pending:  # a background compile may have finished: switch to it
             self._upgrade(key)

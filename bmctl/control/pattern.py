@@ -188,10 +188,50 @@ class PatternDesigner:
         return {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": it,
                 "ipopt.tol": 1e-6, "ipopt.hessian_approximation": "limited-memory"}
 
+    def start_from(self, rpm, minutes, interval_min: float) -> np.ndarray:
+        """A start point of the relaxed solve from an operable schedule on the interval grid (the
+        global search's candidates, :mod:`bmctl.control.search`): per phase its milling-weighted rpm,
+        its milled share, the milling periods that start in it, interrupted when it rests.
+
+        Parameters
+        ----------
+        rpm, minutes : ndarray, (K,)
+            Per interval: rpm and milling minutes (mill first, then rest).
+        interval_min : float
+            Interval length (min).
+        """
+        P, K = self.P, len(minutes)
+        t = np.arange(K) * interval_min
+        L_min = self.L * 60.0
+        n, f, k, y = (np.zeros(P) for _ in range(4))
+        on_prev = False
+        for i in range(P):
+            sel = (t >= i * L_min - 1e-9) & (t < (i + 1) * L_min - 1e-9)
+            a, r = np.asarray(minutes)[sel], np.asarray(rpm)[sel]
+            tot = float(a.sum())
+            n[i] = (float((r * a).sum()) / tot if tot > 0 else self.rpm_lo) / self.step
+            f[i] = min(1.0, tot / L_min)
+            starts = 0
+            for aa, LL in zip(a, np.full(a.size, interval_min)):
+                if aa > 0 and not on_prev:
+                    starts += 1
+                on_prev = aa >= LL - 1e-9 if aa > 0 else False
+            k[i] = float(np.clip(max(starts, 1), 1, self.k_max))
+            y[i] = 1.0 if f[i] < 0.995 and self._can_interrupt() else 0.0
+            if y[i] > 0:
+                f[i] = max(f[i], self.cfg.mill.min_mill_min * k[i] / L_min)
+        lbx, ubx = self._bounds()
+        V = np.concatenate([n, f, k, y, np.zeros(P)])
+        return np.clip(V, lbx, ubx)
+
     def _guess(self, which: int = 0):
-        """Start points: 0 the card's rpm, 3/4 duty, one cycle; 1 the top rpm in the most short cycles
-        (the cool-burst corner); 2 mid rpm, half duty."""
+        """Start points: the given ones (:meth:`start_from`) first, then 0 the card's rpm, 3/4 duty,
+        one cycle; 1 the top rpm in the most short cycles (the cool-burst corner); 2 mid rpm, half duty."""
         P = self.P
+        given = getattr(self, "starts", [])
+        if which < len(given):
+            return np.asarray(given[which], dtype=float)
+        which -= len(given)
         if which == 1:
             r0, f0, k0 = self.rpm_hi, 0.25, float(self.k_max)
         elif which == 2:
@@ -338,7 +378,8 @@ class PatternDesigner:
         ceil = self.cfg.temperature.ceiling_c
         out = []
         rows = g[:5 * P].reshape(P, 5)
-        if np.any(rows[:, 0] >= ceil - tol_c) or np.any(rows[:, 1] >= -tol_c):
+        inter = V[3 * P:4 * P] > 0.5
+        if np.any(rows[:, 0] >= ceil - tol_c) or np.any(inter & (rows[:, 1] >= -tol_c)):
             out.append("temperature ceiling")
         if np.any(V[:P] * self.step >= self.rpm_hi - 1e-6):
             out.append("rpm max")

@@ -1,18 +1,16 @@
 """Is a target reachable under the mill's limits? The closest reachable state and the binding constraint.
 
-:func:`reachability` solves the phase-pattern design (:mod:`bmctl.control.pattern`) for the
-smallest target error alone (no energy or time cost) over the whole batch. When that error
-exceeds the tolerance the target is out of reach; the answer names the closest reachable
-outputs and the limits active at that optimum (:meth:`PatternDesigner.active`): the
-temperature ceiling, the rpm maximum, the minimum milling period or rest, the switch budget
-and the batch time (every phase milling throughout: more hours would be needed).
+:func:`reachability` designs the batch (:func:`bmctl.control.design.design_one`: the global search
+over operable schedule families, then the phase-pattern NLP started from its best schedules).
+When neither comes within the tolerance the target is out of reach; the answer names the closest
+outputs, the limits active at that schedule (the temperature ceiling, the rpm maximum, the minimum
+milling period or rest, the switch budget, the batch time: milling throughout) and the search's
+best schedule of each family, so the user sees why.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
-import numpy as np
+from dataclasses import dataclass, field
 
 
 @dataclass
@@ -27,14 +25,18 @@ class Reach:
     closest : dict
         Target quantities at that optimum (moments and D-values).
     binding : list of str
-        Active limits, e.g. "temperature ceiling", "rpm max", "minimum milling period (5 min)",
-        "switch budget (36)", "batch time" (empty when reachable).
+        Active limits, e.g. "vial-temperature ceiling (80 °C) from 2 h", "rpm at its upper bound
+        (500 rpm) from 0 h", "minimum milling period (5 min)", "switch budget (36 of 36 used)",
+        "batch time: milling throughout to the batch end" (empty when reachable).
+    per_family : dict
+        The global search's best schedule per family: {family: {"error", "peak_c", "schedule", ...}}.
     """
 
     reachable: bool
     error: float
     closest: dict
     binding: list
+    per_family: dict = field(default_factory=dict)
 
     def line(self, target: dict) -> str:
         from .config import format_target
@@ -42,6 +44,14 @@ class Reach:
         got = ", ".join(f"{k} {self.closest[k]:.4g} (target {format_target(v)})" for k, v in target.items())
         lim = ", ".join(self.binding) if self.binding else "none identified"
         return f"target out of reach (error {100 * self.error:.1f} %): closest {got}; binding: {lim}"
+
+    def family_lines(self) -> list[str]:
+        """One line per schedule family: its best schedule, error and peak temperature."""
+        out = []
+        for f, v in self.per_family.items():
+            out.append(f"  {f:<10} error {100 * v['error']:6.1f} %  peak {v['peak_c']:5.1f} °C  "
+                       f"{v['switches']:2d} switches  {v['schedule']}")
+        return out
 
 
 def reachability(model, target: dict, hours: float, cfg, p=None, result=None) -> Reach:
@@ -54,21 +64,19 @@ def reachability(model, target: dict, hours: float, cfg, p=None, result=None) ->
         {key: point or (lo, hi)}.
     hours : float
     cfg : MPCConfig
-        Bounds, ceiling, mill limits, ``objective.tolerance``.
+        Bounds, ceiling, mill limits, ``objective.tolerance``, ``[plan]``.
     p : array_like, optional
     result : PatternResult, optional
-        A design already solved for this target and batch (its error is reused when within tolerance).
+        A design already made for this target and batch: reused when within the tolerance.
     """
-    from .pattern import PatternDesigner
+    from .design import design_one
 
     tol = cfg.objective.tolerance
     if result is not None and result.error <= tol:
         return Reach(True, result.error, result.outputs, [])
-    d = PatternDesigner(model, hours, cfg, target, p, energy_weight=0.0)
-    r = d.solve("relax-round")
-    if result is not None and result.error < r.error:
-        r = result
-    if r.error <= tol:
-        return Reach(True, r.error, r.outputs, [])
-    binding = list(r.active)
-    return Reach(False, r.error, r.outputs, binding)
+    best, local, sr = design_one(model, target, hours, cfg, p)
+    if result is not None and result.error < best.error:
+        best = result
+    if best.error <= tol:
+        return Reach(True, best.error, best.outputs, [], sr.per_family)
+    return Reach(False, best.error, best.outputs, list(best.active), sr.per_family)

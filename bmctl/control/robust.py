@@ -36,3 +36,33 @@ def filter_scenarios(est: dict, n_extra: int) -> list[tuple[np.ndarray, np.ndarr
         p = np.array([max(q("gamma_mult", g), 1e-3), max(q("delta_mult", d), 1e-3)])
         out.append((x.copy(), p))
     return out
+
+
+def selection_indices(weights: np.ndarray, n: int) -> np.ndarray:
+    """Deterministic systematic selection of ``n`` particle indices by weight (no random draw).
+
+    Parameters
+    ----------
+    weights : ndarray
+        Particle weights (any scale).
+    n : int
+    """
+    w = np.asarray(weights, dtype=float)
+    c = np.cumsum(w / w.sum())
+    return np.minimum(np.searchsorted(c, (np.arange(n) + 0.5) / n), w.size - 1)
+
+
+def particle_scenarios(estimator, n: int) -> list[tuple[np.ndarray, np.ndarray]] | None:
+    """``n`` (x, p) pairs of a particle filter: a weighted systematic selection of its particles
+    (the same selection as ``campaign advise``'s end band); None for an estimator without particles.
+
+    Parameters
+    ----------
+    estimator : ParticleFilter
+    n : int
+    """
+    X, P = getattr(estimator, "X", None), getattr(estimator, "P", None)
+    if X is None or P is None or n <= 0:
+        return None
+    idx = selection_indices(estimator.weights, n)
+    return [(np.asarray(X[i], dtype=float), np.asarray(P[i], dtype=float)) for i in idx]

@@ -8,13 +8,26 @@ of the parameter multipliers (gamma_mult, delta_mult).
 Propagation
     the moment model under the applied (rpm, milling), then model-discrepancy noise: a
     random walk in z = ln(s_mean, s_std, r_mean, r_std) of std ``q * sqrt(tau)`` (tau: hours
-    since the noise was last applied) and an additive walk of the temperature. The noise is
-    applied lazily, once per update (or when an estimate is read), so that the update can
+    since the noise was last applied) and a random walk of the vial's heating gain. The noise
+    is applied lazily, once per update (or when an estimate is read), so that the update can
     draw it from a guided proposal. The parameters take a small random walk.
+Vial temperature
+    the card's thermal law (eqn 7: T relaxes to ambient + P tau_c / C within about an hour) is
+    only as good as its heat capacity and cooling time, and it forgets a corrected
+    temperature within an interval. Each particle therefore carries a heating gain g: its vial
+    runs at T = T_amb + g (T_law - T_amb), where T_law follows the card's law (the model steps
+    T_amb + (T - T_amb) / g, and the result is scaled back: exact for the linear law, and a
+    rest still cools to ambient). g = 1 until the first reading, at which its prior
+    N(1, ``thermal_gain_prior_std``^2) is weighed in; afterwards it walks
+    (``thermal_gain_walk_per_sqrt_h``) and, with probability ``thermal_gain_jump_prob`` at a
+    reading, jumps by a draw from its prior (a changed vial or cooling), so a reading far from
+    the estimate is followed rather than ignored.
 Update
     the likelihood of a micrograph sample (:func:`likelihood.loglik_raster`: the measured
     particles under the laws the state implies, through a measurement-noise model), raised
-    to a learning rate (power likelihood), and optionally a vial-temperature reading.
+    to a learning rate (power likelihood), and optionally a vial-temperature reading
+    (Gaussian, std ``sigma_temperature_c``); the reading is linear in g, so the gain's change
+    is drawn from its exact posterior (a two-component Gaussian mixture: walk or jump).
 Proposal
     for every particle, the Gaussian product of its discrepancy prior N(m_i, Q) with a
     Gaussian approximation N(z_hat, (eta I)^-1) of the (tempered) likelihood, mixed with the
@@ -52,6 +65,7 @@ from .likelihood import LawSettings, Raster, fit_sample, loglik_raster
 from .resampling import SCHEMES, effective_sample_size, resample
 
 N_MOMENTS = 4  # s_mean, s_std, r_mean, r_std: the log-moment block z
+GAIN_MIN = 0.05  # the smallest vial heating gain over the card's thermal law
 
 
 class FilterSettings(Strict):
@@ -77,8 +91,13 @@ class FilterSettings(Strict):
         Lower limits of the adapted per-sqrt(hour) noise of each log moment.
     process_noise_max : float
         Upper limit of the adapted per-sqrt(hour) noise.
-    temperature_noise_c_per_sqrt_h : float
-        Additive random walk of the vial temperature (degC per sqrt(hour)).
+    thermal_gain_prior_std : float
+        Prior std of the vial's heating gain g over the card's thermal law (1: the card is exact),
+        weighed in at the first reading.
+    thermal_gain_walk_per_sqrt_h : float
+        Random walk of g per sqrt(hour).
+    thermal_gain_jump_prob : float
+        Prior probability, at each later reading, that g changed by a draw from its prior.
     param_prior_log_std : float
         Std of the initial log multipliers (0.4 ~ +-40 %).
     param_walk_per_sqrt_h : float
@@ -99,7 +118,7 @@ class FilterSettings(Strict):
     law : LawSettings
         Measurement laws (size law, noise) and raster.
     sigma_temperature_c : float
-        Noise of a vial-temperature reading.
+        Noise (std) of a vial-temperature reading (degC).
     """
 
     n_particles: Annotated[int, Field(ge=10)] = 2000
@@ -110,7 +129,9 @@ class FilterSettings(Strict):
     adapt_rate: float = 0.3
     process_noise_floor: tuple[float, float, float, float] = (0.05, 0.08, 0.2, 0.2)
     process_noise_max: float = 1.5
-    temperature_noise_c_per_sqrt_h: float = 1.0
+    thermal_gain_prior_std: Annotated[float, Field(ge=0, le=2)] = 0.3
+    thermal_gain_walk_per_sqrt_h: Annotated[float, Field(ge=0, le=1)] = 0.05
+    thermal_gain_jump_prob: Annotated[float, Field(ge=0, lt=1)] = 0.02
     param_prior_log_std: float = 0.4
     param_walk_per_sqrt_h: float = 0.01
     roughening: float = 0.05
@@ -120,7 +141,7 @@ class FilterSettings(Strict):
     defensive: Annotated[float, Field(ge=0, lt=1)] = 0.1
     proposal: Literal["guided", "bootstrap"] = "guided"
     law: LawSettings = Field(default_factory=LawSettings)
-    sigma_temperature_c: float = 2.0
+    sigma_temperature_c: Annotated[float, Field(gt=0)] = 2.0
 
     @field_validator("scheme")
     @classmethod
@@ -163,6 +184,9 @@ class Estimate:
         Learning rates of the size and shape blocks (NaN without a sample).
     n_measured : int
         Measured particles in the sample (0 without one).
+    extra : dict
+        Further read-outs, name -> (weighted mean, q05, q95): the particle filter's
+        ``thermal_gain`` (the vial's heating over the card's thermal law).
     size_stats : dict
         Volume-weighted ``d10_um, d50_um, d90_um, span`` and area-weighted ``s_mean_area_um,
         s_mode_area_um`` of the particles' size laws (closed form of each particle's mean and
@@ -181,15 +205,17 @@ class Estimate:
     eta: tuple = (float("nan"), float("nan"))
     n_measured: int = 0
     size_stats: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, float]:
-        """Flat dict: t_h, ess, and <name>, <name>_q05, <name>_q95 for every state, parameter and size statistic."""
+        """Flat dict: t_h, ess, and <name>, <name>_q05, <name>_q95 for every state, parameter,
+        size statistic and extra read-out."""
         d = {"t_h": self.t_h, "ess": self.ess}
         for k, n in enumerate(self.names):
             d[n] = float(self.mean[k])
             d[f"{n}_q05"] = float(self.q05[k])
             d[f"{n}_q95"] = float(self.q95[k])
-        for n, (m, lo, hi) in self.size_stats.items():
+        for n, (m, lo, hi) in {**self.size_stats, **self.extra}.items():
             d[n], d[f"{n}_q05"], d[f"{n}_q95"] = float(m), float(lo), float(hi)
         return d
 
@@ -251,9 +277,16 @@ class ParticleFilter:
 
     Examples
     --------
-    >>> pf = ParticleFilter(model, np.random.default_rng(0))  # doctest: +SKIP
-    >>> pf.predict((300.0, 1.0), 1.0)  # doctest: +SKIP
-    >>> est = pf.update(s_um, r)  # doctest: +SKIP
+    >>> import numpy as np
+    >>> from bmctl.moments import make_moment_model
+    >>> from bmctl.estimate.filter import FilterSettings, ParticleFilter
+    >>> model = make_moment_model("models/alni-1to1-300rpm-lab.toml")
+    >>> pf = ParticleFilter(model, np.random.default_rng(0), FilterSettings(n_particles=200))
+    >>> pf.predict((300.0, 1.0), 1.0)
+    >>> rng = np.random.default_rng(1)
+    >>> est = pf.update(s_um=rng.lognormal(np.log(45.0), 0.3, 300), r=rng.uniform(0.0, 0.1, 300))
+    >>> est.t_h, len(est.mean) == len(est.names)
+    (1.0, True)
     """
 
     def __init__(self, model, rng: np.random.Generator, settings: FilterSettings | None = None, x0=None):
@@ -278,13 +311,17 @@ class ParticleFilter:
         self.n_resampled = 0
         self.n_degenerate = 0
         self.last_fit = None
+        self.ambient_c = float(np.asarray(model.x0(), dtype=float)[4])
+        self.gain = np.ones(N)  # each particle's vial heating gain over the card's thermal law
+        self.gain_var = st.thermal_gain_prior_std**2  # the gain's prior variance, spent on the first reading
 
     # --- state ------------------------------------------------------------------------------
     def get_state(self) -> dict:
         """The particles, weights, clocks, adapted noise and generator state as plain data."""
         return {"X": self.X.copy(), "logP": self.logP.copy(), "logw": self.logw.copy(), "t_h": self.t_h,
                 "pending_h": self.pending_h, "q": self.q.copy(), "n_resampled": self.n_resampled,
-                "n_degenerate": self.n_degenerate, "rng": self.rng.bit_generator.state}
+                "n_degenerate": self.n_degenerate, "rng": self.rng.bit_generator.state,
+                "gain": self.gain.copy(), "gain_var": self.gain_var}
 
     def set_state(self, state: dict) -> None:
         """Restore a state from :meth:`get_state` (the settings and the model are the constructor's)."""
@@ -297,6 +334,9 @@ class ParticleFilter:
         self.n_resampled = int(state["n_resampled"])
         self.n_degenerate = int(state["n_degenerate"])
         self.rng.bit_generator.state = state["rng"]
+        # a state written before the gain existed: the card's law, its prior not yet spent
+        self.gain = np.array(state["gain"], dtype=float) if "gain" in state else np.ones(self.X.shape[0])
+        self.gain_var = float(state.get("gain_var", self.settings.thermal_gain_prior_std**2))
 
     # --- basics -----------------------------------------------------------------------------
     @property
@@ -336,7 +376,10 @@ class ParticleFilter:
         if dt_h <= 0:
             return
         st, rng = self.settings, self.rng
-        X = np.asarray(self.model.step(self.X, np.asarray(u, dtype=float), dt_h, self.P), dtype=float)
+        X_law = self.X.copy()
+        X_law[:, 4] = self.ambient_c + self._excess()  # the card's thermal law runs on T_amb + (T - T_amb) / g
+        X = np.asarray(self.model.step(X_law, np.asarray(u, dtype=float), dt_h, self.P), dtype=float)
+        X[:, 4] = self.ambient_c + self.gain * (X[:, 4] - self.ambient_c)
         bad = ~np.all(np.isfinite(X), axis=1)
         if np.any(bad):  # a failed model step keeps the particle where it was (and reports nothing)
             X[bad] = self.X[bad]
@@ -344,6 +387,16 @@ class ParticleFilter:
         self.logP = self.logP + st.param_walk_per_sqrt_h * math.sqrt(dt_h) * rng.standard_normal(self.logP.shape)
         self.t_h += dt_h
         self.pending_h += dt_h
+
+    def _excess(self) -> np.ndarray:
+        """The card law's temperature excess over ambient of every particle, (T - T_amb) / g (degC)."""
+        return (self.X[:, 4] - self.ambient_c) / self.gain
+
+    def _set_gain(self, gain: np.ndarray) -> None:
+        """New gains (kept >= GAIN_MIN); the temperatures follow at the same card-law excess."""
+        E = self._excess()
+        self.gain = np.maximum(gain, GAIN_MIN)
+        self.X[:, 4] = self.ambient_c + self.gain * E
 
     def _apply_pending_noise(self) -> None:
         """Draw the deferred process noise from its prior (no sample to guide it)."""
@@ -353,7 +406,7 @@ class ParticleFilter:
         st, rng = self.settings, self.rng
         N = self.X.shape[0]
         self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau) * rng.standard_normal((N, N_MOMENTS)))
-        self.X[:, 4] += st.temperature_noise_c_per_sqrt_h * math.sqrt(tau) * rng.standard_normal(N)
+        self._set_gain(self.gain + st.thermal_gain_walk_per_sqrt_h * math.sqrt(tau) * rng.standard_normal(N))
         self.X = self._feasible(self.X)
         self.pending_h = 0.0
 
@@ -366,7 +419,7 @@ class ParticleFilter:
         s_um, r : array_like, optional
             Measured sizes (um, > 0) and aspect ratios ([0, 1)) of one sample.
         temperature_c : float, optional
-            Vial-temperature reading.
+            Vial-temperature reading (degC).
         """
         st, rng = self.settings, self.rng
         N = self.X.shape[0]
@@ -375,20 +428,15 @@ class ParticleFilter:
         eta = np.array([np.nan, np.nan])
         n_meas = 0
 
-        # temperature: Gaussian prior walk x Gaussian reading -> exact optimal proposal
-        qT2 = (st.temperature_noise_c_per_sqrt_h**2) * tau
+        # vial temperature: the heating gain's change (walk, its prior at the first reading, or a
+        # jump) x the Gaussian reading, linear in the change -> its exact posterior as proposal
+        v_walk = st.thermal_gain_walk_per_sqrt_h**2 * tau
         if temperature_c is not None:
             if not math.isfinite(temperature_c):
                 raise ValueError("temperature_c must be finite")
-            sT2 = st.sigma_temperature_c**2
-            mT = self.X[:, 4]
-            var = qT2 + sT2
-            logw += -0.5 * (temperature_c - mT) ** 2 / var - 0.5 * math.log(2 * math.pi * var)
-            post_var = qT2 * sT2 / var if var > 0 else 0.0
-            post_mean = (mT * sT2 + temperature_c * qT2) / var
-            self.X[:, 4] = post_mean + math.sqrt(post_var) * rng.standard_normal(N)
-        elif qT2 > 0:
-            self.X[:, 4] += math.sqrt(qT2) * rng.standard_normal(N)
+            logw += self._reading_update(float(temperature_c), v_walk)
+        elif v_walk > 0:
+            self._set_gain(self.gain + math.sqrt(v_walk) * rng.standard_normal(N))
 
         if s_um is not None:
             raster = Raster.from_particles(s_um, r, st.law)
@@ -416,6 +464,40 @@ class ParticleFilter:
         est.ess, est.resampled, est.degenerate = ess, resampled, degenerate
         est.eta, est.n_measured = tuple(float(e) for e in eta), n_meas
         return est
+
+    def _reading_update(self, y: float, v_walk: float) -> np.ndarray:
+        """Draw the gain's change given a reading ``y`` (degC); returns the log-weights (predictive density).
+
+        The reading is y = T + c E + e, c the gain's change, E the card-law excess, e ~ N(0, s^2).
+        With c ~ sum_k pi_k N(0, v_k), the predictive is sum_k pi_k N(y; T, E^2 v_k + s^2) and the
+        posterior of c a mixture of the Gaussians N(v_k E (y - T) / S_k, v_k s^2 / S_k).
+        """
+        st, rng = self.settings, self.rng
+        N = self.X.shape[0]
+        E = self._excess()
+        s2 = st.sigma_temperature_c**2
+        prior = st.thermal_gain_prior_std**2
+        if self.gain_var > 0:  # the first reading: the gain's prior
+            comps = [(1.0, v_walk + self.gain_var)]
+            self.gain_var = 0.0
+        elif st.thermal_gain_jump_prob > 0 and prior > 0:
+            comps = [(1.0 - st.thermal_gain_jump_prob, v_walk), (st.thermal_gain_jump_prob, v_walk + prior)]
+        else:
+            comps = [(1.0, v_walk)]
+        resid = y - self.X[:, 4]
+        S = [E**2 * v + s2 for _, v in comps]
+        logc = np.array([math.log(pi) - 0.5 * resid**2 / Sk - 0.5 * np.log(2 * math.pi * Sk)
+                         for (pi, _), Sk in zip(comps, S)])
+        lse = np.logaddexp.reduce(logc, axis=0)
+        k = np.zeros(N, dtype=int)
+        if len(comps) > 1:
+            k = (rng.random(N) < np.exp(logc[1] - lse)).astype(int)
+        v = np.array([c[1] for c in comps])[k]
+        Sk = np.choose(k, S)
+        mean = v * E * resid / Sk
+        sd = np.sqrt(v * s2 / Sk)
+        self._set_gain(self.gain + mean + sd * rng.standard_normal(N))
+        return lse
 
     def _sample_update(self, raster: Raster, tau: float):
         """Guided proposal of the log moments and the importance log-weights of one sample."""
@@ -486,6 +568,7 @@ class ParticleFilter:
         idx = resample(self.weights, rng, st.scheme)
         self.X = self.X[idx].copy()
         self.logP = self.logP[idx].copy()
+        self.gain = self.gain[idx].copy()
         N, d = self.logP.shape
         spread = self.logP.max(axis=0) - self.logP.min(axis=0)
         self.logP += st.roughening * np.maximum(spread, 1e-3) * N ** (-1.0 / d) * rng.standard_normal((N, d))
@@ -497,8 +580,10 @@ class ParticleFilter:
         w = self.weights
         V = np.hstack([self.X, self.P])
         q = weighted_quantiles(V, w)
+        qg = weighted_quantiles(self.gain[:, None], w)
         return Estimate(self.t_h, self.names, w @ V, q[0], q[1], effective_sample_size(w),
-                        size_stats=particle_size_stats(self.model, self.X, w))
+                        size_stats=particle_size_stats(self.model, self.X, w),
+                        extra={"thermal_gain": (float(w @ self.gain), float(qg[0, 0]), float(qg[1, 0]))})
 
     def estimate(self) -> Estimate:
         """Weighted mean and 90 % interval of every state and parameter (deferred noise applied)."""

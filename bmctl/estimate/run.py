@@ -105,8 +105,8 @@ def check_reading(card, temperature_c: float | None, where: str) -> float | None
 
     hi, reason = melting_limit(card)
     if not (math.isfinite(temperature_c) and READING_MIN_C <= temperature_c <= hi):
-        raise InputError(f"{where}: reading {temperature_c:g} C outside [{READING_MIN_C:g}, {hi:g}] C "
-                         f"(-50 C to {reason})")
+        raise InputError(f"{where}: reading {temperature_c:g} °C outside [{READING_MIN_C:g}, {hi:g}] °C "
+                         f"(-50 °C to {reason})")
     return temperature_c
 
 
@@ -122,7 +122,7 @@ def check_sample(smp: "Sample") -> "Sample":
     if bad_s.any():
         k = int(np.argmax(bad_s))
         raise InputError(f"{where}: particle {k + 1}: s_um = {s[k]:.4g} outside [{S_RANGE_UM[0]:g}, "
-                         f"{S_RANGE_UM[1]:g}] um")
+                         f"{S_RANGE_UM[1]:g}] µm")
     bad_r = ~((r >= 0) & (r < 1))
     if bad_r.any():
         k = int(np.argmax(bad_r))

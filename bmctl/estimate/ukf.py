@@ -192,9 +192,14 @@ class UKFEstimator:
 
     Examples
     --------
-    >>> ukf = UKFEstimator(model)  # doctest: +SKIP
-    >>> ukf.predict((300.0, 1.0), 1.0)  # doctest: +SKIP
-    >>> est = ukf.update(s_um, r, temperature_c=31.0)  # doctest: +SKIP
+    >>> import numpy as np
+    >>> from bmctl.moments import make_moment_model
+    >>> ukf = UKFEstimator(make_moment_model("models/alni-1to1-300rpm-lab.toml"))
+    >>> ukf.predict((300.0, 1.0), 1.0)
+    >>> rng = np.random.default_rng(1)
+    >>> est = ukf.update(rng.lognormal(np.log(45.0), 0.3, 300), rng.uniform(0.0, 0.1, 300), temperature_c=31.0)
+    >>> est.t_h
+    1.0
     """
 
     def __init__(self, model, rng: np.random.Generator | None = None, settings: UKFSettings | None = None, x0=None):

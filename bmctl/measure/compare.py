@@ -105,24 +105,31 @@ def two_sample(measured, predicted) -> TwoSample:
 
 
 def compare_figure(path, s_meas, r_meas, s_pred, r_pred, *, title: str = "") -> None:
-    """Histograms of s (log axis, um) and r, measured against predicted, as a PNG (atomic)."""
+    """Histograms of s (log axis, µm; density per ln s, which a log axis shows undistorted) and
+    r, measured against predicted, as a PNG (atomic)."""
     from ..io import pyplot, savefig
+    from ..plots import log_size_axis
 
     plt = pyplot()
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
     lo = max(min(np.min(s_meas), np.min(s_pred)), 1e-3)
     hi = max(np.max(s_meas), np.max(s_pred))
     edges = np.geomspace(lo, hi * 1.0001, 31)
-    ax1.hist(s_pred, bins=edges, density=True, alpha=0.5, label=f"plant prediction (M = {len(s_pred)})")
-    ax1.hist(s_meas, bins=edges, density=True, histtype="step", lw=2, color="k", label=f"measured (n = {len(s_meas)})")
+    dln = float(np.log(edges[1] / edges[0]))
+    per_ln = lambda s: np.full(len(s), 1.0 / (len(s) * dln))  # noqa: E731  (bar height = density per ln s)
+    ax1.hist(s_pred, bins=edges, weights=per_ln(s_pred), alpha=0.5, label=f"plant prediction (M = {len(s_pred)})")
+    ax1.hist(s_meas, bins=edges, weights=per_ln(s_meas), histtype="step", lw=2, color="k",
+             label=f"measured (n = {len(s_meas)})")
     ax1.set_xscale("log")
-    ax1.set_xlabel("size s = 2√(A/π) (µm)")
-    ax1.set_ylabel("density")
+    log_size_axis(ax1)
+    ax1.set_xlabel("size s = 2√(A/π) (µm, log scale)")
+    ax1.set_ylabel("density per ln s (by number)")
     ax1.legend(fontsize=8)
     r_edges = np.linspace(0.0, max(float(np.max(r_meas)), float(np.max(r_pred)), 0.05) * 1.0001, 31)
     ax2.hist(r_pred, bins=r_edges, density=True, alpha=0.5, label="plant prediction")
     ax2.hist(r_meas, bins=r_edges, density=True, histtype="step", lw=2, color="k", label="measured")
     ax2.set_xlabel("irregularity r = 1 − πs/L")
+    ax2.set_ylabel("density per unit r (by number)")
     ax2.legend(fontsize=8)
     if title:
         fig.suptitle(title, fontsize=10)

@@ -100,7 +100,7 @@ def _scale_bar_check(scale: Scale, bar: ScaleBar | None) -> QualityWarning | Non
     if off <= SCALE_BAR_MISMATCH:
         return None
     return QualityWarning("scale", off, SCALE_BAR_MISMATCH,
-                          f"the scale bar ({bar.length_px:g} px) is {implied:.3g} um at {scale.um_per_px:.4g} um/px, "
+                          f"the scale bar ({bar.length_px:g} px) is {implied:.3g} µm at {scale.um_per_px:.4g} µm/px, "
                           f"not a round length: check the scale ({scale.source})")
 
 

@@ -143,7 +143,7 @@ def _fast_sample(s, r, n, rng, um_per_px, noise, section, min_area_px) -> Partic
     while got < n:
         if drawn >= MAX_DRAWS_FACTOR * n:
             raise InputError(
-                f"population: only {got} of {drawn} particles are resolvable at {um_per_px} um/px "
+                f"population: only {got} of {drawn} particles are resolvable at {um_per_px} µm/px "
                 f"(min area {min_area_px} px); need {n}"
             )
         m = max(2 * (n - got), 64)
@@ -174,7 +174,7 @@ def _render_sample(s, r, n, rng, um_per_px, section, min_area_px) -> ParticleTab
     while got < n:
         if drawn >= MAX_DRAWS_FACTOR * n:
             raise InputError(
-                f"population: only {got} of {drawn} rendered particles were measured at {um_per_px:g} um/px; need {n}"
+                f"population: only {got} of {drawn} rendered particles were measured at {um_per_px:g} µm/px; need {n}"
             )
         # particles per image: ~25 % of the field covered
         mean_area = float(np.mean(np.pi * s_px_all**2 / 4.0)) * 1.3

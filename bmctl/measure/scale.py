@@ -110,7 +110,7 @@ def _fei_xl(value, width_px: int) -> tuple[float, str] | None:
     hfw_um = float(size_y) * float(ratio) * 1e3 / float(mag)  # display width (mm) / magnification
     return hfw_um / width_px, (
         f"FEI/Philips XL tag 34680: magnification {float(mag):g} on a display {float(size_y):g} mm x {float(ratio):g} "
-        f"wide -> field width {hfw_um:.4g} um over {width_px} px (assumes the image spans the display width)"
+        f"wide -> field width {hfw_um:.4g} µm over {width_px} px (assumes the image spans the display width)"
     )
 
 
@@ -137,7 +137,9 @@ def _jeol_sidecar(path: Path) -> tuple[float, str] | None:
     side = path.with_suffix(".txt")
     if not side.is_file():
         return None
-    text = side.read_text(encoding="latin-1", errors="replace")
+    from ..io import read_input_bytes
+
+    text = read_input_bytes(side, max_bytes=1 << 20).decode("latin-1", errors="replace")  # bounded, regular
     bar = re.search(r"\$\$?SM_MICRON_BAR\s+([0-9.]+)", text)
     marker = re.search(r"\$\$?SM_MICRON_MARKER\s+([0-9.]+)\s*([a-zA-Zµμ]+)", text)
     if not (bar and marker and _unit_to_um(marker.group(2)) and float(bar.group(1)) > 0):
@@ -346,7 +348,7 @@ def resolve_scale(path, img: np.ndarray, *, um_per_px=None, scale_bar_um=None, i
         if bar is None:
             raise InputError(f"{name}: --scale-bar-um given but no scale bar found; {SCALE_HELP.split(', or')[0]}")
         return Scale(float(scale_bar_um) / bar.length_px, "scale-bar",
-                     f"scale bar {bar.length_px:g} px at row {bar.row} = {float(scale_bar_um):g} um (--scale-bar-um)"), bar
+                     f"scale bar {bar.length_px:g} px at row {bar.row} = {float(scale_bar_um):g} µm (--scale-bar-um)"), bar
     raise InputError(f"{name}: no pixel size in the image metadata; {SCALE_HELP}")
 
 
@@ -360,5 +362,5 @@ def check_scale(um_per_px, name: str = "--um-per-px") -> float:
         raise InputError(f"{name}: must be a finite number > 0 (got {um_per_px})")
     lo, hi = UM_PER_PX_RANGE if name != "--scale-bar-um" else (1e-3, 1e5)
     if not lo <= v <= hi:
-        raise InputError(f"{name}: {v:g} um is outside the sane range [{lo:g}, {hi:g}] um")
+        raise InputError(f"{name}: {v:g} µm is outside the sane range [{lo:g}, {hi:g}] µm")
     return v

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..io import write_csv
 from ..plant.events import aspect_from_perimeter, perimeter_from_aspect, size_from_area
 
@@ -29,6 +29,9 @@ LOCATION_COLUMNS = ("particle_id", "image", "x_um", "y_um")  # written first by 
 ISOPERIMETRIC_TOL = 0.05  # relative shortfall of L below pi s accepted (and raised to pi s)
 #: physical range of a particle size: 1 nm to 10 mm (a powder particle outside it is a unit or scale error)
 S_MIN_UM, S_MAX_UM = 1e-3, 1e4
+
+#: the largest particle table read (a million particles as `s_um,r` take ~20 MB)
+TABLE_MAX_BYTES = 64 << 20
 
 
 @dataclass(frozen=True)
@@ -156,12 +159,21 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
         Missing or unreadable file, no header or no rows, missing columns, a value that is
         not a finite number, area/perimeter/s <= 0, r outside [0, 1), or a perimeter more
         than ``ISOPERIMETRIC_TOL`` below pi s.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
+    >>> _ = f.write_text("s_um,r\\n40.0,0.02\\n55.5,0.10\\n")
+    >>> t = read_table(f)
+    >>> len(t), t.s_um.tolist()
+    (2, [40.0, 55.5])
     """
     p = str(path)
     try:
         from ..io import read_input_bytes  # a regular file of a sane size (no FIFO, no device)
 
-        text = read_input_bytes(path).decode("utf-8-sig")
+        text = read_input_bytes(path, max_bytes=TABLE_MAX_BYTES).decode("utf-8-sig")
     except FileNotFoundError:
         raise InputError(f"{p}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -176,7 +188,7 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
     elif {"s_um", "r"} <= set(header):
         cols = ("s_um", "r")
     else:
-        raise InputError(f"{p}: missing columns: need area_um2,perimeter_um or s_um,r (header has {','.join(header)})")
+        raise InputError(f"{p}: missing columns: need area_um2,perimeter_um or s_um,r (header has {quote(','.join(header))})")
     idx = [header.index(c) for c in cols]
     vals = []
     for (lineno, _), row in zip(lines[1:], reader):
@@ -187,9 +199,9 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
             raise InputError(f"{p}: row {lineno}, column {cols[0]}: must be > 0 (got {a:g})")
         s_um = a if cols[0] == "s_um" else float(size_from_area(a))
         if not S_MIN_UM <= s_um <= S_MAX_UM:
-            got = f"{a:g}" if cols[0] == "s_um" else f"{a:g} um^2, s = {s_um:.3g} um"
+            got = f"{a:g}" if cols[0] == "s_um" else f"{a:g} µm², s = {s_um:.3g} µm"
             raise InputError(f"{p}: row {lineno}, column {cols[0]}: size outside the physical range "
-                             f"[{S_MIN_UM:g}, {S_MAX_UM:g}] um, 1 nm to 10 mm (got {got})")
+                             f"[{S_MIN_UM:g}, {S_MAX_UM:g}] µm, 1 nm to 10 mm (got {got})")
         if cols[1] == "r" and not 0.0 <= b < 1.0:
             raise InputError(f"{p}: row {lineno}, column r: must be in [0, 1) (got {b:g})")
         if cols[1] == "perimeter_um":
@@ -230,7 +242,7 @@ def check_table(table: ParticleTable, source: str) -> ParticleTable:
             bad |= ~((v >= S_MIN_UM) & (v <= S_MAX_UM))
         if np.any(bad):
             k = int(np.argmax(bad))
-            rng = {"s_um": f"[{S_MIN_UM:g}, {S_MAX_UM:g}] um", "r": "[0, 1)"}.get(name, "> 0")
+            rng = {"s_um": f"[{S_MIN_UM:g}, {S_MAX_UM:g}] µm", "r": "[0, 1)"}.get(name, "> 0")
             raise InputError(f"{source}: particle {k + 1}: {name} = {v[k]:.4g} outside {rng}: check the scale "
                              "(--um-per-px, --scale-bar-um)")
     return table

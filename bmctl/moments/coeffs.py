@@ -1,17 +1,26 @@
 """Free coefficients of the moment model: names, defaults, bounds, TOML file next to the card.
 
-The file ``models/<card-name>.moments.toml`` is written by ``bmctl identify``; it holds
-``[coefficients]`` (what the model reads), ``[identification]`` (how they were found)
-and ``[validation]`` (held-out errors), e.g.::
+The file ``<card>.moments.toml`` is written by ``bmctl identify`` next to the card; it holds
+``[coefficients]`` (what the model reads), ``[card]`` (the name and the fingerprint of the card
+fields they were identified for, :func:`bmctl.cards.fingerprint_values`), ``[window]`` (the speeds
+and steady vial temperatures the identification's plant experiments covered),
+``[identification]`` (how they were found) and ``[validation]`` (held-out errors), e.g.::
 
     [coefficients]
     bond_log_scale = 0.12
+    ...
+    [card]
+    name = "alni-1to1-300rpm-lab"
+    fingerprint = "sha256:7b54937f034c04f2"
+    [card.values]
+    "mill.ball_diameter_m" = 0.01
     ...
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..config import read_toml
@@ -78,11 +87,136 @@ def check(coeffs: dict, source: str) -> dict[str, float]:
 
 def load_coeffs(path: str | Path) -> dict[str, float]:
     """Read the ``[coefficients]`` table of a ``*.moments.toml`` file."""
+    return read_file(path).coeffs
+
+
+#: moments with a held-out error in ``[validation]`` (the model's outputs)
+OUTPUTS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c")
+
+
+@dataclass
+class CoeffFile:
+    """A ``*.moments.toml`` file as read by :func:`read_file`.
+
+    Attributes
+    ----------
+    path : Path
+    coeffs : dict
+        ``[coefficients]``, checked against :data:`SPEC`.
+    card_name : str or None
+        ``[card] name``: the card they were identified for.
+    values : dict or None
+        ``[card.values]``: the fingerprint fields (None in a file that records none).
+    heldout_mean, heldout_max : dict
+        ``[validation] mean`` / ``max``: held-out NRMSE per output (fractions; empty when absent).
+    window : dict
+        ``[window]``: ``rpm`` and ``temperature_c`` as (low, high) pairs (empty when absent).
+    identification : dict
+        ``[identification]`` as written.
+    """
+
+    path: Path
+    coeffs: dict
+    card_name: str | None = None
+    values: dict | None = None
+    heldout_mean: dict = field(default_factory=dict)
+    heldout_max: dict = field(default_factory=dict)
+    window: dict = field(default_factory=dict)
+    identification: dict = field(default_factory=dict)
+    heldout_schedules: int | None = None
+
+    @property
+    def worst_heldout(self) -> tuple[str, float] | None:
+        """(output, mean NRMSE) of the worst output over the held-out schedules, or None."""
+        items = [(k, v) for k, v in self.heldout_mean.items() if k in OUTPUTS]
+        return max(items, key=lambda kv: kv[1]) if items else None
+
+    def heldout_line(self) -> str:
+        """Held-out NRMSE per output in one line, e.g. ``held-out NRMSE s_mean 2.2 %, ... (72 schedules)``.
+
+        Examples
+        --------
+        >>> CoeffFile(Path("x.moments.toml"), {}, heldout_mean={"s_mean_um": 0.022, "r_mean": 0.048}).heldout_line()
+        'held-out NRMSE s_mean 2.2 %, r_mean 4.8 %'
+        >>> CoeffFile(Path("x.moments.toml"), {}).heldout_line()
+        'no held-out error recorded'
+        """
+        if not self.heldout_mean:
+            return "no held-out error recorded"
+        parts = [f"{k.removesuffix('_um')} {100 * float(v):.1f} %" for k, v in self.heldout_mean.items()
+                 if k in OUTPUTS and k != "temperature_c"]
+        n = self.heldout_schedules
+        return "held-out NRMSE " + ", ".join(parts) + (f" ({n} schedules)" if n else "")
+
+
+def _pair(v, where: str) -> tuple[float, float]:
+    if (not isinstance(v, list) or len(v) != 2
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)
+            or v[0] > v[1]):
+        raise InputError(f"{where}: expected [low, high], two finite numbers in order (got {v!r})")
+    return float(v[0]), float(v[1])
+
+
+def _numbers(table, where: str) -> dict:
+    if not isinstance(table, dict):
+        raise InputError(f"{where}: expected a table")
+    out = {}
+    for k, v in table.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise InputError(f"{where}.{k}: must be a finite number (got {v!r})")
+        out[str(k)] = v
+    return out
+
+
+def read_file(path: str | Path) -> CoeffFile:
+    """Read and check a ``*.moments.toml`` file (one-line :class:`~bmctl.errors.InputError` on bad content).
+
+    Parameters
+    ----------
+    path : path-like
+        The coefficient file.
+
+    Returns
+    -------
+    CoeffFile
+
+    Examples
+    --------
+    >>> f = read_file("models/alni-1to1-300rpm-lab.moments.toml")
+    >>> f.card_name, len(f.values) > 30, sorted(f.window)
+    ('alni-1to1-300rpm-lab', True, ['rpm', 'temperature_c'])
+    """
+    path = Path(path)
     data = read_toml(path)
     table = data.get("coefficients")
     if not isinstance(table, dict):
         raise InputError(f"{path}: coefficients: required table is missing")
-    return check(table, str(path))
+    out = CoeffFile(path, check(table, str(path)))
+    card = data.get("card")
+    if card is not None:
+        if not isinstance(card, dict):
+            raise InputError(f"{path}: card: expected a table")
+        name = card.get("name")
+        if name is not None and not isinstance(name, str):
+            raise InputError(f"{path}: card.name: expected a string (got {name!r})")
+        out.card_name = name
+        if "values" in card:
+            out.values = _numbers(card["values"], f"{path}: card.values")
+    val = data.get("validation", {})
+    if isinstance(val, dict):
+        for key, attr in (("mean", "heldout_mean"), ("max", "heldout_max")):
+            if key in val:
+                setattr(out, attr, _numbers(val[key], f"{path}: validation.{key}"))
+        n = val.get("schedules")
+        out.heldout_schedules = n if isinstance(n, int) and not isinstance(n, bool) else None
+    win = data.get("window")
+    if win is not None:
+        if not isinstance(win, dict):
+            raise InputError(f"{path}: window: expected a table")
+        out.window = {k: _pair(win[k], f"{path}: window.{k}") for k in ("rpm", "temperature_c") if k in win}
+    ident = data.get("identification", {})
+    out.identification = dict(ident) if isinstance(ident, dict) else {}
+    return out
 
 
 def _fmt(v) -> str:

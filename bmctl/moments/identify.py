@@ -143,6 +143,40 @@ def design(card: ModelCard, seed: int = 0, quick: bool = False, n_random: int | 
     return specs
 
 
+def design_window(card: ModelCard, specs: Sequence[Spec]) -> dict:
+    """The ``[window]`` of a coefficient file: the milling speeds of ``specs`` and the steady vial
+    temperatures they span (the ambient, which every run starts from, up to the steady temperature of
+    the fastest speed; :func:`bmctl.cards.steady_temperature_c`).
+
+    Parameters
+    ----------
+    card : ModelCard
+    specs : sequence of Spec
+        The training design.
+
+    Returns
+    -------
+    dict
+        ``rpm`` and ``temperature_c`` as [low, high] lists, and ``source`` (what they are).
+    """
+    from ..cards import steady_temperature_c
+
+    rpms = [rpm for s in specs for rpm, duty in list(s.prefix) + list(s.inputs) if rpm > 0 and duty > 0]
+    lo, hi = min(rpms), max(rpms)
+    return {"rpm": [float(lo), float(hi)],
+            "temperature_c": [round(card.thermal.ambient_C, 2), round(steady_temperature_c(card, hi), 2)],
+            "source": "milling speeds of the training experiments; vial temperatures from the ambient to the "
+                      "steady temperature of the fastest (docs/moments.md, Sec. 9)"}
+
+
+def card_table(card: ModelCard) -> dict:
+    """The ``[card]`` table of a coefficient file: name, fingerprint and the fingerprint's values."""
+    from ..cards import fingerprint, fingerprint_values
+
+    values = fingerprint_values(card)
+    return {"name": card.card.name, "fingerprint": fingerprint(values), "values": values}
+
+
 def validation_design(card: ModelCard, seed: int = 0, n: int = N_VALID, stream: int = 2) -> list[Spec]:
     """Held-out random schedules from the random stream ``[seed, stream]``, independent of the
     training design's ``[seed, 1]`` (``benchmarks/moments_confirm.py`` draws its confirmation set
@@ -429,6 +463,11 @@ def nrmse_table(model: MomentModel, experiments: Sequence[Experiment]) -> dict:
 # --- the whole identification (``bmctl identify``) -----------------------------------------------
 
 
+def default_particles(quick: bool = False) -> int:
+    """Simulated particles per plant of an identification (``--particles`` default)."""
+    return 2000 if quick else 4000
+
+
 @dataclass
 class Identification:
     """What :func:`identify` produced: the coefficients, the validation tables and the file text."""
@@ -495,7 +534,7 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
     from .model import default_coeffs
 
     log = log or (lambda msg: None)
-    particles = particles or (2000 if quick else 4000)
+    particles = particles or default_particles(quick)
     train_seeds = [1000 * seed + k for k in ((1,) if quick else TRAIN_SEEDS)]
     valid_seeds = [1000 * seed + k for k in ((11, 12) if quick else VALID_SEEDS)]
     specs = design(card, seed, quick, random_schedules)
@@ -536,7 +575,9 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
         "dt_h": DT_H, "cost_initial": round(res.cost0, 6), "cost_final": round(res.cost, 6),
         "evaluations": res.nfev, "fit_seconds": round(res.seconds, 1),
     }
-    text = cf.toml_text(res.coeffs, {"identification": meta, "validation": validation},
+    sections = {"card": card_table(card), "window": design_window(card, specs), "identification": meta,
+                "validation": validation}
+    text = cf.toml_text(res.coeffs, sections,
                         header=f"Moment-model coefficients of {card.card.name}, written by `bmctl identify`.\n"
                                "Re-run the command in [identification] to regenerate; docs/moments.md explains them.")
     return Identification(card.card.name, res.coeffs, res, valid, tab, tab0, tab_train, otab, otab1, validation,

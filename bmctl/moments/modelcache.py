@@ -29,9 +29,11 @@ FORMAT = 1
 def _key(card_path: Path, coeffs_path: Path | None) -> str:
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256(f"bmctl-moment-model-{FORMAT}-numpy-{np.__version__}\0".encode())
+    from ..io import read_input_bytes
+
     for p in [card_path, coeffs_path] + [root / s for s in SOURCES]:
         h.update(str(p.name if p is not None else "-").encode() + b"\0")
-        h.update(p.read_bytes() if p is not None and p.exists() else b"-")
+        h.update(read_input_bytes(p) if p is not None and p.exists() else b"-")  # a regular file (no FIFO)
         h.update(b"\0")
     return h.hexdigest()[:24]
 

@@ -146,7 +146,7 @@ def rows(report: Report) -> list[tuple]:
                     f"|z| < {Z_BIAS:g}", _ok(abs(b.n_z) < Z_BIAS)))
         out.append(("bookkeeping", b.card, b.particles, f"impacts {b.counts[0]} vs hit rate (z)", f"{b.impacts_z:+.2f}",
                     f"|z| < {Z_BIAS:g}", _ok(abs(b.impacts_z) < Z_BIAS)))
-        out.append(("bookkeeping", b.card, b.particles, "min s (um); r range", f"{b.s_min * 1e6:.3f}; "
+        out.append(("bookkeeping", b.card, b.particles, "min s (µm); r range", f"{b.s_min * 1e6:.3f}; "
                     f"[{b.r_min:.3f}, {b.r_max:.3f}]", "> 0; [0, 1)", _ok(b.s_min > 0 and b.r_min >= 0 and b.r_max < 1)))
     return out
 

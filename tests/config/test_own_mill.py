@@ -41,7 +41,7 @@ def test_doc_card_shows_and_simulates(tmp_path, capsys):
     p = doc_card(tmp_path)
     assert main(["card", "show", str(p)]) == 0
     out = capsys.readouterr().out
-    assert "ball mass          7.148 g" in out and "660.3 C (melting point of Al)" in out
+    assert "ball mass          7.148 g" in out and "660.3 °C (melting point of Al)" in out
     rc = main(["simulate", str(p), "--hours", "1", "--particles", "500", "--out", str(tmp_path / "o"), "--no-progress"])
     assert rc == 0, capsys.readouterr().err
     rows = list(csv.DictReader((tmp_path / "o" / "moments.csv").read_text().splitlines()))

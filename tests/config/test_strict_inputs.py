@@ -129,9 +129,10 @@ def test_oversized_input_is_refused(tmp_path):
 # --- bounded work -------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("flags, needle", [
-    (["--hours", "1e9"], "--hours: must be <= 1000"),
+    (["--hours", "1e9"], "--hours: must be in [1 s, 1000 h]"),
     (["--particles", "1000000000"], "--particles: must be in [100, 10000000]"),
-    (["--every", "1e-7"], "--every: the run would need"),
+    (["--every", "1e-7"], "--every: must be in [1 s, 1000 h]"),
+    (["--hours", "1000", "--every", "0.0003"], "--every: the run would need"),
     (["--hours", "1000", "--particles", "10000000"], "CPU hours"),
 ])
 def test_unbounded_simulate_flags_are_refused(tmp_path, capsys, flags, needle):
@@ -216,4 +217,4 @@ def test_run_leaving_the_validity_range_warns(tmp_path, capsys):
     rc = main(["simulate", str(p), "--hours", "1", "--particles", "200", "--out", str(tmp_path / "o"),
                "--no-progress"])
     err = capsys.readouterr().err
-    assert rc == 0 and "warning" in err and "above the card's maximum 30 C" in err
+    assert rc == 0 and "warning" in err and "above the card's maximum 30 °C" in err

@@ -25,7 +25,7 @@ def private_cache(tmp_path, monkeypatch):
 
 def _controller(model, hours=4.0, tight=False):
     cfg = load_controller(ROOT / "controllers" / "mpc-default.toml")
-    cfg = cfg.model_copy(update={"batch_hours": hours})
+    cfg = cfg.model_copy(update={"batch_hours": hours, "plan": cfg.plan.model_copy(update={"method": "nlp"})})
     if tight:  # converged solves (the shipped tolerances stop at "acceptable" iterates a few rpm apart)
         cfg = cfg.model_copy(update={"solver": cfg.solver.model_copy(update={
             "tol": 1e-8, "acceptable_tol": 1e-7, "acceptable_iter": 5, "max_iter": 400})})

@@ -1,0 +1,298 @@
+"""Closed-loop campaigns on hidden mills: a scripted operator accepts every advice through the CLI.
+
+    nice python benchmarks/hidden_mills.py [--cases A,B,...] [--particles 5000] [--out out/hidden_mills]
+
+Each case is a plant built from the laboratory card with gamma and delta multiplied (0.6-1.6) and one
+more card field changed (powder mass through the ball-to-powder ratio, the ball count or the ball
+size). The campaign is given only the card. Per case:
+
+1. **A reachable target.** A plain-schedule sweep on the hidden plant (one rpm held for the whole
+   batch, 100-460 rpm in 20 rpm steps, and the paper's 30 min on / 10 min off at 400-500 rpm):
+   the target is the final mean size of the case's reference schedule (its rpm, or the fastest
+   one under the ceiling less 3 °C), so a plain schedule reaches it on the hidden mill.
+2. **The best plain schedule chosen without the hidden mill.** The same sweep on the card's plant;
+   the schedule that ends closest to the target there (under the ceiling) is run on the hidden
+   plant: what a user without feedback would get.
+3. **The campaign.** ``bmctl campaign init`` (card, ``controllers/mpc-default.toml``, the target,
+   seed 0), then every 30 min: ``campaign advise --json``, ``campaign decide --accept``, the hidden
+   plant runs the advice (milling first, vial temperature watched every 3 min),
+   ``campaign log`` with the vial reading, and every hour a 300-particle micrograph table of the
+   hidden plant through ``campaign sample``.
+
+Printed and written to ``results/hidden_mills.json`` (``bmctl.results``): per case the final error,
+the peak vial temperature, the longest idle stretch and the idle hours while milling was still
+needed (the plant more than 2 % from the target during a rest), the advice times (first, median,
+largest; wall and CPU of the ``advise`` process, with the load average), and the plain schedule's
+error; the summary (median and worst error, largest excess over the ceiling, longest idle stretch,
+cases where accepting every advice beat the plain schedule).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+CONTROLLER = ROOT / "controllers" / "mpc-default.toml"
+CEILING_C = 80.0
+INTERVAL_H = 0.5
+SAMPLE_EVERY_H = 1.0
+SAMPLE_PARTICLES = 300
+#: a rest counts as idle while milling is still needed when the plant is this far from the target
+NEED_TOL = 0.02
+WATCH_H = 0.05  # the plant's vial temperature is read this often (3 min)
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    gamma: float
+    delta: float
+    field: str  # "section.key"
+    value: float
+    hours: float
+    rpm_ref: float  # the reference plain schedule (constant rpm) that defines the target
+
+
+CASES = (
+    Case("A", 1.5, 0.6, "mill.ball_to_powder_ratio", 11.0, 12.0, 260.0),
+    Case("B", 0.7, 1.3, "mill.ball_to_powder_ratio", 9.0, 8.0, 300.0),
+    Case("C", 1.3, 0.7, "mill.ball_count", 11, 12.0, 320.0),
+    Case("D", 0.6, 1.0, "mill.ball_to_powder_ratio", 10.5, 12.0, 220.0),
+    Case("E", 1.0, 1.6, "mill.ball_diameter_m", 0.0105, 10.0, 300.0),
+    Case("F", 1.6, 1.3, "mill.ball_to_powder_ratio", 9.5, 12.0, 340.0),
+    Case("G", 0.8, 0.65, "mill.ball_count", 9, 12.0, 280.0),
+)
+
+
+def hidden_card(case: Case):
+    """The hidden plant's card: the lab card with gamma, delta and one more field changed."""
+    from bmctl.config import load_card, with_factors
+
+    card = with_factors(load_card(CARD), case.gamma, case.delta)
+    d = card.model_dump()
+    sec, key = case.field.split(".")
+    d[sec][key] = case.value
+    if key == "ball_diameter_m":  # one ball's mass follows its size
+        d["material"]["impactor_mass_kg"] *= (case.value / card.mill.ball_diameter_m) ** 3
+    return type(card).model_validate(d)
+
+
+def plain_schedules(hours: float) -> list[tuple[str, list]]:
+    """The plain schedules of the sweep: (name, [(hours, rpm), ...])."""
+    out = [(f"{r:.0f} rpm continuous", [(hours, float(r))]) for r in range(100, 461, 20)]
+    for r in (400.0, 450.0, 500.0):
+        cyc = []
+        t = 0.0
+        while t < hours - 1e-9:
+            m = min(0.5, hours - t)
+            cyc.append((m, r))
+            t += m
+            if t < hours - 1e-9:
+                rest = min(1 / 6, hours - t)
+                cyc.append((rest, 0.0))
+                t += rest
+        out.append((f"{r:.0f} rpm 30/10 min", cyc))
+    return out
+
+
+def run_plain(card, segments, particles: int, seed: int) -> tuple[float, float]:
+    """(final mean size µm, peak vial temperature °C) of a schedule on a plant of ``card``."""
+    from bmctl.loop import run_open_loop
+    from bmctl.plant.plant import Plant
+
+    plant = Plant(card, np.random.default_rng(seed), particles)
+    peak = [plant.temperature_c]
+    run_open_loop(plant, list(segments), WATCH_H, lambda t, m: peak.append(m.temperature_c))
+    return float(plant.moments()["s_mean_um"]), float(max(peak))
+
+
+def sweep(card, hours: float, particles: int, seed: int) -> list[dict]:
+    return [dict(zip(("name", "s_mean_um", "peak_c"), (name, *run_plain(card, segs, particles, seed))))
+            | {"segments": segs} for name, segs in plain_schedules(hours)]
+
+
+def cli(args: list[str], env: dict) -> tuple[str, float, float]:
+    """Run ``python -m bmctl ARGS``; (stdout, wall s, CPU s of the child)."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    p = subprocess.run([sys.executable, "-m", "bmctl", *args], cwd=ROOT, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if p.returncode != 0:
+        raise RuntimeError(f"bmctl {' '.join(args)}: exit {p.returncode}: {p.stderr.strip()[-400:]}")
+    return p.stdout, wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+
+
+def run_campaign(case: Case, target_um: float, folder: Path, particles: int, seed: int, env: dict) -> dict:
+    """The scripted operator: advise, accept, run the hidden plant, log, sample hourly."""
+    from bmctl.measure.sampler import micrograph_sample
+    from bmctl.measure.tables import write_table
+    from bmctl.plant.plant import Plant
+
+    card = hidden_card(case)
+    ss = np.random.SeedSequence([seed, ord(case.name)])
+    g_plant, g_sample = (np.random.default_rng(s) for s in ss.spawn(2))
+    plant = Plant(card, g_plant, particles)
+    cli(["campaign", "init", str(folder), "--model", str(CARD), "--controller", str(CONTROLLER), "--target",
+         f"s_mean_um={target_um:.4f}", "--hours", f"{case.hours:g}", "--seed", "0"], env)
+    t, peak = 0.0, plant.temperature_c
+    advise_wall, advise_cpu, steps = [], [], []
+    watch = []  # per 3-min step: (length h, resting throughout, plant's relative error)
+    while t < case.hours - 1e-9:
+        out, wall, cpu = cli(["campaign", "advise", str(folder), "--json"], env)
+        a = json.loads(out)
+        advise_wall.append(wall)
+        advise_cpu.append(cpu)
+        cli(["campaign", "decide", str(folder), "--accept"], env)
+        nx = a["next"]
+        dt = float(nx["interval_h"])
+        mill_min = int(nx["mill_min"])
+        rpm = float(nx["rpm"]) if mill_min > 0 else 0.0
+        milling = mill_min / (dt * 60.0)
+        steps.append({"t_h": t, "rpm": rpm, "mill_min": mill_min, "plant_s_mean_um": plant.moments()["s_mean_um"],
+                      "estimate_s_mean_um": a["estimate"]["s_mean_um"], "plan": a.get("solver", "")[:120]})
+        n = max(1, int(round(dt / WATCH_H)))
+        for j in range(n):  # milling first, then the rest; the vial read every 3 min
+            a0, b0 = j * dt / n, (j + 1) * dt / n
+            m = max(0.0, min(b0, milling * dt) - a0) / (b0 - a0)
+            err = abs(plant.moments()["s_mean_um"] - target_um) / target_um
+            watch.append((b0 - a0, m <= 0.0, err))
+            plant.advance(rpm, b0 - a0, milling=m)
+            peak = max(peak, plant.temperature_c)
+        cli(["campaign", "log", str(folder), "--rpm", f"{rpm:g}", "--hours", f"{dt:.10g}", "--milling",
+             f"{milling:.10g}", "--temperature-c", f"{plant.temperature_c:.2f}"], env)
+        t += dt
+        if abs(t / SAMPLE_EVERY_H - round(t / SAMPLE_EVERY_H)) < 1e-6 or t >= case.hours - 1e-9:
+            tab = micrograph_sample(plant.s * 1e6, plant.r, SAMPLE_PARTICLES, g_sample)
+            path = folder / f"sample-{t:05.2f}h.csv"
+            write_table(path, tab)
+            cli(["campaign", "sample", str(folder), "--at-h", f"{t:.10g}", str(path)], env)
+    idle, run = [], 0.0  # rest stretches that began with the plant more than NEED_TOL from the target
+    for k, (h, resting, err) in enumerate(watch):
+        if resting and (run > 0 or err > NEED_TOL):
+            run += h
+        elif run > 0:
+            idle.append(run)
+            run = 0.0
+    if run > 0:
+        idle.append(run)
+    final = plant.moments()["s_mean_um"]
+    later = advise_wall[1:] or advise_wall
+    return {"final_s_mean_um": final, "error_pct": 100 * (final - target_um) / target_um,
+            "peak_c": peak, "idle_needed_h": float(sum(idle)),
+            "longest_idle_needed_h": float(max(idle, default=0.0)),
+            "advise_first_s": advise_wall[0], "advise_first_cpu_s": advise_cpu[0],
+            "advise_later_median_s": float(np.median(later)), "advise_later_max_s": float(np.max(later)),
+            "advise_later_median_cpu_s": float(np.median(advise_cpu[1:] or advise_cpu)),
+            "advices": len(advise_wall), "steps": steps}
+
+
+def main() -> None:
+    from bmctl.config import load_card
+    from bmctl.results import write_results
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cases", default=",".join(c.name for c in CASES), help="comma-separated case names")
+    ap.add_argument("--particles", type=int, default=5000, help="plant particles")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--out", default=str(ROOT / "out" / "hidden_mills"), help="campaign folders (replaced)")
+    ap.add_argument("--no-results", action="store_true", help="do not write results/hidden_mills.json")
+    a = ap.parse_args()
+    names = [s.strip() for s in a.cases.split(",") if s.strip()]
+    cases = [c for c in CASES if c.name in names]
+    out = Path(a.out)
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    cache = Path(tempfile.mkdtemp(prefix="bmctl-hidden-cache-"))  # a fresh compile cache: first advise is cold
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "XDG_CACHE_HOME": str(cache), "MPLBACKEND": "Agg"}
+    load0 = os.getloadavg()
+    card = load_card(CARD)
+    card_sweeps: dict[float, list] = {}
+    rows = []
+    t_start = time.perf_counter()
+    for case in cases:
+        hidden = hidden_card(case)
+        hs = sweep(hidden, case.hours, a.particles, a.seed)
+        ok = [r for r in hs[:19] if r["peak_c"] <= CEILING_C - 3.0]
+        ref = min(ok, key=lambda r: abs(float(r["name"].split()[0]) - case.rpm_ref))
+        target = round(ref["s_mean_um"], 2)
+        if case.hours not in card_sweeps:
+            card_sweeps[case.hours] = sweep(card, case.hours, a.particles, a.seed)
+        cs = [r for r in card_sweeps[case.hours] if r["peak_c"] <= CEILING_C]
+        pick = min(cs, key=lambda r: abs(r["s_mean_um"] - target))
+        plain_hidden = next(r for r in hs if r["name"] == pick["name"])
+        plain_err = 100 * (plain_hidden["s_mean_um"] - target) / target
+        print(f"case {case.name}: gamma x{case.gamma:g}, delta x{case.delta:g}, {case.field} = {case.value:g}, "
+              f"{case.hours:g} h; target s_mean_um = {target:.2f} ({ref['name']} on the hidden plant, "
+              f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
+              f"{plain_err:+.1f} % on the hidden plant", flush=True)
+        res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env)
+        print(f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
+              f"{res['peak_c']:.1f} °C, idle while needed {res['idle_needed_h']:.2f} h (longest "
+              f"{res['longest_idle_needed_h']:.2f} h); advise first {res['advise_first_s']:.1f} s, later median "
+              f"{res['advise_later_median_s']:.1f} s (CPU {res['advise_later_median_cpu_s']:.1f} s)", flush=True)
+        rows.append({"case": case.name, "gamma_mult": case.gamma, "delta_mult": case.delta, "field": case.field,
+                     "value": case.value, "hours": case.hours, "target_s_mean_um": target,
+                     "reference_schedule": ref["name"], "reference_peak_c": ref["peak_c"],
+                     "plain_schedule": pick["name"], "plain_error_pct": plain_err,
+                     "plain_peak_c": plain_hidden["peak_c"], **{k: v for k, v in res.items() if k != "steps"},
+                     "steps": res["steps"]})
+    errs = np.array([abs(r["error_pct"]) for r in rows])
+    plain = np.array([abs(r["plain_error_pct"]) for r in rows])
+    summary = {
+        "cases": len(rows), "median_error_pct": float(np.median(errs)), "worst_error_pct": float(errs.max()),
+        "max_over_ceiling_c": float(max(r["peak_c"] for r in rows) - CEILING_C),
+        "longest_idle_needed_h": float(max(r["longest_idle_needed_h"] for r in rows)),
+        "plain_median_error_pct": float(np.median(plain)), "plain_worst_error_pct": float(plain.max()),
+        "campaign_beats_plain": int(np.sum(errs < plain)),
+        "advise_first_s_max": float(max(r["advise_first_s"] for r in rows)),
+        "advise_first_cpu_s_max": float(max(r["advise_first_cpu_s"] for r in rows)),
+        "advise_later_median_s": float(np.median([r["advise_later_median_s"] for r in rows])),
+        "advise_later_median_cpu_s": float(np.median([r["advise_later_median_cpu_s"] for r in rows])),
+        "load_before": list(load0), "load_after": list(os.getloadavg()),
+        "wall_s": time.perf_counter() - t_start,
+    }
+    print("\n| case | γ, δ | changed | h | target µm | campaign error % | peak °C | idle while needed h | "
+          "plain schedule (chosen on the card) | its error % |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['case']} | ×{r['gamma_mult']:g}, ×{r['delta_mult']:g} | {r['field'].split('.')[1]} = "
+              f"{r['value']:g} | {r['hours']:g} | {r['target_s_mean_um']:.2f} | {r['error_pct']:+.2f} | "
+              f"{r['peak_c']:.1f} | {r['idle_needed_h']:.2f} | {r['plain_schedule']} | {r['plain_error_pct']:+.1f} |")
+    print(f"\nmedian |error| {summary['median_error_pct']:.2f} %, worst {summary['worst_error_pct']:.2f} %; "
+          f"largest excess over the ceiling {summary['max_over_ceiling_c']:+.1f} °C; longest idle stretch while "
+          f"needed {summary['longest_idle_needed_h']:.2f} h; plain schedules: median {summary['plain_median_error_pct']:.2f}"
+          f" %, worst {summary['plain_worst_error_pct']:.2f} %; campaign better in {summary['campaign_beats_plain']} "
+          f"of {len(rows)}")
+    print(f"advise: first {summary['advise_first_s_max']:.1f} s wall at most; later median "
+          f"{summary['advise_later_median_s']:.1f} s wall, {summary['advise_later_median_cpu_s']:.1f} s CPU; load "
+          f"{load0[0]:.1f} -> {os.getloadavg()[0]:.1f}")
+    shutil.rmtree(cache, ignore_errors=True)
+    if not a.no_results and len(rows) == len(CASES):
+        path = write_results("hidden_mills", {"summary": summary, "cases": rows},
+                             settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
+                                       "controller": str(CONTROLLER.relative_to(ROOT)), "card": str(CARD.relative_to(ROOT)),
+                                       "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
+                                       "sample_every_h": SAMPLE_EVERY_H, "sample_particles": SAMPLE_PARTICLES,
+                                       "need_tol": NEED_TOL},
+                             command="python benchmarks/hidden_mills.py")
+        print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

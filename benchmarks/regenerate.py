@@ -1,0 +1,188 @@
+"""Regenerate the results files that README.md and docs/ quote, and refresh the docs' marked numbers.
+
+Every study or benchmark whose numbers a doc quotes is registered below with the command that
+writes its ``results/<name>.json`` (``bmctl.results.write_results``). Slow: the whole set takes
+hours on two cores; it is not part of the test suite.
+
+    python benchmarks/regenerate.py --list              # registered files, their commands and costs
+    python benchmarks/regenerate.py --only NAME [NAME]  # re-run some studies
+    python benchmarks/regenerate.py                     # re-run every study (timings last)
+    python benchmarks/regenerate.py --docs              # rewrite the numbers inside the docs' markers
+                                                        # from the results files (same displayed decimals)
+
+``--docs`` does not run anything: it puts each file's current value between the
+``<!--r:FILE:KEY-->`` and ``<!--/r-->`` markers of README.md and docs/*.md, keeping the number of
+decimals shown (a placeholder such as ``?`` gets three significant digits). The prose around a
+number is not rewritten: read the diff.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import re
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+@dataclass(frozen=True)
+class Study:
+    name: str  # results file stem
+    command: str  # run from the repository root; writes results/<name>.json
+    minutes: float  # rough cost on one idle core
+    timing: bool = False  # wall-clock numbers: run last, on a quiet machine
+
+
+#: one entry per results file; each script's own ``command`` field is this string
+REGISTRY: tuple[Study, ...] = (
+    Study("model_facts", "python benchmarks/model_facts.py", 3),
+    Study("fidelity_table", "python benchmarks/fidelity_table.py --particles 20000 --seed 2024", 2),
+    Study("fidelity_table_no_equiaxing",
+          "python benchmarks/fidelity_table.py --particles 20000 --seed 2024 --no-equiaxing", 2),
+    Study("dvalues_accuracy", "python benchmarks/dvalues_accuracy.py --schedules 4 --particles 3000 --seeds 2", 4),
+    Study("verify", "python benchmarks/verify_results.py", 10),
+    Study("calibrate_accuracy", "python benchmarks/calibrate_accuracy.py main --workers 2 --seed 1", 2),
+    Study("calibrate_coverage", "python benchmarks/calibrate_accuracy.py coverage --first 1 --n 20 --workers 2", 10),
+    Study("calibrate_four", "python benchmarks/calibrate_accuracy.py four --workers 2 --seed 1", 10),
+    Study("calibrate_bias", "python benchmarks/calibrate_bias.py --workers 2", 30),
+    Study("design_reach", "python benchmarks/design_reach.py", 5),
+    Study("hidden_mills", "python benchmarks/hidden_mills.py", 60),
+    # timings: re-measured at the end on a quiet machine (each file records the load)
+    Study("calibrate_scaling", "python benchmarks/calibrate_accuracy.py scaling --calibration", 3, timing=True),
+    Study("campaign_advise", "python benchmarks/campaign_advise.py", 3, timing=True),
+)
+
+MARKER = re.compile(r"(<!--r:([^:>\s]+):([^>\s]+?)-->)(.*?)(<!--/r-->)", re.S)
+
+
+def docs() -> list[Path]:
+    return sorted([ROOT / "README.md", *(ROOT / "docs").glob("*.md")])
+
+
+SHOWN = re.compile(r"([+\-−]?)(\d[\d,]*)(?:\.(\d+))?(?:(e|E|·10|×10)\^?([+\-−⁻⁺]?[\d⁰¹²³⁴⁵⁶⁷⁸⁹]+))?([kM]?)")
+SUP = str.maketrans("0123456789-", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻")
+
+
+def format_like(value, shown: str) -> str:
+    """``value`` displayed as ``shown`` is: decimals, thousands separator, k/M suffix, scientific
+    style (``4.5e-3``, ``2.3·10⁻⁴``, ``2×10⁻⁴``) and minus sign; a placeholder gets 3 significant digits."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, bool) or not math.isfinite(value):
+        return str(value)
+    m = SHOWN.fullmatch(shown.strip())
+    if not m:
+        if value == 0:
+            return "0"
+        dec = max(0, 2 - int(math.floor(math.log10(abs(value)))))
+        return f"{value:.{dec}f}".replace("-", "−")
+    sign, whole, frac, sci, _, suffix = m.groups()
+    dec = len(frac or "")
+    minus = "−" if ("−" in shown or "-" not in shown) else "-"
+    if sci:
+        mant_text, exp_text = f"{value:.{dec}e}".split("e")  # numpy/python rounding of the mantissa
+        exp = int(exp_text)
+        text = mant_text
+        if sci in ("e", "E"):
+            text += f"{sci}{exp:+03d}" if ("+" in shown or "0" in shown.split(sci)[-1][:2]) else f"{sci}{exp}"
+            text = text.replace("-", minus)
+        else:
+            text += sci + str(exp).translate(SUP)
+        return text.replace("-", minus) if text.startswith("-") else text
+    scale = {"k": 1e3, "M": 1e6, "": 1.0}[suffix]
+    text = f"{value / scale:,.{dec}f}" if "," in whole else f"{value / scale:.{dec}f}"
+    if text.startswith("-"):
+        text = minus + text[1:]
+    return text + suffix
+
+
+def refresh_docs(dry_run: bool = False) -> int:
+    """Rewrite every marker's number from its results file; returns how many changed."""
+    sys.path.insert(0, str(ROOT / "tests"))
+    from test_results_docs import resolve  # noqa: E402  (the test's own reader: one definition)
+
+    changed = 0
+    for doc in docs():
+        text = doc.read_text()
+        problems = []
+
+        def sub(m):
+            nonlocal changed
+            head, file, key, shown, tail = m.groups()
+            try:
+                value = resolve(file, key)
+                if isinstance(value, str):
+                    try:
+                        value = float(value)
+                    except ValueError:
+                        pass
+            except (FileNotFoundError, KeyError, IndexError, ValueError) as exc:
+                problems.append(f"{file}:{key}: {exc}")
+                return m.group(0)
+            if value is None:
+                problems.append(f"{file}:{key}: no value (null)")
+                return m.group(0)
+            new = format_like(value, shown)
+            if new != shown:
+                changed += 1
+                print(f"{doc.relative_to(ROOT)}: {file}:{key}: {shown} -> {new}")
+            return head + new + tail
+
+        new_text = MARKER.sub(sub, text)
+        for p in problems:
+            print(f"{doc.relative_to(ROOT)}: cannot resolve {p}", file=sys.stderr)
+        if new_text != text and not dry_run:
+            doc.write_text(new_text)
+    return changed
+
+
+def run(study: Study) -> bool:
+    print(f"== {study.name}: {study.command}", flush=True)
+    t0 = time.perf_counter()
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), MPLBACKEND="Agg")
+    rc = subprocess.call(study.command, shell=True, cwd=ROOT, env=env)
+    print(f"== {study.name}: exit {rc}, {time.perf_counter() - t0:.0f} s", flush=True)
+    return rc == 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--list", action="store_true", help="list the registered studies")
+    ap.add_argument("--only", nargs="+", metavar="NAME", help="run only these studies")
+    ap.add_argument("--no-timings", action="store_true", help="skip the timing benchmarks")
+    ap.add_argument("--docs", action="store_true", help="only rewrite the docs' marked numbers from the files")
+    ap.add_argument("--dry-run", action="store_true", help="with --docs: show the changes, write nothing")
+    a = ap.parse_args(argv)
+    if a.list:
+        for s in REGISTRY:
+            print(f"{s.name:30s} ~{s.minutes:5.0f} min{'  timing' if s.timing else '        '}  {s.command}")
+        return 0
+    if a.docs:
+        n = refresh_docs(a.dry_run)
+        print(f"{n} marked numbers {'would change' if a.dry_run else 'changed'}")
+        return 0
+    known = {s.name: s for s in REGISTRY}
+    if a.only:
+        unknown = [n for n in a.only if n not in known]
+        if unknown:
+            print(f"regenerate: error: --only: unknown study {', '.join(unknown)} (see --list)", file=sys.stderr)
+            return 2
+        todo = [known[n] for n in a.only]
+    else:
+        todo = [s for s in REGISTRY if not s.timing] + ([] if a.no_timings else [s for s in REGISTRY if s.timing])
+    failed = [s.name for s in todo if not run(s)]
+    if failed:
+        print(f"regenerate: failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,70 @@
+"""What a vial-temperature reading says at once: above the ceiling, or far from the estimate.
+
+``campaign log`` stores each reading's check with the estimator node of its time (the
+reading, and the estimate's mean and std just before it); :func:`reading_warnings` turns a
+node into one-line warnings, which ``log`` prints at once and the next ``advise`` repeats.
+"""
+
+from __future__ import annotations
+
+import math
+
+#: a reading this many standard deviations (reading noise and estimate spread together) from the
+#: estimate just before it is "far from the estimate"
+FAR_Z = 3.0
+
+
+def reading_warnings(est: dict, ceiling_c: float | None, sigma_reading_c: float) -> list[str]:
+    """One-line warnings for the reading weighed in at the estimator node ``est`` (none without one).
+
+    Parameters
+    ----------
+    est : dict
+        An estimate dict of the campaign's timeline (``reading_c``, ``reading_predicted_c``,
+        ``reading_predicted_sd_c`` where a reading was weighed in; ``t_h``).
+    ceiling_c : float or None
+        The campaign's vial-temperature ceiling (degC).
+    sigma_reading_c : float
+        The stated noise of a reading (degC).
+
+    Returns
+    -------
+    list of str
+
+    Examples
+    --------
+    >>> est = {"t_h": 1.0, "reading_c": 75.0, "reading_predicted_c": 58.0, "reading_predicted_sd_c": 1.0}
+    >>> for w in reading_warnings(est, 60.0, 2.0):
+    ...     print(w)
+    reading 75 °C at 1 h is above the ceiling (60 °C)
+    reading 75 °C at 1 h is far from the estimate just before it (58.0 ± 1.0 °C; 7.6 σ with the reading's 2 °C)
+    """
+    y = est.get("reading_c")
+    if y is None:
+        return []
+    out = []
+    t = est.get("t_h", math.nan)
+    if ceiling_c is not None and y > ceiling_c:
+        out.append(f"reading {y:g} °C at {t:g} h is above the ceiling ({ceiling_c:g} °C)")
+    m, sd = est.get("reading_predicted_c", math.nan), est.get("reading_predicted_sd_c", math.nan)
+    if math.isfinite(m) and math.isfinite(sd):
+        z = abs(y - m) / math.hypot(sd, sigma_reading_c)
+        if z > FAR_Z:
+            out.append(f"reading {y:g} °C at {t:g} h is far from the estimate just before it ({m:.1f} ± {sd:.1f} °C; "
+                       f"{z:.1f} σ with the reading's {sigma_reading_c:g} °C)")
+    return out
+
+
+def estimate_warning(est: dict, ceiling_c: float | None) -> list[str]:
+    """A warning when the estimated vial temperature's 95 % quantile is above the ceiling.
+
+    Examples
+    --------
+    >>> estimate_warning({"t_h": 2.0, "temperature_c": 74.2, "temperature_c_q05": 70.8,
+    ...                   "temperature_c_q95": 77.7}, 60.0)
+    ['estimated vial temperature at 2 h: 74.2 [70.8, 77.7] °C, above the ceiling (60 °C)']
+    """
+    if ceiling_c is None or est.get("temperature_c_q95", -math.inf) <= ceiling_c:
+        return []
+    return [f"estimated vial temperature at {est['t_h']:g} h: {est['temperature_c']:.1f} "
+            f"[{est['temperature_c_q05']:.1f}, {est['temperature_c_q95']:.1f}] °C, above the ceiling ({ceiling_c:g} °C)"]

@@ -1,0 +1,262 @@
+"""Receding-horizon planning on operable schedules: the MPC with ``[plan] method = "search"``.
+
+At every call the controller plans the whole rest of the batch (the horizon shrinks to the batch
+end) with :func:`bmctl.control.search.search`: a vectorised batch of operable schedule families
+evaluated on the moment model from the estimate, then a local search on the same operable grid
+(rpm dial steps, whole minutes, phase splits, the total milling time). The advice is the plan's
+first interval. Because every candidate keeps the dwell limits, the switch budget and the rpm rate
+limit over the whole horizon, including the periods already run (:class:`~bmctl.control.search.Carry`),
+the first move always belongs to a plan the mill can run: it never rests now while its own plan
+needs milling that the limits would then forbid, and nothing is rounded after solving.
+
+The estimator's (gamma, delta) enter every plan, with their spread: the search steers the estimate
+(its mean state and gamma, delta) to the target; a pool of the plans that come within
+``[plan] pool_band`` of the best is then predicted for ``[plan] spread`` of the filter's particles
+(a deterministic weighted selection, :func:`bmctl.control.robust.particle_scenarios`) and scored
+``e^2 + risk (Var(e) - Var_rest(e))``, the variance the plan adds to that of resting on: a plan
+whose outcome the filter's uncertainty scatters (e.g. over the welding hump and back) loses to a
+safer one that is nearly as close. The vial ceiling holds for each particle's temperature.
+
+A re-plan starts from the previous plan shifted to now: when it still comes within the tolerance
+(``[objective] tolerance``) of the target, a local search around it (its neighbours on the grid)
+decides; otherwise, and at the first call, the global search runs (the previous plan among its
+candidates).
+
+The plan is a function of its inputs only -- the estimate, the spread, the mill's record and the
+previous plan -- so the same inputs give the same plan.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from ..errors import InputError
+from .base import Plan, Reference, Status, batch_end_h, check_p, check_u_prev, check_x
+from dataclasses import replace
+
+from .search import Carry, Grid, expand, fit_power, limits_of, make_grid, search, shift_params, thermal_peaks
+
+
+class PlanController:
+    """Plans the rest of the batch on operable schedules; build with :func:`bmctl.control.make_controller`.
+
+    Parameters
+    ----------
+    cfg : MPCConfig
+        ``[plan]`` (search settings), ``[bounds]``, ``[temperature]``, ``[weights]``, ``[mill]``.
+    model : MomentModel
+    reference : dict, Reference, list or callable, optional
+        Target (the batch-end value is planned for).
+    """
+
+    kind = "mpc"
+    uses_history = True
+
+    def __init__(self, cfg, model, reference=None):
+        self.cfg = cfg
+        self.model = model
+        self.interval_h = float(cfg.interval_h)
+        self.N = int(cfg.horizon)
+        self.t_end_h = float(cfg.batch_hours if cfg.batch_hours is not None else model.card.process.hours)
+        self.reference = Reference.from_config(cfg) if reference is None else Reference.make(reference)
+        self.lim = limits_of(cfg, model)
+        self.n_scen = 1  # the loop passes particles (spread_particles), not quantile corners
+        self.spread_particles = int(cfg.plan.spread)
+        self.reset()
+
+    def set_target(self, target, t_end_h: float | None = None) -> None:
+        """Set the target (see :meth:`bmctl.control.mpc.MPCController.set_target`) and the batch end."""
+        self.reference = Reference.make(target)
+        if t_end_h is not None:
+            self.t_end_h = batch_end_h(t_end_h)
+
+    def reset(self) -> None:
+        """Forget the previous plan and the record of applied intervals."""
+        self._prev = None
+        self._hist: list[tuple[float, float, float]] = []
+        self._last_t: float | None = None
+
+    def get_state(self) -> dict:
+        """The previous plan and the applied intervals, as plain data."""
+        return {"prev": self._prev, "hist": [list(h) for h in self._hist], "last_t": self._last_t}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a state from :meth:`get_state` (a state of another controller kind is ignored)."""
+        if not isinstance(state, dict) or "hist" not in state:
+            self.reset()
+            return
+        pr = state.get("prev")
+        self._prev = None if pr is None else {"t_h": float(pr["t_h"]), "params": [float(v) for v in pr["params"]],
+                                              "minutes": [float(v) for v in pr["minutes"]],
+                                              "family": str(pr["family"])}
+        self._hist = [tuple(float(v) for v in h) for h in state["hist"]]
+        self._last_t = None if state.get("last_t") is None else float(state["last_t"])
+
+    # --- planning --------------------------------------------------------------------------------
+    def _record(self, t: float, u_prev) -> None:
+        """Append the interval applied since the last call (trials: the controller keeps its own record)."""
+        if self._last_t is None or t <= self._last_t + 1e-9:
+            if self._last_t is not None and t <= self._last_t - 1e-9:
+                self._hist = []
+            self._last_t = t
+            return
+        if u_prev is not None:
+            self._hist.append((t - self._last_t, float(u_prev[0]), float(u_prev[1])))
+        self._last_t = t
+
+    def target_at_end(self) -> dict:
+        return self.reference.at(self.t_end_h)
+
+    def plan(self, x_est, t_h: float, p=None, u_prev=None, scenarios=None, history=None) -> Plan:
+        """Plan from ``x_est`` at batch time ``t_h`` to the batch end; the first interval is the advice.
+
+        Parameters
+        ----------
+        x_est : array_like, (6,)
+        t_h : float
+        p : array_like, (2,), optional
+            (gamma_mult, delta_mult) estimate.
+        u_prev : array_like, (2,), optional
+            Input applied over the previous interval (the controller's own record of the mill).
+        scenarios : list of (x, p), optional
+            The spread: filter particles (:func:`bmctl.control.robust.particle_scenarios`) or other
+            (x, p) pairs; at most ``[plan] spread`` are used.
+        history : list of (hours, rpm, milling[, reading]), optional
+            What the mill ran since the batch start (a campaign's log), with the vial reading at the
+            end of each interval where one was taken; replaces the own record. The readings fit the
+            mill's heating power (:func:`bmctl.control.search.fit_power`), with which the ceiling is
+            checked.
+        """
+        x0 = check_x(x_est)
+        pp = check_p(self.model, p)
+        up = check_u_prev(u_prev)
+        t = float(t_h)
+        if not math.isfinite(t) or t < 0:
+            raise InputError(f"t_h: must be a finite number >= 0 (got {t_h})")
+        self._record(t, up)
+        hist = self._hist if history is None else history
+        carry = Carry.from_history(hist)
+        power = fit_power(self.model, hist)
+        lim = replace(self.lim, power=power)
+        ceil = self.cfg.temperature.ceiling_c
+        grid = make_grid(t, self.t_end_h, self.interval_h)
+        target = self.target_at_end()
+        t0, c0 = time.perf_counter(), time.process_time()
+        if grid.K == 0 or not target:
+            why = "batch finished: rest" if grid.K == 0 else "no target: rest"
+            U = np.zeros((1, 2))
+            X = np.vstack([x0, x0])
+            st = Status("mpc", "batch_done" if grid.K == 0 else "no_target", True, t_ceiling_c=ceil, reason=why)
+            return Plan(t, self.interval_h, U, X, np.array([x0[4]]), np.zeros(2), st,
+                        {"binding": [], "family": "rest"})
+        x0s, ps = [x0], [pp]
+        for xs, pq in list(scenarios or [])[: self.spread_particles]:
+            x0s.append(check_x(xs))
+            ps.append(check_p(self.model, pq))
+        extra = []
+        prev = self._prev
+        if prev is not None:
+            s = (t - prev["t_h"]) / self.interval_h
+            if s >= -1e-6 and abs(s - round(s)) < 1e-6:
+                extra.append((shift_params(np.array(prev["params"]), np.array(prev["minutes"]), int(round(s))),
+                              "previous"))
+        ps_cfg = self.cfg.plan
+        kw = dict(substeps=ps_cfg.substeps, rpm_step=ps_cfg.rpm_step, band=ps_cfg.error_band,
+                  coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool, pool_band=ps_cfg.pool_band, risk=ps_cfg.risk)
+        args = (self.model, np.array(x0s), np.array(ps), target, grid, lim, self.cfg.weights, carry)
+        res, scope = None, "global"
+        if extra:  # the previous plan still reaches the target: a local search around it
+            res = search(*args, rounds=0, extra=extra, coarse=False, **kw)
+            scope = "local"
+            if res.error > self.cfg.objective.tolerance:
+                res = None
+        if res is None:
+            res, scope = search(*args, rounds=ps_cfg.rounds, extra=extra, **kw), "global"
+        ms = (time.perf_counter() - t0) * 1e3
+        cpu = (time.process_time() - c0) * 1e3
+        fam = res.family if res.family != "previous" else (prev or {}).get("family", "previous")
+        self._prev = {"t_h": t, "params": [float(v) for v in res.params], "minutes": [float(v) for v in res.minutes],
+                      "family": fam}
+        dt_min = self.interval_h * 60.0
+        U = np.column_stack([res.rpm, res.minutes / dt_min])
+        X = res.X[0]
+        X0s = np.array(x0s)
+        res.peaks_c = thermal_peaks(self.model, X0s[:, 4], X0s[:, 5], res.rpm[None], res.minutes[None], grid, power,
+                                    per_interval=True)[:, 0, :]
+        peaks = res.peaks_c.max(axis=0)
+        binding = plan_binding(res, grid, lim, carry, ceil)
+        st = Status("mpc", f"{scope} search", True, res.evaluated, ms, cost=res.rms, t_ceiling_c=ceil,
+                    reason=f"{fam}: {describe_plan(res, grid)}")
+        st.solve_cpu_ms = cpu
+        st.t_peak_max_c = float(res.peak_c)
+        u_apply = U[0].copy() if res.minutes[0] > 0 else np.zeros(2)
+        extra_out = {"family": fam, "params": [float(v) for v in res.params], "error": res.error, "rms": res.rms,
+                     "binding": binding, "per_family": res.per_family, "evaluated": res.evaluated,
+                     "nodes": res.nodes, "switches": res.switches, "switches_used": carry.switches, "scope": scope,
+                     "power": power,
+                     "lengths_min": grid.lengths_min.tolist(), "minutes": res.minutes.tolist(),
+                     "spread_x_end": res.X[1:, -1].copy() if res.X.shape[0] > 1 else None}
+        return Plan(t, self.interval_h, U, X, peaks, u_apply, st, extra_out)
+
+
+def describe_plan(res, grid: Grid) -> str:
+    """One line: the plan's rpm range, milling time, switches and predicted error."""
+    from .search import describe
+
+    return (f"{describe(res.rpm, res.minutes, grid)}; {res.switches} switches; predicted error "
+            f"{100 * res.error:.1f} %, peak {res.peak_c:.1f} °C")
+
+
+def plan_binding(res, grid: Grid, lim, carry: Carry, ceiling_c: float) -> list[str]:
+    """The limits the plan runs against (each names where in the plan), for ``advise``'s ``binding``.
+
+    Parameters
+    ----------
+    res : SearchResult
+    grid : Grid
+    lim : Limits
+    carry : Carry
+    ceiling_c : float
+    """
+    out = []
+    on = res.minutes > 0
+    t = grid.t0_h + np.concatenate([[0.0], np.cumsum(grid.lengths_min)[:-1]]) / 60.0
+    pk = res.peaks_c.max(axis=0) if res.peaks_c is not None and res.peaks_c.size else np.zeros(grid.K)
+    hot = np.flatnonzero(pk >= ceiling_c - 0.5)
+    if hot.size:
+        out.append(f"vial-temperature ceiling ({ceiling_c:g} °C) from {t[hot[0]]:g} h")
+    top = np.flatnonzero(on & (res.rpm >= lim.rpm_hi - 1e-6))
+    if top.size:
+        out.append(f"rpm at its upper bound ({lim.rpm_hi:g} rpm) from {t[top[0]]:g} h")
+    low = np.flatnonzero(on & (res.rpm <= lim.rpm_lo + 1e-6))
+    if low.size:
+        out.append(f"rpm at its lower bound ({lim.rpm_lo:g} rpm) from {t[low[0]]:g} h")
+    if res.at_min_mill and lim.min_mill:
+        out.append(f"minimum milling period ({lim.min_mill:g} min)")
+    if res.at_min_rest and lim.min_rest:
+        out.append(f"minimum rest ({lim.min_rest:g} min)")
+    if lim.max_switches is not None and res.switches >= lim.max_switches - 1:
+        out.append(f"switch budget ({res.switches} of {lim.max_switches} used)")
+    if on.all() and np.all(res.minutes >= grid.lengths_min - 1e-9) and res.error > 0:
+        out.append("batch time: milling throughout to the batch end")
+    return out
+
+
+def expand_params(cfg, model, params, t_h: float, t_end_h: float, history=None):
+    """The (rpm, minutes) per interval of a parameter row on the grid from ``t_h`` (for reports and tests).
+
+    Parameters
+    ----------
+    cfg : MPCConfig
+    model : MomentModel
+    params : array_like, (9,)
+    t_h, t_end_h : float
+    history : list of (hours, rpm, milling), optional
+    """
+    grid = make_grid(t_h, t_end_h, cfg.interval_h)
+    rpm, mins = expand(np.asarray(params, dtype=float)[None], grid, limits_of(cfg, model),
+                       Carry.from_history(history or []))
+    return rpm[0], mins[0]

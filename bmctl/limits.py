@@ -1,0 +1,18 @@
+"""The ranges every command and file shares (one place, so a flag and a file field agree).
+
+Examples
+--------
+>>> HOURS_MIN * 3600, HOURS_MAX, RPM_MAX
+(1.0, 1000.0, 2000.0)
+"""
+
+#: the shortest duration a schedule segment, a logged interval or a time flag may have: one
+#: second (the plant's shortest time step is a millisecond; no mill is run for less)
+HOURS_MIN = 1.0 / 3600.0
+#: the longest batch: 1,000 h of milling (the longest mechanical-alloying runs reported are ~500 h)
+HOURS_MAX = 1000.0
+#: sun-disc speeds of laboratory planetary mills reach ~1,100 rpm (Fritsch P-7 premium); 2,000 is
+#: a hard physical ceiling for the kinematics (Burgio) as implemented
+RPM_MAX = 2000.0
+#: a mill or rest phase of a cycle, in minutes: 6 s to a day
+PHASE_MIN_MINUTES, PHASE_MAX_MINUTES = 0.1, 1440.0

@@ -1,0 +1,245 @@
+"""Coefficients belong to a card: fingerprint, refusal, --identify, calibrated cards, the operating window."""
+
+import shutil
+
+import pytest
+
+from bmctl.cards import (FINGERPRINT_SKIP, FINGERPRINT_TABLES, fingerprint, fingerprint_diff, fingerprint_values,
+                         steady_temperature_c, window_warnings)
+from bmctl.cli import main
+from bmctl.config import ModelCard, load_card
+from bmctl.errors import InputError
+from bmctl.moments import coeffs as cf
+from bmctl.moments.forcard import for_card, is_shipped, status
+
+from ..conftest import CARDS, card_path
+
+LAB = card_path("alni-1to1-300rpm-lab")
+
+
+def _copy(tmp_path, old=None, new=None, name="card.toml", coeffs=True):
+    """The lab card (one text replaced) and, with ``coeffs``, the lab's coefficient file next to it."""
+    text = LAB.read_text()
+    if old is not None:
+        assert old in text
+        text = text.replace(old, new)
+    p = tmp_path / name
+    p.write_text(text)
+    if coeffs:
+        shutil.copyfile(cf.coeffs_path(LAB), cf.coeffs_path(p))
+    return p
+
+
+@pytest.mark.parametrize("name", CARDS)
+def test_every_shipped_card_has_its_own_coefficients(name):
+    """Fails when a shipped card is edited (a fingerprinted field) without re-identifying it."""
+    st = status(load_card(card_path(name)), card_path(name))
+    assert st.state == "match", st.line()
+    assert st.file.card_name == name
+    assert set(st.file.heldout_mean) >= {"s_mean_um", "s_std_um", "r_mean", "r_std"}
+    assert for_card(card_path(name)).coeff_file.card_name == name
+
+
+def test_a_changed_card_field_is_refused_naming_card_field_and_fix(tmp_path):
+    p = _copy(tmp_path, "gamma_per_um2 = 1.82e-4", "gamma_per_um2 = 2.73e-4")
+    with pytest.raises(InputError) as e:
+        for_card(p)
+    msg = str(e.value)
+    assert "\n" not in msg
+    assert msg.startswith(f"{p}: moment coefficients:")
+    assert "stochastic.gamma_per_um2 0.000273 (coefficients: 0.000182)" in msg
+    assert f"bmctl identify {p}" in msg and "--identify" in msg
+
+
+def test_missing_and_unrecorded_coefficients_are_refused(tmp_path):
+    p = _copy(tmp_path, coeffs=False)
+    with pytest.raises(InputError, match="none identified for this card"):
+        for_card(p)
+    # a file from before fingerprints: no [card] table, so it may belong to any card
+    text = cf.coeffs_path(LAB).read_text()
+    cut = text[:text.index("[card]")] + text[text.index("[window]"):]
+    cf.coeffs_path(p).write_text(cut)
+    with pytest.raises(InputError, match="records no card fingerprint"):
+        for_card(p)
+
+
+def test_matching_copy_is_accepted(tmp_path):
+    """A card elsewhere with the same fingerprint fields (other name, recipe, plant settings) is accepted."""
+    p = _copy(tmp_path, 'name = "alni-1to1-300rpm-lab"', 'name = "my-copy"')
+    text = p.read_text().replace("rpm = 300\n", "rpm = 350\n", 1).replace("particles = 20000", "particles = 5000")
+    p.write_text(text)
+    assert for_card(p).coeff_file.card_name == "alni-1to1-300rpm-lab"
+
+
+def test_card_object_needs_a_named_file():
+    with pytest.raises(InputError, match="card alni-1to1-300rpm-lab: moment coefficients: none given"):
+        for_card(load_card(LAB))
+    assert for_card(load_card(LAB), coeffs=cf.coeffs_path(LAB)).coeff_file is not None
+
+
+# --- which fields the fingerprint covers ----------------------------------------------------------------
+
+
+def _bumped(card: ModelCard, table: str, field: str) -> ModelCard:
+    d = card.model_dump()
+    v = d[table][field]
+    d[table][field] = (v + 1) if isinstance(v, int) else (v * 1.01 if v else 0.01)
+    if (table, field) == ("mill", "speed_ratio"):
+        d[table][field] = v * 0.99
+    return ModelCard.model_validate(d)
+
+
+def test_every_fingerprint_field_changes_the_fingerprint():
+    card = load_card(LAB)
+    base = fingerprint_values(card)
+    for key in base:
+        table, field = key.split(".")
+        other = fingerprint_values(_bumped(card, table, field))
+        assert fingerprint_diff(other, base) and fingerprint(other) != fingerprint(base), key
+
+
+def test_fields_left_out_of_the_fingerprint_do_not_move_the_model():
+    """Every card field outside the fingerprint leaves the model's constants and default coefficients as they
+    are: the fingerprint covers everything the model reads from the card."""
+    from bmctl.moments.model import default_coeffs
+    from bmctl.moments.physics import constants
+
+    card = load_card(LAB)
+    c0, q0 = constants(card), default_coeffs(card)
+    left_out = [("process", "rpm"), ("process", "hours"), ("simulation", "particles"),
+                ("simulation", "record_every_h"), ("simulation", "batch_fraction"), ("simulation", "max_step_s"),
+                ("simulation", "s_max_um")]
+    for table, field in left_out:
+        assert f"{table}.{field}" not in fingerprint_values(card)
+        d = card.model_dump()
+        d[table][field] = d[table][field] * 0.9 if field != "particles" else 1000
+        other = ModelCard.model_validate(d)
+        assert constants(other) == c0 and default_coeffs(other) == q0, (table, field)
+    tables = set(ModelCard.model_fields) - set(FINGERPRINT_TABLES)
+    assert tables == {"card", "process", "powder", "validity", "simulation"}
+    assert FINGERPRINT_SKIP == {"mill.ball_material"}
+
+
+# --- commands refuse, and say so in one line ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("argv", [
+    ["design", "{card}", "--target", "s_mean_um=30", "--out", "{out}"],
+    ["estimate", "{card}", "--samples", "{sample}", "--times", "1", "--out", "{out}/e.csv"],
+    ["linearize", "{card}", "--out", "{out}"],
+    ["campaign", "init", "{out}", "--model", "{card}", "--controller", "controllers/mpc-default.toml",
+     "--target", "s_mean_um=30"],
+])
+def test_commands_refuse_foreign_coefficients(tmp_path, capsys, argv, root, monkeypatch):
+    monkeypatch.chdir(root)
+    p = _copy(tmp_path, "ball_count = 10", "ball_count = 12")
+    out = tmp_path / "out"
+    sample = tmp_path / "s.csv"
+    sample.write_text("s_um,r\n" + "".join(f"{40 + k % 7},{0.01 * (k % 5)}\n" for k in range(60)))
+    rc = main([a.format(card=p, out=out, sample=sample) for a in argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert err[0].startswith(f"bmctl: error: {p}: moment coefficients:") and "mill.ball_count 12" in err[0]
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_trial_refuses_a_scenario_card_without_coefficients(tmp_path, capsys):
+    from ..campaign.scenarios import lqr_scenario
+
+    p = _copy(tmp_path, coeffs=False)
+    s = lqr_scenario(tmp_path / "sc.toml")
+    s.write_text(s.read_text().replace(str(LAB), str(p)))
+    rc = main(["trial", str(s), "--out", str(tmp_path / "t"), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and err[0].startswith(f"bmctl: error: {p}: moment coefficients: none identified")
+    assert not (tmp_path / "t" / "trajectory.csv").exists()
+
+
+# --- calibrated cards come with their coefficients -------------------------------------------------------
+
+
+def test_calibrated_card_is_written_with_its_coefficients(tmp_path, monkeypatch):
+    """run_calibration writes ``<card>-calibrated.toml`` and ``<card>-calibrated.moments.toml`` whose fingerprint
+    is the calibrated card's. The plant fit and the identification are replaced by stand-ins (the stand-in
+    identification records the card it was given); the slow end-to-end test runs the real ones."""
+    from types import SimpleNamespace
+
+    from bmctl.calibrate import outputs
+    from bmctl.calibrate import run as cal_run
+    from bmctl.moments import forcard
+    from bmctl.moments import identify as ident
+
+    seen = []
+
+    def fake_text(card, card_path, **kw):
+        seen.append(card)
+        return cf.toml_text({}, {"card": ident.card_table(card)})
+
+    card = load_card(LAB)
+    values = [card.stochastic.gamma_per_um2 * 1.5, card.stochastic.delta_per_um2 * 0.6]
+    monkeypatch.setattr(forcard, "identification_text", fake_text)
+    monkeypatch.setattr(cal_run, "calibrate", lambda *a, **k: SimpleNamespace(values=values))
+    monkeypatch.setattr(cal_run, "model_samples_at", lambda *a, **k: [])
+    monkeypatch.setattr(outputs, "sample_distances", lambda *a, **k: [])
+    monkeypatch.setattr(outputs, "calibration_dict", lambda *a, **k: {})
+    res = cal_run.run_calibration(card, LAB, [], ["gamma", "delta"], tmp_path, moment_stage=False)
+    new = tmp_path / "alni-1to1-300rpm-lab-calibrated.toml"
+    assert new in res.paths and cf.coeffs_path(new) in res.paths
+    assert len(seen) == 1 and seen[0].stochastic.gamma_per_um2 == pytest.approx(values[0])
+    assert status(load_card(new), new).state == "match"
+    with pytest.raises(InputError, match="stochastic.gamma_per_um2"):  # the lab's own coefficients do not fit it
+        for_card(load_card(new), coeffs=cf.coeffs_path(LAB))
+
+
+# --- shipped files and the operating window ------------------------------------------------------------
+
+
+def test_identify_will_not_overwrite_a_shipped_file(capsys):
+    assert is_shipped(cf.coeffs_path(LAB))
+    rc = main(["identify", str(LAB), "--quick"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "shipped" in err[0] and "--overwrite" in err[0]
+
+
+def test_steady_temperature_is_the_first_order_vial_balance():
+    """T_ss = T_amb + P tau / C (docs/model.md Sec. 4) with P the mean dissipated power of the kinematics."""
+    from bmctl.physics.kinematics import kinematics
+
+    card = load_card(LAB)
+    th = card.thermal
+    for rpm in (150.0, 300.0, 600.0):
+        P = kinematics(card, rpm).mean_power_W
+        assert steady_temperature_c(card, rpm) == pytest.approx(25.0 + P * 900.0 / 400.0, rel=1e-12)
+    assert steady_temperature_c(card, 0.0) == th.ambient_C
+
+
+def test_window_warns_outside_the_calibrated_temperatures(tmp_path):
+    card = load_card(LAB)
+    assert window_warnings(card, [150.0, 300.0, 0.0]) == []
+    w = window_warnings(card, [300.0, 600.0])
+    assert len(w) == 1 and "600 rpm" in w[0] and "°C" in w[0]
+    # the issue's example: bigger balls in a bigger vial are hot at the card's own rpm
+    big = _copy(tmp_path, "ball_diameter_m = 0.010", "ball_diameter_m = 0.015", coeffs=False)
+    text = big.read_text().replace("impactor_mass_kg = 4.14e-3\n", "").replace("ball_count = 10", "ball_count = 12")
+    text = text.replace("vial_radius_m = 0.0225", "vial_radius_m = 0.035").replace("vial_height_m = 0.05",
+                                                                                     "vial_height_m = 0.065")
+    big.write_text(text)
+    bc = load_card(big)
+    T = steady_temperature_c(bc, 300.0)
+    assert T > 200.0
+    w = window_warnings(bc, [300.0])
+    assert len(w) == 1 and f"{T:.0f} °C at 300 rpm" in w[0]
+    # the coefficient file's window narrows it further
+    assert window_warnings(card, [300.0], {"temperature_c": (25.0, 60.0)})
+    assert not window_warnings(card, [300.0], {"temperature_c": (25.0, 349.0)})
+
+
+def test_card_show_says_whether_the_card_has_coefficients(tmp_path, capsys):
+    assert main(["card", "show", str(LAB)]) == 0
+    out = capsys.readouterr().out
+    r_mean = cf.read_file(cf.coeffs_path(LAB)).heldout_mean["r_mean"]
+    assert "fingerprint matches" in out and "held-out NRMSE" in out and f"r_mean {100 * r_mean:.1f} %" in out
+    p = _copy(tmp_path, "alpha = 2.1", "alpha = 2.2")
+    assert main(["card", "show", str(p)]) == 0
+    out = capsys.readouterr().out
+    assert "other values of 1 field(s): stochastic.alpha 2.2 (coefficients: 2.1)" in out and "refuse" in out
