@@ -2,7 +2,10 @@
 
 Run from the repository root::
 
-    python benchmarks/measure_emps.py [--emps DIR] [--polarity auto|bright|dark|best] [--out FILE]
+    python benchmarks/measure_emps.py [--emps DIR] [--polarity auto|bright|dark|best] [--name STEM]
+
+(``--emps`` defaults to ``$BMCTL_EMPS`` or /work/shared/data/emps-dev: the 40 EMPS images with
+their masks, MIT licence; without them the script says so and measures nothing.)
 
 Every image is measured as ``bmctl measure IMAGE --um-per-px 1`` would (data bar, automatic
 speck limit, automatic polarity), sizes in pixels (1 px = 1 unit), and scored against its
@@ -22,13 +25,19 @@ halves of the 40 images (``A``: even positions in name order, used to choose par
 (found / mask equivalent diameter) and median r of matched pairs (both measured the same
 way, Crofton perimeter on the pixel mask); the verdict per image and how it separates good
 (F1 >= 0.8) from bad (F1 < 0.5) images. The SEM powder images are measured in the same run:
-AMPIS against its 238 hand outlines, SiO2 (no ground truth) count and median size.
+AMPIS against its 238 hand outlines (same matching; reference: outlines not cut by the
+border and at least the speck limit), SiO2 (no ground truth) count and median size.
+The share of images whose automatic polarity agrees with the masks' (particle median level
+against the background 3-10 px around them) is reported by how it was decided.
 
 ``--polarity best`` picks, per image, the better of bright and dark by hindsight (F1) — the
 upper bound a user who knew the right flag would reach. ``--polarity auto`` (default) is what
 ``bmctl measure`` does without flags.
 
-Writes ``results/measure_emps.json`` (or ``--out``) and prints a summary table.
+Writes ``results/measure_emps.json`` (or ``results/STEM.json``) and prints a summary table;
+when ``results/measure_emps_baseline_bright.json`` and ``..._best.json`` exist (this script run
+on the segmentation before automatic polarity, see their ``command``), their rows are printed
+above for comparison.
 """
 
 from __future__ import annotations
@@ -39,7 +48,6 @@ import json
 import os
 import sys
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -200,6 +208,8 @@ def emps_rows(folder: Path, polarity: str, progress=True) -> list[dict]:
         rep = res.report()
         row = {"image": name, "half": "A" if k % 2 == 0 else "B", **sc, "seconds": round(dt, 3),
                "polarity": rep.get("polarity", {}).get("value") if isinstance(rep.get("polarity"), dict) else (pol if polarity != "auto" else "bright"),
+               "polarity_source": rep.get("polarity", {}).get("source") if isinstance(rep.get("polarity"), dict) else "user",
+               "n_instances": int(ref.max()),
                "verdict": (rep.get("verdict") or {}).get("value") if isinstance(rep.get("verdict"), dict) else rep.get("verdict"),
                "warnings": [w["code"] for w in rep["warnings"]], "min_area_px": res.min_area_px,
                "true_polarity": true_polarity(load_image(folder / f"{name}.png"), ref), "evidence": rep.get("evidence"),
@@ -229,11 +239,14 @@ def ampis(polarity: str) -> dict | None:
     sc = score(full, ref, ignore)
     hand = measure_labels(ref, 1.0)
     rep = res.report()
+    hand_ref = float(np.median(hand.s_um[~ignore[: len(hand)]]))
+    found_med = float(np.median(res.table.s_um))
     return {
         "image": "ampis_powder_b.png", "reference": f"{int((~ignore).sum())} hand outlines not cut by the border, >= {limit} px",
         **{k: v for k, v in sc.items() if not k.startswith("_")}, "min_area_px": limit, "seconds": round(dt, 3),
-        "s_median_px": float(np.median(res.table.s_um)), "hand_s_median_px": float(np.median(hand.s_um)),
-        "s_median_vs_hand": float(np.median(res.table.s_um) / np.median(hand.s_um) - 1.0),
+        "size_ratio_bias_pct": 100.0 * (sc["size_ratio_median"] - 1.0) if sc["size_ratio_median"] else None,
+        "s_median_px": found_med, "hand_s_median_px": float(np.median(hand.s_um)),
+        "hand_ref_s_median_px": hand_ref, "s_median_vs_hand_ref_pct": 100.0 * (found_med / hand_ref - 1.0),
         "polarity": (rep.get("polarity") or {}).get("value") if isinstance(rep.get("polarity"), dict) else pol,
         "verdict": (rep.get("verdict") or {}).get("value") if isinstance(rep.get("verdict"), dict) else rep.get("verdict"),
         "warnings": [w["code"] for w in rep["warnings"]],
@@ -258,18 +271,35 @@ def sio2(polarity: str) -> dict | None:
             "warnings": [w["code"] for w in rep["warnings"]]}
 
 
-def _write(path: Path, doc: dict) -> None:
+def polarity_accuracy(rows: list[dict]) -> dict:
+    """Images whose automatic polarity matches the masks', by how it was decided."""
+    out = {}
+    for src in ("edges", "evidence", "user", None):
+        sel = [r for r in rows if r.get("n_instances", 0) > 0 and (src is None or r.get("polarity_source") == src)]
+        if sel:
+            out[src or "all"] = {"images": len(sel), "correct": sum(r["polarity"] == r["true_polarity"] for r in sel)}
+    return out
+
+
+def _write_fallback(path: Path, doc: dict) -> None:
+    """Versions without bmctl.results (a baseline run on older code): same shape, atomic."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     os.replace(tmp, path)
 
 
+def _row(label: str, p: dict) -> str:
+    return (f"| {label} | {p['images']} | {_f(p['precision'])} | {_f(p['recall'])} | {_f(p['f1'])} | "
+            f"{p['images_f1_ge_0.5']}/{p['images_scored']} | {_f(p['size_ratio_median'], 3)} | "
+            f"{_f(p['r_found_median'], 3)} / {_f(p['r_ref_median'], 3)} |")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--emps", type=Path, default=EMPS, help="folder with NAME.png and NAME.seg.png (default: %(default)s)")
     ap.add_argument("--polarity", choices=("auto", "bright", "dark", "best"), default="auto")
-    ap.add_argument("--out", type=Path, default=ROOT / "results" / "measure_emps.json")
+    ap.add_argument("--name", default="measure_emps", help="results file stem under results/ (default: %(default)s)")
     args = ap.parse_args(argv)
     if not args.emps.is_dir():
         print(f"measure_emps: {args.emps} not found (set --emps or BMCTL_EMPS); nothing measured", file=sys.stderr)
@@ -283,45 +313,60 @@ def main(argv=None) -> int:
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     halves = {h: pool([r for r in rows if r["half"] == h]) for h in ("A", "B")}
     pooled = pool(rows)
+    accepted = pool([r for r in rows if r.get("verdict") != "unusable"])
     sep = {h: verdict_separation([r for r in rows if r["half"] == h]) for h in ("A", "B")}
     sep["all"] = verdict_separation(rows)
     per_image = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
-    try:
-        import bmctl
-        version = bmctl.__version__
-    except AttributeError:  # pragma: no cover
-        version = "unknown"
-    doc = {
-        "bmctl_version": version,
-        "command": "python benchmarks/measure_emps.py" + (f" --polarity {args.polarity}" if args.polarity != "auto" else ""),
-        "settings": {"polarity": args.polarity, "um_per_px": 1.0, "min_iou": MIN_IOU, "ref_min_area_px": REF_MIN_AREA_PX,
-                     "good_f1": GOOD_F1, "bad_f1": BAD_F1, "emps_images": len(rows),
-                     "halves": "A = even positions in name order (parameters chosen here), B = odd positions (held out)"},
-        "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "pooled": pooled, "half_A": halves["A"], "half_B": halves["B"],
-        "verdict": sep, "ampis": am, "sio2": si, "per_image": per_image,
+    import bmctl
+
+    command = "python benchmarks/measure_emps.py" + (f" --polarity {args.polarity}" if args.polarity != "auto" else "") + (
+        f" --name {args.name}" if args.name != "measure_emps" else "")
+    settings = {"polarity": args.polarity, "um_per_px": 1.0, "min_iou": MIN_IOU, "ref_min_area_px": REF_MIN_AREA_PX,
+                "good_f1": GOOD_F1, "bad_f1": BAD_F1, "emps_images": len(rows),
+                "halves": "A = even positions in name order (parameters chosen here), B = odd positions (held out)"}
+    values = {
+        "pooled": pooled, "half_A": halves["A"], "half_B": halves["B"], "pooled_not_unusable": accepted,
+        "polarity": polarity_accuracy(rows), "verdict": sep, "ampis": am, "sio2": si, "per_image": per_image,
         "timing": {"wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "loadavg_start": [round(v, 2) for v in load],
                    "loadavg_end": [round(v, 2) for v in os.getloadavg()],
                    "median_image_s": float(np.median([r["seconds"] for r in rows]))},
     }
-    _write(args.out, doc)
-    print(f"| set | images | precision | recall | F1 | images F1>=0.5 | size ratio | r found / mask |")
+    try:
+        from bmctl.results import results_path, write_results
+        out = write_results(args.name, values, settings=settings, command=command)
+    except ImportError:
+        
+        out = ROOT / "results" / f"{args.name}.json"
+        _write_fallback(out, {"bmctl_version": getattr(bmctl, "__version__", "unknown"), "command": command, "settings": settings,
+                              "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), **values})
+        results_path = None
+    print("| set | images | precision | recall | F1 | images F1>=0.5 | size ratio | r found / mask |")
     print("|---|---|---|---|---|---|---|---|")
-    for label, p in (("A (tuning)", halves["A"]), ("B (held out)", halves["B"]), ("all 40", pooled)):
-        print(f"| {label} | {p['images']} | {_f(p['precision'])} | {_f(p['recall'])} | {_f(p['f1'])} | "
-              f"{p['images_f1_ge_0.5']}/{p['images_scored']} | {_f(p['size_ratio_median'], 3)} | "
-              f"{_f(p['r_found_median'], 3)} / {_f(p['r_ref_median'], 3)} |")
+    for label, base in (("before, no flag (bright)", "measure_emps_baseline_bright"),
+                        ("before, better polarity by hindsight", "measure_emps_baseline_best")):
+        f = ROOT / "results" / f"{base}.json"
+        if f.exists() and args.name == "measure_emps":
+            old = json.loads(f.read_text(encoding="utf-8"))
+            for h in ("half_A", "half_B", "pooled"):
+                print(_row(f"{label}: {h.replace('_', ' ')}", old[h]))
+    for label, p in (("A (tuning)", halves["A"]), ("B (held out)", halves["B"]), ("all 40", pooled),
+                     ("all but unusable", accepted)):
+        print(_row(label, p))
     v = sep["all"]
-    if v["verdict_counts"]["ok"] + v["verdict_counts"]["doubtful"] + v["verdict_counts"]["unusable"]:
+    pa = values["polarity"].get("all")
+    if pa:
+        print(f"polarity: {pa['correct']}/{pa['images']} images as the masks say; " + ", ".join(
+            f"{k}: {q['correct']}/{q['images']}" for k, q in values["polarity"].items() if k != "all"))
+    if sum(v["verdict_counts"].values()):
         print(f"verdict: {v['verdict_counts']}; bad images (F1 < {BAD_F1}) flagged {v['bad_flagged']}/{v['bad_images']}, "
               f"good images (F1 >= {GOOD_F1}) flagged {v['good_flagged']}/{v['good_images']}")
     if am:
-        print(f"AMPIS: precision {_f(am['precision'])} recall {_f(am['recall'])} F1 {_f(am['f1'])} size ratio {_f(am['size_ratio_median'], 3)} "
-              f"median s {am['s_median_px']:.1f} px vs hand {am['hand_s_median_px']:.1f} px ({am['s_median_vs_hand']:+.1%}), "
-              f"{am['polarity']}, {am['verdict']}, {am['seconds']:.1f} s")
+        print(f"AMPIS: precision {_f(am['precision'])} recall {_f(am['recall'])} F1 {_f(am['f1'])} matched size ratio "
+              f"{_f(am['size_ratio_median'], 3)}; median s {am['s_median_px']:.1f} px vs {am['hand_ref_s_median_px']:.1f} px "
+              f"by hand ({am['reference']}), {am['polarity']}, {am['verdict']}, {am['seconds']:.1f} s")
     if si:
-        print(f"SiO2: {si['count']} particles, median s {si['s_median_um']:.3f} um, {si['polarity']}, {si['verdict']}, {si['seconds']:.1f} s")
-    print(f"wrote {args.out} ({wall:.0f} s wall, {cpu:.0f} s CPU, load {load[0]:.1f})")
+        print(f"SiO2: {si['count']} particles, median s {si['s_median_um']:.3f} µm, {si['polarity']}, {si['verdict']}, {si['seconds']:.1f} s")
+    print(f"wrote {out} ({wall:.0f} s wall, {cpu:.0f} s CPU, load {load[0]:.1f})")
     return 0
 
 

@@ -56,26 +56,27 @@ def _classify(lab: np.ndarray, objs, img: np.ndarray, extreme: float, span: floa
         h, w = sl[0].stop - sl[0].start, sl[1].stop - sl[1].start
         if h * w > MAX_SHARE * lab.size or max(h, w) < 4:
             continue
+        sub = lab[sl] == i
+        area = int(sub.sum())
+        if area < MIN_AREA_PX:
+            continue
+        filled = ndi.binary_fill_holes(sub)
+        shape_kind = 0
+        if min(h, w) >= 2 and filled.sum() >= RECT_EXTENT * h * w:
+            if max(h, w) >= BAR_ASPECT * min(h, w) or filled.sum() > 1.05 * area:
+                shape_kind = 1  # bar, or a box holding text
+        elif max(h, w) >= 6 and h <= GLYPH_HEIGHT * H:
+            stroke = float(ndi.distance_transform_edt(np.pad(sub, 1)).max())
+            if stroke <= GLYPH_STROKE * max(h, w) and area <= GLYPH_SOLIDITY * _convex_area(sub):
+                shape_kind = 2
+        if not shape_kind:
+            continue
         y0, y1 = max(sl[0].start - 4, 0), min(sl[0].stop + 4, H)
         x0, x1 = max(sl[1].start - 4, 0), min(sl[1].stop + 4, W)
         own = lab[y0:y1, x0:x1] == i
-        area = int(own.sum())
-        if area < MIN_AREA_PX:
-            continue
         ring = ndi.binary_dilation(own, iterations=3) & ~own & (lab[y0:y1, x0:x1] == 0)
-        if ring.sum() < 4 or abs(float(np.median(img[y0:y1, x0:x1][ring])) - extreme) < RING_CONTRAST * span:
-            continue  # not set off from its surroundings: image content, not a drawn mark
-        sub = lab[sl] == i
-        filled = ndi.binary_fill_holes(sub)
-        if min(h, w) >= 2 and filled.sum() >= RECT_EXTENT * h * w:
-            if max(h, w) >= BAR_ASPECT * min(h, w) or filled.sum() > 1.05 * area:
-                kind[i] = 1  # bar, or a box holding text
-            continue
-        if max(h, w) < 6 or h > GLYPH_HEIGHT * H:
-            continue
-        stroke = float(ndi.distance_transform_edt(np.pad(sub, 1)).max())
-        if stroke <= GLYPH_STROKE * max(h, w) and area <= GLYPH_SOLIDITY * _convex_area(sub):
-            kind[i] = 2
+        if ring.sum() >= 4 and abs(float(np.median(img[y0:y1, x0:x1][ring])) - extreme) >= RING_CONTRAST * span:
+            kind[i] = shape_kind  # set off from its surroundings: a drawn mark, not image content
     return kind, boxes
 
 
