@@ -437,8 +437,10 @@ def _grouped_median(values: np.ndarray, labels: np.ndarray, n: int) -> np.ndarra
     """Median of ``values`` per label 1..n (NaN where a label has no pixel), by one sort."""
     m = labels > 0
     v, g = values[m], labels[m]
-    order = np.lexsort((v, g))
-    v, g = v[order], g[order]
+    if v.size:  # one sort on label + value scaled into [0, 0.5)
+        lo, span = float(v.min()), float(np.ptp(v)) or 1.0
+        order = np.argsort(g + 0.5 * (v - lo) / span)
+        v, g = v[order], g[order]
     count = np.bincount(g, minlength=n + 1)[1:]
     start = np.r_[0, np.cumsum(count)[:-1]]
     out = np.full(n, np.nan)
