@@ -48,6 +48,7 @@ REGISTRY: tuple[Study, ...] = (
           "python benchmarks/fidelity_table.py --particles 20000 --seed 2024 --no-equiaxing", 2),
     Study("dvalues_accuracy", "python benchmarks/dvalues_accuracy.py --schedules 4 --particles 3000 --seeds 2", 4),
     Study("verify", "python benchmarks/verify_results.py", 10),
+    Study("calibration_check", "python benchmarks/calibration_check.py", 10),
     Study("calibrate_accuracy", "python benchmarks/calibrate_accuracy.py main --workers 2 --seed 1", 2),
     Study("calibrate_coverage", "python benchmarks/calibrate_accuracy.py coverage --first 1 --n 20 --workers 2", 10),
     Study("calibrate_four", "python benchmarks/calibrate_accuracy.py four --workers 2 --seed 1", 10),
@@ -101,6 +102,8 @@ def format_like(value, shown: str) -> str:
     text = f"{value / scale:,.{dec}f}" if "," in whole else f"{value / scale:.{dec}f}"
     if text.startswith("-"):
         text = minus + text[1:]
+    elif sign == "+":
+        text = "+" + text
     return text + suffix
 
 
