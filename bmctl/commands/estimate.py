@@ -206,5 +206,7 @@ def run(args) -> int:
     if args.write_card is not None:
         from ..calibrate.writeback import write_estimate_card
 
-        print(f"  wrote {write_estimate_card(args.write_card, card, d, f'{len(samples)} samples to {t_end:g} h')}")
+        written = write_estimate_card(args.write_card, card, d, f'{len(samples)} samples to {t_end:g} h')
+        print(f"  wrote {written} (no moment coefficients of its own yet: `bmctl identify {written}`, about a "
+              "minute, or --identify on the command that uses it)")
     return 0

@@ -34,10 +34,14 @@ def configure(p):
     p.add_argument("--heldout", type=int_arg("--heldout", 1, 1000), default=None, metavar="N",
                    help="held-out random schedules of the validation (default 24; --quick 4; the shipped cards: 72)")
     p.add_argument("--start", default="nearest", metavar="nearest|defaults|FILE",
-                   help="where the fit starts: the nearest identified card in the card's folder or models/ "
-                        "(default), the built-in defaults, or a coefficient file")
+                   help="where the fit starts: the nearest identified card in the card's folder or models/ and "
+                        "the built-in defaults, keeping the better fit (default); the defaults only; or a "
+                        "coefficient file")
     p.add_argument("--evaluations", type=int_arg("--evaluations", 1, 1000), default=None, metavar="N",
-                   help="most residual evaluations of the fit (default 10; from the defaults it needs several times more)")
+                   help="most residual evaluations of the fit per start (default 40; it also stops after 8 "
+                        "Jacobians per start)")
+    p.add_argument("--jacobians", type=int_arg("--jacobians", 1, 1000), default=None, metavar="N",
+                   help="most Jacobians of the fit per start (default 8: the fits level off within 6-8)")
     p.add_argument("--quick", action="store_true",
                    help="fewer experiments and held-out schedules, one training seed, M=2000 (a smoke test)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
@@ -88,7 +92,8 @@ def run(args) -> int:
     flags = [(f"--quick", args.quick), (f"--particles {args.particles}", args.particles),
              (f"--random-schedules {args.random_schedules}", args.random_schedules is not None),
              (f"--seeds {args.seeds}", args.seeds), (f"--heldout {args.heldout}", args.heldout),
-             (f"--start {args.start}", args.start != "nearest"), (f"--evaluations {args.evaluations}", args.evaluations)]
+             (f"--start {args.start}", args.start != "nearest"), (f"--evaluations {args.evaluations}", args.evaluations),
+             (f"--jacobians {args.jacobians}", args.jacobians)]
     command = f"bmctl identify {args.model} --seed {args.seed}" + "".join(f" {f}" for f, on in flags if on)
     n_train = args.seeds or (1 if args.quick else ident.DEFAULT_SEEDS)
     n_held = args.heldout or (4 if args.quick else ident.DEFAULT_HELDOUT)
@@ -101,7 +106,7 @@ def run(args) -> int:
     res = identification(card, args.model, seed=args.seed, log=log, workers=args.workers, scheduler=args.scheduler,
                          command=command, start=args.start, quick=args.quick, particles=args.particles,
                          random_schedules=args.random_schedules, seeds=args.seeds, heldout=args.heldout,
-                         evaluations=args.evaluations)
+                         evaluations=args.evaluations, jacobians=args.jacobians)
     names = ident.MOMENTS[:5]
     report = (_report(card.card.name, names, res.table_defaults, res.table, res.table_train) + "\n"
               + _report_off_card(names, res.off_card_p1, res.off_card))

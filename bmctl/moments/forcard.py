@@ -273,9 +273,10 @@ def identification(card, card_path: str | Path | None, *, seed: int = 0, log=Non
     command : str, optional
         The command line recorded in ``[identification]`` (default ``bmctl identify <card> --seed N``).
     start : str or path-like, optional
-        Where the fit starts: ``"nearest"`` (the nearest identified card in the card's folder or the
-        shipped ``models/``, :func:`bmctl.moments.identify.warm_start`), ``"defaults"`` (the built-in
-        defaults) or a coefficient file.
+        Where the fit starts: ``"nearest"`` (from the nearest identified card in the card's folder or
+        the shipped ``models/``, :func:`bmctl.moments.identify.warm_start`, and from the built-in
+        defaults, keeping the lower cost), ``"defaults"`` (the built-in defaults only) or a coefficient
+        file (only it).
     **kw
         Passed to :func:`bmctl.moments.identify.identify` (``quick``, ``particles``, ``seeds``, ...).
 
@@ -305,7 +306,8 @@ def identification(card, card_path: str | Path | None, *, seed: int = 0, log=Non
         client = client_for(scheduler, auto_workers(runs, cpu_s, workers, scheduler))
     try:
         return ident.identify(card, seed, source=str(card_path or card.card.name), command=command, log=log,
-                              client=client, start=first, start_label=label, **kw)
+                              client=client, start=first, start_label=label, both_starts=str(start) == "nearest",
+                              **kw)
     finally:
         if own:
             close_client(client)

@@ -425,14 +425,24 @@ class FitResult:
     seconds: float
     message: str
     njev: int = 0
-    clipped: list = field(default_factory=list)
+    clipped: list = field(default_factory=list)  # coefficients ending at a bound
+    start: str = ""
+    tried: list = field(default_factory=list)
+
+
+class _Budget(Exception):
+    """The fit's Jacobian budget is spent."""
 
 
 def fit(model: MomentModel, experiments: Sequence[Experiment], free: Sequence[str] = FREE,
         weights: Sequence[float] = (1.0, 1.0, 1.0, 1.0), max_nfev: int = 80,
         log: Callable[[str], None] | None = None, start: dict | None = None, ftol: float = 1e-8,
-        on_step: Callable[[dict, float], None] | None = None, threads: int | None = None) -> FitResult:
+        on_step: Callable[[dict, float], None] | None = None, threads: int | None = None,
+        starts: Sequence[tuple[str, dict]] | None = None, max_jacobians: int | None = None) -> FitResult:
     """Least-squares fit of ``free`` coefficients on range-normalised simulation errors (:func:`run_scales`).
+
+    Levenberg-Marquardt (MINPACK) with exact Jacobians (:class:`_Sensitivities`); from each of
+    ``starts`` (or ``start``), keeping the result of lowest cost.
 
     Parameters
     ----------
@@ -445,18 +455,22 @@ def fit(model: MomentModel, experiments: Sequence[Experiment], free: Sequence[st
     weights : sequence of float, optional
         Residual weights of s_mean, s_std, r_mean, r_std.
     max_nfev : int, optional
-        Most residual evaluations.
+        Most residual evaluations per start.
     log : callable, optional
         Progress lines (one per Jacobian).
     start : dict, optional
         Starting values of the free coefficients (default: the model's).
     ftol : float, optional
-        Relative change of the cost at which the fit stops.
+        Relative change of the cost at which a fit stops.
     on_step : callable, optional
         Called with (coefficients, cost) at every accepted point (each Jacobian).
     threads : int, optional
         Threads of the casadi maps that run the experiments (default: the usable CPUs). Same result
         for any number.
+    starts : sequence of (label, dict), optional
+        Several starting points (each a partial coefficient table over the model's); overrides ``start``.
+    max_jacobians : int, optional
+        Most Jacobians per start: a fit that has not converged by then keeps its lowest-cost point.
 
     Returns
     -------
@@ -479,55 +493,105 @@ def fit(model: MomentModel, experiments: Sequence[Experiment], free: Sequence[st
     w[list(FIT_IDX)] = weights
     idx = list(FIT_IDX)
     scale = [(w[idx] / sce[idx])[None, :] for sce in sc]  # per experiment, (1, 4)
-    start = dict(model.coeffs, **(start or {}))
     lo = np.array([cf.SPEC[k][1] for k in free])
     hi = np.array([cf.SPEC[k][2] for k in free])
-    th0 = np.clip(np.array([start[k] for k in free]), lo + 1e-9, hi - 1e-9)
     count = [0, 0]
     costs: dict = {}
 
-    def fun(th):
+    # Levenberg-Marquardt (MINPACK), first unbounded in the coefficients themselves (a bounded trust region,
+    # trf, stalled at several times the cost); if that leaves a coefficient's bounds, it continues from the
+    # point pulled back inside, bounded through theta = lo + (hi - lo) sigmoid(z) (clipping alone undid the fit)
+    span_ = hi - lo
+
+    def sig(z):
+        return 1.0 / (1.0 + np.exp(-np.clip(z, -40.0, 40.0)))
+
+    mode = ["plain"]
+
+    def theta(v):
+        return v if mode[0] == "plain" else lo + span_ * sig(v)
+
+    def dtheta(v):
+        return np.ones_like(v) if mode[0] == "plain" else span_ * sig(v) * (1.0 - sig(v))
+
+    def fun(v):
+        th = theta(v)
         count[0] += 1
         parts = [((X[:, idx] - e.Y[1:, idx]) * scl).T.ravel()
                  for X, e, scl in zip(sens.run(experiments, th), experiments, scale)]
-        v = np.concatenate(parts)
-        v = np.where(np.isfinite(v), v, 1e3)
-        costs[th.tobytes()] = 0.5 * float(v @ v)
-        return v
+        r = np.concatenate(parts)
+        r = np.where(np.isfinite(r), r, 1e3)
+        costs[v.tobytes()] = (0.5 * float(r @ r), np.array(v))
+        return r
 
-    def jac(th):
-        count[1] += 1
-        rows = []
-        for (_, S), scl in zip(sens.run(experiments, th, sensitivities=True), scale):
-            rows.append((S[:, idx, :] * scl[:, :, None]).transpose(1, 0, 2).reshape(-1, len(free)))
-        Jv = np.concatenate(rows)
-        cost = costs.get(th.tobytes(), float("nan"))
+    def lm(v0, st, tag, budget):
+        """(coefficients, message, Jacobians) of one Levenberg-Marquardt run in the current mode."""
+        costs.clear()
+        njev = [0]
+
+        def jac(v):
+            if budget is not None and njev[0] >= budget:
+                raise _Budget()
+            njev[0] += 1
+            count[1] += 1
+            th = theta(v)
+            rows = [(S[:, idx, :] * scl[:, :, None]).transpose(1, 0, 2).reshape(-1, len(free))
+                    for (_, S), scl in zip(sens.run(experiments, th, sensitivities=True), scale)]
+            Jv = np.concatenate(rows) * dtheta(v)[None, :]
+            cost = costs.get(v.tobytes(), (float("nan"),))[0]
+            if log:
+                log(f"{tag}: step {njev[0]}, cost {cost:.4g} ({time.time() - t0:.1f} s)")
+            if on_step is not None:
+                on_step(dict(st, **{k: float(x) for k, x in zip(free, th)}), cost)
+            return np.where(np.isfinite(Jv), Jv, 0.0)
+
+        fun(v0)
+        try:
+            sol = least_squares(fun, v0, jac=jac, method="lm", x_scale="jac", max_nfev=max_nfev, ftol=ftol,
+                                xtol=1e-10)
+            v, message = sol.x, str(sol.message)
+        except _Budget:
+            v = min(costs.values(), key=lambda cv: cv[0])[1]
+            message = f"stopped after {budget} Jacobians at the lowest cost seen"
+        return theta(v), message, njev[0]
+
+    runs = []
+    todo = list(starts or [("", start or {})])
+    for n_start, (label, st) in enumerate(todo, 1):
+        tag = f"fit, start {n_start}/{len(todo)}" if len(todo) > 1 else "fit"
+        st = dict(model.coeffs, **st)
+        th0 = np.clip(np.array([st[k] for k in free]), lo, hi)
+        mode[0] = "plain"
+        r0 = fun(th0)
+        cost0 = 0.5 * float(r0 @ r0)
         if log:
-            log(f"fit: step {count[1]}, cost {cost:.4g} ({count[0]} evaluations, {time.time() - t0:.1f} s)")
-        if on_step is not None:
-            on_step(dict(start, **{k: float(v) for k, v in zip(free, th)}), cost)
-        return np.where(np.isfinite(Jv), Jv, 0.0)
-
-    r0 = fun(th0)
-    cost0 = 0.5 * float(r0 @ r0)
+            log(f"{tag}: {len(free)} coefficients, {r0.size} residuals, initial cost {cost0:.4g}"
+                + (f" ({label})" if label else "") + f" ({time.time() - t0:.1f} s)")
+        n0 = count[0]
+        x, message, nj = lm(th0, st, tag, max_jacobians)
+        outside = [k for k, v, a, b in zip(free, x, lo, hi) if not a <= v <= b]
+        if outside:
+            if log:
+                log(f"{tag}: {', '.join(outside)} left the bounds; continuing bounded from the point pulled inside")
+            u = np.clip((x - lo) / span_, 1e-3, 1 - 1e-3)
+            mode[0] = "bounded"
+            x, message, nj2 = lm(np.log(u / (1 - u)), st, tag, max_jacobians)
+            nj += nj2
+        at_bound = [k for k, v, a, b in zip(free, x, lo, hi) if min(v - a, b - v) < 1e-3 * (b - a)]
+        mode[0] = "plain"
+        r = fun(np.clip(x, lo, hi))
+        runs.append({"label": label, "x": np.clip(x, lo, hi), "cost0": cost0, "cost": 0.5 * float(r @ r),
+                     "nfev": count[0] - n0, "njev": nj, "message": message, "clipped": at_bound, "start": st})
+    best = min(runs, key=lambda rr: rr["cost"])
+    out = dict(best["start"])
+    out.update({k: float(v) for k, v in zip(free, best["x"])})
     if log:
-        log(f"fit: {len(free)} coefficients, {r0.size} residuals, initial cost {cost0:.4g} "
-            f"({time.time() - t0:.1f} s to build)")
-    # Levenberg-Marquardt (MINPACK): from a warm start it levels off in 6-8 Jacobians where the bounded trust
-    # region (trf) stalled at 6x the cost (docs/moments.md, Tried and not kept). It takes no bounds: a coefficient
-    # that ends outside its bounds is clipped to them and recorded
-    sol = least_squares(fun, th0, jac=jac, method="lm", x_scale="jac", max_nfev=max_nfev, ftol=ftol, xtol=1e-10)
-    clipped = [k for k, v, a, b in zip(free, sol.x, lo, hi) if not a <= v <= b]
-    sol.x = np.clip(sol.x, lo, hi)
-    if clipped:
-        sol.cost = 0.5 * float(np.sum(fun(sol.x) ** 2))
-    out = dict(start)
-    out.update({k: float(v) for k, v in zip(free, sol.x)})
-    if log:
-        log(f"fit: cost {cost0:.4g} -> {sol.cost:.4g} in {sol.nfev} evaluations, {count[1]} Jacobians "
-            f"({time.time() - t0:.1f} s)")
-    return FitResult(out, cost0, float(sol.cost), int(sol.nfev), time.time() - t0, str(sol.message), count[1],
-                     clipped)
+        tried = "; ".join(f"start {i}: {rr['cost0']:.4g} -> {rr['cost']:.4g}" for i, rr in enumerate(runs, 1))
+        log(f"fit: cost {tried}; kept start {runs.index(best) + 1} ({count[1]} Jacobians, {time.time() - t0:.1f} s)")
+    return FitResult(out, best["cost0"], best["cost"], int(count[0]), time.time() - t0, best["message"], count[1],
+                     best["clipped"], best["label"],
+                     [{"start": rr["label"], "cost_initial": round(rr["cost0"], 6), "cost_final": round(rr["cost"], 6),
+                       "jacobians": rr["njev"]} for rr in runs])
 
 
 # --- validation ----------------------------------------------------------------------------------
@@ -600,9 +664,10 @@ def check_finite(source: str, experiments: Sequence[Experiment], coeffs: dict) -
 DEFAULT_SEEDS = 2
 #: held-out random schedules of the default identification (each on VALID_SEEDS); N_VALID the shipped cards'
 DEFAULT_HELDOUT = 24
-#: most residual evaluations of the fit: from the nearest identified card's coefficients it levels off in
-#: 6-8 Jacobians (docs/moments.md, Sec. 6); from the built-in defaults it needs several times more
-DEFAULT_EVALUATIONS = 10
+#: most residual evaluations of the fit per start (Levenberg-Marquardt rejects some trial steps)
+DEFAULT_EVALUATIONS = 40
+#: most Jacobians per start: the fits level off within 6-8 (docs/moments.md, Sec. 6)
+DEFAULT_JACOBIANS = 8
 
 
 def warm_start(card: ModelCard, candidates: Sequence) -> tuple[dict, str]:
@@ -715,7 +780,8 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
              random_schedules: int | None = None, source: str = "", command: str = "",
              log: Callable[[str], None] | None = None, client=None, seeds: int | None = None,
              heldout: int | None = None, start: dict | None = None, start_label: str = "",
-             evaluations: int | None = None, threads: int | None = None) -> Identification:
+             evaluations: int | None = None, threads: int | None = None, jacobians: int | None = None,
+             both_starts: bool = True) -> Identification:
     """Fit the moment model of ``card`` to a design of plant experiments and validate it.
 
     Three phases, each reporting through ``log``: the plant experiments (training, held-out and
@@ -748,11 +814,16 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
         Held-out random schedules (default :data:`DEFAULT_HELDOUT`; quick 4), each on the three
         seeds :data:`VALID_SEEDS` (quick: two).
     start : dict, optional
-        Starting coefficients of the fit (default the built-in defaults; see :func:`warm_start`).
+        Starting coefficients of the fit (:func:`warm_start`); the fit runs from them and, with
+        ``both_starts``, from the built-in defaults, and keeps the lower cost. None: the defaults only.
     start_label : str, optional
         Where ``start`` came from (recorded).
     evaluations : int, optional
-        Most residual evaluations of the fit (default :data:`DEFAULT_EVALUATIONS`).
+        Most residual evaluations of the fit per start (default :data:`DEFAULT_EVALUATIONS`).
+    jacobians : int, optional
+        Most Jacobians per start (default :data:`DEFAULT_JACOBIANS`).
+    both_starts : bool, optional
+        Also fit from the built-in defaults when ``start`` is given (default True).
     threads : int, optional
         Threads of the fit (default: the usable CPUs; same result for any number).
     """
@@ -781,10 +852,12 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
 
     defaults = default_coeffs(card)
     model0 = MomentModel(card, defaults, "defaults")
-    start = dict(defaults, **(start or {}))
-    log(f"fit: {len(FREE)} coefficients from {start_label or 'the built-in defaults'}")
-    res = fit(model0, train, log=log, start=start, max_nfev=evaluations or DEFAULT_EVALUATIONS, ftol=1e-3,
-              threads=threads)
+    starts = [(start_label or "the given coefficients", start)] if start else []
+    if start is None or both_starts:
+        starts.append(("the built-in defaults", {}))
+    log(f"fit: {len(FREE)} coefficients; " + "; ".join(f"start {i}: {lab}" for i, (lab, _) in enumerate(starts, 1)))
+    res = fit(model0, train, log=log, starts=starts, max_nfev=evaluations or DEFAULT_EVALUATIONS, ftol=1e-3,
+              threads=threads, max_jacobians=jacobians or DEFAULT_JACOBIANS)
     model = MomentModel(card, res.coeffs, source)
     check_finite(source, train + valid + off, res.coeffs)
     log(f"validation: {len(valid)} held-out schedules, {len(off)} off-card runs")
@@ -810,9 +883,11 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
         "card": card.card.name, "command": command,
         "date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "experiments": len(train), "train_seeds": train_seeds, "particles": particles,
-        "dt_h": DT_H, "start": start_label or "the built-in defaults", "cost_initial": round(res.cost0, 6),
+        "dt_h": DT_H, "start": res.start,
+        "starts": [f"{t['start']}: cost {t['cost_initial']:.6g} -> {t['cost_final']:.6g} in {t['jacobians']} Jacobians"
+                   for t in res.tried], "cost_initial": round(res.cost0, 6),
         "cost_final": round(res.cost, 6), "evaluations": res.nfev, "jacobians": res.njev,
-        "clipped": list(res.clipped),
+        "at_bound": list(res.clipped),
         "plant_seconds": round(t_plant, 1), "fit_seconds": round(res.seconds, 1),
     }
     sections = {"card": card_table(card), "window": design_window(card, specs), "identification": meta,

@@ -316,7 +316,7 @@ def test_identify_reports_every_phase_and_writes_next_to_the_card(tmp_path, caps
     p.write_text(p.read_text().replace("impactor_mass_kg = 4.14e-3\n", ""))
     assert main(["identify", str(p), "--quick", "--workers", "0"]) == 0
     cap = capsys.readouterr()
-    for phase in ("plant experiments: ", "fit: step 1,", "validation: held-out NRMSE"):
+    for phase in ("plant experiments: ", "step 1, cost", "validation: held-out NRMSE"):
         assert phase in cap.err, phase
     assert "nearest identified card" in cap.err
     assert "held-out NRMSE per output" in cap.out
