@@ -49,7 +49,6 @@ PENDING = {
     "docs/estimation.md",
     "docs/measurement.md",
     "docs/moments.md",
-    "docs/own-mill.md",
     "docs/performance.md",
 }
 
