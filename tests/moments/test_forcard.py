@@ -323,3 +323,25 @@ def test_identify_reports_every_phase_and_writes_next_to_the_card(tmp_path, caps
     st = status(load_card(p), p)
     assert st.state == "match" and set(st.file.heldout_mean) >= {"s_mean_um", "r_std"}
     assert for_card(p).coeff_file.card_name == load_card(p).card.name
+
+
+def test_identify_flag_identifies_on_the_spot_and_writes_next_to_the_card(tmp_path, monkeypatch):
+    """for_card(identify=True) on a card without coefficients identifies it (a stand-in here), shows progress and
+    writes <card>.moments.toml next to it; the model then runs on them."""
+    from types import SimpleNamespace
+
+    from bmctl.moments import forcard
+    from bmctl.moments import identify as ident
+
+    p = _copy(tmp_path, "alpha = 2.1", "alpha = 2.2", coeffs=False)
+    lines = []
+
+    def fake(card, card_path, **kw):
+        kw["log"]("plant experiments: 1/1 runs")
+        return SimpleNamespace(toml=cf.toml_text({"bond_log_scale": 0.1}, {"card": ident.card_table(card)}))
+
+    monkeypatch.setattr(forcard, "identification", fake)
+    model = for_card(p, identify=True, progress=lines.append)
+    assert cf.coeffs_path(p).exists() and model.coeffs["bond_log_scale"] == 0.1
+    assert any("identifying" in ln for ln in lines) and "plant experiments: 1/1 runs" in lines
+    assert status(load_card(p), p).ok
