@@ -59,7 +59,11 @@ REGISTRY: tuple[Study, ...] = (
     Study("estimator_study", "python benchmarks/estimator_study.py --seeds 10", 15),
     Study("design_reach", "python benchmarks/design_reach.py", 5),
     Study("hidden_mills", "python benchmarks/hidden_mills.py", 60),
+    Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
+    Study("calibrated_card", "python benchmarks/calibrated_card_check.py", 3),
+    Study("measure_emps", "python benchmarks/measure_emps.py", 1),
     # timings: re-measured at the end on a quiet machine (each file records the load)
+    Study("bench_identify", "python benchmarks/bench_identify.py", 4, timing=True),
     Study("calibrate_scaling", "python benchmarks/calibrate_accuracy.py scaling --calibration", 3, timing=True),
     Study("bench_estimate", "python benchmarks/bench_estimate.py", 1, timing=True),
     Study("campaign_advise", "python benchmarks/campaign_advise.py", 3, timing=True),

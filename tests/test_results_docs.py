@@ -48,7 +48,6 @@ PENDING = {
     "docs/control.md",
     "docs/measurement.md",
     "docs/moments.md",
-    "docs/own-mill.md",
     "docs/performance.md",
 }
 
