@@ -66,6 +66,8 @@ REGISTRY: tuple[Study, ...] = (
     Study("bench_identify", "python benchmarks/bench_identify.py", 4, timing=True),
     Study("calibrate_scaling", "python benchmarks/calibrate_accuracy.py scaling --calibration", 3, timing=True),
     Study("bench_estimate", "python benchmarks/bench_estimate.py", 1, timing=True),
+    Study("bench_plant", "python benchmarks/bench_plant.py", 1, timing=True),
+    Study("bench_ensemble", "python benchmarks/bench_ensemble.py", 1, timing=True),
     Study("campaign_advise", "python benchmarks/campaign_advise.py", 3, timing=True),
 )
 
