@@ -53,7 +53,10 @@ def main():
     ap.add_argument("--particles", type=int, default=1000)
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--no-results", action="store_true", help="do not write results/bench_ensemble*.json")
     a = ap.parse_args()
+    load0 = os.getloadavg()
+    rows = []
     card = load_card(CARD)
     segs = [(a.hours, 300.0)]
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs; {a.seeds} plants, M = {a.particles}, "
@@ -66,6 +69,16 @@ def main():
         same = all(np.array_equal(res.traj[k], base[1].traj[k]) for k in res.traj)
         print(f"  {w} worker{'s' if w > 1 else ' '}: start {start_s:5.1f} s, ensemble {run_s:6.1f} s, "
               f"speed-up {base[0] / run_s:4.2f}x; same numbers as {a.workers[0]} worker: {same}")
+        rows.append({"workers": w, "start_s": start_s, "ensemble_s": run_s, "speedup": base[0] / run_s, "same": bool(same)})
+    if not a.no_results:
+        from bmctl.results import write_results
+
+        default = (a.particles, a.hours) == (1000, 1.0)
+        stem = "bench_ensemble" if default else f"bench_ensemble_m{a.particles}_h{a.hours:g}".replace(".", "p")
+        write_results(stem, {"runs": rows, "load_average_start": list(load0), "load_average_end": list(os.getloadavg())},
+                      settings={"seeds": a.seeds, "particles": a.particles, "hours": a.hours, "workers": a.workers},
+                      command="python benchmarks/bench_ensemble.py" + ("" if default else
+                                                                      f" --particles {a.particles} --hours {a.hours:g}"))
 
 
 if __name__ == "__main__":

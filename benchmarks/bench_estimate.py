@@ -34,7 +34,9 @@ def main() -> None:
     ap.add_argument("--measured", type=int, default=300)
     ap.add_argument("--repeat", type=int, default=30)
     ap.add_argument("--size-law", default="weibull", choices=["weibull", "lognormal"])
+    ap.add_argument("--no-results", action="store_true", help="do not write results/bench_estimate.json")
     a = ap.parse_args()
+    load0, cpu0 = os.getloadavg(), time.process_time()
     from bmctl.estimate.likelihood import LawSettings
     from bmctl.measure.sampler import micrograph_sample
 
@@ -69,6 +71,18 @@ def main() -> None:
     print(f"update : median {np.median(times):6.1f} ms, best {times.min():6.1f} ms over {a.repeat} samples "
           f"(target <= 20 ms); ESS after update median {np.median(ess):.0f}")
     print(f"predict: 1 h {t_pred[1.0] * 1e3:6.1f} ms, 0.25 h {t_pred[0.25] * 1e3:6.1f} ms (best of 3; moment-model step)")
+    if not a.no_results:
+        from bmctl.results import write_results
+
+        name = "bench_estimate" if a.size_law == "weibull" else f"bench_estimate_{a.size_law}"
+        write_results(name, {"update_ms_median": float(np.median(times)), "update_ms_best": float(times.min()),
+                             "ess_median": float(np.median(ess)), "predict_1h_ms": 1e3 * t_pred[1.0],
+                             "predict_15min_ms": 1e3 * t_pred[0.25], "cpu_s": time.process_time() - cpu0,
+                             "load_average_start": list(load0), "load_average_end": list(os.getloadavg())},
+                      settings={"particles": a.particles, "measured": a.measured, "repeat": a.repeat,
+                                "size_law": a.size_law, "threads": 1},
+                      command="python benchmarks/bench_estimate.py" + ("" if a.size_law == "weibull" else
+                                                                        f" --size-law {a.size_law}"))
 
 
 if __name__ == "__main__":

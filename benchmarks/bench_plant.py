@@ -88,12 +88,16 @@ def main() -> None:
     ap.add_argument("--cards", nargs="+", default=CARDS[:1], choices=CARDS)
     ap.add_argument("--engines", nargs="+", default=list(ENGINES[::-1]), choices=ENGINES)
     ap.add_argument("--compare", metavar="DIR", help="another checkout (e.g. a git worktree of an older commit)")
+    ap.add_argument("--no-results", action="store_true", help="do not write results/bench_plant.json")
     a = ap.parse_args()
+    load0 = os.getloadavg()
+    record: dict = {"runs": []}
     if "numba" in a.engines:  # load or compile the kernel outside the clock
         from bmctl.plant._compiled import compile_now
 
         t0 = time.process_time()
         compile_now()
+        record["kernel_load_cpu_s"] = time.process_time() - t0
         print(f"compiled kernel loaded in {time.process_time() - t0:.2f} CPU s")
     print(f"{'card':30s} {'M':>6s} {'hours':>5s} {'engine':>6s} {'CPU s':>7s} {'events/s':>10s} "
           f"{'x real time':>11s} {'ratio':>6s} {'same':>5s}" + (f" {'vs DIR':>6s}" if a.compare else ""))
@@ -119,6 +123,19 @@ def main() -> None:
                 vs = f" {rates[engine] / other_rate:6.2f}" if a.compare else ""
                 print(f"{name:30s} {M:6d} {a.hours:5.1f} {engine:>6s} {best:7.2f} {rates[engine]:10.3g} "
                       f"{a.hours * 3600 / best:11.3g} {ratio:6.2f} {same:>5s}{vs}", flush=True)
+                record["runs"].append({"card": name, "particles": M, "hours": a.hours, "engine": engine, "cpu_s": best,
+                                       "events_per_s": rates[engine], "times_real_time": a.hours * 3600 / best,
+                                       "ratio_to_first_engine": ratio, "same_as_first": same,
+                                       **({"dir_cpu_s": other_s, "ratio_to_dir": rates[engine] / other_rate}
+                                          if a.compare else {})})
+    if not a.no_results:
+        from bmctl.results import write_results
+
+        record.update(load_average_start=list(load0), load_average_end=list(os.getloadavg()))
+        stem = "bench_plant_compare" if a.compare else "bench_plant"
+        write_results(stem, record, settings={"particles": a.particles, "hours": a.hours, "repeat": a.repeat,
+                                              "cards": a.cards, "engines": a.engines, "compare": bool(a.compare)},
+                      command="python benchmarks/bench_plant.py" + (" --compare DIR" if a.compare else ""))
 
 
 if __name__ == "__main__":

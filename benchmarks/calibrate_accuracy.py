@@ -7,7 +7,7 @@ Calibration starts from the card.
     python benchmarks/calibrate_accuracy.py main --workers 2           # one case: recovery, intervals, wall time
     python benchmarks/calibrate_accuracy.py coverage --n 20 --workers 2  # interval coverage over seeded cases
     python benchmarks/calibrate_accuracy.py four --workers 2           # alpha, beta, gamma, delta: 1 vs 2 rpm runs
-    python benchmarks/calibrate_accuracy.py scaling                    # 64-plant ensemble and one calibration, 1 vs 2 workers
+    python benchmarks/calibrate_accuracy.py scaling --calibration      # 64-plant ensembles and one calibration, 1 vs 2 workers
 
 ``main``, ``coverage`` and ``four`` write ``results/calibrate_accuracy.json``, ``calibrate_coverage.json``
 and ``calibrate_four.json``; ``scaling`` writes ``calibrate_scaling.json`` (with the load average).
@@ -65,7 +65,7 @@ def one(seed: int, client, names=("gamma", "delta"), rpms=(300.0,), settings=Non
         cv = cal.card_values[i]
         t = truth[n]
         row[n] = {"ratio": cal.values[i] / cv, "lo90": cal.lo90[i] / cv, "hi90": cal.hi90[i] / cv,
-                  "rel_err": cal.values[i] / cv / t - 1, "covered": bool(cal.lo90[i] / cv <= t <= cal.hi90[i] / cv),
+                  "rel_err": cal.values[i] / cv / t - 1, "rel_err_pct": 100 * (cal.values[i] / cv / t - 1), "covered": bool(cal.lo90[i] / cv <= t <= cal.hi90[i] / cv),
                   "identified": cal.identified[i], "why": cal.why[i]}
     return row
 
@@ -167,22 +167,29 @@ def _ensemble_task(task, rng):
     return m["s_mean_um"], m["r_mean"]
 
 
+ENSEMBLES = ((1000, 1.0), (2000, 2.0), (5000, 4.0))  # (particles, hours) of the 64-plant ensembles
+
+
 def scaling(args):
-    tasks = [{"particles": args.particles, "hours": args.hours}] * 64
-    res = {}
-    for w in (1, 2):
-        client = client_for(None, w)
-        try:
-            t0 = time.perf_counter()
-            out = ensemble_map(_ensemble_task, tasks, 7, client)
-            res[w] = (time.perf_counter() - t0, out)
-        finally:
-            close_client(client)
-    print(f"ensemble of 64 plants ({args.particles} particles, {args.hours} h at 300 rpm): 1 worker "
-          f"{res[1][0]:.1f} s, 2 workers {res[2][0]:.1f} s, ratio {res[1][0] / res[2][0]:.2f}; "
-          f"identical results: {res[1][1] == res[2][1]}")
-    values = {"ensemble": {"particles": args.particles, "hours": args.hours, "wall_s_1": res[1][0], "wall_s_2": res[2][0],
-                           "ratio": res[1][0] / res[2][0], "identical": res[1][1] == res[2][1]}}
+    """64-plant ensembles (three sizes) and, with --calibration, one calibration, on 1 and 2 workers."""
+    values = {"ensembles": []}
+    for particles, hours in ENSEMBLES:
+        tasks = [{"particles": particles, "hours": hours}] * 64
+        res = {}
+        for w in (1, 2):
+            client = client_for(None, w)
+            try:
+                t0, c0 = time.perf_counter(), time.process_time()
+                out = ensemble_map(_ensemble_task, tasks, 7, client)
+                res[w] = (time.perf_counter() - t0, out, time.process_time() - c0)
+            finally:
+                close_client(client)
+        print(f"ensemble of 64 plants ({particles} particles, {hours:g} h at 300 rpm): 1 worker {res[1][0]:.1f} s, "
+              f"2 workers {res[2][0]:.1f} s, ratio {res[1][0] / res[2][0]:.2f}; identical results: {res[1][1] == res[2][1]}",
+              flush=True)
+        values["ensembles"].append({"particles": particles, "hours": hours, "wall_s_1": res[1][0], "wall_s_2": res[2][0],
+                                    "cpu_s_main_1": res[1][2], "ratio": res[1][0] / res[2][0],
+                                    "identical": res[1][1] == res[2][1]})
     if args.calibration:
         cal = {}
         for w in (1, 2):
@@ -191,13 +198,12 @@ def scaling(args):
                 cal[w] = one(args.seed, client)
             finally:
                 close_client(client)
+        same = cal[1]["gamma"]["ratio"] == cal[2]["gamma"]["ratio"] and cal[1]["delta"]["ratio"] == cal[2]["delta"]["ratio"]
         print(f"one calibration: 1 worker {cal[1]['wall_s']:.0f} s, 2 workers {cal[2]['wall_s']:.0f} s, "
-              f"ratio {cal[1]['wall_s'] / cal[2]['wall_s']:.2f}; same estimates: "
-              f"{cal[1]['gamma']['ratio'] == cal[2]['gamma']['ratio'] and cal[1]['delta']['ratio'] == cal[2]['delta']['ratio']}")
+              f"ratio {cal[1]['wall_s'] / cal[2]['wall_s']:.2f}; same estimates: {same}")
         values["calibration"] = {"wall_s_1": cal[1]["wall_s"], "wall_s_2": cal[2]["wall_s"],
                                  "ratio": cal[1]["wall_s"] / cal[2]["wall_s"], "plant_runs": cal[1]["plant_runs"],
-                                 "identical": cal[1]["gamma"]["ratio"] == cal[2]["gamma"]["ratio"]
-                                 and cal[1]["delta"]["ratio"] == cal[2]["delta"]["ratio"]}
+                                 "identical": same}
     _write("calibrate_scaling", values, args, "python benchmarks/calibrate_accuracy.py scaling --calibration"
            if args.calibration else "python benchmarks/calibrate_accuracy.py scaling")
 
@@ -210,10 +216,7 @@ if __name__ == "__main__":
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--first", type=int, default=1)
     ap.add_argument("--n", type=int, default=20)
-    ap.add_argument("--iters", type=int, default=4)
     ap.add_argument("--out", default=None)
-    ap.add_argument("--particles", type=int, default=2000)
-    ap.add_argument("--hours", type=float, default=2.0)
     ap.add_argument("--calibration", action="store_true")
     ap.add_argument("--no-results", action="store_true", help="print only")
     a = ap.parse_args()

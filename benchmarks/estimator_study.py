@@ -126,7 +126,11 @@ def metrics(runs: list[dict], label: str) -> dict:
             "update_ms": float(np.median(np.concatenate(ms)))}
 
 
-def summary_table(res: dict, ns) -> str:
+def summary_table(res: dict, ns, values: dict | None = None) -> str:
+    """The open-loop table; every cell carries its results marker (``results/estimator_study.json``),
+    and ``values`` (when given) receives the numbers under the same keys."""
+    from bmctl.results import marked
+
     lines = ["| scenario | estimator | n | final error % (s_mean, s_std, r_mean, r_std) | mean error % (same) "
              "| gamma, delta final % | gamma, delta mean % | 90 % coverage % (4 moments) | gamma, delta final covered % "
              "| update ms (median) |",
@@ -136,9 +140,17 @@ def summary_table(res: dict, ns) -> str:
         for n in ns:
             for kind in KINDS:
                 m = metrics(runs, f"{kind}-n{n}")
-                f = lambda v: ", ".join(f"{x:.1f}" for x in v)  # noqa: E731
-                lines.append(f"| {name} | {kind} | {n} | {f(m['final'])} | {f(m['mean'])} | {f(m['p_final'])} | "
-                             f"{f(m['p_mean'])} | {f(m['coverage'])} | {f(m['p_coverage'])} | {m['update_ms']:.1f} |")
+                key = f"open_loop.{name}.{kind}.n{n}"
+                rec = {k: (np.asarray(v).tolist() if not isinstance(v, float) else v) for k, v in m.items()}
+                if values is not None:
+                    values.setdefault("open_loop", {}).setdefault(name, {}).setdefault(kind, {})[f"n{n}"] = rec
+
+                def f(k):
+                    return ", ".join(marked("estimator_study", f"{key}.{k}.{i}", x, "{:.1f}") for i, x in enumerate(rec[k]))
+
+                lines.append(f"| {name} | {kind} | {n} | {f('final')} | {f('mean')} | {f('p_final')} | "
+                             f"{f('p_mean')} | {f('coverage')} | {f('p_coverage')} | "
+                             f"{marked('estimator_study', key + '.update_ms', m['update_ms'], '{:.1f}')} |")
     return "\n".join(lines)
 
 
@@ -198,6 +210,7 @@ def main(argv=None) -> int:
                     help="estimators of the closed loop, comma separated (pf,ukf); the PF trials equal the control "
                          "study's mpc-default runs of the same scenario and seed")
     ap.add_argument("--no-open-loop", action="store_true")
+    ap.add_argument("--no-results", action="store_true", help="do not write results/estimator_study.json")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -218,6 +231,18 @@ def main(argv=None) -> int:
                     f"{time.perf_counter() - t0:.0f} s)\n", summary_table(res, ns) + "\n"]
             io.write_text(out / "summary.md", "\n".join(text + part))
         text += part
+        values: dict = {}
+        summary_table(res, ns, values)
+        if not args.no_results:
+            import os
+
+            from bmctl.results import write_results
+
+            write_results("estimator_study", dict(values, wall_s=time.perf_counter() - t0,
+                                                  load_average=list(os.getloadavg())),
+                          settings={"seeds": args.seeds, "n": list(ns), "hours": args.hours,
+                                    "scenarios": [Path(x).stem for x in args.scenarios]},
+                          command=f"python benchmarks/estimator_study.py --seeds {args.seeds}")
         flat = {}
         for scn, runs in res.items():
             for k, r in enumerate(runs):

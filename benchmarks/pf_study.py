@@ -47,11 +47,37 @@ def _sha(path: str) -> str:
         return "(built-in defaults)"
 
 
+class Cells:
+    """Values of one results file, recorded as the Markdown tables are printed: each cell is
+    printed with its marker (``bmctl.results.marked``), so a table pasted into a doc is checked."""
+
+    def __init__(self, name: str):
+        self.name, self.values = name, {}
+
+    def __call__(self, key: str, value, fmt: str = "{:.2f}") -> str:
+        from bmctl.results import marked
+
+        node = self.values
+        parts = key.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = float(value)
+        return marked(self.name, key, float(value), fmt)
+
+
+def sk(sc) -> str:
+    """Scenario key without dots: (1.3, 0.7) -> 'g1p3_d0p7'."""
+    return f"g{sc[0]:g}_d{sc[1]:g}".replace(".", "p")
+
+
 def cfg_rpm(cfg: S.StudyConfig) -> float:
     return float(load_card(cfg.card).process.rpm)
 
 
-def summarise(cfg: S.StudyConfig, res: dict, model) -> str:
+MOM = ("s_mean", "s_std", "r_mean", "r_std")
+
+
+def summarise(cfg: S.StudyConfig, res: dict, model, c: Cells) -> str:
     lines = []
     card = load_card(cfg.card)
     segs = card_schedule(card, cfg.hours)
@@ -69,17 +95,21 @@ def summarise(cfg: S.StudyConfig, res: dict, model) -> str:
         for p in ((1.0, 1.0), sc):
             pred = model.step(prev, np.array([cfg_rpm(cfg), 1.0]), cfg.every_h, np.array(p))
             rms = np.sqrt(np.mean(np.log(pred[:, :4] / tm[:, :4]) ** 2, axis=0))
-            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | ({p[0]:g}, {p[1]:g}) | " + " | ".join(f"{v:.3f}" for v in rms) + " |")
+            told = "told" if p == sc else "card"
+            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | ({p[0]:g}, {p[1]:g}) | " + " | ".join(
+                c(f"one_step.{sk(sc)}.{told}.{n}", v, "{:.3f}") for n, v in zip(MOM, rms)) + " |")
     lines.append("")
     lines.append("## Coverage of the true moments by the 90 % intervals (share of run x time pairs)\n")
     lines.append("| scenario (gamma, delta) | variant | s_mean | s_std | r_mean | r_std | min ESS | median ESS |")
     lines.append("|---|---|---|---|---|---|---|---|")
     for sc, runs in res.items():
         for v in cfg.variants:
-            c = S.coverage(runs, v.label)
+            cov = S.coverage(runs, v.label)
             ess = np.concatenate([r[v.label]["ess"] for r in runs])
-            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | " + " | ".join(f"{x:.2f}" for x in c)
-                         + f" | {ess.min():.0f} | {np.median(ess):.0f} |")
+            k = f"coverage.{sk(sc)}.{v.label}"
+            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | " + " | ".join(
+                c(f"{k}.{n}", x, "{:.2f}") for n, x in zip(MOM, cov))
+                + f" | {c(k + '.ess_min', ess.min(), '{:.0f}')} | {c(k + '.ess_median', np.median(ess), '{:.0f}')} |")
     lines.append("\n## Error of the filter mean vs measured particles per sample (median |ln(est/true)|, %)\n")
     lines.append("| scenario | variant | s_mean | s_std | r_mean | r_std | mean 90 % width s_mean (%) | width r_mean (%) |")
     lines.append("|---|---|---|---|---|---|---|---|")
@@ -87,15 +117,18 @@ def summarise(cfg: S.StudyConfig, res: dict, model) -> str:
         for v in cfg.variants:
             e = S.log_errors(runs, v.label)
             w = np.concatenate([np.log(r[v.label]["q95"][:, [0, 2]] / r[v.label]["q05"][:, [0, 2]]) for r in runs])
-            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | " + " | ".join(f"{100 * x:.1f}" for x in np.median(e, axis=0))
-                         + f" | {100 * np.mean(w[:, 0]):.1f} | {100 * np.mean(w[:, 1]):.1f} |")
+            k = f"error.{sk(sc)}.{v.label}"
+            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | " + " | ".join(
+                c(f"{k}.{n}_pct", 100 * x, "{:.1f}") for n, x in zip(MOM, np.median(e, axis=0)))
+                + f" | {c(k + '.width_s_mean_pct', 100 * np.mean(w[:, 0]), '{:.1f}')} | "
+                f"{c(k + '.width_r_mean_pct', 100 * np.mean(w[:, 1]), '{:.1f}')} |")
     lines.append("\n## Parameters (gamma_mult / delta_mult): truth and estimates (mean over seeds of the filter mean "
                  "[mean 90 % limits])\n")
     times = res[next(iter(res))][0]["t_h"]
     show = [k for k, t in enumerate(times) if t in (1, 3, 6, 12) or k == len(times) - 1]
     show = sorted(set(show))
     hdr = "| scenario | variant | truth (gamma, delta) | model-optimal | " + " | ".join(
-        f"t = {times[k]:g} h" for k in show) + " | |ln(est/truth)|, gamma / delta: start -> end |"
+        f"t = {times[k]:g} h" for k in show) + " | \\|ln(est/truth)\\|, gamma / delta: start -> end |"
     lines.append(hdr)
     lines.append("|" + "---|" * (5 + len(show)))
     for sc, runs in res.items():
@@ -105,12 +138,18 @@ def summarise(cfg: S.StudyConfig, res: dict, model) -> str:
             if v.n != max(x.n for x in cfg.variants):
                 continue
             tr = S.param_trajectory(runs, v.label)
-            cells = [f"{tr['mean'][k, 0]:.2f} [{tr['q05'][k, 0]:.2f}, {tr['q95'][k, 0]:.2f}] / "
-                     f"{tr['mean'][k, 1]:.2f} [{tr['q05'][k, 1]:.2f}, {tr['q95'][k, 1]:.2f}]" for k in show]
+            kp = f"parameters.{sk(sc)}.{v.label}"
+            cells = []
+            for k in show:
+                tk = f"{kp}.t{times[k]:g}h".replace(".", "p") if times[k] != int(times[k]) else f"{kp}.t{int(times[k])}h"
+                cells.append(" / ".join(f"{c(f'{tk}.{nm}.mean', tr['mean'][k, i])} [{c(f'{tk}.{nm}.q05', tr['q05'][k, i])}, "
+                                        f"{c(f'{tk}.{nm}.q95', tr['q95'][k, i])}]" for i, nm in enumerate(("gamma", "delta"))))
             d0 = np.abs(np.log(sc))  # the filter starts at the card, p = (1, 1)
             d1 = np.abs(np.log(tr["mean"][-1, :2] / np.asarray(sc)))
-            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | ({sc[0]:g}, {sc[1]:g}) | ({pt[0]:.2f}, {pt[1]:.2f}) | "
-                         + " | ".join(cells) + f" | {d0[0]:.2f} -> {d1[0]:.2f} / {d0[1]:.2f} -> {d1[1]:.2f} |")
+            lines.append(f"| x{sc[0]:g}, x{sc[1]:g} | {v.label} | ({sc[0]:g}, {sc[1]:g}) | "
+                         f"({c(kp + '.pseudo_true.gamma', pt[0])}, {c(kp + '.pseudo_true.delta', pt[1])}) | "
+                         + " | ".join(cells) + f" | {c(kp + '.ln_error_start.gamma', d0[0])} -> {c(kp + '.ln_error_end.gamma', d1[0])}"
+                         f" / {c(kp + '.ln_error_start.delta', d0[1])} -> {c(kp + '.ln_error_end.delta', d1[1])} |")
     return "\n".join(lines) + "\n"
 
 
@@ -183,22 +222,30 @@ def laws_table(a) -> int:
                  f"{law}: s_mean, s_std, r_mean, r_std" for law in SIZE_LAWS) + " |",
              "|---|---|---|" + "---|" * len(SIZE_LAWS)]
     worst = {law: np.zeros(4) for law in SIZE_LAWS}
+    c = Cells("pf_study_laws")
     for r in rows:
         cells = []
+        k = f"{sk(r['scenario'])}.t{int(r['t_h'])}h"
         for law in SIZE_LAWS:
             rel = r[law] / r["truth"] - 1
             worst[law] = np.maximum(worst[law], np.abs(rel))
-            cells.append(", ".join(f"{100 * v:+.1f}" for v in rel))
+            cells.append(", ".join(c(f"{k}.{law}.{n}_pct", 100 * v, "{:+.1f}") for n, v in zip(MOM, rel)))
         tr = r["truth"]
-        lines.append(f"| x{r['scenario'][0]:g}, x{r['scenario'][1]:g} | {r['t_h']:g} | {tr[0]:.1f}, {tr[1]:.1f}, "
-                     f"{tr[2]:.3f}, {tr[3]:.3f} | " + " | ".join(cells) + " |")
+        lines.append(f"| x{r['scenario'][0]:g}, x{r['scenario'][1]:g} | {r['t_h']:g} | {c(k + '.truth.s_mean', tr[0], '{:.1f}')}, "
+                     f"{c(k + '.truth.s_std', tr[1], '{:.1f}')}, {c(k + '.truth.r_mean', tr[2], '{:.3f}')}, "
+                     f"{c(k + '.truth.r_std', tr[3], '{:.3f}')} | " + " | ".join(cells) + " |")
     lines.append("")
     for law in SIZE_LAWS:
-        lines.append(f"- {law}: largest |error| " + ", ".join(f"{100 * v:.1f} %" for v in worst[law])
+        lines.append(f"- {law}: largest |error| " + ", ".join(f"{c(f'worst.{law}.{n}_pct', 100 * v, '{:.1f}')} %"
+                                                              for n, v in zip(MOM, worst[law]))
                      + f"; floor used (LAW_MISFIT): {LAW_MISFIT[law]}")
     text = "\n".join(lines) + "\n"
     out = Path(a.out)
     write_text(out / "laws.md", text)
+    if not a.no_results:
+        from bmctl.results import write_results
+
+        write_results("pf_study_laws", c.values, settings={"card": a.card}, command="python benchmarks/pf_study.py --laws")
     print(text)
     return 0
 
@@ -217,6 +264,7 @@ def main(argv=None) -> int:
                     help="only the law-misfit table: each size law's pseudo-true moments on 20,000-particle samples")
     ap.add_argument("--size-law", choices=("weibull", "lognormal"), default=None,
                     help="run n = 50, 100, 300 with this size law only (default: the standard variant set)")
+    ap.add_argument("--no-results", action="store_true", help="do not write results/<name>.json")
     a = ap.parse_args(argv)
     if a.laws:
         return laws_table(a)
@@ -237,7 +285,19 @@ def main(argv=None) -> int:
     res = S.run_study(cfg, progress)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    text = summarise(cfg, res, model) + f"\nwall time {time.time() - t0:.0f} s\n"
+    name = "pf_study_ablation" if a.ablation else (f"pf_study_{a.size_law}" if a.size_law else "pf_study")
+    cells = Cells(name)
+    text = summarise(cfg, res, model, cells) + f"\nwall time {time.time() - t0:.0f} s\n"
+    if not a.no_results:
+        from bmctl.results import write_results
+
+        cmd = "python benchmarks/pf_study.py" + (" --ablation --seeds 10" if a.ablation else "") + (
+            f" --size-law {a.size_law}" if a.size_law else "")
+        write_results(name, dict(cells.values, wall_s=time.time() - t0, load_average=list(os.getloadavg())),
+                      settings={"seeds": a.seeds, "hours": a.hours, "plant_particles": a.plant_particles,
+                                "filter_particles": a.filter_particles, "card": a.card,
+                                "variants": [v.label for v in cfg.variants],
+                                "scenarios": [list(x) for x in cfg.scenarios]}, command=cmd)
     from bmctl.io import savez, write_text
 
     write_text(out / "summary.md", text)

@@ -48,14 +48,26 @@ REGISTRY: tuple[Study, ...] = (
           "python benchmarks/fidelity_table.py --particles 20000 --seed 2024 --no-equiaxing", 2),
     Study("dvalues_accuracy", "python benchmarks/dvalues_accuracy.py --schedules 4 --particles 3000 --seeds 2", 4),
     Study("verify", "python benchmarks/verify_results.py", 10),
+    Study("calibration_check", "python benchmarks/calibration_check.py", 10),
     Study("calibrate_accuracy", "python benchmarks/calibrate_accuracy.py main --workers 2 --seed 1", 2),
     Study("calibrate_coverage", "python benchmarks/calibrate_accuracy.py coverage --first 1 --n 20 --workers 2", 10),
     Study("calibrate_four", "python benchmarks/calibrate_accuracy.py four --workers 2 --seed 1", 10),
     Study("calibrate_bias", "python benchmarks/calibrate_bias.py --workers 2", 30),
+    Study("pf_study", "python benchmarks/pf_study.py", 10),
+    Study("pf_study_laws", "python benchmarks/pf_study.py --laws", 2),
+    Study("pf_study_ablation", "python benchmarks/pf_study.py --ablation --seeds 10", 8),
+    Study("estimator_study", "python benchmarks/estimator_study.py --seeds 10", 15),
     Study("design_reach", "python benchmarks/design_reach.py", 5),
     Study("hidden_mills", "python benchmarks/hidden_mills.py", 60),
+    Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
+    Study("calibrated_card", "python benchmarks/calibrated_card_check.py", 3),
+    Study("measure_emps", "python benchmarks/measure_emps.py", 1),
     # timings: re-measured at the end on a quiet machine (each file records the load)
+    Study("bench_identify", "python benchmarks/bench_identify.py", 4, timing=True),
     Study("calibrate_scaling", "python benchmarks/calibrate_accuracy.py scaling --calibration", 3, timing=True),
+    Study("bench_estimate", "python benchmarks/bench_estimate.py", 1, timing=True),
+    Study("bench_plant", "python benchmarks/bench_plant.py", 1, timing=True),
+    Study("bench_ensemble", "python benchmarks/bench_ensemble.py", 1, timing=True),
     Study("campaign_advise", "python benchmarks/campaign_advise.py", 3, timing=True),
 )
 
@@ -100,6 +112,8 @@ def format_like(value, shown: str) -> str:
     text = f"{value / scale:,.{dec}f}" if "," in whole else f"{value / scale:.{dec}f}"
     if text.startswith("-"):
         text = minus + text[1:]
+    elif sign == "+":
+        text = "+" + text
     return text + suffix
 
 

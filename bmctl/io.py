@@ -103,8 +103,12 @@ MAX_DEPTH = 64
 #: the most bytes the arrays of one ``.npz`` may declare (a trial checkpoint of 1e6 plant particles: ~50 MB)
 NPZ_MAX_BYTES = 1 << 30
 
-_JSON_STRINGS = re.compile(r'"(?:[^"\\]|\\.)*"', re.S)
-_TOML_STRINGS = re.compile(r'"""(?:\\.|[^\\])*?"""|\'\'\'.*?\'\'\'|"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'|#[^\n]*', re.S)
+# Strings and comments to leave out before counting brackets. Every alternative matches from its
+# opening character to the end of the text when unclosed (never fails and retries further on), so
+# the scan is linear in the text whatever it holds.
+_JSON_STRINGS = re.compile(r'"(?:[^"\\]|\\.)*(?:"|\\?\Z)', re.S)
+_TOML_STRINGS = re.compile(r'"""(?:\\.|[^\\])*?(?:"""|\\?\Z)|\'\'\'.*?(?:\'\'\'|\Z)'
+                           r'|"(?:[^"\\\n]|\\.)*(?:"|\\?(?=\n|\Z))|\'[^\'\n]*(?:\'|(?=\n|\Z))|#[^\n]*', re.S)
 _BRACKETS = re.compile(r"[^\[\]{}]+")
 
 

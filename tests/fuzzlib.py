@@ -1158,7 +1158,13 @@ def _nesting_case(rng: random.Random) -> Case:
     deep_t = deep_toml_value(depth) if rng.random() < 0.6 else "{a = " * depth + "1" + "}" * depth
     deep_j = deep_json(depth) if rng.random() < 0.6 else '{"a": ' * depth + "1" + "}" * depth
     label = f"{target} nested {depth} deep"
-    names = ["nested", "not a bmctl", "damaged"]
+    if rng.random() < 0.25:  # quotes and escapes that a backtracking scanner takes quadratic time over
+        deep_t = rng.choice(['"' + '\\"' * 200_000, '"""' + "a" * 300_000 + "\\", ('"' + '\\"' * 5 + "\n") * 50_000,
+                             "'''" + "[" * 300_000])
+        deep_j = rng.choice(['"' + '\\"' * 200_000, '["' + '\\"' * 200_000, '"' * 500_000])
+        label = f"{target}: {len(deep_t)} characters of unclosed quotes and escapes"
+    names = ["nested", "not a bmctl", "damaged", "malformed", "not JSON", "Expected", "Invalid", "unterminated",
+             "Unterminated", "Illegal"]
     files: dict[str, bytes] = {}
     env = {"BMCTL_BUDGET_CPU_H": "0.01"}
     if target == "card":

@@ -420,3 +420,15 @@ def test_calibrate_writes_only_inside_out_whatever_the_history_name(tmp_path, ca
     new = {p for p in tmp_path.rglob("*")} - before
     assert new and all(p == out or out in p.parents or p in out.parents for p in new), sorted(new)
     assert (out / "histograms-X.png").is_file()
+
+
+@pytest.mark.parametrize("text", ['"' + '\\"' * 200_000, '"""' + "a" * 300_000 + "\\", ("'" + "x" * 5 + "\n") * 50_000,
+                                  '["' + '\\"' * 200_000])
+def test_unclosed_quotes_and_escapes_are_scanned_once(tmp_path, capsys, text):
+    # every string alternative of the depth scan reaches its end when unclosed: no retry at each quote
+    from bmctl.io import nesting_depth
+
+    assert nesting_depth(text, toml=True) <= 1 and nesting_depth(text) <= 1
+    (tmp_path / "card.toml").write_text(f"zz = {text}\n" + LAB.read_text())
+    assert main(["card", "show", str(tmp_path / "card.toml")]) == 2
+    assert "card.toml" in _err(capsys)

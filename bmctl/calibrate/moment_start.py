@@ -28,7 +28,7 @@ def moment_start(card_path: str | Path, histories: Sequence[History], names: Seq
     Parameters
     ----------
     card_path : path-like
-        The card (its ``.moments.toml`` coefficients are used when present).
+        The card (its ``.moments.toml`` coefficients are used when they belong to it, else the built-in defaults).
     histories : sequence of History
     names : sequence of str
         The fitted parameters; entries other than gamma and delta start at 0.
@@ -40,12 +40,16 @@ def moment_start(card_path: str | Path, histories: Sequence[History], names: Seq
     (u0, info)
         ``u0``: array of len(names); ``info``: gamma_mult, delta_mult and the log-likelihood.
     """
+    from ..config import load_card
+    from ..moments.forcard import status
     from ..moments.model import make_moment_model
 
     u0 = np.zeros(len(names))
     if "gamma" not in names and "delta" not in names:
         return u0, {}
-    model = make_moment_model(card_path)
+    card = load_card(card_path)
+    own = status(card, card_path).ok  # never the coefficients of another card: then the built-in defaults
+    model = make_moment_model(card_path) if own else make_moment_model(card)
     g = np.linspace(-SPAN, SPAN, n_grid)
     G, D = np.meshgrid(g if "gamma" in names else [0.0], g if "delta" in names else [0.0], indexing="ij")
     P = np.exp(np.stack([G.ravel(), D.ravel()], axis=1))
@@ -67,4 +71,5 @@ def moment_start(card_path: str | Path, histories: Sequence[History], names: Seq
         u0[names.index("gamma")] = np.log(gm)
     if "delta" in names:
         u0[names.index("delta")] = np.log(dm)
-    return u0, {"gamma_mult": float(gm), "delta_mult": float(dm), "loglik": float(ll[best])}
+    return u0, {"gamma_mult": float(gm), "delta_mult": float(dm), "loglik": float(ll[best]),
+                "coefficients": str(model.coeffs_source)}

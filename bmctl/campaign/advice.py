@@ -24,9 +24,13 @@ def _band_indices(w: np.ndarray, n: int) -> np.ndarray:
     return np.minimum(np.searchsorted(c, (np.arange(n) + 0.5) / n), w.size - 1)
 
 
-def _measure(inputs, um_per_px):
-    """Pooled particle table and per-input reports of images and tables (as ``bmctl measure``)."""
-    from ..measure.micrograph import measure_micrograph
+def _measure(inputs, um_per_px, accept_unusable: bool = False):
+    """Pooled particle table and per-input reports of images and tables (as ``bmctl measure``).
+
+    An image (or a table's image, by its ``measure.json``) with the verdict ``unusable`` is
+    refused unless ``accept_unusable``; doubtful ones are listed in the reports' ``verdict_warnings``.
+    """
+    from ..measure.micrograph import check_verdicts, measure_micrograph, table_reports
     from ..measure.scale import check_scale
     from ..measure.tables import ParticleTable, read_table
 
@@ -40,11 +44,14 @@ def _measure(inputs, um_per_px):
         elif Path(item).suffix.lower() == ".csv":
             t, name = read_table(item), str(item)
             x = y = np.full(len(t), np.nan)
-            reports.append({"table": name, "count": len(t)})
+            side = table_reports(item)
+            reports.append({"table": name, "count": len(t),
+                            "verdict_warnings": check_verdicts(side, accept_unusable, "--accept-unusable")})
         else:
             res = measure_micrograph(item, um_per_px=scale)
             t, name, x, y = res.table, str(item), res.x_um, res.y_um
             rep = res.report()
+            rep["verdict_warnings"] = check_verdicts([rep], accept_unusable, "--accept-unusable")
             reports.append(rep)
         tables.append(t)
         images += [name] * len(t)

@@ -498,21 +498,23 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
             "estimate": est}
 
 
-def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign: Campaign | None = None) -> dict:
+def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign: Campaign | None = None,
+           accept_unusable: bool = False) -> dict:
     """Measure a sample taken at batch time ``at_h`` (images and/or particle tables, as
     ``bmctl measure``), store its particles and update the estimator (now if ``at_h`` is
-    logged, else when the log reaches it).
+    logged, else when the log reaches it). An image whose measurement verdict is ``unusable``
+    is refused unless ``accept_unusable``; doubtful images are listed in ``warnings``.
 
     Returns
     -------
     dict
         ``sample_id, n, s_median_um, r_median, applied`` (False: waits for the log), ``replayed``
-        (estimator nodes recomputed) and ``estimate``.
+        (estimator nodes recomputed), ``estimate`` and ``warnings`` (doubtful images).
     """
     at_h = _finite(at_h, "--at-h", 0)
     if not inputs:
         raise InputError("sample: give at least one image or particle table")
-    table, images, x, y, reports = _measure(list(inputs), um_per_px)  # before the lock: may take seconds
+    table, images, x, y, reports = _measure(list(inputs), um_per_px, accept_unusable)  # before the lock: may take seconds
     c = campaign or Campaign(folder)
     try:
         if at_h > c.meta["hours"] + 1e-6:
@@ -537,7 +539,8 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
         if campaign is None:
             c.close()
     return {"sample_id": sid, "t_h": at_h, "n": len(table), "s_median_um": summ["s_median_um"],
-            "r_median": summ["r_median"], "applied": applied, "replayed": n, "estimate": est, "clock_h": clock}
+            "r_median": summ["r_median"], "applied": applied, "replayed": n, "estimate": est, "clock_h": clock,
+            "warnings": [w for rep in reports for w in rep.get("verdict_warnings", [])]}
 
 
 def _insert_particles(con, rows) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from ._args import float_arg, hours_arg, int_arg, rpm_arg
 from ._model import add_identify_flag, progress_printer, warn_window
@@ -46,6 +47,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="IMAGE_OR_TABLE", help="micrographs and/or particle tables (.csv)")
     p.add_argument("--um-per-px", type=float_arg("--um-per-px", 0, strict=True), default=None, metavar="X",
                    help="pixel size (overrides the image metadata)")
+    p.add_argument("--accept-unusable", action="store_true",
+                   help="use images whose measurement verdict is unusable (default: refused)")
     p = sub.add_parser("advise", help="estimate, recommended next action, plan to the batch end, and why")
     p.add_argument("dir", metavar="DIR")
     p.add_argument("--json", action="store_true", help="print the advice as JSON")
@@ -160,7 +163,9 @@ def _run(args: argparse.Namespace) -> int:
         print(f"estimate at {est['t_h']:g} h: s_mean_um {_band(est, 's_mean_um')}; temperature_c "
               f"{_band(est, 'temperature_c', '{:.1f}')}")
     elif v == "sample":
-        r = cp.sample(d, args.at_h, args.inputs, args.um_per_px)
+        r = cp.sample(d, args.at_h, args.inputs, args.um_per_px, accept_unusable=args.accept_unusable)
+        for w in r.get("warnings", []):
+            print(f"bmctl: warning: {w}", file=sys.stderr)
         print(f"sample {r['sample_id']} at {r['t_h']:g} h: {r['n']} particles, median s = {r['s_median_um']:.4g} µm, "
               f"median r = {r['r_median']:.3f}")
         if r["applied"]:

@@ -35,6 +35,8 @@ def configure(p):
                    help="vial-temperature readings (°C) per sample, comma separated; leave an entry empty for none")
     p.add_argument("--um-per-px", type=float_arg("--um-per-px", lo=0.0, strict=True), default=None, metavar="X",
                    help="pixel size: measure micrographs instead of reading tables")
+    p.add_argument("--accept-unusable", action="store_true",
+                   help="use micrographs whose measurement verdict is unusable (default: refused)")
     p.add_argument("--out", default="out/estimate/estimate.csv", metavar="FILE.csv", help="estimate table (default out/estimate/estimate.csv)")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
     p.add_argument("--estimator", choices=("pf", "ukf"), default="pf",
@@ -82,20 +84,23 @@ def _sample_files(paths: list[str], images: bool) -> list[Path]:
     return files
 
 
-def _read_sample(path: Path, um_per_px: float | None):
+def _read_sample(path: Path, um_per_px: float | None, accept_unusable: bool = False):
+    """The sample's particle table and warning lines on doubtful images (unusable ones refused)."""
+    from ..measure.micrograph import check_verdicts, table_reports
     from ..measure.tables import read_table
 
     if path.suffix.lower() == ".csv" or um_per_px is None:
         if path.suffix.lower() != ".csv":
             raise InputError(f"{path}: not a particle table (.csv); give --um-per-px to measure micrographs")
-        return read_table(path)
-    from ..measure.segment import measure_image
+        t = read_table(path)
+        return t, check_verdicts(table_reports(path), accept_unusable)
+    from ..measure.micrograph import measure_micrograph
     from ..measure.tables import check_table
 
-    t = measure_image(str(path), um_per_px)
-    if len(t) == 0:
+    res = measure_micrograph(str(path), um_per_px=um_per_px)
+    if len(res.table) == 0:
         raise InputError(f"{path}: no particles found in the micrograph (check --um-per-px)")
-    return check_table(t, str(path))
+    return check_table(res.table, str(path)), check_verdicts([res.report()], accept_unusable)
 
 
 def run(args) -> int:
@@ -163,11 +168,14 @@ def run(args) -> int:
     else:
         settings = FilterSettings(n_particles=args.particles, law=LawSettings(**law_kw))
 
-    samples = []
+    samples, warned = [], []
     for f, t, temp in zip(files, times, temps):  # every input is read before the model is built
-        tab = _read_sample(f, args.um_per_px)
+        tab, doubts = _read_sample(f, args.um_per_px, args.accept_unusable)
+        warned += doubts
         samples.append(check_sample(Sample(t, tab.s_um, tab.r, temp, str(f))))
 
+    for w in warned:
+        print(f"bmctl: warning: {w}", file=sys.stderr)
     model = model_for(args.model, args.identify)
     warn_window(model, [rpm for _, rpm in segments])
     pf, estimates = run_filter(model, samples, segments, settings, seed=args.seed)
@@ -198,5 +206,7 @@ def run(args) -> int:
     if args.write_card is not None:
         from ..calibrate.writeback import write_estimate_card
 
-        print(f"  wrote {write_estimate_card(args.write_card, card, d, f'{len(samples)} samples to {t_end:g} h')}")
+        written = write_estimate_card(args.write_card, card, d, f'{len(samples)} samples to {t_end:g} h')
+        print(f"  wrote {written} (no moment coefficients of its own yet: `bmctl identify {written}`, about a "
+              "minute, or --identify on the command that uses it)")
     return 0

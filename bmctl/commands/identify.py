@@ -29,7 +29,21 @@ def configure(p):
     p.add_argument("--random-schedules", type=int_arg("--random-schedules", 0, 200), default=None, metavar="N",
                    help="random schedules in the training design (default 16; --quick 2); 32 fits the shape "
                         "entries a little better at 1.5x the time (docs/moments.md, Sec. 6)")
-    p.add_argument("--quick", action="store_true", help="fewer experiments, one training seed (about 4x faster)")
+    p.add_argument("--seeds", type=int_arg("--seeds", 1, 64), default=None, metavar="N",
+                   help="training plant seeds (default 2; --quick 1; the shipped cards: 4)")
+    p.add_argument("--heldout", type=int_arg("--heldout", 1, 1000), default=None, metavar="N",
+                   help="held-out random schedules of the validation (default 24; --quick 4; the shipped cards: 72)")
+    p.add_argument("--start", default="nearest", metavar="nearest|defaults|FILE",
+                   help="where the fit starts: the nearest identified card in the card's folder or models/ and "
+                        "the built-in defaults, keeping the better fit (default); the defaults only; or a "
+                        "coefficient file")
+    p.add_argument("--evaluations", type=int_arg("--evaluations", 1, 1000), default=None, metavar="N",
+                   help="most residual evaluations of the fit per start (default 40; it also stops after 8 "
+                        "Jacobians per start)")
+    p.add_argument("--jacobians", type=int_arg("--jacobians", 1, 1000), default=None, metavar="N",
+                   help="most Jacobians of the fit per start (default 8: the fits level off within 6-8)")
+    p.add_argument("--quick", action="store_true",
+                   help="fewer experiments and held-out schedules, one training seed, M=2000 (a smoke test)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,
@@ -56,43 +70,43 @@ def _out_path(args) -> Path:
 
 
 def run(args) -> int:
-    import numpy as np
-
+    from ..cards import check_work, identify_work
     from ..config import load_card
     from ..io import write_text
     from ..moments import identify as ident
+    from ..moments.forcard import identification
 
     card = load_card(args.model)
     out = _out_path(args)
     figs = output_path(args.figures, "--figures") if args.figures is not None else None
+    if args.start not in ("nearest", "defaults"):
+        from ..io import check_input_file
+
+        check_input_file(args.start)
     t0 = time.time()
 
     def log(msg):
         if not args.quiet:
             print(f"[{time.time() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
-    command = (f"bmctl identify {args.model} --seed {args.seed}" + (" --quick" if args.quick else "")
-               + (f" --particles {args.particles}" if args.particles else "")
-               + (f" --random-schedules {args.random_schedules}" if args.random_schedules is not None else ""))
-    from ..cards import check_work, identify_work
-    from ..parallel import auto_workers, client_for, close_client
-
-    n_train, n_valid = (1, 2) if args.quick else (len(ident.TRAIN_SEEDS), len(ident.VALID_SEEDS))
+    flags = [(f"--quick", args.quick), (f"--particles {args.particles}", args.particles),
+             (f"--random-schedules {args.random_schedules}", args.random_schedules is not None),
+             (f"--seeds {args.seeds}", args.seeds), (f"--heldout {args.heldout}", args.heldout),
+             (f"--start {args.start}", args.start != "nearest"), (f"--evaluations {args.evaluations}", args.evaluations),
+             (f"--jacobians {args.jacobians}", args.jacobians)]
+    command = f"bmctl identify {args.model} --seed {args.seed}" + "".join(f" {f}" for f, on in flags if on)
+    n_train = args.seeds or (1 if args.quick else ident.DEFAULT_SEEDS)
+    n_held = args.heldout or (4 if args.quick else ident.DEFAULT_HELDOUT)
+    n_valid = 2 if args.quick else len(ident.VALID_SEEDS)
     specs = ident.design(card, args.seed, args.quick, args.random_schedules)
-    vspecs = ident.validation_design(card, args.seed, 4 if args.quick else ident.N_VALID)
+    vspecs = ident.validation_design(card, args.seed, n_held)
     check_work(identify_work(card, [(specs, n_train), (vspecs, n_valid), (ident.off_card_design(card), n_valid)],
-                             args.particles or (2000 if args.quick else 4000), ident.DT_H),
-               "--particles/--random-schedules/--quick")
-
-    particles = args.particles or (2000 if args.quick else 4000)
-    runs, cpu_s = ident.plant_work(card, ident.design(card, args.seed, args.quick, args.random_schedules),
-                                   1 if args.quick else len(ident.TRAIN_SEEDS), particles)
-    client = client_for(args.scheduler, auto_workers(runs, cpu_s, args.workers, args.scheduler))
-    try:
-        res = ident.identify(card, args.seed, args.quick, args.particles, args.random_schedules, source=str(out),
-                             command=command, log=log, client=client)
-    finally:
-        close_client(client)
+                             args.particles or ident.default_particles(args.quick), ident.DT_H),
+               "--particles/--random-schedules/--seeds/--heldout")
+    res = identification(card, args.model, seed=args.seed, log=log, workers=args.workers, scheduler=args.scheduler,
+                         command=command, start=args.start, quick=args.quick, particles=args.particles,
+                         random_schedules=args.random_schedules, seeds=args.seeds, heldout=args.heldout,
+                         evaluations=args.evaluations, jacobians=args.jacobians)
     names = ident.MOMENTS[:5]
     report = (_report(card.card.name, names, res.table_defaults, res.table, res.table_train) + "\n"
               + _report_off_card(names, res.off_card_p1, res.off_card))
@@ -105,6 +119,8 @@ def run(args) -> int:
         plots.identify_validation(figs / "validation.png", res.valid, res.table["preds"], res.table["rows"], label)
         plots.identify_nrmse(figs / "nrmse.png", res.table["rows"], res.table_defaults["rows"], label)
         print(f"wrote {figs / 'validation.png'}, {figs / 'nrmse.png'}")
+    mean = ", ".join(f"{k.removesuffix('_um')} {100 * v:.1f} %" for k, v in zip(names[:4], res.table["mean"][:4]))
+    print(f"held-out NRMSE per output (mean over {len(res.valid)} schedules): {mean}")
     print(f"wrote {out} ({time.time() - t0:.0f} s)")
     return 0
 

@@ -7,8 +7,10 @@ micrometres. A ``.csv`` argument is read as a particle table instead
 (:func:`bmctl.measure.tables.read_table`) and normalised. All inputs are pooled into one table
 ``particle_id,image,x_um,y_um,area_um2,perimeter_um,s_um,r`` written atomically to ``--out``,
 with an overlay PNG per image (outlines and particle ids) and ``measure.json`` (scale and how
-it was found, exclusions, counts, warnings) beside it; nothing is written when any input is bad.
-Warnings on likely-wrong results go to stderr.
+it was found, exclusions, polarity, counts, warnings, the reliability verdict) beside it; nothing
+is written when any input is bad. Per image the polarity (particles brighter or darker than the
+background, decided per image unless ``--dark-particles`` or ``--bright-particles`` is given) and
+the verdict (``ok``, ``doubtful``, ``unusable``) go to stderr with the warnings.
 """
 
 from __future__ import annotations
@@ -50,8 +52,17 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--crop", default=None, metavar="Y0:Y1,X0:X1", help="keep this window only")
     parser.add_argument("--keep-info-bar", action="store_true", help="do not detect and exclude the data bar at the bottom")
     parser.add_argument("--no-overlay", action="store_true", help="do not write the overlay PNGs")
-    parser.add_argument("--dark-particles", action="store_true", help="particles darker than the background")
+    pol = parser.add_mutually_exclusive_group()
+    pol.add_argument("--dark-particles", action="store_true", help="particles darker than the background (default: decided per image)")
+    pol.add_argument("--bright-particles", action="store_true", help="particles brighter than the background (default: decided per image)")
     parser.add_argument("--no-flatten", action="store_true", help="skip the background flattening")
+
+
+def _polarity_text(res) -> str:
+    seg = res.segmentation
+    how = {"user": "as given", "edges": f"edge vote {seg.polarity_vote:.2f}" if seg.polarity_vote is not None else "",
+           "evidence": "near-tie of the edge vote, decided by particle convexity"}.get(seg.polarity_source, seg.polarity_source)
+    return f"{seg.polarity} particles ({how})"
 
 
 def _is_table(path: str) -> bool:
@@ -93,15 +104,18 @@ def run(args: argparse.Namespace) -> int:
             lines.append(f"{path}: {len(t)} particles (table)")
             reports.append({"table": path, "count": len(t)})
         else:
+            polarity = "dark" if args.dark_particles else "bright" if args.bright_particles else "auto"
             res = measure_micrograph(path, um_per_px=scale, scale_bar_um=bar_um, keep_info_bar=args.keep_info_bar,
                                      min_area_px=args.min_area_px, crop=args.crop, flatten=not args.no_flatten,
-                                     dark_particles=args.dark_particles)
+                                     polarity=polarity)
             t, x, y = check_table(res.table, path), res.x_um, res.y_um
             results.append(res)
             reports.append(res.report())
             excl = f", data bar from row {res.info_bar_row} excluded" if res.info_bar_row is not None else ""
             lines.append(f"{path}: {len(t)} particles; {res.scale.um_per_px:.5g} µm/px from {res.scale.source} "
                          f"({res.scale.detail}){excl}; min area {res.min_area_px} px")
+            warned.append(f"bmctl: {path}: {_polarity_text(res)}; verdict {res.verdict}"
+                          + (f" ({'; '.join(res.verdict_reasons)})" if res.verdict_reasons else ""))
             warned += [f"bmctl: warning: {path}: {w.message}" for w in res.warnings]
         ids = np.arange(next_id, next_id + len(t))
         next_id += len(t)
@@ -121,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
                 ids = locs[i].particle_id
                 write_overlay(out_png, res.image, res.segmentation.labels, res.segmentation.offset, ids,
                               excluded_from_row=res.info_bar_row, scale_bar=res.scale_bar,
-                              title=f"{Path(res.name).name}: {len(res.table)} particles, {res.scale.um_per_px:.4g} µm/px")
+                              title=f"{Path(res.name).name}: {len(res.table)} particles, {res.scale.um_per_px:.4g} µm/px, "
+                                    f"{res.segmentation.polarity} particles, verdict {res.verdict}")
                 reports[i]["overlay"] = str(out_png)
                 written.append(str(out_png))
         summ = table.summary()

@@ -285,8 +285,11 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
     else:
         reach = Reach(False, res.error, res.outputs, list(res.active), sr.per_family)
     segs = res.segments
-    U = np.array([[r, 1.0 if r > 0 else 0.0] for _, r in segs]).reshape(-1, 2)
     X = np.array(res.seg_states)
+    if not segs:  # the best plan mills nothing: a rest over the whole batch (a schedule of one segment)
+        segs = [(float(res.hours), 0.0)]
+        X = np.array([X[0], np.asarray(model.step(X[0], np.array([0.0, 0.0]), float(res.hours)), float)])
+    U = np.array([[r, 1.0 if r > 0 else 0.0] for _, r in segs]).reshape(-1, 2)
     Tpk = np.maximum(X[:-1, 4], X[1:, 4]) if len(segs) else np.zeros(0)
     d = Design(model.card.card.name, cfg.name, dict(target), float(res.hours), cfg.temperature.ceiling_c,
                U, X, Tpk, segs, res, reach, obj, pareto)

@@ -16,7 +16,7 @@ from scipy import ndimage as ndi
 
 from ..errors import InputError
 from .loading import as_gray_float, load_image, parse_crop
-from .quality import QualityWarning, auto_min_area, check_segmentation
+from .quality import QualityWarning, auto_min_area, check_segmentation, evidence, verdict
 from .scale import Scale, ScaleBar, check_scale, find_info_bar, nearest_125, resolve_scale
 from .segment import MIN_AREA_PX, Segmentation, measure_labels, remove_edge_and_specks, segment
 from .tables import ParticleTable
@@ -44,6 +44,11 @@ class MicrographResult:
     x_um, y_um : ndarray
         Centroids from the image's top-left corner.
     warnings : list of QualityWarning
+    evidence : dict
+        The measurement's own evidence (:func:`bmctl.measure.quality.evidence`).
+    verdict : {"ok", "doubtful", "unusable"}
+        Reliability verdict (:func:`bmctl.measure.quality.verdict`).
+    verdict_reasons : list of str
     """
 
     name: str
@@ -57,6 +62,9 @@ class MicrographResult:
     x_um: np.ndarray
     y_um: np.ndarray
     warnings: list
+    evidence: dict | None = None
+    verdict: str = "ok"
+    verdict_reasons: list = dataclasses.field(default_factory=list)
 
     def report(self) -> dict:
         """JSON-ready summary: scale and how it was found, exclusions, counts, medians, warnings."""
@@ -77,6 +85,10 @@ class MicrographResult:
             "s_median_um": summ["s_median_um"],
             "r_median": summ["r_median"],
             "warnings": [w.as_dict() for w in self.warnings],
+            "verdict": {"value": self.verdict, "reasons": list(self.verdict_reasons)},
+            "polarity": {"value": self.segmentation.polarity, "source": self.segmentation.polarity_source,
+                         "vote": None if self.segmentation.polarity_vote is None else round(self.segmentation.polarity_vote, 4)},
+            "evidence": None if self.evidence is None else {k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.evidence.items()},
         }
 
 
@@ -162,4 +174,79 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
     extra = _scale_bar_check(scale, bar)
     if extra is not None:
         warns.insert(0, extra)
-    return MicrographResult(name, img, seg, scale, bar, info_row, used, table, x_um, y_um, warns)
+    ev = evidence(seg, used)
+    value, reasons = verdict(ev)
+    return MicrographResult(name, img, seg, scale, bar, info_row, used, table, x_um, y_um, warns, ev, value, reasons)
+
+
+def table_reports(csv_path) -> list[dict]:
+    """Per-image reports of a particle table written by ``bmctl measure``, from the
+    ``measure.json`` beside it (empty when there is none or it belongs to another table).
+
+    Parameters
+    ----------
+    csv_path : path-like
+
+    Returns
+    -------
+    list of dict
+        The ``inputs`` entries of images (with ``image`` and ``verdict``).
+    """
+    import json
+    from pathlib import Path
+
+    from ..io import read_input_bytes
+
+    p = Path(csv_path)
+    side = p.parent / "measure.json"
+    if not side.is_file():
+        return []
+    try:
+        doc = json.loads(read_input_bytes(side).decode("utf-8"))
+    except (InputError, ValueError, RecursionError):
+        return []
+    if not isinstance(doc, dict) or Path(str(doc.get("table", ""))).name != p.name:
+        return []
+    return [r for r in doc.get("inputs", []) if isinstance(r, dict) and isinstance(r.get("verdict"), dict)]
+
+
+def check_verdicts(reports, accept_unusable: bool = False, flag: str = "--accept-unusable") -> list[str]:
+    """Refuse ``unusable`` images and list the ``doubtful`` ones.
+
+    Parameters
+    ----------
+    reports : list of dict
+        Per-input reports (:meth:`MicrographResult.report` or :func:`table_reports`).
+    accept_unusable : bool, optional
+        Warn instead of refusing.
+    flag : str, optional
+        The option named in the refusal.
+
+    Returns
+    -------
+    list of str
+        One warning line per doubtful (or accepted unusable) image.
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        An ``unusable`` image and ``accept_unusable`` is false.
+
+    Examples
+    --------
+    >>> check_verdicts([{"image": "a.png", "verdict": {"value": "doubtful", "reasons": ["polarity unclear"]}}])
+    ['a.png: verdict doubtful (polarity unclear): check its overlay before trusting its particles']
+    """
+    lines = []
+    for rep in reports:
+        v = rep.get("verdict") if isinstance(rep, dict) else None
+        if not isinstance(v, dict):
+            continue
+        value, why = v.get("value"), "; ".join(str(r) for r in v.get("reasons", []))
+        name = rep.get("image", "image")
+        if value == "unusable" and not accept_unusable:
+            raise InputError(f"{name}: verdict unusable ({why}); the measurement does not hold, "
+                             f"check its overlay (bmctl measure) or pass {flag}")
+        if value in ("doubtful", "unusable"):
+            lines.append(f"{name}: verdict {value} ({why}): check its overlay before trusting its particles")
+    return lines

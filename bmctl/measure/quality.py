@@ -151,3 +151,176 @@ def check_segmentation(labels, raw_labels, foreground, valid, min_area_px: int) 
                                       f"median size moves by {jump:.0%} when --min-area-px {min_area_px} is halved or doubled "
                                       f"({lo:.1f} / {med:.1f} / {hi:.1f} px): the size distribution reaches the detection limit"))
     return out
+
+
+# --- evidence for the reliability verdict ---------------------------------------------------------
+
+THRESHOLD_STEP = 0.1  # threshold moved by +-10 % of the particle-background contrast
+
+
+def _components_count(fg: np.ndarray, valid: np.ndarray, min_area_px: int) -> int:
+    lab, n = ndi.label(fg & valid)
+    if n == 0:
+        return 0
+    edge = np.ones(fg.shape, dtype=bool)
+    edge[1:-1, 1:-1] = False
+    edge |= ndi.binary_dilation(~valid)
+    area = np.bincount(lab.ravel(), minlength=n + 1)
+    ok = area >= min_area_px
+    ok[np.unique(lab[edge])] = False
+    ok[0] = False
+    return int(ok.sum())
+
+
+def threshold_stability(smoothed: np.ndarray, threshold: float, foreground: np.ndarray, valid: np.ndarray,
+                        min_area_px: int) -> tuple[float, float]:
+    """How much the foreground and the blob count move when the threshold moves by +-10 % of the contrast.
+
+    Parameters
+    ----------
+    smoothed : ndarray of float
+        Flattened, smoothed image (particles bright) the threshold applies to.
+    threshold : float
+    foreground : ndarray of bool
+        Foreground at ``threshold`` (hole-filled).
+    valid : ndarray of bool
+    min_area_px : int
+
+    Returns
+    -------
+    area_change : float
+        Pixels that change side between the two shifted thresholds / foreground pixels.
+    count_change : float
+        Largest relative change of the number of interior blobs (>= ``min_area_px``).
+    """
+    fg = foreground & valid
+    bg = ~foreground & valid
+    if not fg.any() or not bg.any():
+        return 1.0, 1.0
+    step = THRESHOLD_STEP * float(np.median(smoothed[fg]) - np.median(smoothed[bg]))
+    lo = ndi.binary_fill_holes((smoothed > threshold - step) & valid)
+    hi = ndi.binary_fill_holes((smoothed > threshold + step) & valid)
+    area_change = float((lo ^ hi).sum() / fg.sum())
+    n0 = _components_count(foreground, valid, min_area_px)
+    nl, nh = _components_count(lo, valid, min_area_px), _components_count(hi, valid, min_area_px)
+    count_change = max(abs(nl - n0), abs(nh - n0)) / max(n0, 1)
+    return area_change, float(count_change)
+
+
+def evidence(seg, min_area_px: int) -> dict:
+    """The measurement's own evidence on one segmented image (all scale-free shares and ratios).
+
+    Parameters
+    ----------
+    seg : bmctl.measure.segment.Segmentation
+        With ``labels`` after the speck limit ``min_area_px``.
+    min_area_px : int
+
+    Returns
+    -------
+    dict
+        ``count``, ``unsegmented``, ``border``, ``merged``, ``small``, ``min_area_jump``,
+        ``polarity_margin`` (None when the polarity was given), ``faint_share``,
+        ``threshold_area_change``, ``threshold_count_change``, ``at_limit``.
+    """
+    labels, raw, fg, valid = seg.labels, seg.raw_labels, seg.foreground, seg.valid
+    n = int(labels.max())
+    kept = labels > 0
+    fgv = fg & valid
+    out = {"count": n}
+    out["unsegmented"] = float((fgv & ~kept).sum() / fgv.sum()) if fgv.any() else 1.0
+    area = np.bincount(labels.ravel())[1:].astype(float)
+    if n:
+        props = measure.regionprops(labels)
+        solidity = np.array([p.solidity for p in props], float)
+        out["merged"] = float(area[solidity < MERGED_SOLIDITY].sum() / area.sum())
+        out["small"] = float(np.mean(2.0 * np.sqrt(area / np.pi) < R_RELIABLE_PX))
+        out["at_limit"] = float(np.mean(area < 2 * min_area_px))
+    else:
+        out["merged"] = out["small"] = out["at_limit"] = 0.0
+    raw_a = _areas(raw)
+    big = set(np.nonzero(raw_a >= min_area_px)[0] + 1)
+    edge = np.ones(raw.shape, dtype=bool)
+    edge[1:-1, 1:-1] = False
+    edge |= ndi.binary_dilation(~valid)
+    cut = set(np.unique(raw[edge & (raw > 0)]).tolist()) & big
+    out["border"] = len(cut) / len(big) if big else 0.0
+    med = median_size_px(raw, valid, min_area_px)
+    jump = 0.0
+    if np.isfinite(med):
+        others = [median_size_px(raw, valid, max(1, min_area_px // 2)), median_size_px(raw, valid, 2 * min_area_px)]
+        others = [v for v in others if np.isfinite(v)]
+        jump = max((abs(v / med - 1.0) for v in others), default=1.0) if len(others) == 2 else 1.0
+    out["min_area_jump"] = float(jump)
+    out["polarity_margin"] = None if seg.polarity_vote is None else float(abs(seg.polarity_vote - 0.5))
+    out["faint_share"] = float(seg.faint_dropped / max(seg.faint_dropped + len(big), 1))
+    if seg.smoothed is not None:
+        a, c = threshold_stability(seg.smoothed, seg.threshold, fg, valid, min_area_px)
+    else:
+        a = c = float("nan")
+    out["threshold_area_change"] = a
+    out["threshold_count_change"] = c
+    return out
+
+
+# --- the verdict ------------------------------------------------------------------------------------
+
+#: doubtful when any of these crosses its limit (docs/measurement.md, "Reliability verdict")
+VERDICT_LIMITS = {
+    "polarity_margin": 0.05,  # below: the edges do not tell bright from dark particles
+    "merged": 0.2,  # above: a fifth of the particle area in non-convex blobs (merged particles)
+    "at_limit": 0.3,  # above: the size law piles up at the speck limit (noise, texture, fragments)
+    "min_area_jump": 0.5,  # above: the median size moves by half when the speck limit is halved or doubled
+    "unsegmented": 0.5,  # above: half the foreground is in no measured particle
+}
+UNUSABLE_UNSEGMENTED = 0.8  # above: the measured particles are a small part of what the image shows
+VERDICTS = ("ok", "doubtful", "unusable")
+
+
+def verdict(ev: dict) -> tuple[str, list[str]]:
+    """Reliability verdict of one image from its evidence (:func:`evidence`).
+
+    ``unusable``: no particle, more than ``UNUSABLE_UNSEGMENTED`` of the foreground
+    unmeasured, or two or more of the ``VERDICT_LIMITS`` crossed; ``doubtful``: one crossed;
+    else ``ok``.
+
+    Parameters
+    ----------
+    ev : dict
+
+    Returns
+    -------
+    value : {"ok", "doubtful", "unusable"}
+    reasons : list of str
+        One short phrase per crossed limit.
+
+    Examples
+    --------
+    >>> verdict({"count": 40, "polarity_margin": 0.3, "merged": 0.0, "at_limit": 0.1,
+    ...          "min_area_jump": 0.02, "unsegmented": 0.1})
+    ('ok', [])
+    >>> verdict({"count": 40, "polarity_margin": 0.01, "merged": 0.0, "at_limit": 0.1,
+    ...          "min_area_jump": 0.02, "unsegmented": 0.1})[0]
+    'doubtful'
+    >>> verdict({"count": 0, "polarity_margin": None, "merged": 0.0, "at_limit": 0.0,
+    ...          "min_area_jump": 0.0, "unsegmented": 1.0})
+    ('unusable', ['no particle found'])
+    """
+    if ev.get("count", 0) == 0:
+        return "unusable", ["no particle found"]
+    reasons = []
+    m = ev.get("polarity_margin")
+    if m is not None and m < VERDICT_LIMITS["polarity_margin"]:
+        reasons.append(f"polarity unclear (edge vote {0.5 + m:.2f} : {0.5 - m:.2f})")
+    if ev.get("merged", 0.0) > VERDICT_LIMITS["merged"]:
+        reasons.append(f"{ev['merged']:.0%} of the particle area in merged (non-convex) blobs")
+    if ev.get("at_limit", 0.0) > VERDICT_LIMITS["at_limit"]:
+        reasons.append(f"{ev['at_limit']:.0%} of the particles within twice the speck limit (noise or fragments)")
+    if ev.get("min_area_jump", 0.0) > VERDICT_LIMITS["min_area_jump"]:
+        reasons.append(f"median size moves {ev['min_area_jump']:.0%} when the speck limit is halved or doubled")
+    unseg = ev.get("unsegmented", 0.0)
+    if unseg > VERDICT_LIMITS["unsegmented"]:
+        reasons.append(f"{unseg:.0%} of the foreground in no measured particle")
+    if unseg > UNUSABLE_UNSEGMENTED or len(reasons) >= 2:
+        return "unusable", reasons
+    return ("doubtful" if reasons else "ok"), reasons

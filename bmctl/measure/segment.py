@@ -2,12 +2,21 @@
 
 Pipeline (:func:`segment`; ``docs/measurement.md`` gives the reasons and the numbers):
 
-1. crop and/or mask (e.g. an info bar); pixels outside count as image border;
-2. background flattening: a grey opening (footprint ``background_px``) of a block-min
+1. crop and/or mask (e.g. an info bar); drawn annotations (panel letters, scale bars, label
+   boxes: :mod:`bmctl.measure.annotations`) are masked too; masked pixels count as image border;
+2. polarity: particles brighter or darker than their surroundings, from the bend of the
+   strongest edges (:mod:`bmctl.measure.polarity`); a near-tie is decided by segmenting both
+   ways and keeping the reading with the better reliability verdict, then the one that
+   claims fewer particles (:func:`_near_tie`);
+3. background flattening: a grey opening (footprint ``background_px``) of a block-min
    downsampled copy, smoothed and subtracted (uneven illumination);
-3. Gaussian smoothing (``smooth_px``) and a global threshold at the valley between the
-   two histogram modes (``threshold="minimum"``; Otsu when there is no valley), holes filled;
-4. separation of touching particles:
+4. Gaussian smoothing (``smooth_px``) and a global threshold (:func:`threshold_level`): the
+   valley between the two histogram modes when each side holds at least
+   ``VALLEY_MIN_SHARE`` of the pixels, else the background mode plus ``NOISE_K`` times the
+   background's noise (a few particles on a dominant background have no second mode);
+   pixels at the image's extreme values (saturated, drawn) are left out of the histogram;
+   holes filled;
+5. separation of touching particles:
    a. thin dark lines inside the foreground (the shadows between overlapping particles)
       are cut (:func:`cut_dark_lines`);
    b. watershed of the distance transform from all its local maxima, then neighbours
@@ -16,10 +25,16 @@ Pipeline (:func:`segment`; ``docs/measurement.md`` gives the reasons and the num
       peaks (scale-free: two touching discs have a ratio near 0, a particle split along a
       ridge of its own medial axis near 1) (:func:`split_touching`);
    c. the labels are grown back over the cut lines (:func:`expand_labels_into`);
-5. per-particle boundary refinement: each particle is re-thresholded at the midpoint of
+   d. filled holes shared by two or more particles (the gap enclosed by a ring of touching
+      particles) go back to the background (:func:`drop_shared_holes`); a hole inside one
+      particle (a pore, a textured interior) stays filled;
+6. per-particle boundary refinement: each particle is re-thresholded at the midpoint of
    its own interior and surrounding background levels (:func:`refine_local`), which
    removes the size bias a single global threshold has on small or faint particles;
-6. removal of particles touching the image border (or the masked-out area) and of specks
+7. significance: a particle whose median level stands less than ``contrast_z`` robust
+   standard deviations above its surrounding background (locally, and against the whole
+   background's noise) is texture or noise, not a particle (:func:`drop_faint`);
+8. removal of particles touching the image border (or the masked-out area) and of specks
    below ``min_area_px``.
 
 :func:`measure_labels` then takes the area as the pixel count and the perimeter by the
@@ -39,18 +54,26 @@ from skimage import filters, measure, morphology, segmentation, transform
 from skimage.feature import peak_local_max
 
 from ..errors import InputError
+from .annotations import find_annotations
 from .perimeter import DEFAULT_METHOD, perimeter
 from .loading import as_gray_float, crop_slices, load_image, parse_crop  # noqa: F401 (re-exported)
+from .polarity import AMBIGUOUS, polarity_vote
 from .scale import check_scale  # noqa: F401 (re-exported)
 from .tables import ParticleTable
 
 MIN_AREA_PX = 30  # ~ 6 px across: the detection limit; r needs >= 10 px (docs/measurement.md)
 NECK_RATIO = 0.8
 SMOOTH_PX = 0.5
-THRESHOLD = "minimum"
+THRESHOLD = "auto"
 CUT_PX = 3.0
 CUT_CONTRAST = 0.08
 REFINE_RING_PX = 4
+VALLEY_MIN_SHARE = 0.005  # a histogram side with fewer pixels is a tail (specks, text), not a class
+NOISE_K = 3.0  # no valley: threshold at the background mode + 3 background standard deviations
+CONTRAST_Z = 3.0  # a particle stands >= 3 robust standard deviations above its background
+SATURATION = 0.012  # pixels this close (share of the range) to the extremes stay out of the histogram
+POLARITIES = ("auto", "bright", "dark")
+VALLEY_SCALES = (1, 2, 4, 8)  # smoothing tried for a histogram valley, in units of smooth_px
 
 
 # --- steps ----------------------------------------------------------------------------------------
@@ -91,24 +114,93 @@ def flatten_background(img: np.ndarray, valid: np.ndarray, background_px: float)
     return img - bg
 
 
-THRESHOLDS = ("otsu", "li", "minimum", "triangle")
+THRESHOLDS = ("auto", "otsu", "li", "minimum", "triangle")
+
+
+def background_mode(vals: np.ndarray) -> tuple[float, float]:
+    """Level and noise of the dominant histogram mode.
+
+    The mode is the peak of a 256-bin histogram (1-99.9 % range, smoothed over 2 bins); the
+    noise is the root-mean-square distance from it of the values below it (the side without
+    particles, so the particles' own tail does not widen it).
+
+    Parameters
+    ----------
+    vals : ndarray of float
+
+    Returns
+    -------
+    mode, sigma : float
+    """
+    lo, hi = np.quantile(vals, [0.001, 0.999])
+    if hi <= lo:
+        return float(lo), 0.0
+    h, e = np.histogram(vals, 256, (lo, hi))
+    centres = 0.5 * (e[:-1] + e[1:])
+    mode = float(centres[int(np.argmax(ndi.gaussian_filter1d(h.astype(float), 2.0)))])
+    below = vals[vals <= mode]
+    sigma = float(np.sqrt(np.mean((below - mode) ** 2))) if below.size >= 50 else float(np.std(vals))
+    return mode, sigma
+
+
+def threshold_level(vals: np.ndarray, method="auto") -> tuple[float, str]:
+    """Global threshold on the smoothed, flattened values, and how it was found.
+
+    Parameters
+    ----------
+    vals : ndarray of float
+    method : {"auto", "minimum", "otsu", "li", "triangle"} or float
+        ``"auto"``: the valley between the two histogram modes
+        (``skimage.filters.threshold_minimum``) when each side holds at least
+        ``VALLEY_MIN_SHARE`` of the values, else the background mode + ``NOISE_K`` x its
+        noise (:func:`background_mode`). ``"minimum"`` is the valley with Otsu as fallback.
+
+    Returns
+    -------
+    level : float
+    how : str
+        ``"valley"``, ``"noise"``, the method name, or ``"user"``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> vals = np.r_[rng.normal(0.2, 0.05, 9000), rng.normal(0.6, 0.05, 1000)]
+    >>> t, how = threshold_level(vals)
+    >>> 0.3 < t < 0.5, how
+    (True, 'valley')
+    >>> t, how = threshold_level(np.r_[rng.normal(0.2, 0.05, 9990), rng.normal(0.6, 0.05, 10)])
+    >>> 0.3 < t < 0.45, how        # ten bright pixels are no class: mode + 3 sigma
+    (True, 'noise')
+    """
+    if not isinstance(method, str):
+        return float(method), "user"
+    if method == "auto":
+        try:
+            t = float(filters.threshold_minimum(vals))
+            share = float(np.mean(vals > t))
+            if VALLEY_MIN_SHARE <= share <= 1.0 - VALLEY_MIN_SHARE:
+                return t, "valley"
+        except RuntimeError:
+            pass
+        mode, sigma = background_mode(vals)
+        return mode + NOISE_K * sigma, "noise"
+    if method == "otsu":
+        return float(filters.threshold_otsu(vals)), method
+    if method == "li":
+        return float(filters.threshold_li(vals)), method
+    if method == "triangle":
+        return float(filters.threshold_triangle(vals)), method
+    if method == "minimum":
+        try:  # the valley between the two histogram modes; Otsu if there is no second mode
+            return float(filters.threshold_minimum(vals)), method
+        except RuntimeError:
+            return float(filters.threshold_otsu(vals)), "otsu"
+    raise ValueError(f"unknown threshold method {method!r}; expected a number or one of {THRESHOLDS}")
 
 
 def _threshold(vals: np.ndarray, method) -> float:
-    if not isinstance(method, str):
-        return float(method)
-    if method == "otsu":
-        return float(filters.threshold_otsu(vals))
-    if method == "li":
-        return float(filters.threshold_li(vals))
-    if method == "triangle":
-        return float(filters.threshold_triangle(vals))
-    if method == "minimum":
-        try:  # the valley between the two histogram modes; Otsu if there is no second mode
-            return float(filters.threshold_minimum(vals))
-        except RuntimeError:
-            return float(filters.threshold_otsu(vals))
-    raise ValueError(f"unknown threshold method {method!r}; expected a number or one of {THRESHOLDS}")
+    return threshold_level(vals, method)[0]
 
 
 def cut_dark_lines(sm: np.ndarray, fg: np.ndarray, valid: np.ndarray, cut_px: float, cut_contrast: float) -> np.ndarray:
@@ -309,6 +401,109 @@ def _merge_wide_necks(lab: np.ndarray, dist: np.ndarray, neck_ratio: float) -> n
     return root[lab]
 
 
+def drop_shared_holes(lab: np.ndarray, fg_raw: np.ndarray, fg: np.ndarray) -> np.ndarray:
+    """Return to the background the filled holes that border two or more particles.
+
+    Hole filling closes the gap enclosed by a ring of touching particles as well as the
+    pores of one textured particle. After the split the difference shows: a pore borders
+    one particle, an enclosed gap several.
+
+    Parameters
+    ----------
+    lab : ndarray of int
+        Labels after the split.
+    fg_raw, fg : ndarray of bool
+        Foreground before and after hole filling.
+
+    Returns
+    -------
+    ndarray of int
+    """
+    holes = fg & ~fg_raw
+    hl, nh = ndi.label(holes)
+    if nh == 0:
+        return lab
+    near = ndi.grey_dilation(hl, size=3)
+    m = ndi.binary_dilation(holes) & (lab > 0) & (near > 0)
+    pairs = np.unique(np.stack([near[m], lab[m]]), axis=1)
+    shared = np.bincount(pairs[0], minlength=nh + 1) >= 2
+    shared[0] = False
+    out = lab.copy()
+    out[shared[hl] & holes] = 0
+    return out
+
+
+def _grouped_median(values: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
+    """Median of ``values`` per label 1..n (NaN where a label has no pixel), by one sort."""
+    m = labels > 0
+    v, g = values[m], labels[m]
+    if v.size:  # one sort on label + value scaled into [0, 0.5)
+        lo, span = float(v.min()), float(np.ptp(v)) or 1.0
+        order = np.argsort(g + 0.5 * (v - lo) / span)
+        v, g = v[order], g[order]
+    count = np.bincount(g, minlength=n + 1)[1:]
+    start = np.r_[0, np.cumsum(count)[:-1]]
+    out = np.full(n, np.nan)
+    has = count > 0
+    lo = start[has] + (count[has] - 1) // 2
+    hi = start[has] + count[has] // 2
+    out[has] = 0.5 * (v[lo] + v[hi])
+    return out
+
+
+def drop_faint(lab: np.ndarray, x: np.ndarray, fg: np.ndarray, valid: np.ndarray, z: float = CONTRAST_Z,
+               ring=(2, 6)) -> tuple[np.ndarray, int]:
+    """Drop particles that do not stand out from their background (texture, noise).
+
+    A particle's contrast is the median of its pixels minus the median of its ring: the
+    background pixels 3-6 px away whose nearest particle it is. It must exceed ``z`` times
+    the robust standard deviation (1.4826 x MAD) of that ring, and ``z`` times the robust
+    standard deviation of the whole background (pixels 4 px or more from the foreground).
+    A particle with fewer than 10 ring pixels (inside a dense cluster) is compared with the
+    whole background's median instead.
+
+    Parameters
+    ----------
+    lab : ndarray of int
+    x : ndarray of float
+        Flattened image (particles bright).
+    fg, valid : ndarray of bool
+    z : float, optional
+    ring : (int, int), optional
+        Inner and outer distance of the ring (px).
+
+    Returns
+    -------
+    labels : ndarray of int
+    dropped : int
+        Number of particles dropped.
+    """
+    bg = valid & ~ndi.binary_dilation(fg, iterations=3)
+    sigma_bg, level_bg = 0.0, -np.inf
+    if bg.sum() > 100:
+        level_bg = float(np.median(x[bg]))
+        sigma_bg = 1.4826 * float(np.median(np.abs(x[bg] - level_bg)))
+    n = int(lab.max())
+    if n == 0:
+        return lab, 0
+    # ring: background pixels 3-6 px from a particle, each given to its nearest particle
+    dist, (iy, ix) = ndi.distance_transform_edt(lab == 0, return_indices=True)
+    ring = (dist > ring[0]) & (dist <= ring[1]) & ~fg & valid
+    owner = np.where(ring, lab[iy, ix], 0)
+    n_ring = np.bincount(owner.ravel(), minlength=n + 1)[1:]
+    level_b = _grouped_median(x, owner, n)
+    level_f = _grouped_median(x, lab, n)
+    dev = np.abs(x - np.r_[0.0, np.nan_to_num(level_b)][owner])
+    spread = 1.4826 * _grouped_median(dev, owner, n)
+    present = np.bincount(lab.ravel(), minlength=n + 1)[1:] > 0
+    local = n_ring >= 10
+    faint = present & np.where(local, level_f - level_b < z * np.maximum(np.nan_to_num(spread), sigma_bg),
+                               level_f - level_bg < z * sigma_bg)
+    out = np.where(np.r_[False, faint][lab], 0, lab)
+    dropped = int(faint.sum())
+    return out, dropped
+
+
 def remove_edge_and_specks(lab: np.ndarray, valid: np.ndarray, min_area_px: int) -> np.ndarray:
     """Drop labels touching the image border or the invalid area, and those below ``min_area_px``.
 
@@ -341,13 +536,27 @@ class Segmentation:
     foreground : ndarray of bool
         Thresholded, hole-filled mask before splitting and removal.
     threshold : float
-        Otsu threshold on the flattened, smoothed image.
+        Global threshold on the flattened, smoothed image (particles bright).
     offset : (int, int)
         (row, column) of the cropped frame's origin in the input image.
     raw_labels : ndarray of int or None
         Labels before the border and speck removal (for the quality checks).
     valid : ndarray of bool or None
-        Valid pixels of the cropped frame.
+        Valid pixels of the cropped frame (crop, mask and annotations excluded).
+    polarity : {"bright", "dark"}
+        Particles brighter or darker than their surroundings.
+    polarity_source : {"user", "edges", "evidence"}
+        Given; from the edge vote; from the evidence of both readings (near-tie).
+    polarity_vote : float or None
+        :func:`bmctl.measure.polarity.polarity_vote` (share voting "bright"), when computed.
+    threshold_method : str
+        How the threshold was found (``"valley"``, ``"noise"``, a method name, ``"user"``).
+    annotation_px : int
+        Pixels masked as drawn annotations.
+    smoothed : ndarray of float or None
+        The flattened, smoothed image the threshold applies to (particles bright).
+    faint_dropped : int
+        Candidates dropped as not standing out from their background (:func:`drop_faint`).
     """
 
     labels: np.ndarray
@@ -356,6 +565,72 @@ class Segmentation:
     offset: tuple[int, int]
     raw_labels: np.ndarray | None = None
     valid: np.ndarray | None = None
+    polarity: str = "bright"
+    polarity_source: str = "user"
+    polarity_vote: float | None = None
+    threshold_method: str = ""
+    annotation_px: int = 0
+    smoothed: np.ndarray | None = None
+    faint_dropped: int = 0
+
+
+def _one_polarity(img, valid, dark, *, flatten, background_px, smooth_px, neck_ratio, threshold, cut_px,
+                  cut_contrast, refine, contrast_z, extremes, name):
+    """Steps 3-7 of :func:`segment` for one polarity: (labels before removal, fg, thr, how, smoothed, dropped)."""
+    x = 1.0 - img if dark else img
+    if flatten:
+        bg_px = background_px if background_px is not None else max(32.0, min(x.shape) / 4.0)
+        x = flatten_background(x, valid, bg_px)
+    use = valid & ~extremes
+    use = use if use.sum() >= 100 else valid
+    scales = [smooth_px * f for f in VALLEY_SCALES] if threshold == "auto" and smooth_px > 0 else [smooth_px]
+    for k, sigma in enumerate(scales):  # the finest smoothing at which the histogram has a valley
+        sm = ndi.gaussian_filter(x, sigma) if sigma > 0 else x
+        vals = sm[use]
+        if np.ptp(vals) <= 1e-12:
+            raise InputError(f"{name}: image is uniform, nothing to segment")
+        thr, how = threshold_level(vals, threshold)
+        if how != "noise":
+            break
+    else:  # no valley at any scale: a few particles on a dominant background; finest scale
+        sm = ndi.gaussian_filter(x, scales[0]) if scales[0] > 0 else x
+        thr, how = threshold_level(sm[use], threshold)
+    fg_raw = (sm > thr) & valid
+    fg = ndi.binary_fill_holes(fg_raw)
+    if cut_contrast and cut_contrast > 0 and fg.any() and (~fg & valid).any():
+        core = cut_dark_lines(sm, fg, valid, cut_px, cut_contrast)
+        lab = expand_labels_into(split_touching(core, neck_ratio), fg)
+    else:
+        lab = split_touching(fg, neck_ratio)
+    lab = drop_shared_holes(lab, fg_raw, fg)
+    if refine:
+        lab = refine_local(sm, lab, fg, valid)
+    dropped = 0
+    if contrast_z and contrast_z > 0:
+        lab, dropped = drop_faint(lab, x, fg, valid, contrast_z)
+    return lab, fg, thr, how, sm, dropped
+
+
+def _near_tie(img, valid, offset, min_area_px, kw):
+    """Both readings of an image whose edge vote is a near-tie; the one with the better evidence.
+
+    Ranked by the reliability verdict each reading earns on its own evidence
+    (:func:`bmctl.measure.quality.verdict`), then by fewer particles (under an unclear
+    polarity, the reading that claims less).
+    """
+    from .quality import VERDICTS, auto_min_area, evidence, verdict
+
+    ranked = []
+    for p in ("bright", "dark"):
+        run = _one_polarity(img, valid, p == "dark", **kw)
+        lab, fg, thr, how, sm, dropped = run
+        used = auto_min_area(lab, valid, min_area_px)
+        kept = remove_edge_and_specks(lab, valid, used)
+        seg = Segmentation(kept, fg, thr, offset, lab, valid, p, "evidence", None, how, 0, sm, dropped)
+        value, _ = verdict(evidence(seg, used))
+        ranked.append((VERDICTS.index(value), int(kept.max()), p, run))
+    ranked.sort(key=lambda r: r[:2])
+    return ranked[0][2], ranked[0][3]
 
 
 def segment(
@@ -368,11 +643,14 @@ def segment(
     background_px: float | None = None,
     smooth_px: float = SMOOTH_PX,
     neck_ratio: float = NECK_RATIO,
-    dark_particles: bool = False,
+    polarity: str = "auto",
+    dark_particles: bool | None = None,
     threshold=THRESHOLD,
     cut_px: float = CUT_PX,
     cut_contrast: float = CUT_CONTRAST,
     refine: bool = True,
+    annotations: bool = True,
+    contrast_z: float = CONTRAST_Z,
     name: str = "image",
 ) -> Segmentation:
     """Segment the particles of a grayscale micrograph.
@@ -397,14 +675,23 @@ def segment(
         Gaussian sigma before thresholding.
     neck_ratio : float, optional
         Merge criterion of :func:`split_touching`.
+    polarity : {"auto", "bright", "dark"}, optional
+        Particles brighter or darker than their surroundings; ``"auto"`` decides per image
+        (:mod:`bmctl.measure.polarity`).
     dark_particles : bool, optional
-        Particles darker than the background (default: brighter, as in SE images).
-    threshold : {"minimum", "otsu", "li", "triangle"} or float, optional
-        Global threshold method on the flattened, smoothed image, or the level itself.
+        Older spelling of ``polarity``: ``True`` = ``"dark"``, ``False`` = ``"bright"``.
+    threshold : {"auto", "minimum", "otsu", "li", "triangle"} or float, optional
+        Global threshold method on the flattened, smoothed image, or the level itself
+        (:func:`threshold_level`).
     cut_px, cut_contrast : float, optional
         Dark-line cut (:func:`cut_dark_lines`); ``cut_contrast=0`` switches it off.
     refine : bool, optional
         Per-particle boundary refinement (:func:`refine_local`).
+    annotations : bool, optional
+        Mask drawn panel letters, scale bars and label boxes
+        (:func:`bmctl.measure.annotations.find_annotations`).
+    contrast_z : float, optional
+        Significance of a particle against its background (:func:`drop_faint`); 0 keeps all.
     name : str, optional
         Name used in error messages.
 
@@ -417,9 +704,16 @@ def segment(
     >>> import numpy as np
     >>> from bmctl.measure.render import render_micrograph
     >>> m = render_micrograph(np.random.default_rng(0), n=8, shape=(160, 160), s_px=(20, 24))
-    >>> int(segment(m.image).labels.max()) == len(m.truth)
+    >>> seg = segment(m.image)
+    >>> int(seg.labels.max()) == len(m.truth), seg.polarity
+    (True, 'bright')
+    >>> int(segment(1.0 - m.image).labels.max()) == len(m.truth)
     True
     """
+    if dark_particles is not None:
+        polarity = "dark" if dark_particles else "bright"
+    if polarity not in POLARITIES:
+        raise InputError(f"{name}: polarity: expected one of {', '.join(POLARITIES)} (got {polarity!r})")
     if not isinstance(image, np.ndarray):
         name = str(image)
         image = load_image(image)
@@ -434,26 +728,32 @@ def segment(
         img, valid, offset = img[sy, sx], valid[sy, sx], (sy.start, sx.start)
     if valid.sum() < 64:
         raise InputError(f"{name}: fewer than 64 valid pixels after crop/mask")
-    if dark_particles:
-        img = 1.0 - img
-    if flatten:
-        bg_px = background_px if background_px is not None else max(32.0, min(img.shape) / 4.0)
-        img = flatten_background(img, valid, bg_px)
-    sm = ndi.gaussian_filter(img, smooth_px) if smooth_px > 0 else img
-    vals = sm[valid]
-    if np.ptp(vals) <= 1e-12:
-        raise InputError(f"{name}: image is uniform, nothing to segment")
-    thr = _threshold(vals, threshold)
-    fg = ndi.binary_fill_holes((sm > thr) & valid)
-    if cut_contrast and cut_contrast > 0 and fg.any() and (~fg & valid).any():
-        core = cut_dark_lines(sm, fg, valid, cut_px, cut_contrast)
-        lab = expand_labels_into(split_touching(core, neck_ratio), fg)
-    else:
-        lab = split_touching(fg, neck_ratio)
-    if refine:
-        lab = refine_local(sm, lab, fg, valid)
+    n_ann = 0
+    if annotations:
+        ann = find_annotations(img, valid)
+        n_ann = int(ann.sum())
+        if n_ann and (valid & ~ann).sum() >= 64:
+            valid = valid & ~ann
+    vals = img[valid]
+    lo, hi = float(vals.min()), float(vals.max())
+    tol = max(SATURATION * (hi - lo), 1.5 / 255)
+    extremes = (img <= lo + tol) | (img >= hi - tol)
+    kw = dict(flatten=flatten, background_px=background_px, smooth_px=smooth_px, neck_ratio=neck_ratio,
+              threshold=threshold, cut_px=cut_px, cut_contrast=cut_contrast, refine=refine,
+              contrast_z=contrast_z, extremes=extremes, name=name)
+    vote, source = None, "user"
+    if polarity == "auto":
+        vote = polarity_vote(img, valid)
+        if abs(vote - 0.5) >= AMBIGUOUS:
+            polarity, source = ("bright" if vote > 0.5 else "dark"), "edges"
+        else:
+            polarity, source = _near_tie(img, valid, offset, int(min_area_px), kw), "evidence"
+            lab, fg, thr, how, sm, dropped = polarity[1]
+            polarity = polarity[0]
+    if source != "evidence":
+        lab, fg, thr, how, sm, dropped = _one_polarity(img, valid, polarity == "dark", **kw)
     kept = remove_edge_and_specks(lab, valid, int(min_area_px))
-    return Segmentation(kept, fg, thr, offset, lab, valid)
+    return Segmentation(kept, fg, thr, offset, lab, valid, polarity, source, vote, how, n_ann, sm, dropped)
 
 
 def measure_labels(labels: np.ndarray, um_per_px: float, method: str = DEFAULT_METHOD) -> ParticleTable:
@@ -496,7 +796,7 @@ def measure_image(image, um_per_px: float, *, min_area_px: int = MIN_AREA_PX, cr
         Window to keep, e.g. ``"0:423,:"`` to cut off an info bar.
     **kwargs
         Passed to :func:`segment` (``mask``, ``flatten``, ``background_px``,
-        ``smooth_px``, ``neck_ratio``, ``dark_particles``).
+        ``smooth_px``, ``neck_ratio``, ``polarity``, ...).
 
     Returns
     -------

@@ -250,14 +250,15 @@ def identification_text(card, card_path: str | Path | None, **kw) -> str:
 
 
 def identification(card, card_path: str | Path | None, *, seed: int = 0, log=None, client=None,
-                   workers: int | None = None, scheduler: str | None = None, command: str | None = None, **kw):
+                   workers: int | None = None, scheduler: str | None = None, command: str | None = None,
+                   start: str | Path = "nearest", **kw):
     """:func:`bmctl.moments.identify.identify` of ``card``, on a Dask engine of its own unless given one.
 
     Parameters
     ----------
     card : ModelCard
     card_path : path-like or None
-        The card's file (named in the recorded command).
+        The card's file (named in the recorded command; its folder is searched for identified cards).
     seed : int, optional
         Seed of the plant ensembles and the design.
     log : callable, optional
@@ -271,8 +272,13 @@ def identification(card, card_path: str | Path | None, *, seed: int = 0, log=Non
         A running Dask scheduler.
     command : str, optional
         The command line recorded in ``[identification]`` (default ``bmctl identify <card> --seed N``).
+    start : str or path-like, optional
+        Where the fit starts: ``"nearest"`` (from the nearest identified card in the card's folder or
+        the shipped ``models/``, :func:`bmctl.moments.identify.warm_start`, and from the built-in
+        defaults, keeping the lower cost), ``"defaults"`` (the built-in defaults only) or a coefficient
+        file (only it).
     **kw
-        Passed to :func:`bmctl.moments.identify.identify` (``quick``, ``particles``, ...).
+        Passed to :func:`bmctl.moments.identify.identify` (``quick``, ``particles``, ``seeds``, ...).
 
     Returns
     -------
@@ -282,15 +288,26 @@ def identification(card, card_path: str | Path | None, *, seed: int = 0, log=Non
     from . import identify as ident
 
     command = command or f"bmctl identify {card_path if card_path is not None else card.card.name} --seed {seed}"
+    if str(start) == "defaults":
+        first, label = None, ""
+    elif str(start) == "nearest":
+        where = [Path(card_path).parent] if card_path is not None else []
+        first, label = ident.warm_start(card, ident.identified_candidates(*where))
+    else:
+        first, label = ident.warm_start(card, [cf.read_file(start)])
+        if not cf.read_file(start).values:
+            raise InputError(f"--start: {start}: records no card fingerprint; give an identified file")
     own = client is None
     if own:
-        runs, cpu_s = ident.plant_work(card, ident.design(card, seed, kw.get("quick", False),
-                                                          kw.get("random_schedules")),
-                                       1, kw.get("particles") or ident.default_particles(kw.get("quick", False)))
+        quick = kw.get("quick", False)
+        seeds = kw.get("seeds") or (1 if quick else ident.DEFAULT_SEEDS)
+        runs, cpu_s = ident.plant_work(card, ident.design(card, seed, quick, kw.get("random_schedules")), seeds,
+                                       kw.get("particles") or ident.default_particles(quick))
         client = client_for(scheduler, auto_workers(runs, cpu_s, workers, scheduler))
     try:
         return ident.identify(card, seed, source=str(card_path or card.card.name), command=command, log=log,
-                              client=client, **kw)
+                              client=client, start=first, start_label=label, both_starts=str(start) == "nearest",
+                              **kw)
     finally:
         if own:
             close_client(client)

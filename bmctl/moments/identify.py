@@ -328,54 +328,84 @@ def run_scales(experiments: Sequence[Experiment]) -> np.ndarray:
     return np.array([np.sqrt(span(e.Y) * sc) for e in experiments])
 
 
-class _Sym:
-    """casadi simulator of all experiments with the free coefficients as symbols."""
+class _Sensitivities:
+    """The model's step with the free coefficients as inputs, and its forward sensitivities.
 
-    def __init__(self, model: MomentModel, experiments: Sequence[Experiment], free: Sequence[str], fixed: dict):
+    ``step(x, u, p, theta) -> x_next`` is the model's step (:func:`bmctl.moments.equations.step`,
+    the same expression :meth:`MomentModel.casadi_step` compiles) with ``theta`` symbolic, and
+    ``sens(x, S, u, p, theta) -> (x_next, S_next)`` carries S = dx/dtheta along a trajectory:
+    S_next = (d step / dx) S + d step / d theta, both exact (casadi SX Jacobians of the step). A
+    trajectory of K intervals costs K evaluations of ``sens``; the Jacobian of every residual of an
+    experiment follows from its S (one pass, not one per coefficient).
+    """
+
+    def __init__(self, model: MomentModel, free: Sequence[str], fixed: dict, dt_h: float, threads: int = 1):
         import casadi as ca
 
         from . import equations as eq
 
         self.free = list(free)
-        th = ca.SX.sym("theta", len(self.free))
+        nf = len(self.free)
+        th = ca.SX.sym("theta", nf)
         q = dict(fixed)
         for i, k in enumerate(self.free):
             q[k] = th[i]
         _, rates = eq.casadi_rate_field(model.const, q, theta=th)
-        x = ca.SX.sym("x", 6)
-        u = ca.SX.sym("u", 2)
-        p = ca.SX.sym("p", 2)
-        dt = experiments[0].dt_h
-        n, s = model._integration(dt)
-        out = eq.step(eq.CA(), model.const, q, [x[i] for i in range(6)], [u[0], u[1]], [p[0], p[1]], dt, n, s,
-                      rates=rates)
-        F = ca.Function("step_q", [x, u, p, th], [ca.vertcat(*out)])
-        thM = ca.MX.sym("theta", len(self.free))
-        res = []
-        self.scale = None
-        for e in experiments:
-            K = e.U.shape[0]
-            sim = F.mapaccum("sim", K, [0], [0])
-            X = sim(e.x0, e.U.T, e.p, ca.repmat(thM, 1, K))
-            res.append(X)
-        self.sims = ca.Function("sims", [thM], res)
-        self.jac = None
-        self._thM = thM
-        self._res = res
+        x, u, p = ca.SX.sym("x", 6), ca.SX.sym("u", 2), ca.SX.sym("p", 2)
+        n, s = model._integration(dt_h)
+        xn = ca.vertcat(*eq.step(eq.CA(), model.const, q, [x[i] for i in range(6)], [u[0], u[1]], [p[0], p[1]],
+                                 dt_h, n, s, rates=rates))
+        S = ca.SX.sym("S", 6, nf)
+        self.step = ca.Function("step_q", [x, u, p, th], [xn])
+        self.sens = ca.Function("sens_q", [x, S, u, p, th],
+                                [xn, ca.mtimes(ca.jacobian(xn, x), S) + ca.jacobian(xn, th)])
+        self._maps: dict = {}
+        self.threads = threads
 
-    def residual_function(self, experiments, sc, weights):
-        """casadi Functions of theta: the stacked residuals and their Jacobian. ``sc`` is the
-        residual scale per experiment and moment (:func:`run_scales`)."""
-        import casadi as ca
+    def _batch(self, kind: str, K: int, n: int):
+        """``step`` or ``sens`` accumulated over K intervals, mapped over n experiments on threads."""
+        key = (kind, K, n)
+        if key not in self._maps:
+            f = self.step if kind == "step" else self.sens
+            acc = f.mapaccum(f"{kind}_{K}", K, 1 if kind == "step" else 2)
+            self._maps[key] = acc if n == 1 else acc.map(n, "thread", min(n, self.threads))
+        return self._maps[key]
 
-        parts = []
-        for X, e, sce in zip(self._res, experiments, sc):
-            for j in FIT_IDX:
-                parts.append(((X[j, :] - e.Y[1:, j][None, :]) / sce[j] * weights[j]).T)
-        r = ca.vertcat(*parts)
-        f = ca.Function("r", [self._thM], [r])
-        J = ca.Function("J", [self._thM], [ca.jacobian(r, self._thM)])
-        return f, J
+    def run(self, experiments: Sequence[Experiment], theta: np.ndarray, sensitivities: bool = False) -> list:
+        """States (K, 6) of every experiment at ``theta``, with ``sensitivities`` also dx/dtheta (K, 6, n_free).
+
+        Experiments of the same length run as one casadi map over threads (:attr:`threads`).
+        """
+        nf = len(self.free)
+        out: list = [None] * len(experiments)
+        groups: dict = {}
+        for i, e in enumerate(experiments):
+            groups.setdefault(e.U.shape[0], []).append(i)
+        for K, ids in groups.items():
+            n = len(ids)
+            x0 = np.column_stack([experiments[i].x0 for i in ids])
+            U = np.hstack([experiments[i].U.T for i in ids])
+            P = np.hstack([np.tile(experiments[i].p[:, None], (1, K)) for i in ids])
+            TH = np.tile(theta[:, None], (1, K * n))
+            if sensitivities:
+                X, S = self._batch("sens", K, n)(x0, np.zeros((6, nf * n)), U, P, TH)
+                X = np.asarray(X).reshape(6, n, K).transpose(1, 2, 0)
+                S = np.asarray(S).reshape(6, n, K, nf).transpose(1, 2, 0, 3)
+                for j, i in enumerate(ids):
+                    out[i] = (X[j], S[j])
+            else:
+                X = np.asarray(self._batch("step", K, n)(x0, U, P, TH)).reshape(6, n, K).transpose(1, 2, 0)
+                for j, i in enumerate(ids):
+                    out[i] = X[j]
+        return out
+
+    def simulate(self, e: Experiment, theta: np.ndarray) -> np.ndarray:
+        """States after each interval of ``e`` (K, 6) at coefficients ``theta``."""
+        return self.run([e], theta)[0]
+
+    def with_sensitivities(self, e: Experiment, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """States (K, 6) and their derivatives by the free coefficients (K, 6, n_free)."""
+        return self.run([e], theta, sensitivities=True)[0]
 
 
 #: coefficients fitted by default (the rest keep their defaults)
@@ -394,47 +424,174 @@ class FitResult:
     nfev: int
     seconds: float
     message: str
+    njev: int = 0
+    clipped: list = field(default_factory=list)  # coefficients ending at a bound
+    start: str = ""
+    tried: list = field(default_factory=list)
+
+
+class _Budget(Exception):
+    """The fit's Jacobian budget is spent."""
 
 
 def fit(model: MomentModel, experiments: Sequence[Experiment], free: Sequence[str] = FREE,
         weights: Sequence[float] = (1.0, 1.0, 1.0, 1.0), max_nfev: int = 80,
-        log: Callable[[str], None] | None = None) -> FitResult:
-    """Least-squares fit of ``free`` coefficients on range-normalised simulation errors (:func:`run_scales`)."""
+        log: Callable[[str], None] | None = None, start: dict | None = None, ftol: float = 1e-8,
+        on_step: Callable[[dict, float], None] | None = None, threads: int | None = None,
+        starts: Sequence[tuple[str, dict]] | None = None, max_jacobians: int | None = None) -> FitResult:
+    """Least-squares fit of ``free`` coefficients on range-normalised simulation errors (:func:`run_scales`).
+
+    Levenberg-Marquardt (MINPACK) with exact Jacobians (:class:`_Sensitivities`); from each of
+    ``starts`` (or ``start``), keeping the result of lowest cost.
+
+    Parameters
+    ----------
+    model : MomentModel
+        Supplies the card's constants and the fixed coefficients (those not in ``free``).
+    experiments : sequence of Experiment
+        The training data (one interval length).
+    free : sequence of str
+        Coefficients to fit.
+    weights : sequence of float, optional
+        Residual weights of s_mean, s_std, r_mean, r_std.
+    max_nfev : int, optional
+        Most residual evaluations per start.
+    log : callable, optional
+        Progress lines (one per Jacobian).
+    start : dict, optional
+        Starting values of the free coefficients (default: the model's).
+    ftol : float, optional
+        Relative change of the cost at which a fit stops.
+    on_step : callable, optional
+        Called with (coefficients, cost) at every accepted point (each Jacobian).
+    threads : int, optional
+        Threads of the casadi maps that run the experiments (default: the usable CPUs). Same result
+        for any number.
+    starts : sequence of (label, dict), optional
+        Several starting points (each a partial coefficient table over the model's); overrides ``start``.
+    max_jacobians : int, optional
+        Most Jacobians per start: a fit that has not converged by then keeps its lowest-cost point.
+
+    Returns
+    -------
+    FitResult
+    """
     from scipy.optimize import least_squares
 
     t0 = time.time()
+    if threads is None:
+        from ..parallel import default_workers
+
+        threads = default_workers()
     fixed = {k: v for k, v in model.coeffs.items() if k not in free}
-    sym = _Sym(model, experiments, free, fixed)
+    dts = {round(e.dt_h, 12) for e in experiments}
+    if len(dts) != 1:
+        raise ValueError(f"fit: experiments of one interval length expected (got {sorted(dts)})")
+    sens = _Sensitivities(model, free, fixed, experiments[0].dt_h, threads=threads)
     sc = run_scales(experiments)
     w = np.ones(6)
     w[list(FIT_IDX)] = weights
-    f, J = sym.residual_function(experiments, sc, w)
-    th0 = np.array([model.coeffs[k] for k in free])
+    idx = list(FIT_IDX)
+    scale = [(w[idx] / sce[idx])[None, :] for sce in sc]  # per experiment, (1, 4)
     lo = np.array([cf.SPEC[k][1] for k in free])
     hi = np.array([cf.SPEC[k][2] for k in free])
-    th0 = np.clip(th0, lo + 1e-9, hi - 1e-9)
-    count = [0]
+    count = [0, 0]
+    costs: dict = {}
 
-    def fun(th):
+    # Levenberg-Marquardt (MINPACK), first unbounded in the coefficients themselves (a bounded trust region,
+    # trf, stalled at several times the cost); if that leaves a coefficient's bounds, it continues from the
+    # point pulled back inside, bounded through theta = lo + (hi - lo) sigmoid(z) (clipping alone undid the fit)
+    span_ = hi - lo
+
+    def sig(z):
+        return 1.0 / (1.0 + np.exp(-np.clip(z, -40.0, 40.0)))
+
+    mode = ["plain"]
+
+    def theta(v):
+        return v if mode[0] == "plain" else lo + span_ * sig(v)
+
+    def dtheta(v):
+        return np.ones_like(v) if mode[0] == "plain" else span_ * sig(v) * (1.0 - sig(v))
+
+    def fun(v):
+        th = theta(v)
         count[0] += 1
-        v = np.array(f(th)).ravel()
-        return np.where(np.isfinite(v), v, 1e3)
+        parts = [((X[:, idx] - e.Y[1:, idx]) * scl).T.ravel()
+                 for X, e, scl in zip(sens.run(experiments, th), experiments, scale)]
+        r = np.concatenate(parts)
+        r = np.where(np.isfinite(r), r, 1e3)
+        costs[v.tobytes()] = (0.5 * float(r @ r), np.array(v))
+        return r
 
-    def jac(th):
-        Jv = np.array(J(th))
-        return np.where(np.isfinite(Jv), Jv, 0.0)
+    def lm(v0, st, tag, budget):
+        """(coefficients, message, Jacobians) of one Levenberg-Marquardt run in the current mode."""
+        costs.clear()
+        njev = [0]
 
-    r0 = fun(th0)
-    cost0 = 0.5 * float(r0 @ r0)
+        def jac(v):
+            if budget is not None and njev[0] >= budget:
+                raise _Budget()
+            njev[0] += 1
+            count[1] += 1
+            th = theta(v)
+            rows = [(S[:, idx, :] * scl[:, :, None]).transpose(1, 0, 2).reshape(-1, len(free))
+                    for (_, S), scl in zip(sens.run(experiments, th, sensitivities=True), scale)]
+            Jv = np.concatenate(rows) * dtheta(v)[None, :]
+            cost = costs.get(v.tobytes(), (float("nan"),))[0]
+            if log:
+                log(f"{tag}: step {njev[0]}, cost {cost:.4g} ({time.time() - t0:.1f} s)")
+            if on_step is not None:
+                on_step(dict(st, **{k: float(x) for k, x in zip(free, th)}), cost)
+            return np.where(np.isfinite(Jv), Jv, 0.0)
+
+        fun(v0)
+        try:
+            sol = least_squares(fun, v0, jac=jac, method="lm", x_scale="jac", max_nfev=max_nfev, ftol=ftol,
+                                xtol=1e-10)
+            v, message = sol.x, str(sol.message)
+        except _Budget:
+            v = min(costs.values(), key=lambda cv: cv[0])[1]
+            message = f"stopped after {budget} Jacobians at the lowest cost seen"
+        return theta(v), message, njev[0]
+
+    runs = []
+    todo = list(starts or [("", start or {})])
+    for n_start, (label, st) in enumerate(todo, 1):
+        tag = f"fit, start {n_start}/{len(todo)}" if len(todo) > 1 else "fit"
+        st = dict(model.coeffs, **st)
+        th0 = np.clip(np.array([st[k] for k in free]), lo, hi)
+        mode[0] = "plain"
+        r0 = fun(th0)
+        cost0 = 0.5 * float(r0 @ r0)
+        if log:
+            log(f"{tag}: {len(free)} coefficients, {r0.size} residuals, initial cost {cost0:.4g}"
+                + (f" ({label})" if label else "") + f" ({time.time() - t0:.1f} s)")
+        n0 = count[0]
+        x, message, nj = lm(th0, st, tag, max_jacobians)
+        outside = [k for k, v, a, b in zip(free, x, lo, hi) if not a <= v <= b]
+        if outside:
+            if log:
+                log(f"{tag}: {', '.join(outside)} left the bounds; continuing bounded from the point pulled inside")
+            u = np.clip((x - lo) / span_, 1e-3, 1 - 1e-3)
+            mode[0] = "bounded"
+            x, message, nj2 = lm(np.log(u / (1 - u)), st, tag, max_jacobians)
+            nj += nj2
+        at_bound = [k for k, v, a, b in zip(free, x, lo, hi) if min(v - a, b - v) < 1e-3 * (b - a)]
+        mode[0] = "plain"
+        r = fun(np.clip(x, lo, hi))
+        runs.append({"label": label, "x": np.clip(x, lo, hi), "cost0": cost0, "cost": 0.5 * float(r @ r),
+                     "nfev": count[0] - n0, "njev": nj, "message": message, "clipped": at_bound, "start": st})
+    best = min(runs, key=lambda rr: rr["cost"])
+    out = dict(best["start"])
+    out.update({k: float(v) for k, v in zip(free, best["x"])})
     if log:
-        log(f"fit: {len(free)} coefficients, {r0.size} residuals, initial cost {cost0:.4g}")
-    sol = least_squares(fun, th0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac", max_nfev=max_nfev,
-                        ftol=1e-8, xtol=1e-10)
-    out = dict(model.coeffs)
-    out.update({k: float(v) for k, v in zip(free, sol.x)})
-    if log:
-        log(f"fit: cost {cost0:.4g} -> {sol.cost:.4g} in {sol.nfev} evaluations ({time.time() - t0:.1f} s)")
-    return FitResult(out, cost0, float(sol.cost), int(sol.nfev), time.time() - t0, str(sol.message))
+        tried = "; ".join(f"start {i}: {rr['cost0']:.4g} -> {rr['cost']:.4g}" for i, rr in enumerate(runs, 1))
+        log(f"fit: cost {tried}; kept start {runs.index(best) + 1} ({count[1]} Jacobians, {time.time() - t0:.1f} s)")
+    return FitResult(out, best["cost0"], best["cost"], int(count[0]), time.time() - t0, best["message"], count[1],
+                     best["clipped"], best["label"],
+                     [{"start": rr["label"], "cost_initial": round(rr["cost0"], 6), "cost_final": round(rr["cost"], 6),
+                       "jacobians": rr["njev"]} for rr in runs])
 
 
 # --- validation ----------------------------------------------------------------------------------
@@ -502,10 +659,133 @@ def check_finite(source: str, experiments: Sequence[Experiment], coeffs: dict) -
         raise InputError(f"{source}: identification produced non-finite coefficients")
 
 
+#: training plant seeds (offsets to 1000 x --seed) of the default identification; ``--seeds 4`` is the
+#: shipped cards' setting (TRAIN_SEEDS)
+DEFAULT_SEEDS = 2
+#: held-out random schedules of the default identification (each on VALID_SEEDS); N_VALID the shipped cards'
+DEFAULT_HELDOUT = 24
+#: most residual evaluations of the fit per start (Levenberg-Marquardt rejects some trial steps)
+DEFAULT_EVALUATIONS = 40
+#: most Jacobians per start: the fits level off within 6-8 (docs/moments.md, Sec. 6)
+DEFAULT_JACOBIANS = 8
+
+
+def warm_start(card: ModelCard, candidates: Sequence) -> tuple[dict, str]:
+    """Starting coefficients for a fit of ``card``: those of the nearest identified card, else the defaults.
+
+    The nearest is the candidate whose recorded fingerprint values (``[card.values]``) are closest to
+    the card's (sum over the shared fields of |ln(a/b)|, or |a - b| / max(|a|, |b|) where a sign
+    differs or a value is 0). Its coefficients carry over as they are, except the four derived threshold
+    laws, whose identified *corrections* carry over: start = derived law of ``card`` + (identified -
+    derived law of the candidate's alpha, beta and threshold sharpness).
+
+    Parameters
+    ----------
+    card : ModelCard
+        The card to identify.
+    candidates : sequence of CoeffFile
+        Identified coefficient files (those without a fingerprint are skipped).
+
+    Returns
+    -------
+    (dict, str)
+        All coefficients (defaults where a candidate has none) and where they came from.
+    """
+    import math
+
+    from ..cards import fingerprint_values
+    from .model import default_coeffs
+
+    base = default_coeffs(card)
+    mine = fingerprint_values(card)
+
+    def dist(values: dict) -> float:
+        d = 0.0
+        for k, a in mine.items():
+            b = values.get(k)
+            if b is None:
+                d += 1.0
+            elif a > 0 and b > 0:
+                d += abs(math.log(a / b))
+            elif a != b:
+                d += abs(a - b) / max(abs(a), abs(b))
+        return d
+
+    usable = [c for c in candidates if c.values]
+    if not usable:
+        return base, "the built-in defaults (no identified card to start from)"
+    near = min(usable, key=lambda c: (dist(c.values), str(c.path)))
+    v = near.values
+    other = card.model_copy(update={
+        "stochastic": card.stochastic.model_copy(update={"alpha": float(v.get("stochastic.alpha", card.stochastic.alpha)),
+                                                         "beta": float(v.get("stochastic.beta", card.stochastic.beta))}),
+        "partition": card.partition.model_copy(update={"threshold_sharpness": float(v.get(
+            "partition.threshold_sharpness", card.partition.threshold_sharpness))})})
+    their = default_coeffs(other)
+    out = dict(base)
+    for k, val in near.coeffs.items():
+        out[k] = base[k] + (val - their[k]) if cf.SPEC[k][0] is None else val
+        lo, hi = cf.SPEC[k][1], cf.SPEC[k][2]
+        out[k] = min(max(out[k], lo), hi)
+    from .forcard import SHIPPED_DIR
+
+    where = (f"models/{near.path.name}" if near.path.resolve().parent == SHIPPED_DIR.resolve() else str(near.path))
+    return out, f"{where} (card {near.card_name}, the nearest identified card)"
+
+
+def identified_candidates(*folders) -> list:
+    """Coefficient files with a card fingerprint in ``folders`` (default: the shipped ``models/``).
+
+    Parameters
+    ----------
+    *folders : path-like
+        Folders to look in (unreadable files are skipped).
+    """
+    from pathlib import Path
+
+    from ..errors import InputError
+    from .forcard import SHIPPED_DIR
+
+    out, seen = [], set()
+    for folder in list(folders) + [SHIPPED_DIR]:
+        folder = Path(folder)
+        for p in sorted(folder.glob("*.moments.toml")) if folder.is_dir() else []:
+            key = p.resolve()
+            if key in seen:
+                continue
+            seen.add(key)
+            try:
+                f = cf.read_file(p)
+            except (InputError, OSError):
+                continue
+            if f.values:
+                out.append(f)
+    return out
+
+
+class _Progress:
+    """Prints "plant experiments: k/N runs" about every tenth of the way."""
+
+    def __init__(self, log, total: int):
+        self.log, self.total, self.done, self.next = log, total, 0, 0
+
+    def __call__(self, _line: str = "") -> None:
+        self.done += 1
+        if self.done >= self.next or self.done == self.total:
+            self.log(f"plant experiments: {self.done}/{self.total} runs")
+            self.next = self.done + max(1, self.total // 10)
+
+
 def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int | None = None,
              random_schedules: int | None = None, source: str = "", command: str = "",
-             log: Callable[[str], None] | None = None, client=None) -> Identification:
+             log: Callable[[str], None] | None = None, client=None, seeds: int | None = None,
+             heldout: int | None = None, start: dict | None = None, start_label: str = "",
+             evaluations: int | None = None, threads: int | None = None, jacobians: int | None = None,
+             both_starts: bool = True) -> Identification:
     """Fit the moment model of ``card`` to a design of plant experiments and validate it.
+
+    Three phases, each reporting through ``log``: the plant experiments (training, held-out and
+    off-card runs), the fit (one line per step), the validation (held-out NRMSE per output).
 
     Parameters
     ----------
@@ -514,7 +794,7 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
     seed : int, optional
         Seed of the plant ensembles and the design (seeds are offsets to 1000 x seed).
     quick : bool, optional
-        Fewer experiments and one training seed.
+        Fewer experiments and held-out schedules, one training seed, M = 2000.
     particles : int, optional
         Simulated particles per plant (default 4000; quick 2000).
     random_schedules : int, optional
@@ -528,6 +808,24 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
     client : distributed.Client, optional
         Dask engine of the plant runs (:func:`bmctl.parallel.client_for`); None: serial, in
         process. The result is the same either way.
+    seeds : int, optional
+        Training plant seeds (default :data:`DEFAULT_SEEDS`; quick 1).
+    heldout : int, optional
+        Held-out random schedules (default :data:`DEFAULT_HELDOUT`; quick 4), each on the three
+        seeds :data:`VALID_SEEDS` (quick: two).
+    start : dict, optional
+        Starting coefficients of the fit (:func:`warm_start`); the fit runs from them and, with
+        ``both_starts``, from the built-in defaults, and keeps the lower cost. None: the defaults only.
+    start_label : str, optional
+        Where ``start`` came from (recorded).
+    evaluations : int, optional
+        Most residual evaluations of the fit per start (default :data:`DEFAULT_EVALUATIONS`).
+    jacobians : int, optional
+        Most Jacobians per start (default :data:`DEFAULT_JACOBIANS`).
+    both_starts : bool, optional
+        Also fit from the built-in defaults when ``start`` is given (default True).
+    threads : int, optional
+        Threads of the fit (default: the usable CPUs; same result for any number).
     """
     from datetime import datetime, timezone
 
@@ -535,27 +833,40 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
 
     log = log or (lambda msg: None)
     particles = particles or default_particles(quick)
-    train_seeds = [1000 * seed + k for k in ((1,) if quick else TRAIN_SEEDS)]
-    valid_seeds = [1000 * seed + k for k in ((11, 12) if quick else VALID_SEEDS)]
+    n_seeds = seeds if seeds is not None else (1 if quick else DEFAULT_SEEDS)
+    n_held = heldout if heldout is not None else (4 if quick else DEFAULT_HELDOUT)
+    train_seeds = [1000 * seed + k for k in range(1, n_seeds + 1)]
+    valid_seeds = [1000 * seed + k for k in (VALID_SEEDS[:2] if quick else VALID_SEEDS)]
     specs = design(card, seed, quick, random_schedules)
-    vspecs = validation_design(card, seed, 4 if quick else N_VALID)
-    log(f"{card.card.name}: {len(specs)} training experiments x {len(train_seeds)} seeds, "
-        f"{len(vspecs)} held-out schedules x {len(valid_seeds)} seeds, M={particles}")
-    train = run_experiments(card, specs, train_seeds, particles, client=client)
-    log("training experiments done")
-    valid = run_experiments(card, vspecs, valid_seeds, particles, client=client)
-    off = run_experiments(card, off_card_design(card), valid_seeds, particles, client=client)
-    log("held-out experiments done")
+    vspecs = validation_design(card, seed, n_held)
+    ospecs = off_card_design(card)
+    n_runs = len(specs) * len(train_seeds) + (len(vspecs) + len(ospecs)) * len(valid_seeds)
+    log(f"{card.card.name}: plant experiments: {len(specs)} training x {len(train_seeds)} seeds, {len(vspecs)} "
+        f"held-out and {len(ospecs)} off-card x {len(valid_seeds)} seeds, M={particles} ({n_runs} runs)")
+    prog = _Progress(log, n_runs)
+    t_plant = time.time()
+    train = run_experiments(card, specs, train_seeds, particles, progress=prog, client=client)
+    valid = run_experiments(card, vspecs, valid_seeds, particles, progress=prog, client=client)
+    off = run_experiments(card, ospecs, valid_seeds, particles, progress=prog, client=client)
+    t_plant = time.time() - t_plant
 
-    model0 = MomentModel(card, default_coeffs(card), "defaults")
-    res = fit(model0, train, log=log)
+    defaults = default_coeffs(card)
+    model0 = MomentModel(card, defaults, "defaults")
+    starts = [(start_label or "the given coefficients", start)] if start else []
+    if start is None or both_starts:
+        starts.append(("the built-in defaults", {}))
+    log(f"fit: {len(FREE)} coefficients; " + "; ".join(f"start {i}: {lab}" for i, (lab, _) in enumerate(starts, 1)))
+    res = fit(model0, train, log=log, starts=starts, max_nfev=evaluations or DEFAULT_EVALUATIONS, ftol=1e-3,
+              threads=threads, max_jacobians=jacobians or DEFAULT_JACOBIANS)
     model = MomentModel(card, res.coeffs, source)
     check_finite(source, train + valid + off, res.coeffs)
+    log(f"validation: {len(valid)} held-out schedules, {len(off)} off-card runs")
     tab0, tab, tab_train = nrmse_table(model0, valid), nrmse_table(model, valid), nrmse_table(model, train)
     # off-card check: the model told the plant's (gamma, delta) factors, and not told (p = 1)
     otab = nrmse_table(model, off)
     otab1 = nrmse_table(model, [replace(e, p=np.ones(2)) for e in off])
-    log("validation done")
+    log("validation: held-out NRMSE " + ", ".join(f"{k.removesuffix('_um')} {100 * v:.1f} %"
+                                                    for k, v in zip(MOMENTS[:4], tab["mean"][:4])))
 
     names = MOMENTS[:5]
     validation = {
@@ -572,8 +883,12 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
         "card": card.card.name, "command": command,
         "date_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "experiments": len(train), "train_seeds": train_seeds, "particles": particles,
-        "dt_h": DT_H, "cost_initial": round(res.cost0, 6), "cost_final": round(res.cost, 6),
-        "evaluations": res.nfev, "fit_seconds": round(res.seconds, 1),
+        "dt_h": DT_H, "start": res.start,
+        "starts": [f"{t['start']}: cost {t['cost_initial']:.6g} -> {t['cost_final']:.6g} in {t['jacobians']} Jacobians"
+                   for t in res.tried], "cost_initial": round(res.cost0, 6),
+        "cost_final": round(res.cost, 6), "evaluations": res.nfev, "jacobians": res.njev,
+        "at_bound": list(res.clipped),
+        "plant_seconds": round(t_plant, 1), "fit_seconds": round(res.seconds, 1),
     }
     sections = {"card": card_table(card), "window": design_window(card, specs), "identification": meta,
                 "validation": validation}

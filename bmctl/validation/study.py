@@ -128,9 +128,9 @@ def run_one(model, card: ModelCard, scenario: tuple[float, float], seed: int, cf
 
 def run_study(cfg: StudyConfig, progress=None) -> dict:
     """All runs of a study: ``{scenario: [run_one(...) for each seed]}``."""
-    from ..moments.model import make_moment_model
+    from ..moments.forcard import for_card
 
-    model = make_moment_model(cfg.card)
+    model = for_card(cfg.card)  # refuses coefficients of another card
     card = load_card(cfg.card)
     res = {}
     for sc in cfg.scenarios:

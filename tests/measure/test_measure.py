@@ -148,13 +148,15 @@ def test_crop_and_mask_drop_the_info_bar():
     m = render_micrograph(rng, n=30, shape=(300, 300), s_px=(14, 24))
     img = np.vstack([m.image, np.zeros((40, 300))])
     img[310:320, 20:200] = 1.0  # white "text" in a black info bar
-    full = segment(img)
+    full = segment(img, annotations=False)
     assert (full.labels[300:] > 0).any()  # the text is taken for particles ...
-    cropped = segment(img, crop="0:300,:")
+    cropped = segment(img, crop="0:300,:", annotations=False)
     assert cropped.labels.shape == (300, 300)
-    masked = segment(img, mask=np.arange(340)[:, None] < 300 * np.ones((1, 300), bool))
+    masked = segment(img, mask=np.arange(340)[:, None] < 300 * np.ones((1, 300), bool), annotations=False)
     assert not (masked.labels[300:] > 0).any()  # ... unless cropped or masked
     assert cropped.labels.max() == masked.labels.max() == full.labels.max() - 1
+    found = segment(img)  # or found as a drawn bar (annotation) and masked
+    assert not (found.labels[300:] > 0).any() and found.annotation_px >= 10 * 180
     t = measure_image(img, 0.5, crop=(0, 300, 0, -1))
     assert len(t) == cropped.labels.max()
     assert np.all(t.r >= 0) and np.all(t.r < 1)

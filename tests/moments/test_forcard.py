@@ -2,6 +2,7 @@
 
 import shutil
 
+import numpy as np
 import pytest
 
 from bmctl.cards import (FINGERPRINT_SKIP, FINGERPRINT_TABLES, fingerprint, fingerprint_diff, fingerprint_values,
@@ -243,3 +244,104 @@ def test_card_show_says_whether_the_card_has_coefficients(tmp_path, capsys):
     assert main(["card", "show", str(p)]) == 0
     out = capsys.readouterr().out
     assert "other values of 1 field(s): stochastic.alpha 2.2 (coefficients: 2.1)" in out and "refuse" in out
+
+
+# --- fast identification -----------------------------------------------------------------------------
+
+
+def _short_experiments(model):
+    from bmctl.moments import identify as ident
+
+    out = []
+    for name, U, p in (("a", [[300.0, 1.0]] * 4, (1.0, 1.0)), ("b", [[500.0, 1.0], [150.0, 1.0], [0.0, 1.0]], (1.2, 0.9))):
+        Y = model.simulate(model.x0(), np.array(U), 0.5, p=np.array(p))
+        out.append(ident.Experiment(name, np.array(U), Y, np.zeros_like(Y), p=np.array(p)))
+    return out
+
+
+def test_sensitivities_are_the_derivatives_of_the_model_step():
+    """The fit's trajectories equal MomentModel.simulate, and their sensitivities dx/dtheta match central
+    differences of those trajectories (relative 1e-5), bit for bit the same for any thread count."""
+    from bmctl.moments import identify as ident
+
+    model = for_card(LAB)
+    free = ("bond_log_scale", "frac_slope", "r_size_corr", "round_rpm_slope")
+    fixed = {k: v for k, v in model.coeffs.items() if k not in free}
+    th = np.array([model.coeffs[k] for k in free])
+    exps = _short_experiments(model)
+    s1 = ident._Sensitivities(model, free, fixed, 0.5, threads=1)
+    s2 = ident._Sensitivities(model, free, fixed, 0.5, threads=2)
+    r1, r2 = s1.run(exps, th, sensitivities=True), s2.run(exps + exps[:1], th, sensitivities=True)
+    for (X, S), (X2, S2), e in zip(r1, r2, exps):
+        np.testing.assert_allclose(X, e.Y[1:], rtol=1e-12, atol=0)
+        assert np.array_equal(X, X2) and np.array_equal(S, S2)
+        for i in range(len(free)):
+            d = np.zeros_like(th)
+            d[i] = 1e-6 * max(1.0, abs(th[i]))
+            fd = (s1.simulate(e, th + d) - s1.simulate(e, th - d)) / (2 * d[i])
+            # relative 1e-5, or 1e-6 in state units where a coefficient hardly moves a run (central differences
+            # of a smooth step lose ~1e-7 to rounding)
+            assert np.max(np.abs(fd - S[:, :, i])) <= 1e-5 * max(np.max(np.abs(fd)), 0.1), free[i]
+        assert np.max(np.abs(S[:, 0, 0])) > 1.0  # the bonding scale moves s_mean by microns
+
+
+def test_warm_start_carries_the_nearest_cards_corrections():
+    """From a card's own file the start is that file's coefficients; for a card with another alpha the derived
+    threshold laws move with the card while their identified corrections carry over."""
+    from bmctl.moments import identify as ident
+    from bmctl.moments.model import default_coeffs
+
+    cands = ident.identified_candidates()
+    assert {c.card_name for c in cands} >= set(CARDS)
+    card = load_card(LAB)
+    start, label = ident.warm_start(card, cands)
+    lab = cf.read_file(cf.coeffs_path(LAB))
+    assert "alni-1to1-300rpm-lab" in label
+    assert all(start[k] == pytest.approx(v, abs=1e-12) for k, v in lab.coeffs.items())
+    other = card.model_copy(update={"stochastic": card.stochastic.model_copy(update={"alpha": 2.6})})
+    start, _ = ident.warm_start(other, [lab])
+    d_new, d_lab = default_coeffs(other), default_coeffs(card)
+    assert d_new["bond_slope"] != pytest.approx(d_lab["bond_slope"])
+    assert start["bond_slope"] == pytest.approx(d_new["bond_slope"] + lab.coeffs["bond_slope"] - d_lab["bond_slope"])
+    assert start["r_size_corr"] == lab.coeffs["r_size_corr"]
+    assert ident.warm_start(card, [])[1].startswith("the built-in defaults")
+
+
+@pytest.mark.slow
+def test_identify_reports_every_phase_and_writes_next_to_the_card(tmp_path, capsys):
+    """`bmctl identify --quick` on a new card (15 mm balls, derived mass): progress lines for the plant
+    experiments, the fit and the validation; the held-out error per output at the end; the file next to the
+    card, with the card's fingerprint, accepted by for_card."""
+    p = _copy(tmp_path, "ball_diameter_m = 0.010", "ball_diameter_m = 0.015", coeffs=False)
+    p.write_text(p.read_text().replace("impactor_mass_kg = 4.14e-3\n", ""))
+    assert main(["identify", str(p), "--quick", "--workers", "0"]) == 0
+    cap = capsys.readouterr()
+    for phase in ("plant experiments: ", "step 1, cost", "validation: held-out NRMSE"):
+        assert phase in cap.err, phase
+    assert "nearest identified card" in cap.err
+    assert "held-out NRMSE per output" in cap.out
+    st = status(load_card(p), p)
+    assert st.state == "match" and set(st.file.heldout_mean) >= {"s_mean_um", "r_std"}
+    assert for_card(p).coeff_file.card_name == load_card(p).card.name
+
+
+def test_identify_flag_identifies_on_the_spot_and_writes_next_to_the_card(tmp_path, monkeypatch):
+    """for_card(identify=True) on a card without coefficients identifies it (a stand-in here), shows progress and
+    writes <card>.moments.toml next to it; the model then runs on them."""
+    from types import SimpleNamespace
+
+    from bmctl.moments import forcard
+    from bmctl.moments import identify as ident
+
+    p = _copy(tmp_path, "alpha = 2.1", "alpha = 2.2", coeffs=False)
+    lines = []
+
+    def fake(card, card_path, **kw):
+        kw["log"]("plant experiments: 1/1 runs")
+        return SimpleNamespace(toml=cf.toml_text({"bond_log_scale": 0.1}, {"card": ident.card_table(card)}))
+
+    monkeypatch.setattr(forcard, "identification", fake)
+    model = for_card(p, identify=True, progress=lines.append)
+    assert cf.coeffs_path(p).exists() and model.coeffs["bond_log_scale"] == 0.1
+    assert any("identifying" in ln for ln in lines) and "plant experiments: 1/1 runs" in lines
+    assert status(load_card(p), p).ok

