@@ -280,7 +280,7 @@ def test_report_loads_in_headless_chromium(tmp_path):
     cp.sample(d, 1.0, [_table(2, 40.0)])
     page = cp.report(d)
     text = page.read_text()
-    assert text.count("data:image/png;base64,") == 3 and "http" not in text.replace("http-equiv", "")
+    assert text.count("data:image/png;base64,") == 4 and "http" not in text.replace("http-equiv", "")
     shot = tmp_path / "shot.png"
     prof = tempfile.mkdtemp()
     r = subprocess.run([_chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",

@@ -212,8 +212,10 @@ def test_simulate_with_an_output_name_that_is_a_folder_writes_nothing(tmp_path, 
 
 @pytest.mark.slow
 def test_run_leaving_the_validity_range_warns(tmp_path, capsys):
-    p = mutated(tmp_path, LAB, "[validity]" if "[validity]" in LAB.read_text() else "[stochastic]",
-                "[validity]\ntemperature_max_C = 30.0\n\n[stochastic]")
+    if "[validity]" in LAB.read_text():
+        p = mutated(tmp_path, LAB, "[validity]", "[validity]\ntemperature_max_C = 30.0\n#")
+    else:
+        p = mutated(tmp_path, LAB, "[stochastic]", "[validity]\ntemperature_max_C = 30.0\n\n[stochastic]")
     rc = main(["simulate", str(p), "--hours", "1", "--particles", "200", "--out", str(tmp_path / "o"),
                "--no-progress"])
     err = capsys.readouterr().err
