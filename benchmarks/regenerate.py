@@ -59,6 +59,7 @@ REGISTRY: tuple[Study, ...] = (
     Study("estimator_study", "python benchmarks/estimator_study.py --seeds 10", 15),
     Study("design_reach", "python benchmarks/design_reach.py", 5),
     Study("hidden_mills", "python benchmarks/hidden_mills.py", 60),
+    Study("control_study", "python benchmarks/control_study.py --seeds 3", 40),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
     Study("calibrated_card", "python benchmarks/calibrated_card_check.py", 3),
     Study("measure_emps", "python benchmarks/measure_emps.py", 1),
@@ -69,6 +70,8 @@ REGISTRY: tuple[Study, ...] = (
     Study("bench_plant", "python benchmarks/bench_plant.py", 1, timing=True),
     Study("bench_ensemble", "python benchmarks/bench_ensemble.py", 1, timing=True),
     Study("campaign_advise", "python benchmarks/campaign_advise.py", 3, timing=True),
+    Study("bench_control_compiled", "python benchmarks/bench_control.py --compiled", 3, timing=True),
+    Study("bench_control", "python benchmarks/bench_control.py", 2, timing=True),
 )
 
 MARKER = re.compile(r"(<!--r:([^:>\s]+):([^>\s]+?)-->)(.*?)(<!--/r-->)", re.S)
