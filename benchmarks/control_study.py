@@ -187,7 +187,7 @@ def table(rec: dict) -> str:
                 k = f"paired.{scen}.{ctrl}.{b}"
                 cells.append(f"{m(k + '.mean_pct', d['mean_pct'], '{:+.2f}')} ± {m(k + '.se_pct', d['se_pct'], '{:.2f}')} "
                              f"(lower on {m(k + '.lower', d['lower'], '{:d}')} of {d['n']}"
-                             + (f", p = {m(k + '.wilcoxon_p', d['wilcoxon_p'], '{:.2g}')})" if d["wilcoxon_p"] is not None else ")"))
+                             + (f", p = {m(k + '.wilcoxon_p', d['wilcoxon_p'], '{:.2g}')})" if d.get("wilcoxon_p") is not None else ")"))
             rows.append(f"| {scen} | {ctrl} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
 
