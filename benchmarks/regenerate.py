@@ -59,7 +59,7 @@ REGISTRY: tuple[Study, ...] = (
     Study("estimator_study", "python benchmarks/estimator_study.py --seeds 10", 15),
     Study("design_reach", "python benchmarks/design_reach.py", 5),
     Study("hidden_mills", "python benchmarks/hidden_mills.py", 60),
-    Study("control_study", "python benchmarks/control_study.py --seeds 3", 40),
+    Study("control_study", "python benchmarks/control_study.py --seeds 20", 45),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
     Study("calibrated_card", "python benchmarks/calibrated_card_check.py", 3),
     Study("measure_emps", "python benchmarks/measure_emps.py", 1),
