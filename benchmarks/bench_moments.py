@@ -1,8 +1,9 @@
 """Speed of the moment model: a 12 h prediction, the casadi step and its Jacobian.
 
-Run:  python benchmarks/bench_moments.py [MODEL.toml]
+Run:  python benchmarks/bench_moments.py [MODEL.toml] [--no-results]
 
-Prints a table of median wall times (ms). Targets: one 12 h prediction <= 5 ms.
+Prints a table of median wall times (ms) and writes them with the load average to
+``results/bench_moments.json`` (keys in ``KEYS``). Targets: one 12 h prediction <= 5 ms.
 """
 
 from __future__ import annotations
@@ -37,11 +38,20 @@ def timeit(fn, repeat: int = 20, warmup: int = 2) -> float:
     return float(np.median(times(fn, repeat, warmup)))
 
 
+#: results-file key of each printed row, in order
+KEYS = ("build_ms", "first_predict_dt1_ms", "predict_dt1_median_ms", "predict_dt1_fastest_ms",
+        "first_predict_dt05_ms", "predict_dt05_median_ms", "predict_dt05_fastest_ms", "casadi_step_ms",
+        "jacobian_build_ms", "casadi_jacobian_ms", "numpy_step_batch1000_ms", "numpy_step_one_ms")
+
+
 def main(argv=None) -> int:
     import casadi as ca
 
-    argv = sys.argv[1:] if argv is None else argv
+    argv = sys.argv[1:] if argv is None else list(argv)
+    no_results = "--no-results" in argv
+    argv = [a for a in argv if a != "--no-results"]
     card = argv[0] if argv else str(ROOT / "models" / "alni-1to1-300rpm-lab.toml")
+    load0 = os.getloadavg()
     t0 = time.perf_counter()
     model = make_moment_model(card)
     t_build = 1e3 * (time.perf_counter() - t0)
@@ -78,6 +88,16 @@ def main(argv=None) -> int:
     print(f"{'case':<{w}}  {'ms':>9}  target")
     for name, ms, target in rows:
         print(f"{name:<{w}}  {ms:9.3f}  {target}")
+    if not no_results:
+        from bmctl.results import write_results
+
+        values = {key: row[1] for key, row in zip(KEYS, rows)}
+        values.update(rate_field_instructions=n_ins, load_average_start=list(load0),
+                      load_average_end=list(os.getloadavg()), cpus=os.cpu_count())
+        shown = "" if not argv else " " + os.path.relpath(card, ROOT)
+        write_results("bench_moments", values, settings={"card": model.card.card.name, "repeat": 60,
+                                                          "coefficients": os.path.relpath(str(model.coeffs_source), ROOT)},
+                      command="python benchmarks/bench_moments.py" + shown)
     return 0
 
 
