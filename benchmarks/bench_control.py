@@ -12,6 +12,11 @@ Prints per scenario: the cold first solve (exact Hessian; solver construction ex
 the median wall and CPU time of the warm solves (CPU time is less sensitive to a busy machine),
 the 90th percentile / max of the wall times, the iteration counts and the
 number of fallbacks, and the final relative target errors. Single-threaded (one core).
+
+The default run writes ``results/bench_control.json``, ``--compiled`` writes
+``results/bench_control_compiled.json``, ``--nlp`` writes ``results/bench_control_nlp.json`` (each
+with the load average; ``--no-results``: none). ``controllers/mpc-default.toml`` plans by search
+(``[plan] method = "search"``); ``--nlp`` and ``--compiled`` time its multiple-shooting NLP instead.
 """
 
 from __future__ import annotations
@@ -38,9 +43,17 @@ SCENARIOS = {
 }
 
 
-def run(model, cfg_path: str, scenario: str, hours: float):
-    rpm, mill, ceiling = SCENARIOS[scenario]
+def _load(cfg_path: str, nlp: bool):
+    """The controller config; with ``nlp`` its [plan] method set to the multiple-shooting NLP."""
     cfg = load_controller(cfg_path)
+    if nlp and hasattr(cfg, "plan"):
+        cfg = cfg.model_copy(update={"plan": cfg.plan.model_copy(update={"method": "nlp"})})
+    return cfg
+
+
+def run(model, cfg_path: str, scenario: str, hours: float, nlp: bool = False):
+    rpm, mill, ceiling = SCENARIOS[scenario]
+    cfg = _load(cfg_path, nlp)
     dt = cfg.interval_h
     K = int(round(hours / dt))
     Xs = model.simulate(model.x0(), [[rpm, mill]] * K, dt)
@@ -107,6 +120,7 @@ from bmctl.control.config import load_controller
 from bmctl.moments.model import make_moment_model
 model = make_moment_model(sys.argv[1])
 cfg = load_controller(sys.argv[2]).model_copy(update={"batch_hours": float(sys.argv[3])})
+cfg = cfg.model_copy(update={"plan": cfg.plan.model_copy(update={"method": "nlp"})})
 ctrl = make_controller(cfg, model, json.loads(sys.argv[4]))
 ctrl._solver(True)
 print(time.perf_counter() - t0)
@@ -128,7 +142,14 @@ def _fresh_build(mode: str, model, cfg_path: str, hours: float, target: dict) ->
     return float(out.stdout.strip().splitlines()[-1])
 
 
-def compiled_vs_interpreted(model, cfg_path: str, hours: float) -> None:
+def _libraries() -> set:
+    from bmctl.control import cache
+
+    folder = cache.cache_dir()
+    return set(folder.glob("*.so")) if folder is not None and folder.is_dir() else set()
+
+
+def compiled_vs_interpreted(model, cfg_path: str, hours: float) -> dict:
     """Warm-solver build (s) and warm-solve CPU (ms), interpreted and compiled, in one run.
 
     The compiled library is built first if it is not cached (that compile is not timed here);
@@ -136,18 +157,21 @@ def compiled_vs_interpreted(model, cfg_path: str, hours: float) -> None:
     """
     from bmctl.control import cache
 
-    rows = {}
+    rows, record = {}, {}
     for mode in ("0", "wait", "1"):  # interpreted; compile if missing (untimed); cached build (timed)
         os.environ[cache.ENV_SWITCH] = mode
-        cfg = load_controller(cfg_path).model_copy(update={"batch_hours": hours})
+        cfg = _load(cfg_path, True).model_copy(update={"batch_hours": hours})
         rpm, mill, _ = SCENARIOS["reachable-350rpm"]
         K = int(round(hours / cfg.interval_h))
         Xs = model.simulate(model.x0(), [[rpm, mill]] * K, cfg.interval_h)
         target = {"s_mean_um": float(Xs[-1, 0]), "r_mean": float(Xs[-1, 2])}
         ctrl = make_controller(cfg, model, target)
-        ctrl.plan(model.x0(), 0.0, None, None)  # cold solve (exact Hessian); compiles with "wait"
+        before, t0 = _libraries(), time.perf_counter()
+        cold = ctrl.plan(model.x0(), 0.0, None, None)  # cold solve (exact Hessian); compiles with "wait"
         if mode == "wait":
+            record["compile"] = {"wall_s": time.perf_counter() - t0, "libraries_built": len(_libraries() - before)}
             continue
+        record["interpreted" if mode == "0" else "compiled"] = {"cold_solve_ms": cold.status.solve_ms}
         build_s = _fresh_build(mode, model, cfg_path, hours, target)
         x, u, cpu, U = model.x0(), None, [], []
         for k in range(K):
@@ -159,12 +183,34 @@ def compiled_vs_interpreted(model, cfg_path: str, hours: float) -> None:
             x = model.step(x, u, cfg.interval_h)
         rows["interpreted" if mode == "0" else "compiled"] = (build_s, float(np.median(cpu)), np.array(U))
     (bi, ci, Ui), (bc, cc, Uc) = rows["interpreted"], rows["compiled"]
+    record["interpreted"].update(build_s=bi, warm_cpu_median_ms=ci)
+    record["compiled"].update(build_s=bc, warm_cpu_median_ms=cc)
+    record.update(build_ratio=bi / bc, warm_cpu_ratio=ci / cc,
+                  cold_ratio=record["interpreted"]["cold_solve_ms"] / record["compiled"]["cold_solve_ms"],
+                  max_rpm_difference=float(np.max(np.abs(Ui[:, 0] - Uc[:, 0]))),
+                  max_milling_difference=float(np.max(np.abs(Ui[:, 1] - Uc[:, 1]))))
+    if record["compile"]["libraries_built"]:
+        print(f"compiled {record['compile']['libraries_built']} libraries in {record['compile']['wall_s']:.0f} s")
+    print(f"cold solve: interpreted {record['interpreted']['cold_solve_ms']:.0f} ms, "
+          f"compiled {record['compiled']['cold_solve_ms']:.0f} ms")
     print(f"load average {os.getloadavg()[0]:.1f}")
     print(f"warm solver build in a fresh process (imports included): interpreted {bi:.1f} s, "
           f"compiled (cached) {bc:.2f} s, ratio {bi / bc:.1f}x")
     print(f"warm solve CPU median: interpreted {ci:.0f} ms, compiled {cc:.0f} ms, ratio {ci / cc:.1f}x")
     print(f"first-move plans: max |rpm| difference {np.max(np.abs(Ui[:, 0] - Uc[:, 0])):.2g}, "
           f"max milling difference {np.max(np.abs(Ui[:, 1] - Uc[:, 1])):.2g}")
+    return record
+
+
+def _write(stem: str, record: dict, load0, a, extra: str = "") -> None:
+    from bmctl.results import write_results
+
+    record.update(load_average_start=list(load0), load_average_end=list(os.getloadavg()), cpus=os.cpu_count())
+    args = "" if a.hours == 4.0 else f" --hours {a.hours:g}"
+    write_results(stem, record, settings={"controller": os.path.relpath(a.controller, ROOT), "card": a.card,
+                                          "hours": a.hours, "scenario": a.scenario,
+                                          "method": "nlp" if a.nlp or a.compiled else "as configured"},
+                  command="python benchmarks/bench_control.py" + extra + args)
 
 
 def main() -> None:
@@ -176,37 +222,51 @@ def main() -> None:
     ap.add_argument("--compare", default=None, metavar="K=V,...",
                     help="instead: run every shipped controller over the batch toward this target")
     ap.add_argument("--compiled", action="store_true", help="instead: interpreted vs compiled warm solver")
+    ap.add_argument("--nlp", action="store_true",
+                    help='the multiple-shooting NLP (IPOPT) even where the file says [plan] method = "search"')
+    ap.add_argument("--no-results", action="store_true", help="write no results file")
     a = ap.parse_args()
+    load0 = os.getloadavg()
     model = make_moment_model(os.path.join(ROOT, "models", f"{a.card}.toml"))
     if a.compiled:
-        compiled_vs_interpreted(model, a.controller, a.hours)
+        record = compiled_vs_interpreted(model, a.controller, a.hours)
+        if not a.no_results:
+            _write("bench_control_compiled", record, load0, a, " --compiled")
         return
     if a.compare:
         from bmctl.control import parse_target
 
         compare(model, parse_target(a.compare))
         return
-    cfg = load_controller(a.controller)
-    print(f"{os.path.basename(a.controller)}: horizon {cfg.horizon} x {cfg.interval_h:g} h, "
+    cfg = _load(a.controller, a.nlp)
+    print(f"{os.path.basename(a.controller)} ({'nlp' if a.nlp or not hasattr(cfg, 'plan') else cfg.plan.method}): horizon {cfg.horizon} x {cfg.interval_h:g} h, "
           f"warm Hessian {cfg.solver.hessian} (exact retry {cfg.solver.retry_exact}), {a.hours:g} h closed loop; "
           f"load average {os.getloadavg()[0]:.1f}")
     print(f"{'scenario':22s} {'cold ms':>8s} {'it':>4s} {'median ms':>10s} {'cpu ms':>7s} {'p90 ms':>8s} "
           f"{'max ms':>8s} "
           f"{'median it':>9s} {'fallbacks':>9s} {'exact retries':>13s}  final relative errors")
-    all_ms, all_cpu = [], []
+    all_ms, all_cpu, record = [], [], {"scenarios": {}}
     names = list(SCENARIOS) if a.scenario == "all" else [a.scenario]
     t0 = time.perf_counter()
     for name in names:
-        cold, ms, cpu, its, fb, rt, err = run(model, a.controller, name, a.hours)
+        cold, ms, cpu, its, fb, rt, err = run(model, a.controller, name, a.hours, a.nlp)
         all_ms += list(ms)
         all_cpu += list(cpu)
         errs = ", ".join(f"{k} {v:+.1%}" for k, v in err.items())
+        record["scenarios"][name] = {"cold_ms": cold[0], "cold_iterations": cold[1], "median_ms": np.median(ms),
+                                     "median_cpu_ms": np.median(cpu), "p90_ms": np.percentile(ms, 90),
+                                     "max_ms": ms.max(), "median_iterations": np.median(its), "fallbacks": fb,
+                                     "exact_retries": rt, "warm_solves": len(ms)}
         print(f"{name:22s} {cold[0]:8.0f} {cold[1]:4d} {np.median(ms):10.0f} {np.median(cpu):7.0f} "
               f"{np.percentile(ms, 90):8.0f} "
               f"{ms.max():8.0f} {np.median(its):9.0f} {fb:9d} {rt:13d}  {errs}")
     print(f"all warm solves: median {np.median(all_ms):.0f} ms wall, {np.median(all_cpu):.0f} ms CPU "
           f"(target <= 100 ms), n = {len(all_ms)}; "
           f"wall {time.perf_counter() - t0:.0f} s")
+    if not a.no_results and not a.compare:
+        record.update(median_ms=np.median(all_ms), median_cpu_ms=np.median(all_cpu), warm_solves=len(all_ms),
+                      wall_s=time.perf_counter() - t0, libraries_cached=len(_libraries()))
+        _write("bench_control_nlp" if a.nlp else "bench_control", record, load0, a, " --nlp" if a.nlp else "")
 
 
 if __name__ == "__main__":

@@ -70,7 +70,7 @@ REGISTRY: tuple[Study, ...] = (
     Study("bench_ensemble", "python benchmarks/bench_ensemble.py", 1, timing=True),
     Study("campaign_advise", "python benchmarks/campaign_advise.py", 3, timing=True),
     Study("bench_moments", "python benchmarks/bench_moments.py", 0.2, timing=True),
-    Study("test_suite", "python benchmarks/test_suite.py", 15, timing=True),
+    Study("test_suite", "python benchmarks/test_suite.py --only quick", 5, timing=True),
 )
 
 MARKER = re.compile(r"(<!--r:([^:>\s]+):([^>\s]+?)-->)(.*?)(<!--/r-->)", re.S)
