@@ -70,6 +70,9 @@ REGISTRY: tuple[Study, ...] = (
     Study("bench_ensemble", "python benchmarks/bench_ensemble.py", 1, timing=True),
     Study("campaign_advise", "python benchmarks/campaign_advise.py", 3, timing=True),
     Study("bench_moments", "python benchmarks/bench_moments.py", 0.2, timing=True),
+    Study("bench_control", "python benchmarks/bench_control.py", 1, timing=True),
+    Study("bench_control_compiled", "python benchmarks/bench_control.py --compiled", 9, timing=True),
+    Study("bench_fresh", "python benchmarks/bench_fresh.py", 5, timing=True),
     Study("test_suite", "python benchmarks/test_suite.py --only quick", 5, timing=True),
 )
 

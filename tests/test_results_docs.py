@@ -48,7 +48,6 @@ PENDING = {
     "docs/control.md",
     "docs/measurement.md",
     "docs/moments.md",
-    "docs/performance.md",
 }
 
 MARKER = re.compile(r"<!--r:([^:>\s]+):([^>\s]+?)-->(.*?)<!--/r-->", re.S)
