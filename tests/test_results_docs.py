@@ -47,7 +47,6 @@ REQUIRED = ("bmctl_version", "command", "settings", "created_utc")
 PENDING = {
     "docs/control.md",
     "docs/measurement.md",
-    "docs/moments.md",
     "docs/performance.md",
 }
 
