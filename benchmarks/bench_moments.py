@@ -101,7 +101,8 @@ def main(argv=None) -> int:
             "numpy_one_ms": ms["numpy step, one state, dt 0.5 h"],
             "load_before": list(load_before), "load_after": list(os.getloadavg()),
         }
-        command = "python benchmarks/bench_moments.py" + ("" if card == default else f" {card}")
+        same = Path(card).resolve() == Path(default).resolve()
+        command = "python benchmarks/bench_moments.py" + ("" if same else f" {card}")
         path = write_results("bench_moments", values, settings={"card": Path(card).name, "repeats_prediction": 60,
                                                                  "dt_h": 0.5, "hours": 12}, command=command)
         print(f"wrote {path}")
