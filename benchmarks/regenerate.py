@@ -64,6 +64,7 @@ REGISTRY: tuple[Study, ...] = (
     Study("moments_confirm_stream5", "python benchmarks/moments_confirm.py --shipped --stream 5 --seeds 31 32 33", 3),
     Study("moments_numerics", "python benchmarks/moments_numerics.py", 0.5),
     Study("gamma_delta_response", "python benchmarks/gamma_delta_response.py", 0.5),
+    Study("moments_plant_shape", "python benchmarks/moments_plant_shape.py", 0.3),
     Study("calibrated_card", "python benchmarks/calibrated_card_check.py", 3),
     Study("measure_emps", "python benchmarks/measure_emps.py", 1),
     # timings: re-measured at the end on a quiet machine (each file records the load)
