@@ -5,7 +5,10 @@ the mean aspect ratio r and the mean size of the five size quintiles, the share 
 variance of r that lies between the quintiles, the share of particles with r = 0 exactly and the
 skewness of ln s. Also the lab model's contact-length nodes (``physics.CONTACT_BINS``: the
 conditional means of sqrt(U_in / E[U_in]) in four equal-probability bins, a seeded Monte Carlo of
-the card's impact energies). docs/moments.md (Secs. 2, 4, 7) quotes them.
+the card's impact energies). And the plant's own s–r link on every shipped card at its recipe
+speed (after 1, 3, 6 and 12 h, seed 0) and on the fan card at rpm_max/3 and rpm_max (after 6 h):
+the least-squares slope of logit E[r | s] on ln s over the size deciles (the quantity the
+closure's β approximates). docs/moments.md (Secs. 2, 4, 6, 7) quotes them.
 
     python benchmarks/moments_plant_shape.py     # under a minute; writes results/moments_plant_shape.json
 """
@@ -43,6 +46,27 @@ def shape_facts(s: np.ndarray, r: np.ndarray) -> dict:
             "round_pct": 100 * float(np.mean(r <= 0.0)), "ln_s_skewness": skew}
 
 
+def link_slope(s: np.ndarray, r: np.ndarray) -> float:
+    """Least-squares slope of logit(mean r) on mean ln s over the size deciles."""
+    ln = np.log(s)
+    edges = np.quantile(ln, np.linspace(0, 1, 11))
+    q = np.clip(np.searchsorted(edges, ln, side="right") - 1, 0, 9)
+    x = np.array([ln[q == k].mean() for k in range(10)])
+    m = np.array([r[q == k].mean() for k in range(10)])
+    ok = (m > 0) & (m < 1)
+    return float(np.polyfit(x[ok], np.log(m[ok] / (1 - m[ok])), 1)[0])
+
+
+def plant_link(card, rpm: float, times, particles: int, seed: int = 0) -> list[float]:
+    plant = Plant(card, np.random.default_rng(seed), particles)
+    out, t = [], 0.0
+    for t_h in times:
+        plant.advance(rpm, t_h - t)
+        t = t_h
+        out.append(link_slope(plant.s, plant.r))
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--particles", type=int, default=20000)
@@ -70,6 +94,19 @@ def main(argv=None) -> int:
     nodes = [f for _, f in model.const.contact_nodes]
     out["contact_nodes"] = nodes
     print("contact-length nodes (lab model): " + ", ".join(f"{v:.2f}" for v in nodes))
+    links = {}
+    for path in sorted((ROOT / "models").glob("*.moments.toml")):
+        c = load_card(path.with_name(path.name.removesuffix(".moments.toml") + ".toml"))
+        sl = plant_link(c, c.process.rpm, (1.0, 3.0, 6.0, 12.0), a.particles)
+        links[c.card.name] = {"rpm": c.process.rpm, "slopes": sl, "min": min(sl), "max": max(sl)}
+        print(f"{c.card.name} at {c.process.rpm:g} rpm: plant logit slope of E[r | s] on ln s after 1, 3, 6, 12 h: "
+              + ", ".join(f"{v:.2f}" for v in sl))
+    out["link"] = links
+    fan = load_card(ROOT / "models" / "alni-1to1-400rpm-fan.toml")
+    lo, hi = fan.mill.rpm_max / 3, fan.mill.rpm_max
+    out["fan_link_6h"] = {"rpm_low": lo, "rpm_high": hi, "low": plant_link(fan, lo, (6.0,), a.particles)[0],
+                          "high": plant_link(fan, hi, (6.0,), a.particles)[0]}
+    print(f"fan card after 6 h: slope {out['fan_link_6h']['low']:.2f} at {lo:g} rpm, {out['fan_link_6h']['high']:.2f} at {hi:g} rpm")
     if not a.no_results:
         from bmctl.results import write_results
 
