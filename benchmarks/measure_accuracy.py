@@ -189,13 +189,13 @@ def table_synthetic(rec: dict) -> str:
     out = ["| population | matched | median abs. s err % | s bias % | median abs. r err | r bias |", "|---|---|---|---|---|---|"]
     for key, p in rec["populations"].items():
         lo, hi = p["s_px"]
-        out.append(f"| s = {lo:g}–{hi:g} px, r ~ U(0, 0.2), 2 images × 60 | {marked(f, f'populations.{key}.matched', p['matched'], '{:.2f}')} | "
+        out.append(f"| s = {lo:g}–{hi:g} px, r ~ U(0, <!--in-->0.2<!--/in-->), 2 images × <!--in-->60<!--/in--> | {marked(f, f'populations.{key}.matched', p['matched'], '{:.2f}')} | "
                    f"{marked(f, f'populations.{key}.s_mae_pct', 100 * p['s_mae'], '{:.1f}')} | {_pm(f, f'populations.{key}.s_bias', p['s_bias'])} | "
                    f"{marked(f, f'populations.{key}.r_mae', p['r_mae'], '{:.3f}')} | {marked(f, f'populations.{key}.r_bias', p['r_bias'], '{:+.3f}')} |")
     out += ["", "Lobes k = 3–5 (renderer default):", "", _sweep_table(rec, "sweep"),
             "", "Finer boundary detail, k = 3–7 lobes:", "", _sweep_table(rec, "sweep_k3_7"), "",
             "Median r error by true r (k = 3–5):", "",
-            "| s (px) | " + " | ".join(f"{a:.2f}–{b:.2f}" for a, b in zip(R_BINS[:-1], R_BINS[1:])) + " |",
+            "| s (px) | " + " | ".join(f"r <!--in-->{a:.2f}<!--/in-->–<!--in-->{b:.2f}<!--/in-->" for a, b in zip(R_BINS[:-1], R_BINS[1:])) + " |",
             "|---|" + "---|" * (len(R_BINS) - 1)]
     for i, row in enumerate(rec["sweep_r_bins"]):
         out.append(f"| {row['d_px']} | " + " | ".join(
@@ -257,7 +257,7 @@ def table_real(rec: dict) -> str:
     a = rec.get("ampis")
     if a:
         out += ["| | value |", "|---|---|",
-                f"| outlines matched (IoU > 0.5) | {a['n_matched']} / {a['n_ref']} = {marked(f, 'ampis.matched', a['matched'], '{:.2f}')} |",
+                f"| outlines matched (IoU > <!--in-->0.5<!--/in-->) | {a['n_matched']} / {a['n_ref']} = {marked(f, 'ampis.matched', a['matched'], '{:.2f}')} |",
                 f"| precision (found particles that match an outline) | {a['n_matched']} / {a['n_found']} = "
                 f"{marked(f, 'ampis.precision', a['precision'], '{:.2f}')} |",
                 f"| matched: median abs. s error | {marked(f, 'ampis.s_mae_pct', 100 * a['s_mae'], '{:.1f}')} % "

@@ -62,6 +62,10 @@ REGISTRY: tuple[Study, ...] = (
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
     Study("calibrated_card", "python benchmarks/calibrated_card_check.py", 3),
     Study("measure_emps", "python benchmarks/measure_emps.py", 1),
+    Study("measure_perimeter", "python benchmarks/measure_accuracy.py perimeter", 0.2),
+    Study("measure_synthetic", "python benchmarks/measure_accuracy.py synthetic", 2),
+    Study("measure_real", "python benchmarks/measure_accuracy.py real", 3),
+    Study("measure_sensitivity", "python benchmarks/measure_accuracy.py sensitivity", 5),
     # timings: re-measured at the end on a quiet machine (each file records the load)
     Study("bench_identify", "python benchmarks/bench_identify.py", 4, timing=True),
     Study("calibrate_scaling", "python benchmarks/calibrate_accuracy.py scaling --calibration", 3, timing=True),
