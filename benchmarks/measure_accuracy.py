@@ -257,8 +257,10 @@ def table_real(rec: dict) -> str:
     a = rec.get("ampis")
     if a:
         out += ["| | value |", "|---|---|",
-                f"| outlines matched (IoU > <!--in-->0.5<!--/in-->) | {a['n_matched']} / {a['n_ref']} = {marked(f, 'ampis.matched', a['matched'], '{:.2f}')} |",
-                f"| precision (found particles that match an outline) | {a['n_matched']} / {a['n_found']} = "
+                f"| outlines matched (IoU > <!--in-->0.5<!--/in-->) | {marked(f, 'ampis.n_matched', a['n_matched'], '{:d}')} / "
+                f"{marked(f, 'ampis.n_ref', a['n_ref'], '{:d}')} = {marked(f, 'ampis.matched', a['matched'], '{:.2f}')} |",
+                f"| precision (found particles that match an outline) | {marked(f, 'ampis.n_matched', a['n_matched'], '{:d}')} / "
+                f"{marked(f, 'ampis.n_found', a['n_found'], '{:d}')} = "
                 f"{marked(f, 'ampis.precision', a['precision'], '{:.2f}')} |",
                 f"| matched: median abs. s error | {marked(f, 'ampis.s_mae_pct', 100 * a['s_mae'], '{:.1f}')} % "
                 f"(bias {_pm(f, 'ampis.s_bias', a['s_bias'])} %) |",
@@ -271,11 +273,13 @@ def table_real(rec: dict) -> str:
         for key, label, fmt in (("ampis", "AMPIS: count / median s (px)", "{:.1f}"), ("sio2", "SiO2: count / median s (µm)", "{:.2f}")):
             if key not in sp:
                 continue
-            cells = [f"{r['count']} / {marked(f, f'speck.{key}.{i}.s_median', r['s_median'], fmt)}" for i, r in enumerate(sp[key])]
+            cells = [f"{marked(f, f'speck.{key}.{i}.count', r['count'], '{:d}')} / {marked(f, f'speck.{key}.{i}.s_median', r['s_median'], fmt)}" for i, r in enumerate(sp[key])]
             auto = rec["ampis"]["auto"] if key == "ampis" else rec["sio2"]["default"]
             sk = "ampis.auto.s_median_px" if key == "ampis" else "sio2.default.s_median_um"
             med = auto.get("s_median_px", auto.get("s_median_um"))
-            cells.append(f"{auto['min_area_px']} px: {auto['count']} / {marked(f, sk, med, fmt)}")
+            ak = sk.rsplit(".", 1)[0]
+            cells.append(f"{marked(f, ak + '.min_area_px', auto['min_area_px'], '{:d}')} px: "
+                         f"{marked(f, ak + '.count', auto['count'], '{:d}')} / {marked(f, sk, med, fmt)}")
             out.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(out)
 
