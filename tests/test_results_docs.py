@@ -46,7 +46,6 @@ REQUIRED = ("bmctl_version", "command", "settings", "created_utc")
 # is empty at release.
 PENDING = {
     "docs/control.md",
-    "docs/moments.md",
     "docs/performance.md",
 }
 
