@@ -10,7 +10,7 @@ Run from the repository root, one part at a time (each writes ``results/measure_
 
 The real images are ``tests/data/ampis_powder_b.png`` (+ ``ampis_masks_validation.json``, hand
 outlines) and ``tests/data/sio2_sem_12000x.tif``, or the same names under ``$BMCTL_MICROGRAPHS``;
-without them the parts that need them say so and leave those entries out (``null``).
+without them a part that needs them says so and writes nothing.
 All randomness is seeded (``numpy.random.default_rng``); the numbers are reproducible.
 """
 
@@ -325,6 +325,14 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     name = f"measure_{a.part}"
     if not a.table:
+        need = {"perimeter": ("ampis_masks_validation.json",), "synthetic": (),
+                "real": ("ampis_powder_b.png", "ampis_masks_validation.json", "sio2_sem_12000x.tif"),
+                "sensitivity": ("ampis_powder_b.png", "ampis_masks_validation.json")}[a.part]
+        missing = [n for n in need if _data(n) is None]
+        if missing:  # never overwrite a results file with a partial one
+            print(f"measure_accuracy: {', '.join(missing)} not found in tests/data or $BMCTL_MICROGRAPHS; "
+                  f"nothing measured, results/{name}.json left as it is", file=sys.stderr)
+            return 0
         load, t0 = os.getloadavg(), time.perf_counter()
         values, settings = RUN[a.part]()
         values["timing"] = {"wall_s": round(time.perf_counter() - t0, 1), "loadavg_start": [round(v, 2) for v in load]}
