@@ -67,6 +67,10 @@ REGISTRY: tuple[Study, ...] = (
     Study("moments_plant_shape", "python benchmarks/moments_plant_shape.py", 0.3),
     Study("calibrated_card", "python benchmarks/calibrated_card_check.py", 3),
     Study("measure_emps", "python benchmarks/measure_emps.py", 1),
+    Study("measure_perimeter", "python benchmarks/measure_accuracy.py perimeter", 0.2),
+    Study("measure_synthetic", "python benchmarks/measure_accuracy.py synthetic", 2),
+    Study("measure_real", "python benchmarks/measure_accuracy.py real", 3),
+    Study("measure_sensitivity", "python benchmarks/measure_accuracy.py sensitivity", 5),
     # timings: re-measured at the end on a quiet machine (each file records the load)
     Study("bench_identify", "python benchmarks/bench_identify.py", 4, timing=True),
     Study("bench_moments", "python benchmarks/bench_moments.py", 0.5, timing=True),
