@@ -242,6 +242,8 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "out" / "hidden_mills"), help="campaign folders (replaced)")
     ap.add_argument("--no-results", action="store_true", help="do not write results/hidden_mills.json")
     ap.add_argument("--table", action="store_true", help="print the docs table from results/hidden_mills.json")
+    ap.add_argument("--results-name", default="hidden_mills",
+                    help="results file name (a subset of the cases or another seed: e.g. hidden_mills_seed1)")
     a = ap.parse_args()
     if a.table:
         from bmctl.results import load_results
@@ -313,14 +315,17 @@ def main() -> None:
           f"{summary['advise_later_median_s']:.1f} s wall, {summary['advise_later_median_cpu_s']:.1f} s CPU; load "
           f"{load0[0]:.1f} -> {os.getloadavg()[0]:.1f}")
     shutil.rmtree(cache, ignore_errors=True)
-    if not a.no_results and len(rows) == len(CASES):
-        path = write_results("hidden_mills", {"summary": summary, "cases": rows},
+    if not a.no_results and (len(rows) == len(CASES) or a.results_name != "hidden_mills"):
+        cmd = "python benchmarks/hidden_mills.py"
+        if a.results_name != "hidden_mills":
+            cmd += f" --cases {','.join(c.name for c in cases)} --seed {a.seed} --results-name {a.results_name}"
+        path = write_results(a.results_name, {"summary": summary, "cases": rows},
                              settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
                                        "controller": str(CONTROLLER.relative_to(ROOT)), "card": str(CARD.relative_to(ROOT)),
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
                                        "sample_every_h": SAMPLE_EVERY_H, "sample_particles": SAMPLE_PARTICLES,
                                        "need_tol": NEED_TOL},
-                             command="python benchmarks/hidden_mills.py")
+                             command=cmd)
         print(f"wrote {path}")
 
 
