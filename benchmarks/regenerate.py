@@ -59,6 +59,7 @@ REGISTRY: tuple[Study, ...] = (
     Study("estimator_study", "python benchmarks/estimator_study.py --seeds 10", 15),
     Study("design_reach", "python benchmarks/design_reach.py", 5),
     Study("hidden_mills", "python benchmarks/hidden_mills.py", 60),
+    Study("hidden_mills_noise", "python benchmarks/hidden_mills.py --noise", 1),
     Study("hidden_mills_seed1", "python benchmarks/hidden_mills.py --cases F,G --seed 1 --results-name hidden_mills_seed1", 12),
     Study("hidden_mills_seed2", "python benchmarks/hidden_mills.py --cases F,G --seed 2 --results-name hidden_mills_seed2", 12),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
