@@ -1,7 +1,7 @@
 """MPC solve time: median over a short closed loop on the moment model (target <= 100 ms).
 
 Run:  python benchmarks/bench_control.py [--controller controllers/mpc-default.toml] [--hours 4]
-                                        [--card alni-1to1-300rpm-lab] [--scenario all] [--method nlp]
+                                        [--card alni-1to1-300rpm-lab] [--scenario all]
       python benchmarks/bench_control.py --compare s_mean_um=30,r_mean=0.05   (all controllers, 12 h)
       python benchmarks/bench_control.py --compiled   (interpreted vs compiled warm solver, side by side)
 
@@ -12,19 +12,18 @@ Prints per scenario: the cold first solve (exact Hessian; solver construction ex
 the median wall and CPU time of the warm solves (CPU time is less sensitive to a busy machine),
 the 90th percentile / max of the wall times, the iteration counts and the
 number of fallbacks, and the final relative target errors. Single-threaded (one core).
-``--method nlp`` (default) runs the controller file's settings as the multiple-shooting NLP
-(``[plan] method = "nlp"``), ``search`` as the plan on operable schedules, ``file`` as the file says.
 
-The default run (all scenarios, 4 h, mpc-default as the NLP) writes results/bench_control.json,
-``--compiled`` (4 h, mpc-default as the NLP) results/bench_control_compiled.json; both record the
-load average before and after (timings on a shared machine: the compiled/interpreted ratio,
-measured side by side, is the robust number).
+The default run writes ``results/bench_control.json``, ``--compiled`` writes
+``results/bench_control_compiled.json``, ``--nlp`` writes ``results/bench_control_nlp.json`` (each
+with the load average; ``--no-results``: none). ``controllers/mpc-default.toml`` plans by search
+(``[plan] method = "search"``); ``--nlp`` and ``--compiled`` time its multiple-shooting NLP instead.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -32,6 +31,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # this checkout's bmctl
 from bmctl.control import make_controller  # noqa: E402
 from bmctl.control.config import load_controller  # noqa: E402
 from bmctl.moments.model import make_moment_model  # noqa: E402
@@ -45,17 +45,17 @@ SCENARIOS = {
 }
 
 
-def load(cfg_path: str, method: str = "nlp"):
-    """The controller file, its plan method replaced unless ``method == "file"``."""
+def _load(cfg_path: str, nlp: bool):
+    """The controller config; with ``nlp`` its [plan] method set to the multiple-shooting NLP."""
     cfg = load_controller(cfg_path)
-    if method != "file":
-        cfg = cfg.model_copy(update={"plan": cfg.plan.model_copy(update={"method": method})})
+    if nlp and hasattr(cfg, "plan"):
+        cfg = cfg.model_copy(update={"plan": cfg.plan.model_copy(update={"method": "nlp"})})
     return cfg
 
 
-def run(model, cfg_path: str, scenario: str, hours: float, method: str = "nlp"):
+def run(model, cfg_path: str, scenario: str, hours: float, nlp: bool = False):
     rpm, mill, ceiling = SCENARIOS[scenario]
-    cfg = load(cfg_path, method)
+    cfg = _load(cfg_path, nlp)
     dt = cfg.interval_h
     K = int(round(hours / dt))
     Xs = model.simulate(model.x0(), [[rpm, mill]] * K, dt)
@@ -121,16 +121,15 @@ from bmctl.control import make_controller
 from bmctl.control.config import load_controller
 from bmctl.moments.model import make_moment_model
 model = make_moment_model(sys.argv[1])
-cfg = load_controller(sys.argv[2])
-cfg = cfg.model_copy(update={"batch_hours": float(sys.argv[3]),
-                             "plan": cfg.plan.model_copy(update={"method": "nlp"})})
+cfg = load_controller(sys.argv[2]).model_copy(update={"batch_hours": float(sys.argv[3])})
+cfg = cfg.model_copy(update={"plan": cfg.plan.model_copy(update={"method": "nlp"})})
 ctrl = make_controller(cfg, model, json.loads(sys.argv[4]))
 ctrl._solver(True)
 print(time.perf_counter() - t0)
 """
 
 
-def _fresh_build(mode: str, model, cfg_path: str, hours: float, target: dict) -> float:  # noqa: D401
+def _fresh_build(mode: str, model, cfg_path: str, hours: float, target: dict) -> float:
     """Seconds a fresh process takes from start to a built warm solver (imports included)."""
     import json
     import subprocess
@@ -145,7 +144,14 @@ def _fresh_build(mode: str, model, cfg_path: str, hours: float, target: dict) ->
     return float(out.stdout.strip().splitlines()[-1])
 
 
-def compiled_vs_interpreted(model, cfg_path: str, hours: float, write: bool = False) -> None:
+def _libraries() -> set:
+    from bmctl.control import cache
+
+    folder = cache.cache_dir()
+    return set(folder.glob("*.so")) if folder is not None and folder.is_dir() else set()
+
+
+def compiled_vs_interpreted(model, cfg_path: str, hours: float) -> dict:
     """Warm-solver build (s) and warm-solve CPU (ms), interpreted and compiled, in one run.
 
     The compiled library is built first if it is not cached (that compile is not timed here);
@@ -153,53 +159,60 @@ def compiled_vs_interpreted(model, cfg_path: str, hours: float, write: bool = Fa
     """
     from bmctl.control import cache
 
-    rows = {}
-    load0 = os.getloadavg()
+    rows, record = {}, {}
     for mode in ("0", "wait", "1"):  # interpreted; compile if missing (untimed); cached build (timed)
         os.environ[cache.ENV_SWITCH] = mode
-        cfg = load(cfg_path).model_copy(update={"batch_hours": hours})
+        cfg = _load(cfg_path, True).model_copy(update={"batch_hours": hours})
         rpm, mill, _ = SCENARIOS["reachable-350rpm"]
         K = int(round(hours / cfg.interval_h))
         Xs = model.simulate(model.x0(), [[rpm, mill]] * K, cfg.interval_h)
         target = {"s_mean_um": float(Xs[-1, 0]), "r_mean": float(Xs[-1, 2])}
         ctrl = make_controller(cfg, model, target)
-        ctrl.plan(model.x0(), 0.0, None, None)  # cold solve (exact Hessian); compiles with "wait"
+        before, t0 = _libraries(), time.perf_counter()
+        cold = ctrl.plan(model.x0(), 0.0, None, None)  # cold solve (exact Hessian); compiles with "wait"
         if mode == "wait":
+            record["compile"] = {"wall_s": time.perf_counter() - t0, "libraries_built": len(_libraries() - before)}
             continue
+        record["interpreted" if mode == "0" else "compiled"] = {"cold_solve_ms": cold.status.solve_ms}
         build_s = _fresh_build(mode, model, cfg_path, hours, target)
-        x, u, cpu, wall, U = model.x0(), None, [], [], []
+        x, u, cpu, U = model.x0(), None, [], []
         for k in range(K):
             plan = ctrl.plan(x, k * cfg.interval_h, None, u)
             if k:
                 cpu.append(plan.status.solve_cpu_ms)
-                wall.append(plan.status.solve_ms)
             U.append(plan.u[0])
             u = plan.u_apply
             x = model.step(x, u, cfg.interval_h)
-        rows["interpreted" if mode == "0" else "compiled"] = (build_s, float(np.median(cpu)), np.array(U),
-                                                              float(np.median(wall)))
-    (bi, ci, Ui, wi), (bc, cc, Uc, wc) = rows["interpreted"], rows["compiled"]
-    load1 = os.getloadavg()
-    print(f"load average {load0[0]:.1f} before, {load1[0]:.1f} after")
+        rows["interpreted" if mode == "0" else "compiled"] = (build_s, float(np.median(cpu)), np.array(U))
+    (bi, ci, Ui), (bc, cc, Uc) = rows["interpreted"], rows["compiled"]
+    record["interpreted"].update(build_s=bi, warm_cpu_median_ms=ci)
+    record["compiled"].update(build_s=bc, warm_cpu_median_ms=cc)
+    record.update(build_ratio=bi / bc, warm_cpu_ratio=ci / cc,
+                  cold_ratio=record["interpreted"]["cold_solve_ms"] / record["compiled"]["cold_solve_ms"],
+                  max_rpm_difference=float(np.max(np.abs(Ui[:, 0] - Uc[:, 0]))),
+                  max_milling_difference=float(np.max(np.abs(Ui[:, 1] - Uc[:, 1]))))
+    if record["compile"]["libraries_built"]:
+        print(f"compiled {record['compile']['libraries_built']} libraries in {record['compile']['wall_s']:.0f} s")
+    print(f"cold solve: interpreted {record['interpreted']['cold_solve_ms']:.0f} ms, "
+          f"compiled {record['compiled']['cold_solve_ms']:.0f} ms")
+    print(f"load average {os.getloadavg()[0]:.1f}")
     print(f"warm solver build in a fresh process (imports included): interpreted {bi:.1f} s, "
           f"compiled (cached) {bc:.2f} s, ratio {bi / bc:.1f}x")
     print(f"warm solve CPU median: interpreted {ci:.0f} ms, compiled {cc:.0f} ms, ratio {ci / cc:.1f}x")
-    print(f"warm solve wall median: interpreted {wi:.0f} ms, compiled {wc:.0f} ms, ratio {wi / wc:.1f}x")
-    drpm, dmill = float(np.max(np.abs(Ui[:, 0] - Uc[:, 0]))), float(np.max(np.abs(Ui[:, 1] - Uc[:, 1])))
-    print(f"first-move plans: max |rpm| difference {drpm:.2g}, max milling difference {dmill:.2g}")
-    if write:
-        from bmctl.results import write_results
+    print(f"first-move plans: max |rpm| difference {np.max(np.abs(Ui[:, 0] - Uc[:, 0])):.2g}, "
+          f"max milling difference {np.max(np.abs(Ui[:, 1] - Uc[:, 1])):.2g}")
+    return record
 
-        path = write_results("bench_control_compiled", {
-            "interpreted": {"build_s": bi, "warm_cpu_ms": ci, "warm_wall_ms": wi},
-            "compiled": {"build_s": bc, "warm_cpu_ms": cc, "warm_wall_ms": wc},
-            "ratio": {"build": bi / bc, "warm_cpu": ci / cc, "warm_wall": wi / wc},
-            "first_move_max_rpm_diff": drpm, "first_move_max_milling_diff": dmill,
-            "load_before": list(load0), "load_after": list(load1), "cpus": os.cpu_count()},
-            settings={"controller": os.path.relpath(cfg_path, ROOT), "method": "nlp", "hours": hours,
-                      "scenario": "reachable-350rpm", "card": model.card.card.name},
-            command="python benchmarks/bench_control.py --compiled")
-        print(f"wrote {path}")
+
+def _write(stem: str, record: dict, load0, a, extra: str = "") -> None:
+    from bmctl.results import write_results
+
+    record.update(load_average_start=list(load0), load_average_end=list(os.getloadavg()), cpus=os.cpu_count())
+    args = "" if a.hours == 4.0 else f" --hours {a.hours:g}"
+    write_results(stem, record, settings={"controller": os.path.relpath(a.controller, ROOT), "card": a.card,
+                                          "hours": a.hours, "scenario": a.scenario,
+                                          "method": "nlp" if a.nlp or a.compiled else "as configured"},
+                  command="python benchmarks/bench_control.py" + extra + args)
 
 
 def main() -> None:
@@ -211,60 +224,51 @@ def main() -> None:
     ap.add_argument("--compare", default=None, metavar="K=V,...",
                     help="instead: run every shipped controller over the batch toward this target")
     ap.add_argument("--compiled", action="store_true", help="instead: interpreted vs compiled warm solver")
-    ap.add_argument("--method", default="nlp", choices=["nlp", "search", "file"],
-                    help="run the file as the NLP (default), as the plan on operable schedules, or as it says")
-    ap.add_argument("--no-results", action="store_true", help="do not write the results file")
+    ap.add_argument("--nlp", action="store_true",
+                    help='the multiple-shooting NLP (IPOPT) even where the file says [plan] method = "search"')
+    ap.add_argument("--no-results", action="store_true", help="write no results file")
     a = ap.parse_args()
-    default_run = (a.controller == os.path.join(ROOT, "controllers", "mpc-default.toml") and a.hours == 4.0
-                   and a.card == "alni-1to1-300rpm-lab" and a.method == "nlp" and not a.no_results)
+    load0 = os.getloadavg()
     model = make_moment_model(os.path.join(ROOT, "models", f"{a.card}.toml"))
     if a.compiled:
-        compiled_vs_interpreted(model, a.controller, a.hours, write=default_run)
+        record = compiled_vs_interpreted(model, a.controller, a.hours)
+        if not a.no_results:
+            _write("bench_control_compiled", record, load0, a, " --compiled")
         return
     if a.compare:
         from bmctl.control import parse_target
 
         compare(model, parse_target(a.compare))
         return
-    cfg = load(a.controller, a.method)
-    load0 = os.getloadavg()
-    print(f"{os.path.basename(a.controller)} ({cfg.plan.method}): horizon {cfg.horizon} x {cfg.interval_h:g} h, "
+    cfg = _load(a.controller, a.nlp)
+    print(f"{os.path.basename(a.controller)} ({'nlp' if a.nlp or not hasattr(cfg, 'plan') else cfg.plan.method}): horizon {cfg.horizon} x {cfg.interval_h:g} h, "
           f"warm Hessian {cfg.solver.hessian} (exact retry {cfg.solver.retry_exact}), {a.hours:g} h closed loop; "
           f"load average {os.getloadavg()[0]:.1f}")
     print(f"{'scenario':22s} {'cold ms':>8s} {'it':>4s} {'median ms':>10s} {'cpu ms':>7s} {'p90 ms':>8s} "
           f"{'max ms':>8s} "
           f"{'median it':>9s} {'fallbacks':>9s} {'exact retries':>13s}  final relative errors")
-    all_ms, all_cpu, per = [], [], {}
+    all_ms, all_cpu, record = [], [], {"scenarios": {}}
     names = list(SCENARIOS) if a.scenario == "all" else [a.scenario]
     t0 = time.perf_counter()
     for name in names:
-        cold, ms, cpu, its, fb, rt, err = run(model, a.controller, name, a.hours, a.method)
+        cold, ms, cpu, its, fb, rt, err = run(model, a.controller, name, a.hours, a.nlp)
         all_ms += list(ms)
         all_cpu += list(cpu)
-        per[name] = {"cold_ms": cold[0], "cold_iterations": cold[1], "median_ms": float(np.median(ms)),
-                     "median_cpu_ms": float(np.median(cpu)), "p90_ms": float(np.percentile(ms, 90)),
-                     "max_ms": float(ms.max()), "median_iterations": float(np.median(its)), "fallbacks": fb,
-                     "exact_retries": rt, "final_error_pct": {k: 100 * v for k, v in err.items()}}
         errs = ", ".join(f"{k} {v:+.1%}" for k, v in err.items())
+        record["scenarios"][name] = {"cold_ms": cold[0], "cold_iterations": cold[1], "median_ms": np.median(ms),
+                                     "median_cpu_ms": np.median(cpu), "p90_ms": np.percentile(ms, 90),
+                                     "max_ms": ms.max(), "median_iterations": np.median(its), "fallbacks": fb,
+                                     "exact_retries": rt, "warm_solves": len(ms)}
         print(f"{name:22s} {cold[0]:8.0f} {cold[1]:4d} {np.median(ms):10.0f} {np.median(cpu):7.0f} "
               f"{np.percentile(ms, 90):8.0f} "
               f"{ms.max():8.0f} {np.median(its):9.0f} {fb:9d} {rt:13d}  {errs}")
     print(f"all warm solves: median {np.median(all_ms):.0f} ms wall, {np.median(all_cpu):.0f} ms CPU "
           f"(target <= 100 ms), n = {len(all_ms)}; "
           f"wall {time.perf_counter() - t0:.0f} s")
-    if default_run and a.scenario == "all":
-        from bmctl.results import write_results
-
-        path = write_results("bench_control", {
-            "scenarios": per, "median_ms": float(np.median(all_ms)), "median_cpu_ms": float(np.median(all_cpu)),
-            "n_warm": len(all_ms), "load_before": list(load0), "load_after": list(os.getloadavg()),
-            "cpus": os.cpu_count()},
-            settings={"controller": "controllers/mpc-default.toml", "method": a.method, "hours": a.hours,
-                      "card": a.card, "scenarios": {k: {"rpm": v[0], "milling": v[1], "ceiling_c": v[2]}
-                                                     for k, v in SCENARIOS.items()},
-                      "compiled_cache": os.environ.get("BMCTL_MPC_COMPILE", "default")},
-            command="python benchmarks/bench_control.py")
-        print(f"wrote {path}")
+    if not a.no_results and not a.compare:
+        record.update(median_ms=np.median(all_ms), median_cpu_ms=np.median(all_cpu), warm_solves=len(all_ms),
+                      wall_s=time.perf_counter() - t0, libraries_cached=len(_libraries()))
+        _write("bench_control_nlp" if a.nlp else "bench_control", record, load0, a, " --nlp" if a.nlp else "")
 
 
 if __name__ == "__main__":

@@ -1,8 +1,10 @@
 """Speed of the moment model: a 12 h prediction, the casadi step and its Jacobian.
 
-Run:  python benchmarks/bench_moments.py [MODEL.toml]
+Run:  python benchmarks/bench_moments.py [MODEL.toml] [--no-results]
 
-Prints a table of median wall times (ms). Targets: one 12 h prediction <= 5 ms.
+Prints a table of median wall times (ms). Targets: one 12 h prediction <= 5 ms. Writes
+results/bench_moments.json (the times, the rate field's casadi instruction count and the load
+average before and after) for the default card unless ``--no-results``.
 """
 
 from __future__ import annotations
@@ -40,8 +42,12 @@ def timeit(fn, repeat: int = 20, warmup: int = 2) -> float:
 def main(argv=None) -> int:
     import casadi as ca
 
-    argv = sys.argv[1:] if argv is None else argv
-    card = argv[0] if argv else str(ROOT / "models" / "alni-1to1-300rpm-lab.toml")
+    argv = sys.argv[1:] if argv is None else list(argv)
+    no_results = "--no-results" in argv
+    argv = [a for a in argv if a != "--no-results"]
+    default = str(ROOT / "models" / "alni-1to1-300rpm-lab.toml")
+    card = argv[0] if argv else default
+    load_before = os.getloadavg()
     t0 = time.perf_counter()
     model = make_moment_model(card)
     t_build = 1e3 * (time.perf_counter() - t0)
@@ -78,6 +84,28 @@ def main(argv=None) -> int:
     print(f"{'case':<{w}}  {'ms':>9}  target")
     for name, ms, target in rows:
         print(f"{name:<{w}}  {ms:9.3f}  {target}")
+    if not no_results:
+        from bmctl.results import write_results
+
+        ms = {name: value for name, value, _ in rows}
+        values = {
+            "card": model.card.card.name, "instructions": n_ins,
+            "build_ms": ms["build model (card, derived laws)"],
+            "first_prediction_ms": ms["first 12 h prediction, dt 0.5 h (builds casadi)"],
+            "predict_12h_median_ms": ms["12 h prediction, dt 0.5 h (24 steps): median of 60"],
+            "predict_12h_fastest_ms": ms["12 h prediction, dt 0.5 h (24 steps): fastest of 60"],
+            "predict_12h_dt1_median_ms": ms["12 h prediction, dt 1 h (12 steps): median of 60"],
+            "casadi_step_ms": ms["casadi step F(x, u, p), dt 0.5 h"],
+            "casadi_jacobian_ms": ms["casadi Jacobian dF/d(x, u, p), dt 0.5 h"],
+            "numpy_batch1000_ms": ms["numpy step, batch of 1000 states, dt 0.5 h"],
+            "numpy_one_ms": ms["numpy step, one state, dt 0.5 h"],
+            "load_before": list(load_before), "load_after": list(os.getloadavg()),
+        }
+        same = Path(card).resolve() == Path(default).resolve()
+        command = "python benchmarks/bench_moments.py" + ("" if same else f" {card}")
+        path = write_results("bench_moments", values, settings={"card": Path(card).name, "repeats_prediction": 60,
+                                                                 "dt_h": 0.5, "hours": 12}, command=command)
+        print(f"wrote {path}")
     return 0
 
 

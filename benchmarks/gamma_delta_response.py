@@ -9,12 +9,16 @@ saturated (eqns 15 and 20 are clipped at 1). docs/moments.md (Sec. 2, "The param
 the table to explain why p acts inside the saturation of the moment model.
 
     python benchmarks/gamma_delta_response.py [--card models/<card>.toml] [--particles 5000]
+
+Writes results/gamma_delta_response.json (the mean, min and max of each elasticity over the
+states, and the same at each speed) unless ``--no-results``.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -58,6 +62,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--card", default="models/alni-1to1-300rpm-lab.toml")
     ap.add_argument("--particles", type=int, default=5000)
+    ap.add_argument("--no-results", action="store_true", help="do not write results/gamma_delta_response.json")
     args = ap.parse_args(argv)
     card = load_card(args.card)
     t0 = time.time()
@@ -76,6 +81,30 @@ def main(argv=None) -> int:
     print("| all | | | mean (min, max) | " + " | ".join(f"{m:+.2f} ({lo:+.2f}, {hi:+.2f})" for m, lo, hi in
                                                     zip(E.mean(0), E.min(0), E.max(0))) + " |")
     print(f"\n{len(rows)} states, {time.time() - t0:.0f} s")
+    if not args.no_results:
+        from bmctl.results import write_results
+
+        def summary(sel):
+            M = np.array([[r[k] for k in keys] for r in sel])
+            return {k.replace("/", "_"): {"mean": float(M[:, i].mean()), "min": float(M[:, i].min()),
+                                          "max": float(M[:, i].max())} for i, k in enumerate(keys)}
+
+        speeds = sorted({r["rpm"] for r in rows})
+        values = {"states": len(rows), "all": summary(rows),
+                  "by_rpm": {f"{rpm:g}": {**summary([r for r in rows if r["rpm"] == rpm]),
+                                          "s_mean_um_min": min(r["s_mean_um"] for r in rows if r["rpm"] == rpm),
+                                          "s_mean_um_max": max(r["s_mean_um"] for r in rows if r["rpm"] == rpm)}
+                             for rpm in speeds},
+                  "rows": [{"rpm": r["rpm"], "start": list(r["start"]), "t_h": r["t_h"], "s_mean_um": r["s_mean_um"],
+                            **{k.replace("/", "_"): r[k] for k in keys}} for r in rows]}
+        cmd = "python benchmarks/gamma_delta_response.py"
+        if args.card != "models/alni-1to1-300rpm-lab.toml" or args.particles != 5000:
+            cmd += f" --card {args.card} --particles {args.particles}"
+        path = write_results("gamma_delta_response", values, settings={
+            "card": Path(args.card).name, "particles": args.particles, "speeds_rpm": speeds, "times_h": [1, 3, 6, 12],
+            "starts": [[1.0, 1.0], [1.3, 0.7], [0.7, 1.3]], "continuation_h": 0.25, "factor_steps": [0.7, 1.3]},
+            command=cmd)
+        print(f"wrote {path}")
     return 0
 
 

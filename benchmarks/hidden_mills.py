@@ -126,6 +126,24 @@ def sweep(card, hours: float, particles: int, seed: int) -> list[dict]:
             | {"segments": segs} for name, segs in plain_schedules(hours)]
 
 
+def sample_noise(particles: int, seed: int, repeats: int = 400) -> dict:
+    """How much the mean of one hourly micrograph sample scatters around the plant's mean: mill G
+    after 3 h at 140 rpm (its state when the campaign first reached the target), ``repeats`` samples."""
+    from bmctl.measure.sampler import micrograph_sample
+    from bmctl.plant.plant import Plant
+
+    case = next(c for c in CASES if c.name == "G")
+    g_plant, g_sample = (np.random.default_rng(s) for s in np.random.SeedSequence([seed, 99]).spawn(2))
+    plant = Plant(hidden_card(case), g_plant, particles)
+    plant.advance(140.0, 3.0, milling=1.0)
+    mean = float(plant.moments()["s_mean_um"])
+    means = np.array([np.mean(micrograph_sample(plant.s * 1e6, plant.r, SAMPLE_PARTICLES, g_sample).s_um)
+                      for _ in range(repeats)])
+    return {"plant_s_mean_um": mean, "sample_mean_avg_um": float(means.mean()),
+            "sample_mean_sd_um": float(means.std(ddof=1)),
+            "sample_mean_rel_sd_pct": float(100 * means.std(ddof=1) / mean), "repeats": repeats}
+
+
 def cli(args: list[str], env: dict) -> tuple[str, float, float]:
     """Run ``python -m bmctl ARGS``; (stdout, wall s, CPU s of the child)."""
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -242,12 +260,28 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "out" / "hidden_mills"), help="campaign folders (replaced)")
     ap.add_argument("--no-results", action="store_true", help="do not write results/hidden_mills.json")
     ap.add_argument("--table", action="store_true", help="print the docs table from results/hidden_mills.json")
+    ap.add_argument("--noise", action="store_true",
+                    help="measure how much one sample's mean scatters (mill G after 3 h at 140 rpm): "
+                         "results/hidden_mills_noise.json")
+    ap.add_argument("--results-name", default="hidden_mills",
+                    help="results file name (a subset of the cases or another seed: e.g. hidden_mills_seed1)")
     a = ap.parse_args()
     if a.table:
         from bmctl.results import load_results
 
         rec = load_results("hidden_mills")
         print(table(rec["cases"], rec["summary"]))
+        return
+    if a.noise:
+        rec = sample_noise(a.particles, a.seed)
+        print(f"one {SAMPLE_PARTICLES}-particle sample's mean: sd {rec['sample_mean_rel_sd_pct']:.2f} % of the plant's "
+              f"mean ({rec['repeats']} samples; plant {rec['plant_s_mean_um']:.2f} µm, sample means average "
+              f"{rec['sample_mean_avg_um']:.2f} µm)")
+        if not a.no_results:
+            print("wrote", write_results("hidden_mills_noise", rec,
+                                         settings={"case": "G", "rpm": 140.0, "hours": 3.0, "particles": a.particles,
+                                                   "seed": a.seed, "sample_particles": SAMPLE_PARTICLES},
+                                         command="python benchmarks/hidden_mills.py --noise"))
         return
     names = [s.strip() for s in a.cases.split(",") if s.strip()]
     cases = [c for c in CASES if c.name in names]
@@ -313,14 +347,17 @@ def main() -> None:
           f"{summary['advise_later_median_s']:.1f} s wall, {summary['advise_later_median_cpu_s']:.1f} s CPU; load "
           f"{load0[0]:.1f} -> {os.getloadavg()[0]:.1f}")
     shutil.rmtree(cache, ignore_errors=True)
-    if not a.no_results and len(rows) == len(CASES):
-        path = write_results("hidden_mills", {"summary": summary, "cases": rows},
+    if not a.no_results and (len(rows) == len(CASES) or a.results_name != "hidden_mills"):
+        cmd = "python benchmarks/hidden_mills.py"
+        if a.results_name != "hidden_mills":
+            cmd += f" --cases {','.join(c.name for c in cases)} --seed {a.seed} --results-name {a.results_name}"
+        path = write_results(a.results_name, {"summary": summary, "cases": rows},
                              settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
                                        "controller": str(CONTROLLER.relative_to(ROOT)), "card": str(CARD.relative_to(ROOT)),
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
                                        "sample_every_h": SAMPLE_EVERY_H, "sample_particles": SAMPLE_PARTICLES,
                                        "need_tol": NEED_TOL},
-                             command="python benchmarks/hidden_mills.py")
+                             command=cmd)
         print(f"wrote {path}")
 
 

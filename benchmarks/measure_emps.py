@@ -3,6 +3,7 @@
 Run from the repository root::
 
     python benchmarks/measure_emps.py [--emps DIR] [--polarity auto|bright|dark|best] [--name STEM]
+    python benchmarks/measure_emps.py --table   # the docs/measurement.md table from the results files
 
 (``--emps`` defaults to ``$BMCTL_EMPS`` or /work/shared/data/emps-dev: the 40 EMPS images with
 their masks, MIT licence; without them the script says so and measures nothing.)
@@ -295,12 +296,40 @@ def _row(label: str, p: dict) -> str:
             f"{_f(p['r_found_median'], 3)} / {_f(p['r_ref_median'], 3)} |")
 
 
+def doc_table() -> str:
+    """The docs/measurement.md table from the results files, its numbers in results markers."""
+    from bmctl.results import marked
+
+    out = ["| segmentation, images | precision | recall | F1 | images F1 ≥ <!--in-->0.5<!--/in--> | median size ratio |",
+           "|---|---|---|---|---|---|"]
+    sets = (("before, no flag (bright)", "measure_emps_baseline_bright", ("half_A", "half_B", "pooled")),
+            ("before, better polarity by hindsight", "measure_emps_baseline_best", ("half_A", "half_B", "pooled")),
+            ("now, automatic", "measure_emps", ("half_A", "half_B", "pooled", "pooled_not_unusable")))
+    label = {"half_A": "A", "half_B": "B", "pooled": "all 40", "pooled_not_unusable": "all but those judged `unusable`"}
+    for name, stem, keys in sets:
+        f = ROOT / "results" / f"{stem}.json"
+        if not f.exists():
+            continue
+        rec = json.loads(f.read_text(encoding="utf-8"))
+        for k in keys:
+            p = rec[k]
+            lab = label[k] + {"now, automatic": {"half_A": " (parameters chosen here)", "half_B": " (held out)"}}.get(name, {}).get(k, "")
+            cells = [marked(stem, f"{k}.{c}", p[c], "{:.2f}") for c in ("precision", "recall", "f1")]
+            out.append(f"| {name}: {lab} | " + " | ".join(cells) + f" | {p['images_f1_ge_0.5']}/{p['images_scored']} | "
+                       f"{marked(stem, f'{k}.size_ratio_median', p['size_ratio_median'], '{:.3f}')} |")
+    return "\n".join(out)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--emps", type=Path, default=EMPS, help="folder with NAME.png and NAME.seg.png (default: %(default)s)")
     ap.add_argument("--polarity", choices=("auto", "bright", "dark", "best"), default="auto")
     ap.add_argument("--name", default="measure_emps", help="results file stem under results/ (default: %(default)s)")
+    ap.add_argument("--table", action="store_true", help="print the docs/measurement.md table from the results files, run nothing")
     args = ap.parse_args(argv)
+    if args.table:
+        print(doc_table())
+        return 0
     if not args.emps.is_dir():
         print(f"measure_emps: {args.emps} not found (set --emps or BMCTL_EMPS); nothing measured", file=sys.stderr)
         return 0
@@ -335,7 +364,8 @@ def main(argv=None) -> int:
         from bmctl.results import results_path, write_results
         out = write_results(args.name, values, settings=settings, command=command)
     except ImportError:
-        
+        from datetime import datetime, timezone
+
         out = ROOT / "results" / f"{args.name}.json"
         _write_fallback(out, {"bmctl_version": getattr(bmctl, "__version__", "unknown"), "command": command, "settings": settings,
                               "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), **values})

@@ -52,6 +52,7 @@ def configure(p):
     p.add_argument("--write-card", default=None, metavar="OUT.toml",
                    help="also write the card with gamma, delta set to the last estimate (the next batch's start)")
     add_identify_flag(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def _parse_list(flag: str, text: str, allow_empty: bool = False) -> list[float | None]:
@@ -178,7 +179,18 @@ def run(args) -> int:
         print(f"bmctl: warning: {w}", file=sys.stderr)
     model = model_for(args.model, args.identify)
     warn_window(model, [rpm for _, rpm in segments])
-    pf, estimates = run_filter(model, samples, segments, settings, seed=args.seed)
+    bar = progress = None
+    if not args.no_progress and t_end * (args.particles if args.estimator == "pf" else 25) > 2000:  # runs > ~2 s
+        from tqdm import tqdm
+
+        bar = tqdm(total=round(t_end, 3), unit="h", desc="filtering", leave=False,
+                   bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} h [{elapsed}<{remaining}]", mininterval=0.5)
+        progress = bar.update
+    try:
+        pf, estimates = run_filter(model, samples, segments, settings, seed=args.seed, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
     header, rows = estimate_rows(estimates)
     fig_path = out.with_suffix(".png")
     if args.estimator == "ukf":

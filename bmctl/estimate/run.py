@@ -150,7 +150,7 @@ def inputs_between(segments: Sequence[tuple[float, float]], t0: float, t1: float
 
 def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float, float]],
                settings: FilterSettings | UKFSettings | None = None, seed: int = 0, max_step_h: float = 1.0,
-               pf=None) -> tuple[ParticleFilter | UKFEstimator, list[Estimate]]:
+               pf=None, progress=None) -> tuple[ParticleFilter | UKFEstimator, list[Estimate]]:
     """Filter the samples in time order; returns the filter and one estimate per sample.
 
     Between samples the filter predicts under the schedule's inputs in pieces of at most
@@ -172,6 +172,8 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
         Longest single predict step.
     pf : ParticleFilter or UKFEstimator, optional
         Continue this filter instead of starting a new one.
+    progress : callable, optional
+        Called with the hours of each predict step once it is done (e.g. ``tqdm.update``).
 
     Returns
     -------
@@ -191,6 +193,8 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
             k = max(1, int(np.ceil(hours / max_step_h - 1e-9)))
             for _ in range(k):
                 pf.predict((rpm, milling), hours / k)
+                if progress is not None:
+                    progress(hours / k)
         pf.t_h = smp.t_h  # no drift from summing pieces
         out.append(pf.update(smp.s_um, smp.r, smp.temperature_c))
     return pf, out

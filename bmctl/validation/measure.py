@@ -1,6 +1,7 @@
 """Validation of the segmentation: matching to ground truth, synthetic sweeps, hand outlines.
 
-Used by ``tests/test_measure.py`` and to produce the tables of ``docs/measurement.md``::
+Used by ``tests/measure/test_measure.py`` and ``benchmarks/measure_accuracy.py`` (which writes the
+results files behind the tables of ``docs/measurement.md``). Quick printouts::
 
     python -m bmctl.validation.measure            # all tables (about two minutes)
     python -m bmctl.validation.measure bias       # perimeter-estimator bias only

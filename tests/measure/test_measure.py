@@ -57,8 +57,7 @@ def test_shapes_hit_requested_aspect_and_ellipse_convention():
 
 
 def test_crofton_is_the_least_biased_estimator():
-    # measured (docs/measurement.md): Crofton |bias| <= 0.5 % at 10 and 40 px; pixel -3.9..+3.4 %,
-    # plain contour +5 %, smoothed contour +0.1..+1.5 %
+    # the full table: results/measure_perimeter.json (benchmarks/measure_accuracy.py perimeter)
     rows = bias_study(diameters_px=(10, 40), kinds=("disc", "ellipse q=2"), n=12, seed=1)
     bias = {}
     for row in rows:
@@ -77,8 +76,7 @@ def test_perimeter_of_a_large_disc():
 @pytest.mark.skipif(not AMPIS_JSON.exists(), reason="AMPIS hand outlines not present")
 def test_perimeter_estimator_on_hand_drawn_masks():
     # each hand polygon rasterised alone; Crofton perimeter of the pixel mask vs the polygon
-    # length. Measured for s >= 20 px (169 outlines): median +0.34 %, 90th pct |err| 1.9 %;
-    # the pixel (regionprops) estimator: +4.4 %.
+    # length (measured values: results/measure_perimeter.json, ampis_hand_polygons).
     from skimage import draw
 
     polys = via_polygons(AMPIS_JSON)
@@ -117,8 +115,7 @@ def test_render_is_seeded_and_ignores_global_rng():
 @pytest.mark.parametrize(
     "s_px, s_tol, r_tol",
     [
-        # measured (2 images x 60 particles, seed 7): s 1.9 %, r 0.021 at 10-14 px;
-        # s 0.4 %, r 0.007 at 20-40 px (docs/measurement.md, 5.1)
+        # measured values: results/measure_synthetic.json, populations (docs/measurement.md, 5.1)
         ((10.0, 14.0), 0.03, 0.03),
         ((20.0, 40.0), 0.015, 0.015),
     ],
@@ -183,10 +180,8 @@ def ampis():
 
 @pytest.mark.slow
 def test_real_powder_against_hand_outlines(ampis):
-    # Measured (docs/measurement.md, 5.3): 146 of 191 interior outlines matched (IoU > 0.5) =
-    # 0.76, precision 0.58 (satellites split off, small unlabelled particles); matched
-    # particles: median |s err| 1.4 %, median |r err| 0.019 (hand r median 0.059). Otsu, or no
-    # dark-line cut, matches only 0.41-0.49, so 0.65 catches a regression to either.
+    # Measured values: results/measure_real.json (ampis) and measure_sensitivity.json (docs/measurement.md,
+    # 5.3). Otsu, or no dark-line cut, matches far fewer outlines, so 0.65 catches a regression to either.
     c, extra = ampis
     summ = c.summary()
     assert extra["n_outlines"] == 238
