@@ -356,6 +356,8 @@ class Evaluation:
     nodes: int = 0
     levels: list = field(default_factory=list)
     node_path: np.ndarray | None = None
+    #: highest vial temperature while milling, (S, N) (-inf: never mills); the ceiling is scored on it
+    mill_peak_c: np.ndarray | None = None
 
     def trajectory(self, i: int, x0s) -> tuple[np.ndarray, np.ndarray]:
         """States (S, K + 1, 6) and interval peaks (S, K) of candidate ``i``."""
@@ -485,7 +487,7 @@ def evaluate(model, x0s, ps, rpm: np.ndarray, minutes: np.ndarray, grid: Grid, s
 
 
 def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: Grid, power: float = 1.0,
-                  per_interval: bool = False) -> np.ndarray:
+                  per_interval: bool = False, milling_only: bool = False) -> np.ndarray:
     """Highest vial temperature of each schedule from each start (T0, h0): eq. (6) in closed form.
 
     The vial's temperature and hardening do not depend on the powder's moments, so the ceiling is
@@ -499,6 +501,15 @@ def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: G
         Start temperature (degC) and hardening per scenario.
     rpm, minutes : ndarray, (N, K)
     grid : Grid
+    power : float, optional
+        Heating factor (1: the card's).
+    per_interval : bool, optional
+        Return the peak per interval, (S, N, K).
+    milling_only : bool, optional
+        Count only the intervals that mill (-inf where a schedule never mills): the ceiling is a
+        limit on milling, so a vial that is already above it -- a hot start, or a hot filter particle
+        -- makes every milling candidate exceed it while a rest does not (counting the start
+        temperature for every candidate would make them all equal and let the closest mill on).
 
     Returns
     -------
@@ -507,7 +518,7 @@ def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: G
     c = model.const
     T = np.asarray(T0s, dtype=float)[:, None] * np.ones((1, rpm.shape[0]))
     h = np.asarray(h0s, dtype=float)[:, None] * np.ones((1, rpm.shape[0]))
-    peak = T.copy()
+    peak = np.full_like(T, -np.inf) if milling_only else T.copy()
     each = []
     w_scale = float(power) ** (1.0 / 3.0)  # P ~ w^3 in eq. (6): the power factor as a speed factor
     for j in range(grid.K):
@@ -516,6 +527,8 @@ def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: G
         T1, _ = eq.thermal_exact(eq.NP, c, T, h, w * w_scale, a)
         _, h1 = eq.thermal_exact(eq.NP, c, T, h, w, a)
         pk = np.maximum(T, np.where(a > 0, T1, T))
+        if milling_only:
+            pk = np.where(a > 0, pk, -np.inf)
         peak = np.maximum(peak, pk)
         each.append(pk)
         T, h = eq.thermal_exact(eq.NP, c, T1, h1, 0.0, grid.lengths_min[j] / 60.0 - a)
@@ -625,7 +638,7 @@ def score(ev: Evaluation, target: dict, lim: Limits, weights, switches: np.ndarr
     e2 = np.sum(E * E, axis=-1)  # (S, N)
     rms = np.sqrt(np.mean(e2, axis=0))
     err = np.max(np.abs(E[0]), axis=-1) if E.shape[-1] else np.zeros(E.shape[1])
-    excess = np.max(ev.peak_c, axis=0) - lim.ceiling_c
+    excess = np.max(ev.peak_c if ev.mill_peak_c is None else ev.mill_peak_c, axis=0) - lim.ceiling_c
     sec = (weights.energy_per_kWh * ev.energy_kWh + weights.time_per_h * ev.milling_h
            + getattr(weights, "switch", 0.0) * switches)
     return Scores(np.sqrt(e2[0]), rms, err, excess, sec)
@@ -928,6 +941,8 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         ev = evaluate(model, x0s[:1], ps[:1], rpm[idx], mins[idx], g, substeps)
         # the ceiling in every scenario, eq. (6) in closed form with the mill's fitted heating power
         ev.peak_c = thermal_peaks(model, x0s[:, 4], x0s[:, 5], rpm[idx], mins[idx], g, lim.power)
+        ev.mill_peak_c = thermal_peaks(model, x0s[:, 4], x0s[:, 5], rpm[idx], mins[idx], g, lim.power,
+                                       milling_only=True)
         work["nodes"] += ev.nodes
         sc = score(ev, target, lim, weights, sw[idx])
         defer = (mins[idx, 0] <= 0) & (mins[idx, 1:].sum(axis=1) > 0) if g.K > 1 else np.zeros(idx.size, bool)

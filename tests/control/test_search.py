@@ -132,11 +132,14 @@ def test_closed_loop_keeps_the_dwell_limits_over_the_batch_and_reaches_the_targe
 def test_no_rest_when_the_plan_needs_milling_the_limits_forbid_later(model, cfg):
     """The failure of continuous milling shares rounded afterwards: near the target with little milling
     left, a plan of 1-min bursts rounded down to 0 rested to the end. Here the first move belongs to an
-    operable plan, so the mill keeps milling whole dwell periods until the target is met."""
+    operable plan, so the mill keeps milling whole dwell periods until the target is met. (At 320 rpm
+    the vial stays under the 80 °C ceiling; 10 h at 350 rpm would leave it at about 89 °C, where the
+    plan must rest first.)"""
     p = np.ones(2)
-    X = model.simulate(model.x0(), [[350.0, 1.0]] * 20, 0.5, p)
+    X = model.simulate(model.x0(), [[320.0, 1.0]] * 20, 0.5, p)
     x10 = X[-1]
-    X2 = model.simulate(x10, [[350.0, 1 / 6]] * 2, 0.5, p)  # what 2 x 5 min more would give
+    assert x10[4] < cfg.temperature.ceiling_c - 2.0
+    X2 = model.simulate(x10, [[320.0, 1 / 6]] * 2, 0.5, p)  # what 2 x 5 min more would give
     target = float(X2[-1, 0])
     d = cfg.model_dump()
     d["plan"]["spread"] = 0
@@ -222,3 +225,20 @@ def test_a_hotter_mill_than_the_card_stays_under_the_ceiling(model, cfg):
         t += 0.5
     assert plan.extra["power"] > 1.1
     assert peak <= cfg.temperature.ceiling_c + 2.0
+
+
+def test_a_vial_above_the_ceiling_rests_instead_of_milling_on(model, cfg):
+    """A start above the ceiling (the vial itself, or one filter particle of the spread) makes every
+    milling candidate exceed it: the plan rests first, though milling now is what reaches the target.
+    Counting the start temperature for every candidate made them tie and the closest one milled on."""
+    g, lim = make_grid(0.0, 4.0, 0.5), limits_of(cfg, model)
+    target = {"s_mean_um": float(model.simulate(model.x0(), [[330.0, 1.0]] * 8, 0.5)[-1, 0])}
+    cool = search(model, model.x0()[None], np.ones((1, 2)), target, g, lim, cfg.weights)
+    assert cool.minutes[0] > 0  # milling now is what the target asks for
+    hot = model.x0().copy()
+    hot[4] = lim.ceiling_c + 5.0
+    r = search(model, hot[None], np.ones((1, 2)), target, g, lim, cfg.weights)
+    assert r.minutes[0] == 0
+    spread = np.vstack([model.x0(), model.x0(), hot])  # nominal cool, one particle of the spread hot
+    r = search(model, spread, np.ones((3, 2)), target, g, lim, cfg.weights)
+    assert r.minutes[0] == 0
