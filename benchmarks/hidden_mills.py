@@ -231,8 +231,12 @@ def table(rows: list[dict], summary: dict) -> str:
            "idle while needed h (longest) | plain schedule chosen on the card | its error % |",
            "|---|---|---|---|---|---|---|---|---|---|"]
     for i, r in enumerate(rows):
-        out.append(f"| {r['case']} | ×{r['gamma_mult']:g}, ×{r['delta_mult']:g} | {r['field'].split('.')[1]} = "
-                   f"{r['value']:g} | {r['hours']:g} | {m(i, 'target_s_mean_um', '{:.2f}')} | "
+        def inp(v):  # an input of the case (a factor touching × or a decimal would look measured)
+            return f"<!--in-->{v:g}<!--/in-->"
+
+        field_value = f"{r['value']:g}" if float(r['value']).is_integer() else inp(r['value'])
+        out.append(f"| {r['case']} | ×{inp(r['gamma_mult'])}, ×{inp(r['delta_mult'])} | {r['field'].split('.')[1]} = "
+                   f"{field_value} | {r['hours']:g} | {m(i, 'target_s_mean_um', '{:.2f}')} | "
                    f"{m(i, 'error_pct', '{:+.2f}')} | {m(i, 'peak_c', '{:.1f}')} | {m(i, 'idle_needed_h', '{:.2f}')} "
                    f"({m(i, 'longest_idle_needed_h', '{:.2f}')}) | {r['plain_schedule']} | "
                    f"{m(i, 'plain_error_pct', '{:+.1f}')} |")
