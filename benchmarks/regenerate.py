@@ -87,7 +87,7 @@ REGISTRY: tuple[Study, ...] = (
     Study("bench_control_compiled", "python benchmarks/bench_control.py --compiled", 9, timing=True),
     Study("bench_control_nlp", "python benchmarks/bench_control.py --nlp", 1, timing=True),
     Study("bench_fresh", "python benchmarks/bench_fresh.py", 5, timing=True),
-    Study("test_suite", "python benchmarks/test_suite.py --only quick", 5, timing=True),
+    Study("test_suite", "python benchmarks/test_suite.py", 20, timing=True),
 )
 
 MARKER = re.compile(r"(<!--r:([^:>\s]+):([^>\s]+?)-->)(.*?)(<!--/r-->)", re.S)
