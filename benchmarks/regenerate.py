@@ -90,7 +90,7 @@ REGISTRY: tuple[Study, ...] = (
     Study("test_suite", "python benchmarks/test_suite.py", 20, timing=True),
 )
 
-MARKER = re.compile(r"(<!--r:([^:>\s]+):([^>\s]+?)-->)(.*?)(<!--/r-->)", re.S)
+MARKER = re.compile(r"(<!--r:([^:>\s]+):([^>\n]+?)-->)(.*?)(<!--/r-->)", re.S)
 
 
 def docs() -> list[Path]:

@@ -46,7 +46,7 @@ REQUIRED = ("bmctl_version", "command", "settings", "created_utc")
 # is empty at release.
 PENDING: set[str] = set()
 
-MARKER = re.compile(r"<!--r:([^:>\s]+):([^>\s]+?)-->(.*?)<!--/r-->", re.S)
+MARKER = re.compile(r"<!--r:([^:>\s]+):([^>\n]+?)-->(.*?)<!--/r-->", re.S)
 HAND = re.compile(r"<!--(hand|in)-->(.*?)<!--/\1-->", re.S)
 SUP = str.maketrans("⁰¹²³⁴⁵⁶⁷⁸⁹⁻⁺", "0123456789-+")
 NUMBER = re.compile(r"^([+-]?)(\d[\d,]*)(?:\.(\d+))?(?:(?:e|E)([+-]?\d+)|[·×]10\^?([+-]?\d+))?(k|M)?$")
