@@ -15,7 +15,8 @@ The estimator's (gamma, delta) enter every plan, with their spread: the search s
 (a deterministic weighted selection, :func:`bmctl.control.robust.particle_scenarios`) and scored
 ``e^2 + risk (Var(e) - Var_rest(e))``, the variance the plan adds to that of resting on: a plan
 whose outcome the filter's uncertainty scatters (e.g. over the welding hump and back) loses to a
-safer one that is nearly as close. The vial ceiling holds for each particle's temperature.
+safer one that is nearly as close. The vial ceiling holds for each particle's temperature while
+milling: above it (the vial or one particle), every milling candidate exceeds it and the plan rests.
 
 A re-plan starts from the previous plan shifted to now: when it still comes within the tolerance
 (``[objective] tolerance``) of the target, a local search around it (its neighbours on the grid)
