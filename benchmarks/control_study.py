@@ -29,7 +29,6 @@ where the MPC was closer, Wilcoxon signed-rank p from 6 seeds on) go to results/
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import shutil
@@ -39,6 +38,8 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+
+from trial_study import fingerprint  # noqa: E402  (one rule for reusing a finished trial, in benchmarks/)
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = {
@@ -79,16 +80,6 @@ def scenario_file(folder: Path, scen: str, ctrl: str) -> Path:
     if not path.exists() or path.read_text() != text:
         path.write_text(text)
     return path
-
-
-def fingerprint(scenario: str) -> str:
-    """sha256 of the scenario file, every model card and controller config and the bmctl sources."""
-    h = hashlib.sha256(Path(scenario).read_bytes())
-    files = [f for folder in ("models", "controllers") for f in sorted((ROOT / folder).glob("*.toml"))]
-    files += sorted((ROOT / "bmctl").rglob("*.py"))
-    for f in files:
-        h.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes())
-    return h.hexdigest()[:16]
 
 
 def finished(out: Path, fp: str) -> dict | None:

@@ -487,7 +487,7 @@ def evaluate(model, x0s, ps, rpm: np.ndarray, minutes: np.ndarray, grid: Grid, s
 
 
 def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: Grid, power: float = 1.0,
-                  per_interval: bool = False, milling_only: bool = False) -> np.ndarray:
+                  per_interval: bool = False) -> np.ndarray:
     """Highest vial temperature of each schedule from each start (T0, h0): eq. (6) in closed form.
 
     The vial's temperature and hardening do not depend on the powder's moments, so the ceiling is
@@ -505,11 +505,6 @@ def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: G
         Heating factor (1: the card's).
     per_interval : bool, optional
         Return the peak per interval, (S, N, K).
-    milling_only : bool, optional
-        Count only the intervals that mill (-inf where a schedule never mills): the ceiling is a
-        limit on milling, so a vial that is already above it -- a hot start, or a hot filter particle
-        -- makes every milling candidate exceed it while a rest does not (counting the start
-        temperature for every candidate would make them all equal and let the closest mill on).
 
     Returns
     -------
@@ -518,7 +513,7 @@ def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: G
     c = model.const
     T = np.asarray(T0s, dtype=float)[:, None] * np.ones((1, rpm.shape[0]))
     h = np.asarray(h0s, dtype=float)[:, None] * np.ones((1, rpm.shape[0]))
-    peak = np.full_like(T, -np.inf) if milling_only else T.copy()
+    peak = T.copy()
     each = []
     w_scale = float(power) ** (1.0 / 3.0)  # P ~ w^3 in eq. (6): the power factor as a speed factor
     for j in range(grid.K):
@@ -527,8 +522,6 @@ def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: G
         T1, _ = eq.thermal_exact(eq.NP, c, T, h, w * w_scale, a)
         _, h1 = eq.thermal_exact(eq.NP, c, T, h, w, a)
         pk = np.maximum(T, np.where(a > 0, T1, T))
-        if milling_only:
-            pk = np.where(a > 0, pk, -np.inf)
         peak = np.maximum(peak, pk)
         each.append(pk)
         T, h = eq.thermal_exact(eq.NP, c, T1, h1, 0.0, grid.lengths_min[j] / 60.0 - a)
@@ -940,9 +933,13 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         idx = np.array(take)
         ev = evaluate(model, x0s[:1], ps[:1], rpm[idx], mins[idx], g, substeps)
         # the ceiling in every scenario, eq. (6) in closed form with the mill's fitted heating power
-        ev.peak_c = thermal_peaks(model, x0s[:, 4], x0s[:, 5], rpm[idx], mins[idx], g, lim.power)
-        ev.mill_peak_c = thermal_peaks(model, x0s[:, 4], x0s[:, 5], rpm[idx], mins[idx], g, lim.power,
-                                       milling_only=True)
+        # (one pass, per interval). The ceiling is a limit on milling: it is scored on the intervals
+        # that mill, so a vial already above it (a hot start, or a hot filter particle) makes every
+        # milling candidate exceed it while a rest does not; scored on the start temperature too,
+        # every candidate would tie and the closest would mill on.
+        each = thermal_peaks(model, x0s[:, 4], x0s[:, 5], rpm[idx], mins[idx], g, lim.power, per_interval=True)
+        ev.peak_c = np.maximum(x0s[:, 4][:, None], each.max(axis=-1, initial=-np.inf))
+        ev.mill_peak_c = np.where(mins[idx][None] > 0, each, -np.inf).max(axis=-1, initial=-np.inf)
         work["nodes"] += ev.nodes
         sc = score(ev, target, lim, weights, sw[idx])
         defer = (mins[idx, 0] <= 0) & (mins[idx, 1:].sum(axis=1) > 0) if g.K > 1 else np.zeros(idx.size, bool)
