@@ -182,8 +182,16 @@ def test_cli_bad_history_one_line(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_cli_calibrate_small_end_to_end(tmp_path, capsys):
+def test_cli_calibrate_small_end_to_end(tmp_path, capsys, monkeypatch):
+    from functools import partial
+
     from bmctl.calibrate.synthetic import synthetic_history, write_history
+    from bmctl.moments import forcard
+
+    # the calibrated card's moment identification at `bmctl identify --quick --jacobians 2` size (~20 s, not
+    # ~2 min): what is checked here is calibrate's outputs; the identification's own tests are in tests/moments/
+    monkeypatch.setattr(forcard, "identification_text",
+                        partial(forcard.identification_text, quick=True, jacobians=2))
 
     truth = with_factors(load_card(LAB), 1.4, 0.75)
     h = synthetic_history(truth, [(1.0, 300.0, 1.0)], [0.5, 1.0], 150, 400, np.random.default_rng(3), name="tiny")
@@ -198,6 +206,8 @@ def test_cli_calibrate_small_end_to_end(tmp_path, capsys):
     assert est["interval90"][0] <= est["estimate"] <= est["interval90"][1]
     assert card.stochastic.gamma_per_um2 == pytest.approx(est["estimate"])
     assert (out / "histograms-tiny.png").stat().st_size > 0
+    # the coefficients written beside the calibrated card are its own
+    assert forcard.for_card(out / "alni-1to1-300rpm-lab-calibrated.toml").coeff_file.card_name == card.card.name
 
 
 @pytest.mark.slow
