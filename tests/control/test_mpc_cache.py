@@ -1,5 +1,6 @@
 """Compiled MPC solvers: the cache key, a corrupt library, and compiled == interpreted plans."""
 
+import functools
 import os
 import shutil
 from pathlib import Path
@@ -23,9 +24,11 @@ def private_cache(tmp_path, monkeypatch):
     return tmp_path / "xdg" / "bmctl" / "mpc"
 
 
-def _controller(model, hours=4.0, tight=False):
+def _controller(model, hours=4.0, tight=False, horizon=None):
     cfg = load_controller(ROOT / "controllers" / "mpc-default.toml")
     cfg = cfg.model_copy(update={"batch_hours": hours, "plan": cfg.plan.model_copy(update={"method": "nlp"})})
+    if horizon is not None:
+        cfg = cfg.model_copy(update={"horizon": horizon})
     if tight:  # converged solves (the shipped tolerances stop at "acceptable" iterates a few rpm apart)
         cfg = cfg.model_copy(update={"solver": cfg.solver.model_copy(update={
             "tol": 1e-8, "acceptable_tol": 1e-7, "acceptable_iter": 5, "max_iter": 400})})
@@ -84,11 +87,14 @@ def test_a_shared_cache_folder_is_refused(private_cache):
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 def test_compiled_and_interpreted_solvers_give_the_same_plans(private_cache, monkeypatch):
+    """A 4-interval horizon (the shipped 8 generates, compiles and solves the same NLP at twice the size:
+    ~100 s here instead of ~35 s); 5 receding steps of a 4 h batch, then a fresh and a cold controller."""
     model = make_moment_model(card_path("alni-1to1-300rpm-lab"))
+    ctl = functools.partial(_controller, model, tight=True, horizon=4)
     plans = {}
     for mode in ("0", "wait"):
         monkeypatch.setenv(cache.ENV_SWITCH, mode)
-        ctrl = _controller(model, tight=True)
+        ctrl = ctl()
         x, u, out = model.x0(), None, []
         for k in range(5):
             if k == 3:
@@ -101,13 +107,13 @@ def test_compiled_and_interpreted_solvers_give_the_same_plans(private_cache, mon
         plans[mode] = np.array(out)
     assert any(private_cache.glob("mpc-warm-*.so")) and any(private_cache.glob("mpc-cold-*.so"))
     # a controller that finds the compiled library (as a fresh process does) builds no NLP and plans alike
-    fresh = _controller(model, tight=True)
+    fresh = ctl()
     fresh.set_state(state)
     plan = fresh.plan(x3, 1.5, None, u3)
     assert plan.status.success and fresh._nlp is None and fresh._nlp_c is None
     np.testing.assert_allclose(plan.u, plans["wait"][3], rtol=1e-9)
     # the cold (exact-Hessian) solve from the library, in a controller that builds nothing symbolic
-    cold = _controller(model, tight=True)
+    cold = ctl()
     first = cold.plan(model.x0(), 0.0, None, None)
     assert first.status.success and cold._nlp is None and cold._nlp_c is None
     np.testing.assert_allclose(first.u, plans["wait"][0], rtol=1e-9)
