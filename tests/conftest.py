@@ -25,3 +25,22 @@ def _interpreted_mpc(monkeypatch):
     """Tests run the MPC interpreted (no background gcc, no writes to the user's cache);
     tests/test_mpc_cache.py turns compilation on where it tests it."""
     monkeypatch.setenv("BMCTL_MPC_COMPILE", "0")
+
+
+#: the tests that run a minute or more on two cores: started first, so that no worker is left running one alone
+#: at the end of `pytest -n auto`
+LONG_FIRST = ("test_readme_commands_and_python_api_run_on_the_shipped_files",
+              "test_trial_is_identical_with_cold_and_warm_compile_caches",
+              "test_crash_mid_sample_leaves_a_consistent_campaign",
+              "test_compiled_and_interpreted_solvers_give_the_same_plans")
+
+
+def pytest_collection_modifyitems(config, items):
+    """The long tests first, then the other tests of modules holding slow ones (each module's order kept), the
+    many quick ones last: with `-n auto --dist worksteal` (pyproject.toml) the workers finish together."""
+    def module(item):
+        return getattr(getattr(item, "module", None), "__name__", "")
+
+    slow = {module(item) for item in items if item.get_closest_marker("slow")}
+    first = {name: k for k, name in enumerate(LONG_FIRST)}
+    items.sort(key=lambda item: (first.get(item.name, len(first)), module(item) not in slow))
