@@ -88,7 +88,7 @@ def test_a_shared_cache_folder_is_refused(private_cache):
 @pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
 def test_compiled_and_interpreted_solvers_give_the_same_plans(private_cache, monkeypatch):
     """A 4-interval horizon (the shipped 8 generates, compiles and solves the same NLP at twice the size:
-    ~100 s here instead of ~35 s); 5 receding steps of a 4 h batch, then a fresh and a cold controller."""
+    ~100 s here instead of ~40 s); 5 receding steps of a 4 h batch, then a fresh and a cold controller."""
     model = make_moment_model(card_path("alni-1to1-300rpm-lab"))
     ctl = functools.partial(_controller, model, tight=True, horizon=4)
     plans = {}
