@@ -63,6 +63,8 @@ REGISTRY: tuple[Study, ...] = (
     Study("hidden_mills_noise", "python benchmarks/hidden_mills.py --noise", 1),
     Study("hidden_mills_seed1", "python benchmarks/hidden_mills.py --cases F,G --seed 1 --results-name hidden_mills_seed1", 12),
     Study("hidden_mills_seed2", "python benchmarks/hidden_mills.py --cases F,G --seed 2 --results-name hidden_mills_seed2", 12),
+    Study("hidden_mills_seed1_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
+          "--results-name hidden_mills_seed1_all", 25),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
     Study("moments_confirm", "python benchmarks/moments_confirm.py --shipped", 3),
     Study("moments_confirm_stream5", "python benchmarks/moments_confirm.py --shipped --stream 5 --seeds 31 32 33", 3),

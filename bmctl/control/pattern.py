@@ -357,18 +357,9 @@ class PatternDesigner:
 
     def simulate(self, segs):
         """Exact model prediction of a schedule: (final state, peak T, energy kWh, milling h, states at segment ends)."""
-        m, c = self.model, self.model.const
-        x = m.x0()
-        peak, energy, mh, states = float(x[4]), 0.0, 0.0, [x]
-        for h, r in segs:
-            u = np.array([[r, 1.0 if r > 0 else 0.0]])
-            x = m.simulate(x, u, h, self.p)[-1]
-            states.append(x)
-            peak = max(peak, float(x[4]))
-            if r > 0:
-                energy += c.power_max_W * (r / c.rpm_max) ** 3 * h / 1000.0
-                mh += h
-        return x, peak, energy, mh, states
+        from .design import simulate_segments
+
+        return simulate_segments(self.model, segs, self.p)
 
     def active(self, V, tol_c: float = 0.5, tol_min: float = 0.5) -> list[str]:
         """Limits active at a solution: temperature ceiling, rpm max, minimum milling period, minimum rest,
