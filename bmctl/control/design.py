@@ -394,10 +394,9 @@ def predicted_csv(d: Design) -> str:
     rows = []
     t = d.times_h
     for k in range(d.X.shape[0]):
-        u = d.U[k] if k < d.U.shape[0] else (float("nan"), float("nan"))
-        tp = d.t_peak_c[k] if k < d.U.shape[0] else float("nan")
-        rows.append([float(t[k]), float(u[0]), float(u[1]), float(tp), *map(float, d.X[k])] +
-                    [target_centre(v) for v in d.target.values()])
+        # each row: a segment's start state and the action over it; the last row, the batch end, has none (empty)
+        act = [float(d.U[k, 0]), float(d.U[k, 1]), float(d.t_peak_c[k])] if k < d.U.shape[0] else ["", "", ""]
+        rows.append([float(t[k]), *act, *map(float, d.X[k])] + [target_centre(v) for v in d.target.values()])
     return csv_text(header, rows)
 
 
