@@ -12,15 +12,15 @@ from bmctl.control import cache, make_controller
 from bmctl.control.config import load_controller
 from bmctl.moments.model import make_moment_model
 
-from tests.conftest import ROOT, card_path
+from tests.conftest import ROOT, TEST_CFLAGS, card_path
 
 
 @pytest.fixture
 def private_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    # gcc -O0: compiles in a fraction of -O1's time (the cold exact-Hessian NLP: ~36 s vs ~3 min); what the
-    # tests check (same plans, keys, loading) does not depend on the optimisation level
-    monkeypatch.setattr(cache, "CFLAGS", ("-O0", "-fPIC", "-shared"))
+    # gcc -O0 (the cold exact-Hessian NLP: ~36 s vs ~3 min); what the tests check (same plans, keys,
+    # loading) does not depend on the optimisation level
+    monkeypatch.setattr(cache, "CFLAGS", TEST_CFLAGS)
     return tmp_path / "xdg" / "bmctl" / "mpc"
 
 

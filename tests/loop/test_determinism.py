@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from ..conftest import ROOT
+from ..conftest import ROOT, TEST_CFLAGS
 
 SCENARIO = """
 model = "{root}/models/alni-1to1-300rpm-lab.toml"
@@ -36,11 +36,10 @@ config = "{root}/controllers/mpc-nominal.toml"
 
 TIMING = {"solve_ms"}  # wall-clock columns: the only ones allowed to differ
 
-# `python -m bmctl` with gcc at -O0 instead of the shipped -O1 (as in tests/control/test_mpc_cache.py): the
-# exact-Hessian library compiles in ~15 s instead of ~100 s. Neither level reassociates or contracts floating
-# point on x86-64 (no -ffast-math, no -march), so the compiled solver computes the same numbers either way;
-# what is checked is that cold and warm caches (interpreted, then compiled code) give the same trial.
-BMCTL = ["-c", "import sys; from bmctl.control import cache; cache.CFLAGS = ('-O0', '-fPIC', '-shared'); "
+# `python -m bmctl` with the tests' gcc flags (conftest.TEST_CFLAGS, -O0): the exact-Hessian library compiles
+# in ~15 s instead of ~100 s; what is checked is that cold and warm caches (interpreted, then compiled code)
+# give the same trial.
+BMCTL = ["-c", f"import sys; from bmctl.control import cache; cache.CFLAGS = {TEST_CFLAGS!r}; "
                "from bmctl.cli import main; sys.exit(main())"]
 
 
