@@ -176,9 +176,10 @@ class PlanController:
         args = (self.model, np.array(x0s), np.array(ps), target, grid, lim, self.cfg.weights, carry)
         res, scope = None, "global"
         if extra:  # the previous plan still reaches the target: a local search around it
-            res = search(*args, rounds=0, extra=extra, coarse=False, **kw)
+            tol = self.cfg.objective.tolerance
+            res = search(*args, rounds=0, extra=extra, coarse=False, give_up_above=tol, **kw)
             scope = "local"
-            if res.error > self.cfg.objective.tolerance:
+            if res is not None and res.error > tol:
                 res = None
         if res is None:
             res, scope = search(*args, rounds=ps_cfg.rounds, extra=extra, **kw), "global"

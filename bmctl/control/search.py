@@ -851,7 +851,7 @@ def _fine_rows(Pc: np.ndarray, f: int) -> np.ndarray:
 def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry: Carry | None = None,
            substeps: int = 2, rpm_step: float = 20.0, band: float = 0.002, rounds: int = 1, keep: int = 6,
            extra=None, coarse: bool = True, coarse_factor: int = 2, pool: int = 8, pool_band: float = 0.03,
-           risk: float = 0.25) -> SearchResult:
+           risk: float = 0.25, give_up_above: float | None = None) -> SearchResult | None:
     """Coarse batch over the families, then rounds of neighbours of the best few (and of the best per
     family), every candidate operable over the whole horizon; the best within the error band are then
     scored on the spread.
@@ -897,6 +897,9 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         common to every plan and narrowed by the next samples); 1 would weigh the added variance as
         in the expected squared error of the plan run open loop; less counts on the feedback that
         later plans give (docs/control.md).
+    give_up_above : float, optional
+        Return None, before the spread is scored, when no candidate comes within this error of the
+        target (the caller would reject the result: a local search that then gives way to a global one).
 
     Examples
     --------
@@ -1024,6 +1027,8 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         if new_best == best:
             break
         best = new_best
+    if give_up_above is not None and float(np.min(C["err"])) > give_up_above:
+        return None  # the result's error (that of one of the candidates) would exceed it too
     Xs = None
     if x0s.shape[0] > 1:  # the spread: a pool of the nominally closest plans, scored on every particle
         sc = scores()

@@ -192,6 +192,11 @@ def _zero(v) -> bool:
     return isinstance(v, (int, float)) and v == 0
 
 
+#: evaluate the numpy field with :mod:`bmctl.moments.npfield` (the same numbers, bit for bit, with fewer
+#: and larger array operations); False runs the node-by-node definition below
+NP_VECTORISED = True
+
+
 def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool = False):
     """Rates (per hour of milling) of E[s], E[s^2], E[r], E[r^2] at speed w = rpm / rpm_max.
 
@@ -207,7 +212,16 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool 
     * logistic law in ln((dU_i + dU_j)/(d_ij u_b)) * (1 - Pf_i)(1 - Pf_j).
     The total s^2 is conserved exactly (eqn 2); N changes by -1 per bond, +1 per fracture.
     ``q`` maps coefficient names to numbers (or casadi symbols).
+
+    On numpy arrays (without ``events``) the same field is evaluated by
+    :func:`bmctl.moments.npfield.raw_rates_np`, vectorised over the nodes and bit-identical
+    (:data:`NP_VECTORISED` switches it off).
     """
+    if B is NP and not events and NP_VECTORISED:
+        from .npfield import raw_rates_np, usable
+
+        if usable(m, sd, rm, rho, T, h, w, bm, fm):
+            return raw_rates_np(c, q, m, sd, rm, rho, T, h, w, bm, fm)
     var_ln = B.log(1.0 + (sd / m) ** 2)
     sig_ln = B.sqrt(var_ln)
     ws = smax(B, w, 0.0, RPM_SOFT)
