@@ -513,6 +513,11 @@ def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int, rates=None, 
     bonding and fracture events per particle over the interval, integrated with the moments
     (``rates`` must then return the event rates too).
     """
+    if rates is None and B is NP and not events and NP_VECTORISED:
+        from .npfield import step_np, usable
+
+        if usable(xs[0], *xs[1:6], us[0], us[1], ps[0], ps[1], dt_h):
+            return step_np(c, q, xs, us, ps, dt_h, n_sub, stages)  # the same numbers, bit for bit
     rates = rates or (lambda y, T, h, w, bm, fm: y_rates(B, c, q, y[:4], T, h, w, bm, fm, events=events))
     w = us[0] / c.rpm_max
     duty = us[1]

@@ -39,17 +39,31 @@ _FRAG_SQ = np.array([math.sqrt(x) for x in GL_XH for x in (x, 1 - x)])  # math.s
 _FRAG_C = np.array([2 * math.sqrt(x * (1 - x)) / math.pi for x in GL_XH for _ in range(2)])
 
 
-_COLS: dict = {}
-
-
-def _col(vals, nd: int) -> np.ndarray:
+def _c(vals, nd: int) -> np.ndarray:
     """Constants along a leading axis, broadcastable against arrays of ``nd`` trailing dimensions."""
-    key = (tuple(float(v) for v in vals), nd)
-    a = _COLS.get(key)
-    if a is None:
-        a = _COLS[key] = np.asarray(vals, dtype=float).reshape((-1,) + (1,) * nd)
-        a.flags.writeable = False
+    a = np.asarray(vals, dtype=float).reshape((-1,) + (1,) * nd)
+    a.flags.writeable = False
     return a
+
+
+# the field runs on 1-D batches (usable): node arrays are (nodes, n), pair-and-bin arrays (bins, pairs, n)
+_GT = _c(GH_T, 1)
+_W1, _W2 = _c(GH_W, 1), _c(GH_W, 2)
+_THALF = _c(GH_T[_HALF + 1:], 2)
+_FRAG_X, _FRAG_SQ, _FRAG_C = _c(_FRAG_X, 2), _c(_FRAG_SQ, 2), _c(_FRAG_C, 2)
+_P2 = _c(_P2, 1)
+_NODES: dict = {}
+
+
+def _card_nodes(c):
+    """(contact f, contact weights, -z, rounding weights, w_z) of the card's quadrature bins, as columns."""
+    key = (c.contact_nodes, c.round_nodes)
+    got = _NODES.get(key)
+    if got is None:
+        cn, zn = c.contact_nodes, c.round_nodes
+        got = _NODES[key] = (_c([fd for _, fd in cn], 2), _c([wd for wd, _ in cn], 2), _c([-z for _, z in zn], 2),
+                             _c([wz for wz, _ in zn], 2), sum(wz for wz, _ in zn))
+    return got
 
 
 def _sum0(A: np.ndarray) -> np.ndarray:
@@ -75,42 +89,45 @@ def _sat(q):
     return q / np.sqrt(np.sqrt(1.0 + q2 * q2))
 
 
-def usable(*xs) -> bool:
-    """True when the fast path applies: plain numbers and float arrays, at least one of them an array."""
-    nd = False
+def usable(first, *xs) -> bool:
+    """True when the fast path applies: ``first`` a 1-D float64 array, each of ``xs`` a plain number or
+    a float64 array of the same shape (every node array is then (nodes, n))."""
+    if not (isinstance(first, np.ndarray) and first.dtype == np.float64 and first.ndim == 1):
+        return False
     for v in xs:
         if isinstance(v, np.ndarray):
-            if v.dtype != np.float64:
+            if v.dtype != np.float64 or v.shape != first.shape:
                 return False
-            nd = nd or v.ndim >= 1
         elif not isinstance(v, (float, int, np.floating)):
             return False
-    return nd
+    return True
 
 
-def _link(beta, rm, v_r, sig_ln, nd: int):
-    """``link`` of raw_rates for L slopes at once: beta (L, ...) -> per-node arrays (N_S, L, ...)."""
-    k = -beta * sig_ln  # (L, ...)
-    half = np.exp(k * _col(GH_T[_HALF + 1:], nd + 1))  # (2, L, ...)
+def _link(beta, rm, v_r, sig_ln):
+    """``link`` of raw_rates for L slopes at once: beta (L, n) -> per-node arrays (N_S, L, n)."""
+    k = -beta * sig_ln  # (L, n)
+    half = np.exp(k * _THALF)  # (2, L, n)
     inv = 1.0 / half
-    ev = np.concatenate([inv[::-1], np.ones(half[:1].shape), half])  # (N_S, L, ...)
-    W = _col(GH_W, nd + 1)
+    ev = np.concatenate([inv[::-1], np.ones(half[:1].shape), half])  # (N_S, L, n)
     a_ = np.log(rm / (1 - rm))
+    S = np.empty((N_S, 2) + k.shape)
     for _ in range(4):
         ea = np.exp(np.minimum(-a_, 600.0))
         sg = 1.0 / (1.0 + ea * ev)
-        wsg = W * sg
-        s1 = _sum0(wsg)
-        fp = s1 - _sum0(wsg * sg)
+        np.multiply(_W2, sg, out=S[:, 0])  # wsg
+        np.multiply(S[:, 0], sg, out=S[:, 1])
+        s1, s2 = _sum0(S)
+        fp = s1 - s2
         a_ = a_ - (s1 - rm) / (fp + 1e-9)
     ea = np.exp(np.minimum(-a_, 600.0))
     sg = 1.0 / (1.0 + ea * ev)
-    nrm = _sum0(W * sg)  # (L, ...)
+    nrm = _sum0(_W2 * sg)  # (L, n)
     rk = _smin(rm * sg / nrm, eq.R_HI, eq.R_EPS)
-    Wrk = W * rk
-    Er_nodes = _sum0(Wrk)
-    var_between = _sum0(Wrk * rk) - Er_nodes * Er_nodes
-    v_w = _smax(v_r - var_between, 0.05 * v_r, 1e-8)  # (L, ...)
+    np.multiply(_W2, rk, out=S[:, 0])  # Wrk
+    np.multiply(S[:, 0], rk, out=S[:, 1])
+    Er_nodes, s2 = _sum0(S)
+    var_between = s2 - Er_nodes * Er_nodes
+    v_w = _smax(v_r - var_between, 0.05 * v_r, 1e-8)  # (L, n)
     omk = 1.0 - rk
     omk2 = omk * omk
     Ef = 1.0 / omk + v_w / (omk2 * omk)
@@ -121,22 +138,50 @@ def _link(beta, rm, v_r, sig_ln, nd: int):
     return rk, Er_nodes, v_w, Ef, r_b, r2_b, one_r
 
 
+class _Speed:
+    """The parts of the field that depend on the speed and (gamma, delta) only, formed once per step."""
+
+    __slots__ = ("ws", "rate", "ln_e", "ln_e_um", "gamma", "delta", "cb", "cf", "lam_head", "uu", "round2_f",
+                 "c_split")
+
+    def __init__(self, c, q, w, bm, fm):
+        ws = _smax(w, 0.0, eq.RPM_SOFT)
+        wh = ws - 0.5
+        lw = np.log(ws)
+        self.ws = ws
+        self.rate = c.rate_max_per_h * np.exp(EXP_RATE * lw)
+        ln_e = math.log(c.e_max_J_per_um2) + 1.2 * lw
+        self.ln_e = ln_e
+        self.ln_e_um = ln_e - math.log(UM)  # the common head of ln(dU_d / (d_c u_c)) and of the bonding law
+        ln_u_mean = math.log(c.u_mean_max_J) + 2.0 * lw
+        self.gamma, self.delta = c.gamma_per_um2 * bm, c.delta_per_um2 * fm
+        self.cb = np.exp(q["bond_log_scale"] + q["bond_rpm_slope"] * wh)
+        self.cf = np.exp(q["frac_log_scale"] + q["frac_rpm_slope"] * wh)
+        # ln_lam1 = (((head + slope * (ws - 0.5)) + ln_e) - lratio) + ln(...): the speed's part, left to right
+        self.lam_head = (math.log(c.equiaxing * 1.5 * c.plastic_share / (math.pi / 4 * UM**3 * c.yield_Pa) + 1e-300)
+                         + q["round_log_scale"] + q["round_rpm_slope"] * wh + ln_e)
+        self.uu = np.exp(ln_u_mean) * (3 * math.pi / (c.modulus_Pa * UM**3))
+        self.round2_f = np.exp(q["round_var_log_scale"] + q["round_var_rpm_slope"] * wh)
+        ac = q["frac_slope"]
+        self.c_split = [eq.NP.exp(ac * math.log(2 * math.sqrt(x * (1 - x)))) for x in GL_XH]
+
+
 def raw_rates_np(c, q, m, sd, rm, rho, T, h, w, bm, fm):
-    """:func:`bmctl.moments.equations.raw_rates` with ``B = NP`` (no events), bit for bit; see the module."""
+    """:func:`bmctl.moments.equations.raw_rates` with ``B = NP`` (no events), bit for bit, on 1-D batches
+    (:func:`usable`); see the module."""
+    return _field(c, q, _Speed(c, q, w, bm, fm), m, sd, rm, rho, T, h)
+
+
+def _field(c, q, sp: _Speed, m, sd, rm, rho, T, h):
     B = eq.NP
-    nd = len(np.broadcast_shapes(*(np.shape(v) for v in (m, sd, rm, rho, T, h, w, bm, fm))))
-    W = _col(GH_W, nd)
+    n = m.shape[0]
     var_ln = np.log(1.0 + (sd / m) ** 2)
     sig_ln = np.sqrt(var_ln)
-    ws = _smax(w, 0.0, eq.RPM_SOFT)
-    lw = np.log(ws)
-    rate = c.rate_max_per_h * np.exp(EXP_RATE * lw)
+    rate = sp.rate
     lratio = np.log(eq.strength_ratio(B, c, T, h))
     ln_ub = math.log(c.u_J_per_m) + c.n_bond * lratio
     ln_uc = math.log(c.u_J_per_m) - c.n_frac * lratio
-    ln_e = math.log(c.e_max_J_per_um2) + 1.2 * lw
-    ln_u_mean = math.log(c.u_mean_max_J) + 2.0 * lw
-    ln_s = np.log(m) - 0.5 * var_ln + sig_ln * _col(GH_T, nd)  # (N_S, ...)
+    ln_s = np.log(m) - 0.5 * var_ln + sig_ln * _GT  # (N_S, n)
     s = np.exp(ln_s)
     om = 1.0 - rm
     v_r = rho * rho * rm * om
@@ -145,118 +190,177 @@ def raw_rates_np(c, q, m, sd, rm, rho, T, h, w, bm, fm):
     lncv2 = None if eq._zero(k_cv) and eq._zero(k_fcv) else np.log(rho * rho * om / rm)
     beta = q["r_size_corr"] if eq._zero(k_cv) else q["r_size_corr"] + k_cv * lncv2
     shift = q["frac_link_shift"] if eq._zero(k_fcv) else q["frac_link_shift"] + k_fcv * lncv2
-    sh = np.broadcast_shapes(np.shape(beta), np.shape(sig_ln), np.shape(rm))
-    if eq._zero(shift):
-        betas = np.broadcast_to(beta, sh)[None]
-    else:
-        betas = np.stack([np.broadcast_to(beta, sh), np.broadcast_to(beta + shift, sh)])
-    rkL, ErL, vwL, EfL, rbL, r2bL, orL = _link(betas, rm, v_r, sig_ln, nd)
+    two = not eq._zero(shift)
+    betas = np.empty((2 if two else 1, n))
+    betas[0] = beta
+    if two:
+        np.add(beta, shift, out=betas[1])
+    rkL, ErL, vwL, EfL, rbL, r2bL, orL = _link(betas, rm, v_r, sig_ln)
     rk, Er_nodes, v_w, Ef, r_b, r2_b, one_r = rkL[:, 0], ErL[0], vwL[0], EfL[:, 0], rbL[:, 0], r2bL[:, 0], orL[:, 0]
-    f = -1 if ErL.shape[0] > 1 else 0
+    f = 1 if two else 0
     Ef_f, r_b_f, r2_b_f, one_r_f = EfL[:, f], rbL[:, f], r2bL[:, f], orL[:, f]
 
-    gamma, delta = c.gamma_per_um2 * bm, c.delta_per_um2 * fm
-    cb = np.exp(q["bond_log_scale"] + q["bond_rpm_slope"] * (ws - 0.5))
-    cf = np.exp(q["frac_log_scale"] + q["frac_rpm_slope"] * (ws - 0.5))
     ab, ob, ac, oc = q["bond_slope"], q["bond_offset"], q["frac_slope"], q["frac_offset"]
-    ln_lam1 = (math.log(c.equiaxing * 1.5 * c.plastic_share / (math.pi / 4 * UM**3 * c.yield_Pa) + 1e-300)
-               + q["round_log_scale"] + q["round_rpm_slope"] * (ws - 0.5) + ln_e - lratio
-               + np.log(_smax(1.0 - c.equiaxing_hardening * h, 0.0, 0.02)))
+    ln_lam1 = sp.lam_head - lratio + np.log(_smax(1.0 - c.equiaxing_hardening * h, 0.0, 0.02))
     kap = q["round_size_bias"]
+    fd, wd, mz, wz, w_z = _card_nodes(c)
 
-    # fracture: split nodes (x, 1 - x) x size nodes
-    base_c, nac = ln_e - math.log(UM) - ln_uc, -ac
-    c_split = [B.exp(ac * math.log(2 * math.sqrt(x * (1 - x)))) for x in GL_XH]
-    inv = 1.0 / one_r_f  # fragment_tables
+    # fracture: split nodes (x, 1 - x) x size nodes (fragment_tables)
+    cf = sp.cf
+    base_c, nac = sp.ln_e_um - ln_uc, -ac
+    inv = 1.0 / one_r_f
     g2 = 0.5 * q["frac_r_gain"]
-    d = 1.0 - _col(_FRAG_SQ, nd + 1) / (_col(_FRAG_X, nd + 1) * inv + _col(_FRAG_C, nd + 1))  # (2 GL_XH, N_S, ...)
+    d = 1.0 - _FRAG_SQ / (_FRAG_X * inv + _FRAG_C)  # (2 GL_XH, N_S, n)
     r = g2 * (d + np.sqrt(d * d + 1e-4))
     lnL0 = base_c + ln_s
-    q_k = delta * s * s * Ef_f
+    q_k = sp.delta * s * s * Ef_f
     e_k = np.exp(np.minimum(nac * lnL0 - oc, 600.0))
     pf = ds = dr = dr2 = 0.0
-    for n, (x, wx, c_x) in enumerate(zip(GL_XH, GL_WH, c_split)):
+    for i, (x, wx, c_x) in enumerate(zip(GL_XH, GL_WH, sp.c_split)):
         xx = x * (1 - x)
-        r1, r2 = r[2 * n], r[2 * n + 1]
+        r1, r2 = r[2 * i], r[2 * i + 1]
         p = wx * _sat(q_k * xx) / (1.0 + e_k * c_x)
         pf = pf + p
         ds = ds + p * (math.sqrt(x) + math.sqrt(1 - x) - 1.0)
         dr = dr + p * (r1 + r2)
         dr2 = dr2 + p * (r1 * r1 + r2 * r2)
-    Pf = cf * pf
-    dsf = cf * ds * s
-    drf = cf * (dr - pf * r_b_f)
-    dr2f = cf * (dr2 - pf * r2_b_f)
+    # the fracture's node sums, sum_k w_k (Pf, dsf, drf, dr2f)_k, in one pass
+    F4 = np.empty((N_S, 4, n))
+    Pf = np.multiply(cf, pf, out=F4[:, 0])
+    np.multiply(cf * ds, s, out=F4[:, 1])
+    np.multiply(cf, dr - pf * r_b_f, out=F4[:, 2])
+    np.multiply(cf, dr2 - pf * r2_b_f, out=F4[:, 3])
+    Pf_sum, dsf_sum, drf_sum, dr2f_sum = _sum0(_W2 * F4)
     lam = np.exp(ln_lam1 - ln_s - kap * var_ln)
 
     # bonding: the size pairs (i <= j) along one axis
     cn = c.contact_nodes
-    uu = np.exp(ln_u_mean) * (3 * math.pi / (c.modulus_Pa * UM**3))
-    nab, nc0 = -ab, -(ab * (ln_e - math.log(UM) - ln_ub) + ob)
+    nab, nc0 = -ab, -(ab * (sp.ln_e_um - ln_ub) + ob)
     s2 = s * s
     s3 = s2 * s
     cap_m8 = (0.5 * math.pi) ** -8 / ((s2 * s2) * (s2 * s2))
     a34 = 0.75 * s
     gE = s * Ef
-    gG = gamma * gE
-    wsv = W * (1 - Pf)
+    gG = sp.gamma * gE
+    wsv = _W1 * (1 - Pf)
     per = s / one_r
     si, sj = s[_PI], s[_PJ]
     s2n = s2[_PI] + s2[_PJ]
     s_new = np.sqrt(s2n)
     a_h = a34[_PI] * sj / (si + sj)  # _inv_contact
-    d_h2 = a_h * a_h * uu / (s3[_PI] + s3[_PJ])
+    d_h2 = a_h * a_h * sp.uu / (s3[_PI] + s3[_PJ])
     d_h4 = d_h2 * d_h2
     S8 = np.sqrt(np.sqrt(np.sqrt(1.0 / (d_h4 * d_h4) + (cap_m8[_PI] + cap_m8[_PJ]))))
     lnL = np.log(s2n * S8)
     pb = _sat(gG[_PI] * gE[_PJ]) / (1.0 + np.exp(np.minimum(nab * lnL + nc0, 700.0)))
     p = pb * wsv[_PI] * wsv[_PJ]
-    p = _col(_P2, nd) * p
+    p = _P2 * p
     # eqn 18 over the contact bins (_bond_r_sums): bins along one more axis
-    equal = eq._common_weight(cn) is not None
     perim = per[_PI] + per[_PJ]
     d_pi = (2 / math.pi) / S8
-    v = 1.0 - s_new / (perim - d_pi * _col([fd for _, fd in cn], nd + 1))
+    v = 1.0 - s_new / (perim - d_pi * fd)
     r2x = v + np.sqrt(v * v + 1e-4)
-    if equal:
-        rn1, rn2 = _sum0(r2x), _sum0(r2x * r2x)
+    R = np.empty((fd.shape[0], 3) + s_new.shape)  # (bins, 3, pairs, n): rows 1, 2 the two sums' terms
+    if eq._common_weight(cn) is not None:
+        R[:, 1] = r2x
+        np.multiply(r2x, r2x, out=R[:, 2])
     else:
-        wd = _col([wd for wd, _ in cn], nd + 1)
-        rn1, rn2 = _sum0(wd * r2x), _sum0(wd * (r2x * r2x))
-    Q = _sum0(p[_QIDX])  # (N_S, ...)
-    sb = _sum0(p * s_new)
-    rb1 = _sum0(p * rn1)
-    rb2 = _sum0(p * rn2)
+        np.multiply(wd, r2x, out=R[:, 1])
+        np.multiply(wd, r2x * r2x, out=R[:, 2])
+    X = _sum0(R[:, 1:])  # rn1, rn2: (2, pairs, n)
+    P3 = np.empty((3,) + s_new.shape)  # p (s_new, rn1, rn2): sb, rb1, rb2 = their sums over the pairs
+    np.multiply(p, s_new, out=P3[0])
+    np.multiply(p, X, out=P3[1:])
+    sb, rb1, rb2 = _sum0(P3.swapaxes(0, 1))
+    Q = _sum0(p[_QIDX])  # (N_S, n)
     gb1, gb2 = eq._bond_r_scales(cn, q["bond_r_gain"])
-    Pb_sum = cb * (0.5 * _sum0(Q))
-    dsb = cb * (sb - _sum0(s * Q))
-    drb = cb * (gb1 * rb1 - _sum0(r_b * Q))
-    dr2b = cb * (gb2 * rb2 - _sum0(r2_b * Q))
+    Q4 = np.empty((N_S, 4, n))
+    Q4[:, 0] = Q
+    np.multiply(s, Q, out=Q4[:, 1])
+    np.multiply(r_b, Q, out=Q4[:, 2])
+    np.multiply(r2_b, Q, out=Q4[:, 3])
+    sQ, ssQ, rQ, r2Q = _sum0(Q4)
+    cb = sp.cb
+    Pb_sum = cb * (0.5 * sQ)
+    dsb = cb * (sb - ssQ)
+    drb = cb * (gb1 * rb1 - rQ)
+    dr2b = cb * (gb2 * rb2 - r2Q)
 
-    Pf_sum = _sum0(W * Pf)
     g_N = rate * (Pf_sum - 0.5 * Pb_sum)
     Es2 = m * m + sd * sd
     Er2 = rm * rm + v_r
     gv = q["r_var_gain"]
-    zn = c.round_nodes
     e2k = rk * rk + v_w
-    e2n = _sum0(W * e2k)
-    w_z = sum(wz for wz, _ in zn)
-    g1 = W * (rk / Er_nodes)
-    g2 = W * (e2k / e2n)
-    e1 = np.exp(lam * _col([-z for _, z in zn], nd + 1))  # (bins, N_S, ...)
-    we = _col([wz for wz, _ in zn], nd + 1) * e1
-    m1 = _sum0(we)
-    m2 = _sum0(we * e1)
-    round1 = _sum0(g1 * (w_z - m1))
-    round2 = _sum0(g2 * (w_z - m2))
-    round2 = round2 * np.exp(q["round_var_log_scale"] + q["round_var_rpm_slope"] * (ws - 0.5))
-    dsf_sum = _sum0(W * dsf)
+    e2n = _sum0(_W1 * e2k)
+    e1 = np.exp(lam * mz)  # (bins, N_S, n)
+    M = np.empty((mz.shape[0], 2, N_S, n))
+    we = np.multiply(wz, e1, out=M[:, 0])
+    np.multiply(we, e1, out=M[:, 1])
+    m12 = _sum0(M)  # (2, N_S, n)
+    G = np.empty((2, N_S, n))
+    np.divide(rk, Er_nodes, out=G[0])
+    np.divide(e2k, e2n, out=G[1])
+    g12 = _W1 * G
+    round1, round2 = _sum0((g12 * (w_z - m12)).swapaxes(0, 1))
+    round2 = round2 * sp.round2_f
     dEs = rate * (0.5 * q["bond_ds_gain"] * dsb + q["frac_ds_gain"] * dsf_sum) - m * g_N
     dEs2 = -Es2 * g_N
-    src1 = 0.5 * drb + _sum0(W * drf)
+    src1 = 0.5 * drb + drf_sum
     dEr = rate * (src1 - round1 * rm) - rm * g_N
-    src2 = 0.5 * dr2b + _sum0(W * dr2f)
+    src2 = 0.5 * dr2b + dr2f_sum
     src2 = gv * src2 + (1 - gv) * 2 * rm * src1
     dEr2 = rate * (src2 - round2 * Er2) - Er2 * g_N
     return dEs, dEs2, dEr, dEr2
+
+
+def step_np(c, q, xs, us, ps, dt_h, n_sub: int, stages: int):
+    """:func:`bmctl.moments.equations.step` with ``B = NP`` (no ``rates``, no events), bit for bit, on
+    1-D batches (:func:`usable`): the field by :func:`_field` with the speed's part formed once, the four
+    integration coordinates as one (4, n) array in the RKC stages, and the vial's closed form with the
+    parts that do not change within the step formed once."""
+    B = eq.NP
+    w = us[0] / c.rpm_max
+    duty = us[1]
+    bm, fm = ps[0], ps[1]
+    sp = _Speed(c, q, w, bm, fm)
+    Z = np.stack(eq.to_y(B, xs))  # (4, n)
+    T0, h0 = xs[4], xs[5]
+    t_mill = duty * dt_h
+    hs = t_mill / n_sub
+    K = eq.rkc_coefficients(stages)
+    # thermal_exact(B, c, T0, h0, w, t) with its speed's part formed once
+    T_ss = c.ambient_C + eq.power_W(c, w) * c.cooling_time_h * 3600.0 / c.heat_capacity_J_per_K
+    dT = T0 - T_ss
+    a = c.hardening_rate_max_per_h * w * w * w
+    b = 1.0 / c.recovery_time_h
+    h_ss = a / (a + b)
+    dh = h0 - h_ss
+    nab_ = -(a + b)
+
+    def F(Y, t):
+        Tt = T_ss + dT * np.exp(-t / c.cooling_time_h)
+        ht = h_ss + dh * np.exp(nab_ * t)
+        m, sd, rm, rho = eq.y_to_state(B, Y)
+        out = _field(c, q, sp, m, sd, rm, rho, Tt, ht)
+        Fz = np.empty(Y.shape)
+        np.divide(out[0], m, out=Fz[0])
+        np.divide(out[1], m * m + sd * sd, out=Fz[1])
+        Fz[2] = out[2]
+        Fz[3] = out[3]
+        return Fz
+
+    t = 0.0
+    for _ in range(n_sub):
+        F0 = F(Z, t)
+        Y2 = Z
+        Y1 = Z + K["mut"][1] * hs * F0
+        for j in range(2, K["s"] + 1):
+            Fj = F(Y1, t + K["c"][j - 1] * hs)
+            mu, nu, mut, gamt = K["mu"][j], K["nu"][j], K["mut"][j], K["gamt"][j]
+            Y = (1 - mu - nu) * Z + mu * Y1 + nu * Y2 + mut * hs * Fj + gamt * hs * F0
+            Y2, Y1 = Y1, Y
+        Z = Y1
+        t = t + hs
+    T1, h1 = eq.thermal_exact(B, c, T0, h0, w, t_mill)
+    T2, h2 = eq.thermal_exact(B, c, T1, h1, 0.0, dt_h - t_mill)
+    return eq.state_to_x(B, *eq.y_to_state(B, [Z[0], Z[1], Z[2], Z[3]])) + [T2, h2]
