@@ -112,12 +112,12 @@ def _sat(q):
 
 def usable(first, *xs) -> bool:
     """True when the fast path applies: ``first`` a 1-D float64 array, each of ``xs`` a plain number or
-    a float64 array of the same shape (every node array is then (nodes, n))."""
+    a float64 array of the same shape or of none (every node array is then (nodes, n))."""
     if not (isinstance(first, np.ndarray) and first.dtype == np.float64 and first.ndim == 1):
         return False
     for v in xs:
         if isinstance(v, np.ndarray):
-            if v.dtype != np.float64 or v.shape != first.shape:
+            if v.dtype != np.float64 or (v.shape != first.shape and v.ndim):
                 return False
         elif not isinstance(v, (float, int, np.floating)):
             return False
