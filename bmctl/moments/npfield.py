@@ -73,6 +73,9 @@ _W1, _W2 = _c(GH_W, 1), _c(GH_W, 2)
 _THALF = _c(GH_T[_HALF + 1:], 2)
 _FRAG_X, _FRAG_SQ, _FRAG_C = _c(_FRAG_X, 2), _c(_FRAG_SQ, 2), _c(_FRAG_C, 2)
 _P2 = _c(_P2, 1)
+_XX = _c([x * (1 - x) for x in GL_XH], 2)
+_WX = _c(GL_WH, 2)
+_KX = _c([math.sqrt(x) + math.sqrt(1 - x) - 1.0 for x in GL_XH], 2)
 _NODES: dict = {}
 
 
@@ -91,6 +94,14 @@ def _sum0(A: np.ndarray) -> np.ndarray:
     """sum(A[0], A[1], ...) as Python's ``sum`` forms it (0 + A[0] + A[1] + ..., left to right)."""
     r = A[0] + 0.0
     for k in range(1, A.shape[0]):
+        r = r + A[k]
+    return r
+
+
+def _sum_pos(A: np.ndarray) -> np.ndarray:
+    """:func:`_sum0` of terms that are never -0.0 (>= +0 or NaN): the leading 0 + changes nothing there."""
+    r = A[0] + A[1]
+    for k in range(2, A.shape[0]):
         r = r + A[k]
     return r
 
@@ -137,12 +148,12 @@ def _link(beta, rm, v_r, sig_ln):
         sg = 1.0 / (1.0 + ea * ev)
         np.multiply(_W2, sg, out=S[:, 0])  # wsg
         np.multiply(S[:, 0], sg, out=S[:, 1])
-        s1, s2 = _sum0(S)
+        s1, s2 = _sum_pos(S)  # w sg and w sg^2 >= +0
         fp = s1 - s2
         a_ = a_ - (s1 - rm) / (fp + 1e-9)
     ea = np.exp(np.minimum(-a_, 600.0))
     sg = 1.0 / (1.0 + ea * ev)
-    nrm = _sum0(_W2 * sg)  # (L, n)
+    nrm = _sum_pos(_W2 * sg)  # (L, n)
     rk = _smin(rm * sg / nrm, eq.R_HI, eq.R_EPS)
     np.multiply(_W2, rk, out=S[:, 0])  # Wrk
     np.multiply(S[:, 0], rk, out=S[:, 1])
@@ -184,7 +195,7 @@ class _Speed:
         self.uu = np.exp(ln_u_mean) * (3 * math.pi / (c.modulus_Pa * UM**3))
         self.round2_f = np.exp(q["round_var_log_scale"] + q["round_var_rpm_slope"] * wh)
         ac = q["frac_slope"]
-        self.c_split = [eq.NP.exp(ac * math.log(2 * math.sqrt(x * (1 - x)))) for x in GL_XH]
+        self.c_split = _c([float(eq.NP.exp(ac * math.log(2 * math.sqrt(x * (1 - x))))) for x in GL_XH], 2)
 
 
 def raw_rates_np(c, q, m, sd, rm, rho, T, h, w, bm, fm):
@@ -203,7 +214,10 @@ def _field(c, q, sp: _Speed, m, sd, rm, rho, T, h):
     ln_ub = math.log(c.u_J_per_m) + c.n_bond * lratio
     ln_uc = math.log(c.u_J_per_m) - c.n_frac * lratio
     ln_s = np.log(m) - 0.5 * var_ln + sig_ln * _GT  # (N_S, n)
-    s = np.exp(ln_s)
+    # per-node quantities that the size pairs gather, one block: s^2, s^3, the contact cap's (pi/2)^-8 s^-8,
+    # the perimeter / pi, s, 3/4 s, gamma s E[1/(1-r)], the node weight x survival
+    X9 = np.empty((8, N_S, n))
+    s = np.exp(ln_s, out=X9[4])
     om = 1.0 - rm
     v_r = rho * rho * rm * om
 
@@ -236,15 +250,16 @@ def _field(c, q, sp: _Speed, m, sd, rm, rho, T, h):
     lnL0 = base_c + ln_s
     q_k = sp.delta * s * s * Ef_f
     e_k = np.exp(np.minimum(nac * lnL0 - oc, 600.0))
-    pf = ds = dr = dr2 = 0.0
-    for i, (x, wx, c_x) in enumerate(zip(GL_XH, GL_WH, sp.c_split)):
-        xx = x * (1 - x)
-        r1, r2 = r[2 * i], r[2 * i + 1]
-        p = wx * _sat(q_k * xx) / (1.0 + e_k * c_x)
-        pf = pf + p
-        ds = ds + p * (math.sqrt(x) + math.sqrt(1 - x) - 1.0)
-        dr = dr + p * (r1 + r2)
-        dr2 = dr2 + p * (r1 * r1 + r2 * r2)
+    # the split nodes along one axis: p per node, then pf, ds, dr, dr2 summed over them
+    P = _WX * _sat(q_k * _XX) / (1.0 + e_k * sp.c_split)  # (GL_XH, N_S, n)
+    r = r.reshape((len(GL_XH), 2) + r.shape[1:])  # (r1, r2) per split node
+    rr = r * r
+    A = np.empty((len(GL_XH), 4, N_S, n))
+    A[:, 0] = P
+    np.multiply(P, _KX, out=A[:, 1])
+    np.multiply(P, r[:, 0] + r[:, 1], out=A[:, 2])
+    np.multiply(P, rr[:, 0] + rr[:, 1], out=A[:, 3])
+    pf, ds, dr, dr2 = _sum0(A)
     # the fracture's node sums, sum_k w_k (Pf, dsf, drf, dr2f)_k, in one pass
     F4 = np.empty((N_S, 4, n))
     Pf = np.multiply(cf, pf, out=F4[:, 0])
@@ -257,27 +272,27 @@ def _field(c, q, sp: _Speed, m, sd, rm, rho, T, h):
     # bonding: the size pairs (i <= j) along one axis
     cn = c.contact_nodes
     nab, nc0 = -ab, -(ab * (sp.ln_e_um - ln_ub) + ob)
-    s2 = s * s
-    s3 = s2 * s
-    cap_m8 = (0.5 * math.pi) ** -8 / ((s2 * s2) * (s2 * s2))
-    a34 = 0.75 * s
+    s2 = np.multiply(s, s, out=X9[0])
+    np.multiply(s2, s, out=X9[1])
+    np.divide((0.5 * math.pi) ** -8, (s2 * s2) * (s2 * s2), out=X9[2])
+    np.divide(s, one_r, out=X9[3])
+    np.multiply(0.75, s, out=X9[5])
     gE = s * Ef
-    gG = sp.gamma * gE
-    wsv = _W1 * (1 - Pf)
-    per = s / one_r
+    np.multiply(sp.gamma, gE, out=X9[6])
+    np.multiply(_W1, 1 - Pf, out=X9[7])
+    s2n, s3_sum, cap_sum, perim = X9[:4, _PI] + X9[:4, _PJ]  # node i + node j of each pair
     si, sj = s[_PI], s[_PJ]
-    s2n = s2[_PI] + s2[_PJ]
     s_new = np.sqrt(s2n)
-    a_h = a34[_PI] * sj / (si + sj)  # _inv_contact
-    d_h2 = a_h * a_h * sp.uu / (s3[_PI] + s3[_PJ])
+    a_h = X9[5][_PI] * sj / (si + sj)  # _inv_contact
+    d_h2 = a_h * a_h * sp.uu / s3_sum
     d_h4 = d_h2 * d_h2
-    S8 = np.sqrt(np.sqrt(np.sqrt(1.0 / (d_h4 * d_h4) + (cap_m8[_PI] + cap_m8[_PJ]))))
+    S8 = np.sqrt(np.sqrt(np.sqrt(1.0 / (d_h4 * d_h4) + cap_sum)))
     lnL = np.log(s2n * S8)
-    pb = _sat(gG[_PI] * gE[_PJ]) / (1.0 + np.exp(np.minimum(nab * lnL + nc0, 700.0)))
+    pb = _sat(X9[6][_PI] * gE[_PJ]) / (1.0 + np.exp(np.minimum(nab * lnL + nc0, 700.0)))
+    wsv = X9[7]
     p = pb * wsv[_PI] * wsv[_PJ]
     p = _P2 * p
     # eqn 18 over the contact bins (_bond_r_sums): bins along one more axis
-    perim = per[_PI] + per[_PJ]
     d_pi = (2 / math.pi) / S8
     v = 1.0 - s_new / (perim - d_pi * fd)
     r2x = v + np.sqrt(v * v + 1e-4)
