@@ -124,6 +124,10 @@ def _chosen(argv: list[str]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status (0 ok, 2 bad input)."""
     try:
+        if argv is None:  # the bmctl command's own process: the numpy field's heap setting
+            from .moments.npfield import keep_heap
+
+            keep_heap()
         argv = sys.argv[1:] if argv is None else list(argv)
         parser = build_parser(_modules(_chosen(argv)))
         args = parser.parse_args(argv)
