@@ -45,6 +45,10 @@ from .advice import _end_band, _measure, _schedule, _why
 from .readings import estimate_warning, reading_warnings
 from ..moments.forcard import for_card
 
+# The campaign's particle filter: offset-free in size, each particle carries a drift of ln s_mean
+# per milling hour that the card's moment model misses (docs/estimation.md, "Offset-free size").
+CAMPAIGN_FILTER = {"size_drift_prior_per_h": 0.1, "size_drift_walk_per_sqrt_h": 0.05}
+
 EPS_H = 1e-9
 INPUTS = "inputs"
 #: the longest batch a campaign may plan (h), as ``bmctl design --hours``
@@ -189,7 +193,7 @@ class Campaign:
         controller.set_target(direct, t_end_h=m["hours"])
         ss = np.random.SeedSequence(m["seed"])
         _, g_pf, g_sample = (np.random.default_rng(s) for s in ss.spawn(3))  # as bmctl trial: plant, filter, sampler
-        pf = ParticleFilter(model, g_pf, FilterSettings(n_particles=m["particles"]))
+        pf = ParticleFilter(model, g_pf, FilterSettings(n_particles=m["particles"], **CAMPAIGN_FILTER))
         lcfg = LoopConfig(hours=m["hours"], sample_every_h=m["hours"], temperature_reading=True, ceiling_c=ceiling)
         loop = CampaignLoop(OperatorMill(model.card.thermal.ambient_C), RecordedSensor(), pf, controller, g_sample, lcfg)
         loop.model = model

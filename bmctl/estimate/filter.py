@@ -91,6 +91,13 @@ class FilterSettings(Strict):
         Lower limits of the adapted per-sqrt(hour) noise of each log moment.
     process_noise_max : float
         Upper limit of the adapted per-sqrt(hour) noise.
+    size_drift_prior_per_h : float
+        Offset-free size estimate: each particle carries a drift rate b of ln(s_mean) (and
+        ln(s_std), the size law's spread kept) per milling hour that the moment model misses
+        (a powder mass or ball count its gamma, delta cannot describe); this is b's prior std
+        (1/h). 0: no drift (the default).
+    size_drift_walk_per_sqrt_h : float
+        Random walk of b per sqrt(milling hour) (its operating point moves).
     thermal_gain_prior_std : float
         Prior std of the vial's heating gain g over the card's thermal law (1: the card is exact),
         weighed in at the first reading.
@@ -129,6 +136,8 @@ class FilterSettings(Strict):
     adapt_rate: float = 0.3
     process_noise_floor: tuple[float, float, float, float] = (0.05, 0.08, 0.2, 0.2)
     process_noise_max: float = 1.5
+    size_drift_prior_per_h: Annotated[float, Field(ge=0, le=1)] = 0.0
+    size_drift_walk_per_sqrt_h: Annotated[float, Field(ge=0, le=1)] = 0.0
     thermal_gain_prior_std: Annotated[float, Field(ge=0, le=2)] = 0.3
     thermal_gain_walk_per_sqrt_h: Annotated[float, Field(ge=0, le=1)] = 0.05
     thermal_gain_jump_prob: Annotated[float, Field(ge=0, lt=1)] = 0.02
@@ -314,6 +323,9 @@ class ParticleFilter:
         self.ambient_c = float(np.asarray(model.x0(), dtype=float)[4])
         self.gain = np.ones(N)  # each particle's vial heating gain over the card's thermal law
         self.gain_var = st.thermal_gain_prior_std**2  # the gain's prior variance, spent on the first reading
+        # each particle's drift of ln(s_mean, s_std) per milling hour over the moment model (1/h)
+        self.drift = st.size_drift_prior_per_h * rng.standard_normal(N) if st.size_drift_prior_per_h > 0 \
+            else np.zeros(N)
 
     # --- state ------------------------------------------------------------------------------
     def get_state(self) -> dict:
@@ -321,7 +333,7 @@ class ParticleFilter:
         return {"X": self.X.copy(), "logP": self.logP.copy(), "logw": self.logw.copy(), "t_h": self.t_h,
                 "pending_h": self.pending_h, "q": self.q.copy(), "n_resampled": self.n_resampled,
                 "n_degenerate": self.n_degenerate, "rng": self.rng.bit_generator.state,
-                "gain": self.gain.copy(), "gain_var": self.gain_var}
+                "gain": self.gain.copy(), "gain_var": self.gain_var, "drift": self.drift.copy()}
 
     def set_state(self, state: dict) -> None:
         """Restore a state from :meth:`get_state` (the settings and the model are the constructor's)."""
@@ -337,6 +349,7 @@ class ParticleFilter:
         # a state written before the gain existed: the card's law, its prior not yet spent
         self.gain = np.array(state["gain"], dtype=float) if "gain" in state else np.ones(self.X.shape[0])
         self.gain_var = float(state.get("gain_var", self.settings.thermal_gain_prior_std**2))
+        self.drift = np.array(state["drift"], dtype=float) if "drift" in state else np.zeros(self.X.shape[0])
 
     # --- basics -----------------------------------------------------------------------------
     @property
@@ -383,6 +396,12 @@ class ParticleFilter:
         bad = ~np.all(np.isfinite(X), axis=1)
         if np.any(bad):  # a failed model step keeps the particle where it was (and reports nothing)
             X[bad] = self.X[bad]
+        mill_h = dt_h * float(np.clip(u[1], 0.0, 1.0)) if float(u[0]) > 0 else 0.0
+        if st.size_drift_prior_per_h > 0 and mill_h > 0:  # the model's missed size drift while milling
+            f = np.exp(self.drift * mill_h)
+            X[:, 0] *= f
+            X[:, 1] *= f
+            self.drift = self.drift + st.size_drift_walk_per_sqrt_h * math.sqrt(mill_h) * rng.standard_normal(self.drift.shape[0])
         self.X = self._feasible(X)
         self.logP = self.logP + st.param_walk_per_sqrt_h * math.sqrt(dt_h) * rng.standard_normal(self.logP.shape)
         self.t_h += dt_h
@@ -569,9 +588,13 @@ class ParticleFilter:
         self.X = self.X[idx].copy()
         self.logP = self.logP[idx].copy()
         self.gain = self.gain[idx].copy()
+        self.drift = self.drift[idx].copy()
         N, d = self.logP.shape
         spread = self.logP.max(axis=0) - self.logP.min(axis=0)
         self.logP += st.roughening * np.maximum(spread, 1e-3) * N ** (-1.0 / d) * rng.standard_normal((N, d))
+        if st.size_drift_prior_per_h > 0:
+            spread_b = float(self.drift.max() - self.drift.min())
+            self.drift += st.roughening * max(spread_b, 1e-4) / N * rng.standard_normal(N)
         self.logw = np.full(N, -np.log(N))
         self.n_resampled += 1
 
@@ -581,9 +604,12 @@ class ParticleFilter:
         V = np.hstack([self.X, self.P])
         q = weighted_quantiles(V, w)
         qg = weighted_quantiles(self.gain[:, None], w)
+        extra = {"thermal_gain": (float(w @ self.gain), float(qg[0, 0]), float(qg[1, 0]))}
+        if self.settings.size_drift_prior_per_h > 0:
+            qd = weighted_quantiles(self.drift[:, None], w)
+            extra["size_drift_per_h"] = (float(w @ self.drift), float(qd[0, 0]), float(qd[1, 0]))
         return Estimate(self.t_h, self.names, w @ V, q[0], q[1], effective_sample_size(w),
-                        size_stats=particle_size_stats(self.model, self.X, w),
-                        extra={"thermal_gain": (float(w @ self.gain), float(qg[0, 0]), float(qg[1, 0]))})
+                        size_stats=particle_size_stats(self.model, self.X, w), extra=extra)
 
     def estimate(self) -> Estimate:
         """Weighted mean and 90 % interval of every state and parameter (deferred noise applied)."""
