@@ -100,9 +100,7 @@ class ReportData:
         self.meta = c.meta
         self.clock_h = c.clock_h()
         self.ceiling_c = c.ceiling_c()
-        from ..estimate import FilterSettings
-
-        self.sigma_reading_c = FilterSettings().sigma_temperature_c
+        self.sigma_reading_c = c.filter_settings().sigma_temperature_c
         self.nodes = c.estimates()
         self.actions = c.actions()
         self.deviations = {r[0]: r[1] for r in c.con.execute("SELECT id, deviation FROM actions")}

@@ -43,14 +43,12 @@ class _NoEstimator:
 
 
 def check_scenario(sc, path) -> None:
-    """Refuse (one line) a scenario whose trial a campaign cannot reproduce: the campaign's
-    estimator is the particle filter with its default settings (only the particle count is set)."""
+    """Refuse (one line) a scenario whose trial a campaign cannot reproduce: a campaign's
+    estimator is the particle filter (its settings, the scenario's ``[estimator.pf]``, are recorded
+    in the campaign)."""
     if sc.estimator.kind != "pf":
         raise InputError(f"{path}: estimator.kind: a campaign runs the particle filter, not {sc.estimator.kind!r} "
                          "(drop --campaign to run this trial)")
-    if sc.estimator.pf:
-        raise InputError(f"{path}: estimator.pf: a campaign runs the particle filter with its default settings "
-                         "(only estimator.particles is taken); drop --campaign to run this trial")
 
 
 def trial_steps(scenario_path, folder, seed: int = 0):
@@ -84,7 +82,8 @@ def trial_steps(scenario_path, folder, seed: int = 0):
     trial_loop.estimator = _NoEstimator()
     plant, sensor = trial_loop.mill, trial_loop.sensor
     wf.init(folder, resolve(sc.model, base), resolve(sc.controller.config, base), dict(sc.target), hours=sc.hours,
-            temperature_max_c=sc.temperature_max_c, seed=seed, particles=sc.estimator.particles)
+            temperature_max_c=sc.temperature_max_c, seed=seed, particles=sc.estimator.particles,
+            estimator=dict(sc.estimator.pf))
     stats = trial_loop.stats
     with wf.Campaign(folder) as c:
         interval = c.loop.controller.interval_h

@@ -45,8 +45,9 @@ from .advice import _end_band, _measure, _schedule, _why
 from .readings import estimate_warning, reading_warnings
 from ..moments.forcard import for_card
 
-# The campaign's particle filter: offset-free in size, each particle carries a drift of ln s_mean
-# per milling hour that the card's moment model misses (docs/estimation.md, "Offset-free size").
+# The campaign's particle filter (changes from FilterSettings' defaults; ``init`` records them in the
+# campaign): offset-free in size, each particle carries a drift of ln s_mean per milling hour that the
+# card's moment model misses (docs/estimation.md, "Offset-free size").
 CAMPAIGN_FILTER = {"size_drift_prior_per_h": 0.1, "size_drift_walk_per_sqrt_h": 0.05}
 
 EPS_H = 1e-9
@@ -193,11 +194,28 @@ class Campaign:
         controller.set_target(direct, t_end_h=m["hours"])
         ss = np.random.SeedSequence(m["seed"])
         _, g_pf, g_sample = (np.random.default_rng(s) for s in ss.spawn(3))  # as bmctl trial: plant, filter, sampler
-        pf = ParticleFilter(model, g_pf, FilterSettings(n_particles=m["particles"], **CAMPAIGN_FILTER))
+        pf = ParticleFilter(model, g_pf, self.filter_settings())
         lcfg = LoopConfig(hours=m["hours"], sample_every_h=m["hours"], temperature_reading=True, ceiling_c=ceiling)
         loop = CampaignLoop(OperatorMill(model.card.thermal.ambient_C), RecordedSensor(), pf, controller, g_sample, lcfg)
         loop.model = model
         return loop
+
+    def filter_settings(self):
+        """The campaign's particle-filter settings: ``init``'s record (a campaign written before it
+        was recorded: :data:`CAMPAIGN_FILTER`) with the campaign's particle count."""
+        from pydantic import ValidationError
+
+        from ..estimate import FilterSettings
+
+        changes = self.meta.get("estimator", CAMPAIGN_FILTER)
+        if not isinstance(changes, dict):
+            raise InputError(f"{self.folder}: meta 'estimator': not a table of filter settings (damaged or edited)")
+        try:
+            return FilterSettings.model_validate({**changes, "n_particles": self.meta["particles"]})
+        except ValidationError as exc:
+            e = exc.errors()[0]
+            where = ".".join(str(x) for x in e["loc"])
+            raise InputError(f"{self.folder}: meta 'estimator' {where[:60]}: {e['msg'][:120]}") from None
 
     def ceiling_c(self) -> float | None:
         """The vial-temperature ceiling the campaign runs under (degC): ``init``'s, else the
@@ -214,7 +232,7 @@ class Campaign:
         :mod:`bmctl.campaign.readings`) and of the latest estimate against the ceiling."""
         from ..estimate import FilterSettings
 
-        ceiling, sigma = self.ceiling_c(), FilterSettings().sigma_temperature_c  # the campaign's filter settings
+        ceiling, sigma = self.ceiling_c(), self.filter_settings().sigma_temperature_c
         out = []
         for t, est in self.estimates():
             if since_h is None or t > since_h + EPS_H:
@@ -345,7 +363,8 @@ class Campaign:
 
 # --- verbs -----------------------------------------------------------------------------------------
 def init(folder, model, controller, target, hours: float | None = None, temperature_max_c: float | None = None,
-         seed: int = 0, particles: int = 1000, identify: bool = False, progress=None) -> dict:
+         seed: int = 0, particles: int = 1000, identify: bool = False, progress=None,
+         estimator: dict | None = None) -> dict:
     """Start a campaign in ``folder``: copy the inputs, write the prior estimator state.
 
     Parameters
@@ -371,6 +390,9 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         (:func:`bmctl.moments.for_card`); else such a card is refused.
     progress : callable, optional
         Progress lines of that identification.
+    estimator : dict, optional
+        Particle-filter settings (fields of :class:`bmctl.estimate.FilterSettings` other than
+        the particle count) recorded with the campaign; default :data:`CAMPAIGN_FILTER`.
 
     Returns
     -------
@@ -396,6 +418,16 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
     Tmax = None if temperature_max_c is None else _finite(temperature_max_c, "--temperature-max-c", -50, 400)
     if int(particles) < 50:
         raise InputError(f"--particles: must be >= 50 (got {particles})")
+    if estimator is not None:
+        from pydantic import ValidationError
+
+        from ..estimate import FilterSettings
+
+        try:
+            FilterSettings.model_validate({**estimator, "n_particles": int(particles)})
+        except ValidationError as exc:
+            e = exc.errors()[0]
+            raise InputError(f"estimator.{'.'.join(str(x) for x in e['loc'])}: {e['msg'][:120]}") from None
     folder = Path(folder)
     con = db.create(folder)
     inp = folder / INPUTS
@@ -409,7 +441,8 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         meta = {"inputs": {k: {"source": str(src.resolve()), "file": str(dst.relative_to(folder)),
                                "sha256": _sha(dst)} for k, (src, dst) in files.items()},
                 "target": tgt, "hours": H, "temperature_max_c": Tmax, "seed": int(seed),
-                "particles": int(particles), "controller_kind": cfg.kind, "created_at": db.now()}
+                "particles": int(particles), "estimator": dict(CAMPAIGN_FILTER if estimator is None else estimator),
+                "controller_kind": cfg.kind, "created_at": db.now()}
         with db.transaction(con, where=str(folder)):
             db.init_schema(con)
             db.set_meta(con, **meta)

@@ -1,0 +1,56 @@
+"""The campaign records its particle-filter settings at ``init`` and runs its filter with them."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+import pytest
+
+from bmctl import campaign as cp
+from bmctl.campaign import db
+from bmctl.campaign.workflow import CAMPAIGN_FILTER, Campaign
+from bmctl.cli import main
+from bmctl.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[2]
+CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+RECIPE = ROOT / "controllers" / "recipe-300rpm-continuous.toml"
+
+
+def _init(d, **kw):
+    return cp.init(d, CARD, RECIPE, {"d50_um": 45.0}, hours=2.0, particles=100, **kw)
+
+
+def test_init_records_the_campaign_filter(tmp_path):
+    meta = _init(tmp_path / "c")
+    assert meta["estimator"] == CAMPAIGN_FILTER
+    with Campaign(tmp_path / "c") as c:
+        st = c.filter_settings()
+        assert st.n_particles == 100 and st.size_drift_prior_per_h == CAMPAIGN_FILTER["size_drift_prior_per_h"]
+        assert c.loop.estimator.settings == st  # the filter the campaign runs
+
+
+def test_init_takes_other_settings_and_refuses_unknown_ones(tmp_path):
+    _init(tmp_path / "a", estimator={"roughening": 0.02})
+    with Campaign(tmp_path / "a") as c:
+        st = c.filter_settings()
+        assert st.roughening == 0.02 and st.size_drift_prior_per_h == 0.0  # the given table replaces the campaign's
+    with pytest.raises(InputError, match="estimator.not_a_setting"):
+        _init(tmp_path / "b", estimator={"not_a_setting": 1})
+    assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("value", ['[1, 2]', '{"roughening": "a"}'])
+def test_damaged_estimator_meta_is_one_line(tmp_path, capsys, value):
+    d = tmp_path / "c"
+    _init(d)
+    con = sqlite3.connect(str(d / db.DB_NAME))
+    with con:
+        con.execute("UPDATE meta SET value = ? WHERE key = 'estimator'", (value,))
+    con.close()
+    capsys.readouterr()
+    assert main(["campaign", "advise", str(d)]) == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("bmctl: error:")]
+    assert len(lines) == 1 and "meta 'estimator'" in lines[0] and "Traceback" not in err
