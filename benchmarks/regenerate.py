@@ -58,13 +58,13 @@ REGISTRY: tuple[Study, ...] = (
     Study("pf_study_ablation", "python benchmarks/pf_study.py --ablation --seeds 10", 8),
     Study("estimator_study", "python benchmarks/estimator_study.py --seeds 10", 15),
     Study("design_reach", "python benchmarks/design_reach.py", 5),
-    Study("hidden_mills", "python benchmarks/hidden_mills.py", 60),
+    Study("hidden_mills", "python benchmarks/hidden_mills.py", 8),
     Study("control_study", "python benchmarks/control_study.py --seeds 20", 45),
     Study("hidden_mills_noise", "python benchmarks/hidden_mills.py --noise", 1),
-    Study("hidden_mills_seed1", "python benchmarks/hidden_mills.py --cases F,G --seed 1 --results-name hidden_mills_seed1", 12),
-    Study("hidden_mills_seed2", "python benchmarks/hidden_mills.py --cases F,G --seed 2 --results-name hidden_mills_seed2", 12),
     Study("hidden_mills_seed1_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
-          "--results-name hidden_mills_seed1_all", 25),
+          "--results-name hidden_mills_seed1_all", 8),
+    Study("hidden_mills_seed2_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 2 "
+          "--results-name hidden_mills_seed2_all", 8),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
     Study("moments_confirm", "python benchmarks/moments_confirm.py --shipped", 3),
     Study("moments_confirm_stream5", "python benchmarks/moments_confirm.py --shipped --stream 5 --seeds 31 32 33", 3),
