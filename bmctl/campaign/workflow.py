@@ -230,8 +230,6 @@ class Campaign:
     def temperature_warnings(self, since_h: float | None = None) -> list[str]:
         """Warnings of the readings weighed in after ``since_h`` (all when None; each node's check,
         :mod:`bmctl.campaign.readings`) and of the latest estimate against the ceiling."""
-        from ..estimate import FilterSettings
-
         ceiling, sigma = self.ceiling_c(), self.filter_settings().sigma_temperature_c
         out = []
         for t, est in self.estimates():

@@ -401,7 +401,8 @@ class ParticleFilter:
             f = np.exp(self.drift * mill_h)
             X[:, 0] *= f
             X[:, 1] *= f
-            self.drift = self.drift + st.size_drift_walk_per_sqrt_h * math.sqrt(mill_h) * rng.standard_normal(self.drift.shape[0])
+            walk = st.size_drift_walk_per_sqrt_h * math.sqrt(mill_h)
+            self.drift = self.drift + walk * rng.standard_normal(self.drift.shape[0])
         self.X = self._feasible(X)
         self.logP = self.logP + st.param_walk_per_sqrt_h * math.sqrt(dt_h) * rng.standard_normal(self.logP.shape)
         self.t_h += dt_h
