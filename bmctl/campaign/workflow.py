@@ -203,19 +203,10 @@ class Campaign:
     def filter_settings(self):
         """The campaign's particle-filter settings: ``init``'s record (a campaign written before it
         was recorded: :data:`CAMPAIGN_FILTER`) with the campaign's particle count."""
-        from pydantic import ValidationError
-
-        from ..estimate import FilterSettings
-
         changes = self.meta.get("estimator", CAMPAIGN_FILTER)
         if not isinstance(changes, dict):
             raise InputError(f"{self.folder}: meta 'estimator': not a table of filter settings (damaged or edited)")
-        try:
-            return FilterSettings.model_validate({**changes, "n_particles": self.meta["particles"]})
-        except ValidationError as exc:
-            e = exc.errors()[0]
-            where = ".".join(str(x) for x in e["loc"])
-            raise InputError(f"{self.folder}: meta 'estimator' {where[:60]}: {e['msg'][:120]}") from None
+        return _filter_settings(changes, self.meta["particles"], f"{self.folder}: meta 'estimator'")
 
     def ceiling_c(self) -> float | None:
         """The vial-temperature ceiling the campaign runs under (degC): ``init``'s, else the
@@ -359,6 +350,15 @@ class Campaign:
         return n
 
 
+def _filter_settings(changes: dict, particles: int, source: str):
+    """FilterSettings from a campaign's recorded changes and particle count; bad ones are a
+    one-line InputError naming ``source`` and the field."""
+    from ..config import validate
+    from ..estimate import FilterSettings
+
+    return validate(FilterSettings, {**changes, "n_particles": particles}, source)
+
+
 # --- verbs -----------------------------------------------------------------------------------------
 def init(folder, model, controller, target, hours: float | None = None, temperature_max_c: float | None = None,
          seed: int = 0, particles: int = 1000, identify: bool = False, progress=None,
@@ -417,15 +417,7 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
     if int(particles) < 50:
         raise InputError(f"--particles: must be >= 50 (got {particles})")
     if estimator is not None:
-        from pydantic import ValidationError
-
-        from ..estimate import FilterSettings
-
-        try:
-            FilterSettings.model_validate({**estimator, "n_particles": int(particles)})
-        except ValidationError as exc:
-            e = exc.errors()[0]
-            raise InputError(f"estimator.{'.'.join(str(x) for x in e['loc'])}: {e['msg'][:120]}") from None
+        _filter_settings(estimator, int(particles), "estimator")
     folder = Path(folder)
     con = db.create(folder)
     inp = folder / INPUTS
