@@ -1,10 +1,12 @@
 """Closed-loop campaigns on hidden mills: a scripted operator accepts every advice through the CLI.
 
     nice python benchmarks/hidden_mills.py [--cases A,B,...] [--particles 5000] [--out out/hidden_mills]
+    nice python benchmarks/hidden_mills.py --cases H,I,J,K,L --results-name hidden_mills_heldout   # held out
 
 Each case is a plant built from the laboratory card with gamma and delta multiplied (0.6-1.6) and one
 more card field changed (powder mass through the ball-to-powder ratio, the ball count or the ball
-size). The campaign is given only the card. Per case:
+size). The campaign is given only the card. Mills A-G are the ones the controller was developed
+on; H-L (:data:`HELD_OUT`) were drawn afterwards and never used to choose a setting. Per case:
 
 1. **A reachable target.** A plain-schedule sweep on the hidden plant (one rpm held for the whole
    batch, 100-460 rpm in 20 rpm steps, and the paper's 30 min on / 10 min off at 400-500 rpm):
@@ -76,6 +78,14 @@ CASES = (
     Case("E", 1.0, 1.6, "mill.ball_diameter_m", 0.0105, 10.0, 300.0),
     Case("F", 1.6, 1.3, "mill.ball_to_powder_ratio", 9.5, 12.0, 340.0),
     Case("G", 0.8, 0.65, "mill.ball_count", 9, 12.0, 280.0),
+)
+#: mills drawn after the controller's settings were fixed, never used to choose them (``--cases H,I,J,K,L``)
+HELD_OUT = (
+    Case("H", 0.6, 1.6, "mill.ball_diameter_m", 0.012, 10.0, 360.0),
+    Case("I", 1.6, 0.6, "mill.ball_to_powder_ratio", 12.0, 8.0, 200.0),
+    Case("J", 1.0, 1.0, "mill.ball_count", 13, 12.0, 420.0),
+    Case("K", 1.2, 0.8, "mill.ball_diameter_m", 0.009, 6.0, 150.0),
+    Case("L", 0.75, 1.45, "mill.ball_to_powder_ratio", 8.0, 12.0, 240.0),
 )
 
 
@@ -288,7 +298,11 @@ def main() -> None:
                                          command="python benchmarks/hidden_mills.py --noise"))
         return
     names = [s.strip() for s in a.cases.split(",") if s.strip()]
-    cases = [c for c in CASES if c.name in names]
+    known = {c.name: c for c in CASES + HELD_OUT}
+    bad = [n for n in names if n not in known]
+    if bad:
+        sys.exit(f"hidden_mills.py: --cases: unknown mill(s) {', '.join(bad)} (known: {', '.join(known)})")
+    cases = [known[n] for n in names]
     out = Path(a.out)
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)

@@ -65,6 +65,10 @@ REGISTRY: tuple[Study, ...] = (
           "--results-name hidden_mills_seed1_all", 8),
     Study("hidden_mills_seed2_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 2 "
           "--results-name hidden_mills_seed2_all", 8),
+    Study("hidden_mills_heldout", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 0 "
+          "--results-name hidden_mills_heldout", 6),
+    Study("hidden_mills_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
+          "--results-name hidden_mills_heldout_seed1", 6),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
     Study("moments_confirm", "python benchmarks/moments_confirm.py --shipped", 3),
     Study("moments_confirm_stream5", "python benchmarks/moments_confirm.py --shipped --stream 5 --seeds 31 32 33", 3),

@@ -38,7 +38,7 @@ from ..errors import InputError
 from .base import Plan, Reference, Status, batch_end_h, check_p, check_u_prev, check_x
 from dataclasses import replace
 
-from .search import (Carry, Grid, _row, expand, fit_power, limits_of, make_grid, search, shift_params,
+from .search import (Carry, Grid, _row, expand, fit_power, limits_of, make_grid, power_bound, search, shift_params,
                      thermal_peaks)
 
 
@@ -129,8 +129,10 @@ class PlanController:
         history : list of (hours, rpm, milling[, reading]), optional
             What the mill ran since the batch start (a campaign's log), with the vial reading at the
             end of each interval where one was taken; replaces the own record. The readings fit the
-            mill's heating power (:func:`bmctl.control.search.fit_power`), with which the ceiling is
-            checked.
+            mill's heating power; the next interval's ceiling is checked at its upper bound
+            (:func:`bmctl.control.search.power_bound`, ``[temperature] heating_sd`` and ``heating_z``),
+            the later ones, re-planned after the next reading, at the fit: a mill that heats more
+            than its card does not overshoot before its readings show it.
         """
         x0 = check_x(x_est)
         pp = check_p(self.model, p)
@@ -141,8 +143,12 @@ class PlanController:
         self._record(t, up)
         hist = self._hist if history is None else history
         carry = Carry.from_history(hist)
-        power = fit_power(self.model, hist)
-        lim = replace(self.lim, power=power)
+        if history is None:  # the own record carries no readings: the card's heating
+            power = power_hi = fit_power(self.model, hist)
+        else:  # a mill's log: the heating fitted to its readings, the ceiling checked at its upper bound
+            tc = self.cfg.temperature
+            power, power_hi = power_bound(self.model, hist, tc.heating_sd, tc.heating_z)
+        lim = replace(self.lim, power=power, power_first=power_hi)
         ceil = self.cfg.temperature.ceiling_c
         grid = make_grid(t, self.t_end_h, self.interval_h)
         target = self.target_at_end()
@@ -193,7 +199,7 @@ class PlanController:
         X = res.X[0]
         X0s = np.array(x0s)
         res.peaks_c = thermal_peaks(self.model, X0s[:, 4], X0s[:, 5], res.rpm[None], res.minutes[None], grid, power,
-                                    per_interval=True)[:, 0, :]
+                                    per_interval=True, power_first=power_hi)[:, 0, :]
         peaks = res.peaks_c.max(axis=0)
         binding = plan_binding(res, grid, lim, carry, ceil)
         st = Status("mpc", f"{scope} search", True, res.evaluated, ms, cost=res.rms, t_ceiling_c=ceil,
@@ -204,7 +210,7 @@ class PlanController:
         extra_out = {"family": fam, "params": [float(v) for v in res.params], "error": res.error, "rms": res.rms,
                      "binding": binding, "per_family": res.per_family, "evaluated": res.evaluated,
                      "nodes": res.nodes, "switches": res.switches, "switches_used": carry.switches, "scope": scope,
-                     "power": power,
+                     "power": power, "power_ceiling": power_hi,
                      "lengths_min": grid.lengths_min.tolist(), "minutes": res.minutes.tolist(),
                      "spread_x_end": res.X[1:, -1].copy() if res.X.shape[0] > 1 else None}
         return Plan(t, self.interval_h, U, X, peaks, u_apply, st, extra_out)

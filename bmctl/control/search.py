@@ -139,6 +139,10 @@ class Limits:
     power : float
         The mill's heating power relative to the card's (fitted to the vial readings by
         :func:`fit_power`; 1 without readings): the ceiling is checked with it.
+    power_first : float or None
+        The heating power at which the first interval's ceiling is checked (the upper bound of
+        :func:`power_bound`: it runs before the next reading narrows the fit; the later intervals
+        are re-planned with that reading). None: ``power``.
     """
 
     rpm_lo: float
@@ -150,6 +154,7 @@ class Limits:
     max_switches: int | None
     ceiling_c: float
     power: float = 1.0
+    power_first: float | None = None
 
 
 def limits_of(cfg, model) -> Limits:
@@ -487,7 +492,7 @@ def evaluate(model, x0s, ps, rpm: np.ndarray, minutes: np.ndarray, grid: Grid, s
 
 
 def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: Grid, power: float = 1.0,
-                  per_interval: bool = False) -> np.ndarray:
+                  per_interval: bool = False, power_first: float | None = None) -> np.ndarray:
     """Highest vial temperature of each schedule from each start (T0, h0): eq. (6) in closed form.
 
     The vial's temperature and hardening do not depend on the powder's moments, so the ceiling is
@@ -505,6 +510,8 @@ def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: G
         Heating factor (1: the card's).
     per_interval : bool, optional
         Return the peak per interval, (S, N, K).
+    power_first : float, optional
+        Heating factor of the first interval (default ``power``; :attr:`Limits.power_first`).
 
     Returns
     -------
@@ -516,16 +523,43 @@ def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: G
     peak = T.copy()
     each = []
     w_scale = float(power) ** (1.0 / 3.0)  # P ~ w^3 in eq. (6): the power factor as a speed factor
+    w_first = w_scale if power_first is None else float(power_first) ** (1.0 / 3.0)
     for j in range(grid.K):
         w = (rpm[:, j] / c.rpm_max)[None, :]
+        ws = w_first if j == 0 else w_scale
         a = (minutes[:, j] / 60.0)[None, :]
-        T1, _ = eq.thermal_exact(eq.NP, c, T, h, w * w_scale, a)
+        T1, _ = eq.thermal_exact(eq.NP, c, T, h, w * ws, a)
         _, h1 = eq.thermal_exact(eq.NP, c, T, h, w, a)
         pk = np.maximum(T, np.where(a > 0, T1, T))
         peak = np.maximum(peak, pk)
         each.append(pk)
         T, h = eq.thermal_exact(eq.NP, c, T1, h1, 0.0, grid.lengths_min[j] / 60.0 - a)
     return np.stack(each, axis=-1) if per_interval else peak
+
+
+def _power_normal_equations(model, history, T0: float | None, prior_weight: float) -> tuple[float, float]:
+    """(numerator, denominator) of the heating power's least-squares fit (see :func:`fit_power`)."""
+    import math
+
+    c = model.const
+    amb = c.ambient_C
+    T = amb if T0 is None else float(T0)
+    num, den = prior_weight * 10.0 * 10.0, prior_weight * 10.0 * 10.0  # the prior: f = 1
+    for row in history:
+        hours, rpm, m = (float(v) for v in row[:3])
+        reading = row[3] if len(row) > 3 else None
+        a = hours * m if rpm > 0 else 0.0
+        b = hours - a
+        ea, eb = math.exp(-a / c.cooling_time_h), math.exp(-b / c.cooling_time_h)
+        dss = float(eq.power_W(c, rpm / c.rpm_max)) * c.cooling_time_h * 3600.0 / c.heat_capacity_J_per_K
+        base = eb * (T - amb) * ea
+        d = eb * dss * (1.0 - ea)
+        if reading is not None and d > 1e-6:
+            y = float(reading) - amb
+            num += d * (y - base)
+            den += d * d
+        T = float(reading) if reading is not None else amb + base + (num / den) * d
+    return num, den
 
 
 def fit_power(model, history, T0: float | None = None, prior_weight: float = 1.0) -> float:
@@ -555,27 +589,53 @@ def fit_power(model, history, T0: float | None = None, prior_weight: float = 1.0
     >>> fit_power(m, [(0.5, 300.0, 1.0)])
     1.0
     """
-    import math
-
-    c = model.const
-    amb = c.ambient_C
-    T = amb if T0 is None else float(T0)
-    num, den = prior_weight * 10.0 * 10.0, prior_weight * 10.0 * 10.0  # the prior: f = 1
-    for row in history:
-        hours, rpm, m = (float(v) for v in row[:3])
-        reading = row[3] if len(row) > 3 else None
-        a = hours * m if rpm > 0 else 0.0
-        b = hours - a
-        ea, eb = math.exp(-a / c.cooling_time_h), math.exp(-b / c.cooling_time_h)
-        dss = float(eq.power_W(c, rpm / c.rpm_max)) * c.cooling_time_h * 3600.0 / c.heat_capacity_J_per_K
-        base = eb * (T - amb) * ea
-        d = eb * dss * (1.0 - ea)
-        if reading is not None and d > 1e-6:
-            y = float(reading) - amb
-            num += d * (y - base)
-            den += d * d
-        T = float(reading) if reading is not None else amb + base + (num / den) * d
+    num, den = _power_normal_equations(model, history, T0, prior_weight)
     return float(np.clip(num / den, 0.5, 2.0))
+
+
+def power_bound(model, history, prior_sd: float, z: float, T0: float | None = None,
+                prior_weight: float = 1.0) -> tuple[float, float]:
+    """The fitted heating power (:func:`fit_power`) and an upper bound at which to check the ceiling.
+
+    The fit is the posterior mean of a linear-Gaussian model: the prior f ~ N(1, prior_sd^2) is
+    worth ``prior_weight`` readings of a 10 K rise, so a reading's error has the sd
+    ``10 K prior_sd sqrt(prior_weight)`` and the posterior sd is ``prior_sd sqrt(prior_den / den)``.
+    Before any reading after milling the bound is ``1 + z prior_sd``; each reading that follows
+    a rise of a few tens of kelvin narrows it several-fold. Both are clipped to [0.5, 2].
+
+    Parameters
+    ----------
+    model : MomentModel
+    history : sequence of tuples
+        As :func:`fit_power`.
+    prior_sd : float
+        Relative sd of the mill's heating power against the card's before any reading
+        (``[temperature] heating_sd``).
+    z : float
+        Posterior sds above the fit (``[temperature] heating_z``; 1.645: one-sided 95 %).
+    T0, prior_weight
+        As :func:`fit_power`.
+
+    Returns
+    -------
+    (float, float)
+        The fitted power and its upper bound.
+
+    Examples
+    --------
+    >>> from bmctl.moments import make_moment_model
+    >>> m = make_moment_model("models/alni-1to1-300rpm-lab.toml")
+    >>> f, hi = power_bound(m, [], 0.2, 1.645)
+    >>> f, round(hi, 3)
+    (1.0, 1.329)
+    >>> f, hi = power_bound(m, [(0.5, 300.0, 1.0, 60.0)], 0.2, 1.645)
+    >>> bool(hi - f < 0.1)
+    True
+    """
+    num, den = _power_normal_equations(model, history, T0, prior_weight)
+    f = num / den
+    sd = float(prior_sd) * math.sqrt(prior_weight * 100.0 / den)
+    return float(np.clip(f, 0.5, 2.0)), float(np.clip(f + float(z) * sd, 0.5, 2.0))
 
 
 # --- scoring -----------------------------------------------------------------------------------
@@ -940,7 +1000,8 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         # that mill, so a vial already above it (a hot start, or a hot filter particle) makes every
         # milling candidate exceed it while a rest does not; scored on the start temperature too,
         # every candidate would tie and the closest would mill on.
-        each = thermal_peaks(model, x0s[:, 4], x0s[:, 5], rpm[idx], mins[idx], g, lim.power, per_interval=True)
+        each = thermal_peaks(model, x0s[:, 4], x0s[:, 5], rpm[idx], mins[idx], g, lim.power, per_interval=True,
+                             power_first=lim.power_first)
         ev.peak_c = np.maximum(x0s[:, 4][:, None], each.max(axis=-1, initial=-np.inf))
         ev.mill_peak_c = np.where(mins[idx][None] > 0, each, -np.inf).max(axis=-1, initial=-np.inf)
         work["nodes"] += ev.nodes

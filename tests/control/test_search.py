@@ -196,12 +196,41 @@ def test_fit_power_recovers_a_hotter_mill_from_vial_readings(model):
     assert fit_power(model, [r[:3] for r in hist]) == 1.0
 
 
+def test_power_bound_is_the_posterior_upper_quantile_of_the_heating(model):
+    """Mills whose heating power is drawn from the stated prior N(1, 0.2^2), one vial reading with
+    the noise the prior's weight implies (2 K): the bound is the one-sided 95 % posterior quantile
+    of a linear-Gaussian model, so it holds the true power in 95 % of the mills. Before any reading
+    it is 1 + z sd; each further reading after milling narrows it."""
+    from bmctl.control.search import power_bound
+    from bmctl.moments import equations as eq
+
+    c = model.const
+    assert power_bound(model, [], 0.2, 1.645) == pytest.approx((1.0, 1.329))
+    assert power_bound(model, [(0.5, 0.0, 0.0, 25.0)], 0.2, 1.645) == pytest.approx((1.0, 1.329))  # a rest: no news
+    rng = np.random.default_rng(7)
+    n, held = 2000, 0
+    for f in rng.normal(1.0, 0.2, n):
+        T1, h1 = eq.thermal_exact(eq.NP, c, c.ambient_C, 0.0, 300.0 / c.rpm_max * f ** (1 / 3), 0.4)
+        T2, _ = eq.thermal_exact(eq.NP, c, T1, h1, 0.0, 0.1)
+        _, hi = power_bound(model, [(0.5, 300.0, 0.8, float(T2) + rng.normal(0.0, 2.0))], 0.2, 1.645)
+        held += f <= hi
+    assert 0.93 <= held / n <= 0.97
+    widths = []
+    hist = []
+    for rpm in (300.0, 320.0, 280.0):
+        hist.append((0.5, rpm, 1.0, 60.0))
+        f, hi = power_bound(model, hist, 0.2, 1.645)
+        widths.append(hi - f)
+    assert 0.0 < widths[2] < widths[1] < widths[0] < 0.329
+
+
 def test_a_hotter_mill_than_the_card_stays_under_the_ceiling(model, cfg):
     """The plant heats more than the card says (12 balls instead of 10; the planner is given the card)
     and the target asks for the card's hottest continuous milling: with the vial readings in the
-    history the planner fits the heating power and keeps the plant's peak within 2 °C of the ceiling
-    (the first interval, before any reading, cannot know). Planning with the card's power instead
-    runs the plant to about 114 °C."""
+    history the planner fits the heating power and keeps the plant's peak within 2 °C of the ceiling;
+    the first interval, run before any reading, is checked at the heating power's upper bound and
+    stays under the ceiling itself. Planning with the card's power instead runs the plant to about
+    114 °C."""
     from bmctl.config import load_card
 
     d = load_card(CARD).model_dump()
@@ -221,9 +250,11 @@ def test_a_hotter_mill_than_the_card_stays_under_the_ceiling(model, cfg):
             a = min(0.05, max(0.0, u[1] * 0.5 - k * 0.05))
             x = hot.step(x, np.array([u[0], a / 0.05 if u[0] > 0 else 0.0]), 0.05)
             peak = max(peak, x[4])
+        if t == 0.0:
+            assert u[1] > 0 and peak <= cfg.temperature.ceiling_c  # it mills, under the ceiling before any reading
         hist.append((0.5, float(u[0]), float(u[1]), float(x[4])))
         t += 0.5
-    assert plan.extra["power"] > 1.1
+    assert plan.extra["power"] > 1.1 and plan.extra["power_ceiling"] > plan.extra["power"]
     assert peak <= cfg.temperature.ceiling_c + 2.0
 
 
