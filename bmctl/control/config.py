@@ -216,9 +216,9 @@ class Temperature(Strict):
     slack_weight_quad: NonNeg = 10.0  # per degC^2
     slack_max_c: NonNeg | None = None  # cap on the slack (0 = a truly hard constraint; may be infeasible)
     #: relative sd of the mill's heating power against the card's before any vial reading; a campaign's
-    #: plans check the ceiling at ``heating_z`` posterior sd above the power fitted to the readings
+    #: next interval holds the ceiling at ``heating_z`` posterior sd above the power fitted to the readings
     heating_sd: NonNeg = 0.2
-    heating_z: NonNeg = 1.645  # one-sided: the ceiling holds at the upper 95 % of the heating power
+    heating_z: NonNeg = 0.0  # 0: at the fit; 1.645: at the upper 95 % (a mill whose heating is not known)
 
 
 class Weights(Strict):

@@ -228,8 +228,8 @@ def test_a_hotter_mill_than_the_card_stays_under_the_ceiling(model, cfg):
     """The plant heats more than the card says (12 balls instead of 10; the planner is given the card)
     and the target asks for the card's hottest continuous milling: with the vial readings in the
     history the planner fits the heating power and keeps the plant's peak within 2 °C of the ceiling;
-    the first interval, run before any reading, is checked at the heating power's upper bound and
-    stays under the ceiling itself. Planning with the card's power instead runs the plant to about
+    with ``heating_z`` = 1.645 the first interval, run before any reading, is checked at the heating
+    power's upper 95 % and stays under the ceiling itself. Planning with the card's power instead runs the plant to about
     114 °C."""
     from bmctl.config import load_card
 
@@ -241,6 +241,7 @@ def test_a_hotter_mill_than_the_card_stays_under_the_ceiling(model, cfg):
     d = cfg.model_dump()
     d["batch_hours"] = 6.0
     d["plan"]["spread"] = 0
+    d["temperature"]["heating_z"] = 1.645
     ctrl = make_controller(validate_controller(d, "test"), model, {"s_mean_um": target})
     x, hist, t, peak = hot.x0(), [], 0.0, hot.x0()[4]
     while t < 6.0 - 1e-9:
