@@ -198,8 +198,8 @@ class PlanController:
         U = np.column_stack([res.rpm, res.minutes / dt_min])
         X = res.X[0]
         X0s = np.array(x0s)
-        res.peaks_c = thermal_peaks(self.model, X0s[:, 4], X0s[:, 5], res.rpm[None], res.minutes[None], grid, power,
-                                    per_interval=True, power_first=power_hi)[:, 0, :]
+        res.peaks_c = thermal_peaks(self.model, X0s[:, 4], X0s[:, 5], res.rpm[None], res.minutes[None], grid,
+                                    lim.power, per_interval=True, power_first=lim.power_first)[:, 0, :]
         peaks = res.peaks_c.max(axis=0)
         binding = plan_binding(res, grid, lim, carry, ceil)
         st = Status("mpc", f"{scope} search", True, res.evaluated, ms, cost=res.rms, t_ceiling_c=ceil,

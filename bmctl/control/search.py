@@ -539,8 +539,6 @@ def thermal_peaks(model, T0s, h0s, rpm: np.ndarray, minutes: np.ndarray, grid: G
 
 def _power_normal_equations(model, history, T0: float | None, prior_weight: float) -> tuple[float, float]:
     """(numerator, denominator) of the heating power's least-squares fit (see :func:`fit_power`)."""
-    import math
-
     c = model.const
     amb = c.ambient_C
     T = amb if T0 is None else float(T0)
