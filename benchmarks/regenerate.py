@@ -69,6 +69,10 @@ REGISTRY: tuple[Study, ...] = (
           "--results-name hidden_mills_heldout", 6),
     Study("hidden_mills_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
           "--results-name hidden_mills_heldout_seed1", 6),
+    Study("hidden_mills_heldout_energy", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 0 "
+          "--energy-mult --results-name hidden_mills_heldout_energy", 6),
+    Study("hidden_mills_heldout_energy_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
+          "--energy-mult --results-name hidden_mills_heldout_energy_seed1", 6),
     Study("model_form", "python benchmarks/model_form.py", 3),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
     Study("moments_confirm", "python benchmarks/moments_confirm.py --shipped", 3),

@@ -101,10 +101,14 @@ class Controller(Protocol):
 
 
 def estimate_vectors(est: dict) -> tuple[np.ndarray, np.ndarray]:
-    """Moment-model state x (6,) and parameter multipliers p (2,) of an estimate dict."""
+    """Moment-model state x (6,) and parameter multipliers p (2,) of an estimate dict; (3,) with the
+    filter's ``energy_mult`` when it carries one."""
     x = np.array([est["s_mean_um"], est["s_std_um"], est["r_mean"], est["r_std"], est["temperature_c"],
                   est.get("hardening", 0.0)])
-    return x, np.array([est.get("gamma_mult", 1.0), est.get("delta_mult", 1.0)])
+    p = [est.get("gamma_mult", 1.0), est.get("delta_mult", 1.0)]
+    if "energy_mult" in est:
+        p.append(est["energy_mult"])
+    return x, np.array(p)
 
 
 @dataclass

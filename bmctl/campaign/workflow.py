@@ -49,6 +49,9 @@ from ..moments.forcard import for_card
 # campaign): offset-free in size, each particle carries a drift of ln s_mean per milling hour that the
 # card's moment model misses (docs/estimation.md, "Offset-free size").
 CAMPAIGN_FILTER = {"size_drift_prior_per_h": 0.1, "size_drift_walk_per_sqrt_h": 0.05}
+#: ``campaign init --energy-mult``: the filter also learns the mill's impact energy per particle against the
+#: card's (``energy_mult``), log prior sd 0.25 (docs/estimation.md, "A third multiplier")
+ENERGY_FILTER = {**CAMPAIGN_FILTER, "energy_prior_log_std": 0.25}
 
 EPS_H = 1e-9
 INPUTS = "inputs"

@@ -368,8 +368,9 @@ def check_x(x_est) -> np.ndarray:
 
 def check_p(model, p) -> np.ndarray:
     pp = model.p0() if p is None else np.asarray(p, dtype=float).reshape(-1)
-    if pp.shape != (2,) or not np.all(np.isfinite(pp)) or np.any(pp <= 0):
-        raise InputError(f"p: expected 2 finite positive numbers (got {np.asarray(p).tolist()!r})")
+    if pp.shape not in ((2,), (3,)) or not np.all(np.isfinite(pp)) or np.any(pp <= 0):
+        raise InputError(f"p: expected 2 (gamma_mult, delta_mult) or 3 (and energy_mult) finite positive numbers "
+                         f"(got {np.asarray(p).tolist()!r})")
     return pp
 
 

@@ -80,7 +80,7 @@ class _Base:
     @staticmethod
     def _check(x_est, t_h, model, p, u_prev):
         x0 = check_x(x_est)
-        pp = check_p(model, p)
+        pp = check_p(model, p)[:2]
         up = check_u_prev(u_prev)
         t = float(t_h)
         if not math.isfinite(t) or t < 0:

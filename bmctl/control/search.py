@@ -390,7 +390,8 @@ def interval_step(model, X, P, rpm, mill_min, length_min: float, substeps: int =
     ----------
     model : MomentModel
     X : ndarray, (n, 6)
-    P : ndarray, (n, 2)
+    P : ndarray, (n, 2) or (n, 3)
+        (gamma_mult, delta_mult[, energy_mult]) per row.
     rpm, mill_min : ndarray, (n,)
     length_min : float
         Interval length (min).
@@ -413,8 +414,8 @@ def interval_step(model, X, P, rpm, mill_min, length_min: float, substeps: int =
         dt = np.maximum(dur, 1e-12) / 60.0
         duty = np.where(dur > 1e-12, mill / np.maximum(dur, 1e-12), 0.0)
         st = rkc_stages(c.rate_max_per_h, max(top, 1e-6) / 60.0 / n)
-        z = eq.step(eq.NP, c, model.coeffs, [out[:, i] for i in range(6)], [rpm, duty], [P[:, 0], P[:, 1]], dt,
-                    n, st)
+        z = eq.step(eq.NP, c, model.coeffs, [out[:, i] for i in range(6)], [rpm, duty],
+                    [P[:, i] for i in range(P.shape[1])], dt, n, st)
         out = np.stack(z, axis=-1)
     return out
 

@@ -61,6 +61,7 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from ..config import Strict
+from ..moments.model import ENERGY_NAME
 from .likelihood import LawSettings, Raster, fit_sample, loglik_raster
 from .resampling import SCHEMES, effective_sample_size, resample
 
@@ -107,6 +108,10 @@ class FilterSettings(Strict):
         Prior probability, at each later reading, that g changed by a draw from its prior.
     param_prior_log_std : float
         Std of the initial log multipliers (0.4 ~ +-40 %).
+    energy_prior_log_std : float
+        > 0: every particle carries a third multiplier, ``energy_mult``, of the impact energy per
+        particle against the card's (a ball size, ball count or powder mass the card does not
+        have; docs/estimation.md), with this prior std of its log. 0: (gamma_mult, delta_mult) only.
     param_walk_per_sqrt_h : float
         Random walk of the log multipliers per sqrt(hour).
     roughening : float
@@ -142,6 +147,7 @@ class FilterSettings(Strict):
     thermal_gain_walk_per_sqrt_h: Annotated[float, Field(ge=0, le=1)] = 0.05
     thermal_gain_jump_prob: Annotated[float, Field(ge=0, lt=1)] = 0.02
     param_prior_log_std: float = 0.4
+    energy_prior_log_std: Annotated[float, Field(ge=0, le=2)] = 0.0
     param_walk_per_sqrt_h: float = 0.01
     roughening: float = 0.05
     initial_spread: float = 0.02
@@ -306,17 +312,22 @@ class ParticleFilter:
         N = st.n_particles
         x0 = np.asarray(model.x0() if x0 is None else x0, dtype=float)
         p0 = np.asarray(model.p0(), dtype=float)
+        prior = np.full(p0.size, st.param_prior_log_std)
+        if st.energy_prior_log_std > 0:
+            p0, prior = np.append(p0, 1.0), np.append(prior, st.energy_prior_log_std)
         self.nx, self.np_ = x0.size, p0.size
         X = np.tile(x0, (N, 1))
         X[:, :N_MOMENTS] *= np.exp(st.initial_spread * rng.standard_normal((N, N_MOMENTS)))
         self.X = self._feasible(X)
-        self.logP = np.log(p0)[None, :] + st.param_prior_log_std * rng.standard_normal((N, self.np_))
+        self.logP = np.log(p0)[None, :] + prior[None, :] * rng.standard_normal((N, self.np_))
         self.logw = np.full(N, -np.log(N))
         self.t_h = 0.0
         self.pending_h = 0.0  # hours of process noise not yet applied
         self.q = np.array(st.process_noise_per_sqrt_h, dtype=float)
         self.state_names = tuple(model.state_names)
         self.param_names = tuple(getattr(model, "param_names", ("gamma_mult", "delta_mult")))
+        if st.energy_prior_log_std > 0:
+            self.param_names += (ENERGY_NAME,)
         self.n_resampled = 0
         self.n_degenerate = 0
         self.last_fit = None

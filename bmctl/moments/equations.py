@@ -197,7 +197,7 @@ def _zero(v) -> bool:
 NP_VECTORISED = True
 
 
-def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool = False):
+def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool = False, em=None):
     """Rates (per hour of milling) of E[s], E[s^2], E[r], E[r^2] at speed w = rpm / rpm_max.
 
     With ``events``, two more: bonding and fracture events per particle and hour of milling
@@ -220,8 +220,8 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool 
     if B is NP and not events and NP_VECTORISED:
         from .npfield import raw_rates_np, usable
 
-        if usable(m, sd, rm, rho, T, h, w, bm, fm):
-            return raw_rates_np(c, q, m, sd, rm, rho, T, h, w, bm, fm)
+        if usable(m, sd, rm, rho, T, h, w, bm, fm, *([] if em is None else [em])):
+            return raw_rates_np(c, q, m, sd, rm, rho, T, h, w, bm, fm, em)
     var_ln = B.log(1.0 + (sd / m) ** 2)
     sig_ln = B.sqrt(var_ln)
     ws = smax(B, w, 0.0, RPM_SOFT)
@@ -231,6 +231,8 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool 
     ln_ub = math.log(c.u_J_per_m) + c.n_bond * lratio
     ln_uc = math.log(c.u_J_per_m) - c.n_frac * lratio
     ln_e = math.log(c.e_max_J_per_um2) + 1.2 * lw  # ln(J per um^2 of s^2)
+    if em is not None:  # energy_mult: the mill's impact energy per particle against the card's
+        ln_e = ln_e + B.log(em)
     ln_u_mean = math.log(c.u_mean_max_J) + 2.0 * lw
     # size nodes (log-normal closure)
     ln_s = [B.log(m) - 0.5 * var_ln + sig_ln * t for t in GH_T]
@@ -406,11 +408,11 @@ def raw_rates(B, c: Constants, q, m, sd, rm, rho, T, h, w, bm, fm, events: bool 
     return dEs, dEs2, dEr, dEr2
 
 
-def y_rates(B, c, q, y, T, h, w, bm, fm, events: bool = False):
+def y_rates(B, c, q, y, T, h, w, bm, fm, events: bool = False, em=None):
     """dy/dt (per hour of milling) of the integration coordinates y; with ``events``, followed by
     the bonding and fracture events per particle and hour (:func:`raw_rates`)."""
     m, sd, rm, rho = y_to_state(B, y)
-    out = raw_rates(B, c, q, m, sd, rm, rho, T, h, w, bm, fm, events=events)
+    out = raw_rates(B, c, q, m, sd, rm, rho, T, h, w, bm, fm, events=events, em=em)
     return [out[0] / m, out[1] / (m * m + sd * sd), out[2], out[3], *out[4:]]
 
 
@@ -449,7 +451,8 @@ def rhs(B, c, q, xs, us, ps):
     T, h = xs[4], xs[5]
     w = us[0] / c.rpm_max
     duty = us[1]
-    dEs, dEs2, dEr, dEr2 = raw_rates(B, c, q, m, sd, rm, rho, T, h, w, ps[0], ps[1])
+    dEs, dEs2, dEr, dEr2 = raw_rates(B, c, q, m, sd, rm, rho, T, h, w, ps[0], ps[1],
+                                     em=ps[2] if len(ps) > 2 else None)
     rs = rho * B.sqrt(rm * (1 - rm))
     dsd = (dEs2 - 2 * m * dEs) / (2 * sd)
     drs = (dEr2 - 2 * rm * dEr) / (2 * rs)
@@ -516,9 +519,12 @@ def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int, rates=None, 
     if rates is None and B is NP and not events and NP_VECTORISED:
         from .npfield import step_np, usable
 
-        if usable(xs[0], *xs[1:6], us[0], us[1], ps[0], ps[1], dt_h):
+        if usable(xs[0], *xs[1:6], us[0], us[1], *ps, dt_h):
             return step_np(c, q, xs, us, ps, dt_h, n_sub, stages)  # the same numbers, bit for bit
-    rates = rates or (lambda y, T, h, w, bm, fm: y_rates(B, c, q, y[:4], T, h, w, bm, fm, events=events))
+    em = ps[2] if len(ps) > 2 else None
+    if em is not None and rates is not None:
+        raise ValueError("energy_mult: a compiled rate field takes (gamma_mult, delta_mult) only")
+    rates = rates or (lambda y, T, h, w, bm, fm: y_rates(B, c, q, y[:4], T, h, w, bm, fm, events=events, em=em))
     w = us[0] / c.rpm_max
     duty = us[1]
     bm, fm = ps[0], ps[1]

@@ -26,6 +26,8 @@ from .physics import Constants, constants, derived_threshold_laws
 STATE_NAMES = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening")
 INPUT_NAMES = ("rpm", "milling")
 PARAM_NAMES = ("gamma_mult", "delta_mult")
+#: the optional third multiplier: the mill's impact energy per particle against the card's (e_max)
+ENERGY_NAME = "energy_mult"
 MAX_SUBSTEP_H = 0.0625  # RKC substep of the milling phase (accuracy of the fast modes at top speed)
 STIFFNESS_PER_IMPACT = 2.0  # bound on |eigenvalue| of the z field per impact (measured ~1.4)
 
@@ -144,7 +146,7 @@ class MomentModel:
         U = np.atleast_2d(np.asarray(U, dtype=float))
         x0 = np.asarray(x0, dtype=float)
         pp = self._p(p)
-        if x0.ndim == 1 and pp.ndim == 1:
+        if x0.ndim == 1 and pp.ndim == 1 and pp.shape[0] == 2:
             F = self._casadi_sim(float(dt_h), U.shape[0])
             X = np.asarray(F(x0, U.T, pp)).T
             return np.vstack([x0[None, :], X])

@@ -235,13 +235,15 @@ class _Speed:
     __slots__ = ("ws", "rate", "ln_e", "ln_e_um", "gamma", "delta", "cb", "cf", "lam_head", "uu", "round2_f",
                  "c_split")
 
-    def __init__(self, c, q, w, bm, fm):
+    def __init__(self, c, q, w, bm, fm, em=None):
         ws = _smax(w, 0.0, eq.RPM_SOFT)
         wh = ws - 0.5
         lw = np.log(ws)
         self.ws = ws
         self.rate = c.rate_max_per_h * np.exp(EXP_RATE * lw)
         ln_e = math.log(c.e_max_J_per_um2) + 1.2 * lw
+        if em is not None:  # the mill's impact energy per particle against the card's (energy_mult)
+            ln_e = ln_e + np.log(em)
         self.ln_e = ln_e
         self.ln_e_um = ln_e - math.log(UM)  # the common head of ln(dU_d / (d_c u_c)) and of the bonding law
         ln_u_mean = math.log(c.u_mean_max_J) + 2.0 * lw
@@ -257,10 +259,10 @@ class _Speed:
         self.c_split = _c([float(eq.NP.exp(ac * math.log(2 * math.sqrt(x * (1 - x))))) for x in GL_XH], 2)
 
 
-def raw_rates_np(c, q, m, sd, rm, rho, T, h, w, bm, fm):
+def raw_rates_np(c, q, m, sd, rm, rho, T, h, w, bm, fm, em=None):
     """:func:`bmctl.moments.equations.raw_rates` with ``B = NP`` (no events), bit for bit, on 1-D batches
     (:func:`usable`); see the module."""
-    return _field(c, q, _Speed(c, q, w, bm, fm), m, sd, rm, rho, T, h)
+    return _field(c, q, _Speed(c, q, w, bm, fm, em), m, sd, rm, rho, T, h)
 
 
 def _field(c, q, sp: _Speed, m, sd, rm, rho, T, h, K=None):
@@ -419,7 +421,7 @@ def step_np(c, q, xs, us, ps, dt_h, n_sub: int, stages: int):
     w = us[0] / c.rpm_max
     duty = us[1]
     bm, fm = ps[0], ps[1]
-    sp = _Speed(c, q, w, bm, fm)
+    sp = _Speed(c, q, w, bm, fm, ps[2] if len(ps) > 2 else None)
     Z = np.stack(eq.to_y(B, xs))  # (4, n)
     two = not (eq._zero(q["frac_link_shift"]) and eq._zero(q.get("frac_link_cv_shift", 0.0)))
     K_ = _full(c, sp, Z.shape[1], 2 if two else 1)
