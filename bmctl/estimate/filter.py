@@ -325,9 +325,8 @@ class ParticleFilter:
         self.pending_h = 0.0  # hours of process noise not yet applied
         self.q = np.array(st.process_noise_per_sqrt_h, dtype=float)
         self.state_names = tuple(model.state_names)
-        self.param_names = tuple(getattr(model, "param_names", ("gamma_mult", "delta_mult")))
-        if st.energy_prior_log_std > 0:
-            self.param_names += (ENERGY_NAME,)
+        names = tuple(getattr(model, "param_names", ("gamma_mult", "delta_mult")))
+        self.param_names = names + (ENERGY_NAME,) * (self.np_ - len(names))  # the appended energy_mult
         self.n_resampled = 0
         self.n_degenerate = 0
         self.last_fit = None
