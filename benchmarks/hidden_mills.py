@@ -167,7 +167,7 @@ def cli(args: list[str], env: dict) -> tuple[str, float, float]:
 
 
 def run_campaign(case: Case, target_um: float, folder: Path, particles: int, seed: int, env: dict,
-                 energy_mult: bool = False) -> dict:
+                 energy_mult: bool = True) -> dict:
     """The scripted operator: advise, accept, run the hidden plant, log, sample hourly."""
     from bmctl.measure.sampler import micrograph_sample
     from bmctl.measure.tables import write_table
@@ -179,7 +179,7 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
     plant = Plant(card, g_plant, particles)
     cli(["campaign", "init", str(folder), "--model", str(CARD), "--controller", str(CONTROLLER), "--target",
          f"s_mean_um={target_um:.4f}", "--hours", f"{case.hours:g}", "--seed", "0",
-         *(["--energy-mult"] if energy_mult else [])], env)
+         *([] if energy_mult else ["--no-energy-mult"])], env)
     t, peak = 0.0, plant.temperature_c
     advise_wall, advise_cpu, steps = [], [], []
     watch = []  # per 3-min step: (length h, resting throughout, plant's relative error)
@@ -275,8 +275,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(ROOT / "out" / "hidden_mills"), help="campaign folders (replaced)")
     ap.add_argument("--no-results", action="store_true", help="do not write results/hidden_mills.json")
-    ap.add_argument("--energy-mult", action="store_true",
-                    help="campaigns started with --energy-mult (the filter also learns energy_mult)")
+    ap.add_argument("--no-energy-mult", action="store_true",
+                    help="campaigns started with --no-energy-mult (the filter learns gamma_mult, delta_mult only)")
     ap.add_argument("--table", action="store_true", help="print the docs table from results/hidden_mills.json")
     ap.add_argument("--noise", action="store_true",
                     help="measure how much one sample's mean scatters (mill G after 3 h at 140 rpm): "
@@ -307,8 +307,8 @@ def main() -> None:
     if bad:
         sys.exit(f"hidden_mills.py: --cases: unknown mill(s) {', '.join(bad)} (known: {', '.join(known)})")
     cases = [known[n] for n in names]
-    if a.energy_mult and a.results_name == "hidden_mills" and not a.no_results:
-        sys.exit("hidden_mills.py: --energy-mult: name its results (--results-name) or pass --no-results")
+    if a.no_energy_mult and a.results_name == "hidden_mills" and not a.no_results:
+        sys.exit("hidden_mills.py: --no-energy-mult: name its results (--results-name) or pass --no-results")
     out = Path(a.out)
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
@@ -335,7 +335,7 @@ def main() -> None:
               f"{case.hours:g} h; target s_mean_um = {target:.2f} ({ref['name']} on the hidden plant, "
               f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
               f"{plain_err:+.1f} % on the hidden plant", flush=True)
-        res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, a.energy_mult)
+        res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, not a.no_energy_mult)
         print(f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
               f"{res['peak_c']:.1f} °C, idle while needed {res['idle_needed_h']:.2f} h (longest "
               f"{res['longest_idle_needed_h']:.2f} h); advise first {res['advise_first_s']:.1f} s, later median "
@@ -375,13 +375,13 @@ def main() -> None:
         cmd = "python benchmarks/hidden_mills.py"
         if a.results_name != "hidden_mills":
             cmd += f" --cases {','.join(c.name for c in cases)} --seed {a.seed}"
-            cmd += (" --energy-mult" if a.energy_mult else "") + f" --results-name {a.results_name}"
+            cmd += (" --no-energy-mult" if a.no_energy_mult else "") + f" --results-name {a.results_name}"
         path = write_results(a.results_name, {"summary": summary, "cases": rows},
                              settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
                                        "controller": str(CONTROLLER.relative_to(ROOT)), "card": str(CARD.relative_to(ROOT)),
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
                                        "sample_every_h": SAMPLE_EVERY_H, "sample_particles": SAMPLE_PARTICLES,
-                                       "need_tol": NEED_TOL, "energy_mult": a.energy_mult},
+                                       "need_tol": NEED_TOL, "energy_mult": not a.no_energy_mult},
                              command=cmd)
         print(f"wrote {path}")
 

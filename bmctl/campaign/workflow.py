@@ -47,11 +47,15 @@ from ..moments.forcard import for_card
 
 # The campaign's particle filter (changes from FilterSettings' defaults; ``init`` records them in the
 # campaign): offset-free in size, each particle carries a drift of ln s_mean per milling hour that the
-# card's moment model misses (docs/estimation.md, "Offset-free size").
-CAMPAIGN_FILTER = {"size_drift_prior_per_h": 0.1, "size_drift_walk_per_sqrt_h": 0.05}
-#: ``campaign init --energy-mult``: the filter also learns the mill's impact energy per particle against the
-#: card's (``energy_mult``), log prior sd 0.25 (docs/estimation.md, "A third multiplier")
-ENERGY_FILTER = {**CAMPAIGN_FILTER, "energy_prior_log_std": 0.25}
+# card's moment model misses (docs/estimation.md, "Offset-free size"); the moments take discrepancy
+# noise for the milled hours and 2 % of the rest hours, so the hourly samples of a resting mill average
+# out ("Rests"); and the
+# filter learns the mill's impact energy per particle against the card's (``energy_mult``, log prior
+# sd 0.25; "A third multiplier").
+CAMPAIGN_FILTER = {"size_drift_prior_per_h": 0.1, "size_drift_walk_per_sqrt_h": 0.05, "rest_noise_fraction": 0.02,
+                   "energy_prior_log_std": 0.25}
+#: ``campaign init --no-energy-mult``: (gamma_mult, delta_mult) only
+TWO_MULT_FILTER = {k: v for k, v in CAMPAIGN_FILTER.items() if k != "energy_prior_log_std"}
 
 EPS_H = 1e-9
 INPUTS = "inputs"

@@ -30,9 +30,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                    help="vial-temperature ceiling (°C); default: the controller's")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the estimator")
     p.add_argument("--particles", type=int_arg("--particles", 50, 200_000), default=1000, help="filter particles")
-    p.add_argument("--energy-mult", action="store_true",
+    p.add_argument("--energy-mult", action=argparse.BooleanOptionalAction, default=True,
                    help="the filter also learns energy_mult, the mill's impact energy per particle against the card's "
-                        "(for a mill whose balls or powder mass the card does not describe)")
+                        "(a mill whose balls or powder mass the card does not describe); --no-energy-mult: "
+                        "gamma_mult, delta_mult only (default: on)")
     add_identify_flag(p)
     p = sub.add_parser("log", help="record what the mill ran")
     p.add_argument("dir", metavar="DIR")
@@ -147,7 +148,7 @@ def _run(args: argparse.Namespace) -> int:
         meta = cp.init(d, args.model, args.controller, tg.parse(args.target), hours=args.hours,
                        temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles,
                        identify=args.identify, progress=progress_printer(),
-                       estimator=cp.ENERGY_FILTER if args.energy_mult else None)
+                       estimator=None if args.energy_mult else cp.TWO_MULT_FILTER)
         print(f"campaign: {d}: {meta['hours']:g} h batch, target "
               + ", ".join(f"{k} = {x:g}" for k, x in meta["target"].items())
               + f", controller {meta['controller_kind']}; inputs copied to {d}/inputs")

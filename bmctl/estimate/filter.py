@@ -99,6 +99,11 @@ class FilterSettings(Strict):
         (1/h). 0: no drift (the default).
     size_drift_walk_per_sqrt_h : float
         Random walk of b per sqrt(milling hour) (its operating point moves).
+    rest_noise_fraction : float
+        Share of a rest hour that counts as model-discrepancy time for the moment noise (the
+        powder does not change at rest; the vial's gain walks on wall hours regardless).
+        1: wall hours (the default); 0: milling hours only, so hourly samples of a resting
+        mill average out instead of each one moving the estimate.
     thermal_gain_prior_std : float
         Prior std of the vial's heating gain g over the card's thermal law (1: the card is exact),
         weighed in at the first reading.
@@ -143,6 +148,7 @@ class FilterSettings(Strict):
     process_noise_max: float = 1.5
     size_drift_prior_per_h: Annotated[float, Field(ge=0, le=1)] = 0.0
     size_drift_walk_per_sqrt_h: Annotated[float, Field(ge=0, le=1)] = 0.0
+    rest_noise_fraction: Annotated[float, Field(ge=0, le=1)] = 1.0
     thermal_gain_prior_std: Annotated[float, Field(ge=0, le=2)] = 0.3
     thermal_gain_walk_per_sqrt_h: Annotated[float, Field(ge=0, le=1)] = 0.05
     thermal_gain_jump_prob: Annotated[float, Field(ge=0, lt=1)] = 0.02
@@ -322,7 +328,8 @@ class ParticleFilter:
         self.logP = np.log(p0)[None, :] + prior[None, :] * rng.standard_normal((N, self.np_))
         self.logw = np.full(N, -np.log(N))
         self.t_h = 0.0
-        self.pending_h = 0.0  # hours of process noise not yet applied
+        self.pending_h = 0.0  # hours of process noise not yet applied (the vial's gain)
+        self.pending_model_h = 0.0  # hours of moment discrepancy noise not yet applied (rest_noise_fraction)
         self.q = np.array(st.process_noise_per_sqrt_h, dtype=float)
         self.state_names = tuple(model.state_names)
         names = tuple(getattr(model, "param_names", ("gamma_mult", "delta_mult")))
@@ -341,7 +348,7 @@ class ParticleFilter:
     def get_state(self) -> dict:
         """The particles, weights, clocks, adapted noise and generator state as plain data."""
         return {"X": self.X.copy(), "logP": self.logP.copy(), "logw": self.logw.copy(), "t_h": self.t_h,
-                "pending_h": self.pending_h, "q": self.q.copy(), "n_resampled": self.n_resampled,
+                "pending_h": self.pending_h, "pending_model_h": self.pending_model_h, "q": self.q.copy(), "n_resampled": self.n_resampled,
                 "n_degenerate": self.n_degenerate, "rng": self.rng.bit_generator.state,
                 "gain": self.gain.copy(), "gain_var": self.gain_var, "drift": self.drift.copy()}
 
@@ -352,6 +359,7 @@ class ParticleFilter:
         self.logw = np.array(state["logw"], dtype=float)
         self.t_h = float(state["t_h"])
         self.pending_h = float(state["pending_h"])
+        self.pending_model_h = float(state.get("pending_model_h", self.pending_h))
         self.q = np.array(state["q"], dtype=float)
         self.n_resampled = int(state["n_resampled"])
         self.n_degenerate = int(state["n_degenerate"])
@@ -417,6 +425,8 @@ class ParticleFilter:
         self.logP = self.logP + st.param_walk_per_sqrt_h * math.sqrt(dt_h) * rng.standard_normal(self.logP.shape)
         self.t_h += dt_h
         self.pending_h += dt_h
+        f_rest = st.rest_noise_fraction
+        self.pending_model_h += dt_h if f_rest == 1.0 else mill_h + f_rest * (dt_h - mill_h)
 
     def _excess(self) -> np.ndarray:
         """The card law's temperature excess over ambient of every particle, (T - T_amb) / g (degC)."""
@@ -430,15 +440,15 @@ class ParticleFilter:
 
     def _apply_pending_noise(self) -> None:
         """Draw the deferred process noise from its prior (no sample to guide it)."""
-        tau = self.pending_h
+        tau, tau_m = self.pending_h, self.pending_model_h
         if tau <= 0:
             return
         st, rng = self.settings, self.rng
         N = self.X.shape[0]
-        self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau) * rng.standard_normal((N, N_MOMENTS)))
+        self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((N, N_MOMENTS)))
         self._set_gain(self.gain + st.thermal_gain_walk_per_sqrt_h * math.sqrt(tau) * rng.standard_normal(N))
         self.X = self._feasible(self.X)
-        self.pending_h = 0.0
+        self.pending_h = self.pending_model_h = 0.0
 
     # --- update -----------------------------------------------------------------------------
     def update(self, s_um=None, r=None, temperature_c: float | None = None) -> Estimate:
@@ -453,7 +463,7 @@ class ParticleFilter:
         """
         st, rng = self.settings, self.rng
         N = self.X.shape[0]
-        tau = self.pending_h
+        tau, tau_m = self.pending_h, self.pending_model_h
         logw = self.logw.copy()
         eta = np.array([np.nan, np.nan])
         n_meas = 0
@@ -471,12 +481,12 @@ class ParticleFilter:
         if s_um is not None:
             raster = Raster.from_particles(s_um, r, st.law)
             n_meas = raster.n
-            logw_s, eta = self._sample_update(raster, tau)
+            logw_s, eta = self._sample_update(raster, tau_m)
             logw += logw_s
-        elif tau > 0:
-            self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau) * rng.standard_normal((N, N_MOMENTS)))
+        elif tau_m > 0:
+            self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((N, N_MOMENTS)))
         self.X = self._feasible(self.X)
-        self.pending_h = 0.0
+        self.pending_h = self.pending_model_h = 0.0
 
         degenerate = False
         if not np.any(np.isfinite(logw)):

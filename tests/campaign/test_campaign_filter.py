@@ -56,19 +56,21 @@ def test_damaged_estimator_meta_is_one_line(tmp_path, capsys, value):
     assert len(lines) == 1 and "meta 'estimator'" in lines[0] and "Traceback" not in err
 
 
-def test_energy_mult_flag_adds_the_third_multiplier_and_the_plan_uses_it(tmp_path, capsys):
+def test_campaign_learns_energy_mult_unless_told_not_to_and_the_plan_uses_it(tmp_path, capsys):
     import json
 
-    from bmctl.campaign.workflow import ENERGY_FILTER
+    from bmctl.campaign.workflow import TWO_MULT_FILTER
 
-    d = tmp_path / "e"
     mpc = ROOT / "controllers" / "mpc-default.toml"
-    assert main(["campaign", "init", str(d), "--model", str(CARD), "--controller", str(mpc), "--target",
-                 "s_mean_um=45", "--hours", "2", "--particles", "100", "--energy-mult"]) == 0
-    with Campaign(d) as c:
-        assert c.meta["estimator"] == ENERGY_FILTER
-        assert c.loop.estimator.param_names == ("gamma_mult", "delta_mult", "energy_mult")
-    capsys.readouterr()
-    assert main(["campaign", "advise", str(d), "--json"]) == 0
-    a = json.loads(capsys.readouterr().out)
-    assert "energy_mult" in a["estimate"] and a["next"]["interval_h"] > 0
+    for name, flag, names in (("e", [], ("gamma_mult", "delta_mult", "energy_mult")),
+                              ("n", ["--no-energy-mult"], ("gamma_mult", "delta_mult"))):
+        d = tmp_path / name
+        assert main(["campaign", "init", str(d), "--model", str(CARD), "--controller", str(mpc), "--target",
+                     "s_mean_um=45", "--hours", "2", "--particles", "100", *flag]) == 0
+        with Campaign(d) as c:
+            assert c.meta["estimator"] == (TWO_MULT_FILTER if flag else CAMPAIGN_FILTER)
+            assert c.loop.estimator.param_names == names
+        capsys.readouterr()
+        assert main(["campaign", "advise", str(d), "--json"]) == 0
+        a = json.loads(capsys.readouterr().out)
+        assert ("energy_mult" in a["estimate"]) == (not flag) and a["next"]["interval_h"] > 0
