@@ -69,10 +69,17 @@ REGISTRY: tuple[Study, ...] = (
           "--results-name hidden_mills_heldout", 6),
     Study("hidden_mills_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
           "--results-name hidden_mills_heldout_seed1", 6),
-    Study("hidden_mills_heldout_energy", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 0 "
-          "--energy-mult --results-name hidden_mills_heldout_energy", 6),
-    Study("hidden_mills_heldout_energy_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
-          "--energy-mult --results-name hidden_mills_heldout_energy_seed1", 6),
+    Study("hidden_mills_twomult", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
+          "--no-energy-mult --results-name hidden_mills_twomult", 8),
+    Study("hidden_mills_twomult_seed1_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
+          "--no-energy-mult --results-name hidden_mills_twomult_seed1_all", 8),
+    Study("hidden_mills_twomult_seed2_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 2 "
+          "--no-energy-mult --results-name hidden_mills_twomult_seed2_all", 8),
+    Study("hidden_mills_twomult_heldout", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 0 "
+          "--no-energy-mult --results-name hidden_mills_twomult_heldout", 6),
+    Study("hidden_mills_twomult_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
+          "--no-energy-mult --results-name hidden_mills_twomult_heldout_seed1", 6),
+    Study("rest_noise", "python benchmarks/rest_noise.py", 6),
     Study("model_form", "python benchmarks/model_form.py", 3),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
     Study("moments_confirm", "python benchmarks/moments_confirm.py --shipped", 3),
