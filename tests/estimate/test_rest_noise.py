@@ -82,3 +82,6 @@ def test_hourly_samples_of_a_resting_mill_average_out(model):
     err = _rest_errors(model, 0.02, k, n=n, sigma=sigma)  # the campaign's setting
     rms = float(np.sqrt(np.mean(err**2)))
     assert rms < 2.0 * one / math.sqrt(k), (rms, one)
+    for frac in (1.0, 0.0):  # the bar tells: wall-clock noise forgets, no noise degenerates
+        other = float(np.sqrt(np.mean(_rest_errors(model, frac, k, n=n, sigma=sigma) ** 2)))
+        assert other > 2.0 * one / math.sqrt(k), (frac, other)
