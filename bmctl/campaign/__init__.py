@@ -5,6 +5,7 @@ Verbs: :func:`init`, :func:`log`, :func:`sample`, :func:`advise`, :func:`decide`
 :func:`report` (``bmctl campaign <verb>`` calls them); :class:`Campaign` keeps one open.
 """
 
-from .workflow import CAMPAIGN_FILTER, TWO_MULT_FILTER, Campaign, advise, decide, ensure_coefficients, init, log, report, sample, status
+from .workflow import (CAMPAIGN_FILTER, TWO_MULT_FILTER, Campaign, advise, decide, ensure_coefficients, init, log,
+                       report, sample, status)
 
 __all__ = ["Campaign", "init", "log", "sample", "advise", "decide", "status", "report"]

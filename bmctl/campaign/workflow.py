@@ -49,9 +49,8 @@ from ..moments.forcard import for_card
 # campaign): offset-free in size, each particle carries a drift of ln s_mean per milling hour that the
 # card's moment model misses (docs/estimation.md, "Offset-free size"); the moments take discrepancy
 # noise for the milled hours and 2 % of the rest hours, so the hourly samples of a resting mill average
-# out ("Rests"); and the
-# filter learns the mill's impact energy per particle against the card's (``energy_mult``, log prior
-# sd 0.25; "A third multiplier").
+# out ("Rests"); and the filter learns the mill's impact energy per particle against the card's
+# (``energy_mult``, log prior sd 0.25; "A third multiplier").
 CAMPAIGN_FILTER = {"size_drift_prior_per_h": 0.1, "size_drift_walk_per_sqrt_h": 0.05, "rest_noise_fraction": 0.02,
                    "energy_prior_log_std": 0.25}
 #: ``campaign init --no-energy-mult``: (gamma_mult, delta_mult) only

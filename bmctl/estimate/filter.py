@@ -102,8 +102,9 @@ class FilterSettings(Strict):
     rest_noise_fraction : float
         Share of a rest hour that counts as model-discrepancy time for the moment noise (the
         powder does not change at rest; the vial's gain walks on wall hours regardless).
-        1: wall hours (the default); 0: milling hours only, so hourly samples of a resting
-        mill average out instead of each one moving the estimate.
+        1: wall hours (the default). Small (a campaign's 0.02): hourly samples of a resting
+        mill average out instead of each one moving the estimate; 0 leaves the cloud of a long
+        rest no jitter at all, and reweighting alone degenerates it (docs/estimation.md, "Rests").
     thermal_gain_prior_std : float
         Prior std of the vial's heating gain g over the card's thermal law (1: the card is exact),
         weighed in at the first reading.
@@ -348,8 +349,8 @@ class ParticleFilter:
     def get_state(self) -> dict:
         """The particles, weights, clocks, adapted noise and generator state as plain data."""
         return {"X": self.X.copy(), "logP": self.logP.copy(), "logw": self.logw.copy(), "t_h": self.t_h,
-                "pending_h": self.pending_h, "pending_model_h": self.pending_model_h, "q": self.q.copy(), "n_resampled": self.n_resampled,
-                "n_degenerate": self.n_degenerate, "rng": self.rng.bit_generator.state,
+                "pending_h": self.pending_h, "pending_model_h": self.pending_model_h, "q": self.q.copy(),
+                "n_resampled": self.n_resampled, "n_degenerate": self.n_degenerate, "rng": self.rng.bit_generator.state,
                 "gain": self.gain.copy(), "gain_var": self.gain_var, "drift": self.drift.copy()}
 
     def set_state(self, state: dict) -> None:
