@@ -232,6 +232,46 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
             "advices": len(advise_wall), "steps": steps}
 
 
+def figure(rec: dict, path: Path) -> Path:
+    """One panel per mill from a results file's step logs: the plant's and the estimate's mean size at
+    each advice, the target, and the advised rpm (bars, right axis; the bar's width is the milling time)."""
+    from bmctl.io import pyplot, savefig
+
+    plt = pyplot()
+    rows = rec["cases"]
+    ncol = min(4, len(rows))
+    nrow = -(-len(rows) // ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.6 * ncol, 2.9 * nrow), squeeze=False, sharex=False)
+    for ax, r in zip(axes.flat, rows):
+        st = r["steps"]
+        t = np.array([s["t_h"] for s in st])
+        ax2 = ax.twinx()
+        ax2.bar(t, [s["rpm"] for s in st], width=[s["mill_min"] / 60.0 for s in st], align="edge",
+                color="0.85", zorder=0)
+        ax2.set_ylim(0, 1000)
+        ax2.set_yticks([0, 250, 500])
+        ax2.tick_params(labelsize=7)
+        ax.set_zorder(ax2.get_zorder() + 1)
+        ax.patch.set_visible(False)
+        t_end = float(t[-1]) + INTERVAL_H  # the batch end: the plant's final size
+        ax.plot(np.append(t, t_end), [s["plant_s_mean_um"] for s in st] + [r["final_s_mean_um"]], "-", color="C0",
+                lw=1.4, label="plant")
+        ax.plot(t, [s["estimate_s_mean_um"] for s in st], ".", color="C1", ms=4, label="estimate")
+        ax.axhline(r["target_s_mean_um"], color="k", ls="--", lw=0.8, label="target")
+        ax.set_title(f"{r['case']}: {r['error_pct']:+.1f} % at the end", fontsize=9)
+        ax.set_xlabel("batch time (h)", fontsize=8)
+        ax.set_ylabel("mean size s (µm)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    for ax in list(axes.flat)[len(rows):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=7, loc="best")
+    fig.suptitle(f"hidden mills, every advice accepted (grey bars: advised rpm, right axis) - {rec['command']}",
+                 fontsize=8)
+    fig.tight_layout()
+    savefig(fig, path, dpi=110)
+    return path
+
+
 def table(rows: list[dict], summary: dict) -> str:
     """The Markdown table of docs/control.md, its measured numbers in results markers."""
     from bmctl.results import marked
@@ -278,12 +318,19 @@ def main() -> None:
     ap.add_argument("--no-energy-mult", action="store_true",
                     help="campaigns started with --no-energy-mult (the filter learns gamma_mult, delta_mult only)")
     ap.add_argument("--table", action="store_true", help="print the docs table from results/hidden_mills.json")
+    ap.add_argument("--figure", metavar="PNG",
+                    help="draw the step logs of results/<--results-name>.json (one panel per mill) to PNG and exit")
     ap.add_argument("--noise", action="store_true",
                     help="measure how much one sample's mean scatters (mill G after 3 h at 140 rpm): "
                          "results/hidden_mills_noise.json")
     ap.add_argument("--results-name", default="hidden_mills",
                     help="results file name (a subset of the cases or another seed: e.g. hidden_mills_seed1)")
     a = ap.parse_args()
+    if a.figure:
+        from bmctl.results import load_results
+
+        print("wrote", figure(load_results(a.results_name), Path(a.figure)))
+        return
     if a.table:
         from bmctl.results import load_results
 
