@@ -187,6 +187,11 @@ def _inv_contact(B, a34_i, si, sj, s3_sum, cap_sum, uu):
     return B.sqrt(B.sqrt(B.sqrt(1.0 / (d_h4 * d_h4) + cap_sum)))
 
 
+def energy_of(ps):
+    """The ``energy_mult`` of a multiplier list (gamma_mult, delta_mult[, energy_mult]); None without it."""
+    return ps[2] if len(ps) > 2 else None
+
+
 def _zero(v) -> bool:
     """True for a plain number equal to 0 (not a casadi symbol): the term it scales can be left out."""
     return isinstance(v, (int, float)) and v == 0
@@ -452,7 +457,7 @@ def rhs(B, c, q, xs, us, ps):
     w = us[0] / c.rpm_max
     duty = us[1]
     dEs, dEs2, dEr, dEr2 = raw_rates(B, c, q, m, sd, rm, rho, T, h, w, ps[0], ps[1],
-                                     em=ps[2] if len(ps) > 2 else None)
+                                     em=energy_of(ps))
     rs = rho * B.sqrt(rm * (1 - rm))
     dsd = (dEs2 - 2 * m * dEs) / (2 * sd)
     drs = (dEr2 - 2 * rm * dEr) / (2 * rs)
@@ -521,7 +526,7 @@ def step(B, c, q, xs, us, ps, dt_h: float, n_sub: int, stages: int, rates=None, 
 
         if usable(xs[0], *xs[1:6], us[0], us[1], *ps, dt_h):
             return step_np(c, q, xs, us, ps, dt_h, n_sub, stages)  # the same numbers, bit for bit
-    em = ps[2] if len(ps) > 2 else None
+    em = energy_of(ps)
     if em is not None and rates is not None:
         raise ValueError("energy_mult: a compiled rate field takes (gamma_mult, delta_mult) only")
     rates = rates or (lambda y, T, h, w, bm, fm: y_rates(B, c, q, y[:4], T, h, w, bm, fm, events=events, em=em))

@@ -421,7 +421,7 @@ def step_np(c, q, xs, us, ps, dt_h, n_sub: int, stages: int):
     w = us[0] / c.rpm_max
     duty = us[1]
     bm, fm = ps[0], ps[1]
-    sp = _Speed(c, q, w, bm, fm, ps[2] if len(ps) > 2 else None)
+    sp = _Speed(c, q, w, bm, fm, eq.energy_of(ps))
     Z = np.stack(eq.to_y(B, xs))  # (4, n)
     two = not (eq._zero(q["frac_link_shift"]) and eq._zero(q.get("frac_link_cv_shift", 0.0)))
     K_ = _full(c, sp, Z.shape[1], 2 if two else 1)
