@@ -7,8 +7,8 @@ ball-to-powder ratio of 9.5) mills 3 h at 300 rpm and then rests 7 h; a 300-part
 sample of its plant (3000 particles) is taken every hour. The campaign's filter (1000 particles, the
 laboratory card's moment model, ``CAMPAIGN_FILTER``) follows it with ``rest_noise_fraction`` 1 (the
 moments take discrepancy noise on wall hours), the campaign's 0.02, and 0. Printed per hour: the
-RMS over seeds of the relative error of the estimated s_mean against the plant's; the rest hours'
-mean of that; and one sample mean's own scatter for comparison (results/hidden_mills_noise.json).
+RMS over seeds of the relative error of the estimated s_mean against the plant's, and the rest
+hours' mean of that (one sample mean's own scatter: ``hidden_mills.py --noise``).
 """
 
 from __future__ import annotations
