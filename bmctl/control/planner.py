@@ -178,7 +178,8 @@ class PlanController:
                                                 cap=float(m_q.sum()))), "constant"))
         ps_cfg = self.cfg.plan
         kw = dict(substeps=ps_cfg.substeps, rpm_step=ps_cfg.rpm_step, band=ps_cfg.error_band,
-                  coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool, pool_band=ps_cfg.pool_band, risk=ps_cfg.risk)
+                  coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool, pool_band=ps_cfg.pool_band, risk=ps_cfg.risk,
+                  rest_within=None if milled(hist) else self.cfg.objective.tolerance)
         args = (self.model, np.array(x0s), np.array(ps), target, grid, lim, self.cfg.weights, carry)
         res, scope = None, "global"
         if extra:  # the previous plan still reaches the target: a local search around it
@@ -214,6 +215,17 @@ class PlanController:
                      "lengths_min": grid.lengths_min.tolist(), "minutes": res.minutes.tolist(),
                      "spread_x_end": res.X[1:, -1].copy() if res.X.shape[0] > 1 else None}
         return Plan(t, self.interval_h, U, X, peaks, u_apply, st, extra_out)
+
+
+def milled(history) -> bool:
+    """Whether any logged interval ``(hours, rpm, milling, ...)`` milled.
+
+    Examples
+    --------
+    >>> milled([(0.5, 0.0, 0.0), (0.5, 300.0, 0.0)]), milled([(0.5, 300.0, 0.5)])
+    (False, True)
+    """
+    return any(float(h[1]) > 0 and float(h[2]) > 0 and float(h[0]) > 0 for h in history)
 
 
 def describe_plan(res, grid: Grid) -> str:

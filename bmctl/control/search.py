@@ -910,7 +910,8 @@ def _fine_rows(Pc: np.ndarray, f: int) -> np.ndarray:
 def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry: Carry | None = None,
            substeps: int = 2, rpm_step: float = 20.0, band: float = 0.002, rounds: int = 1, keep: int = 6,
            extra=None, coarse: bool = True, coarse_factor: int = 2, pool: int = 8, pool_band: float = 0.03,
-           risk: float = 0.25, give_up_above: float | None = None) -> SearchResult | None:
+           risk: float = 0.25, give_up_above: float | None = None,
+           rest_within: float | None = None) -> SearchResult | None:
     """Coarse batch over the families, then rounds of neighbours of the best few (and of the best per
     family), every candidate operable over the whole horizon; the best within the error band are then
     scored on the spread.
@@ -959,6 +960,10 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
     give_up_above : float, optional
         Return None, before the spread is scored, when no candidate comes within this error of the
         target (the caller would reject the result: a local search that then gives way to a global one).
+    rest_within : float, optional
+        Resting on (no milling to the batch end) enters the spread-scored pool only when its own
+        predicted error is within this, or when no plan that mills is in the pool. The planner
+        passes its ``[objective] tolerance`` while the mill has not milled yet in the batch.
 
     Examples
     --------
@@ -1098,6 +1103,10 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
             ok = ex <= ex.min() + 1e-12
         bnom = float(np.min(sc.nominal[ok]))
         near = np.flatnonzero(ok & (sc.nominal <= bnom + max(band, pool_band) + 1e-12))
+        if rest_within is not None:
+            idle = np.array([C["mh"][i] <= 0.0 and C["err"][i] > rest_within for i in near], dtype=bool)
+            if np.any(idle) and not np.all(idle):
+                near = near[~idle]
         by_nom = near[np.lexsort((near, np.round(sc.secondary[near], 9), np.round(sc.nominal[near], 4)))]
         by_cost = near[np.lexsort((near, np.round(sc.nominal[near], 4), np.round(sc.secondary[near], 9)))]
         cand = list(by_nom[:max(1, int(pool) // 2)]) + list(by_cost[:max(1, int(pool) // 4)])
