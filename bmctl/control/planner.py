@@ -42,6 +42,10 @@ from .search import (Carry, Grid, _row, expand, fit_power, limits_of, make_grid,
                      thermal_peaks)
 
 
+#: ``binding`` names the spread when another family comes this much closer nominally (relative error)
+SPREAD_NOTE = 0.005
+
+
 class PlanController:
     """Plans the rest of the batch on operable schedules; build with :func:`bmctl.control.make_controller`.
 
@@ -268,6 +272,11 @@ def plan_binding(res, grid: Grid, lim, carry: Carry, ceiling_c: float) -> list[s
         out.append(f"switch budget ({res.switches} of {lim.max_switches} used)")
     if on.all() and np.all(res.minutes >= grid.lengths_min - 1e-9) and res.error > 0:
         out.append("batch time: milling throughout to the batch end")
+    closer = [(f, r) for f, r in (res.per_family or {}).items() if r["error"] < res.error - SPREAD_NOTE]
+    if closer:  # the spread, not a limit: a closer plan's outcome scatters more over the filter's particles
+        f, r = min(closer, key=lambda fr: fr[1]["error"])
+        out.append(f"the filter's spread: {f} ({r['schedule']}) ends {100 * r['error']:.1f} % off nominally but "
+                   f"scatters more over the filter's particles; this plan ends {100 * res.error:.1f} % off")
     return out
 
 

@@ -274,3 +274,26 @@ def test_a_vial_above_the_ceiling_rests_instead_of_milling_on(model, cfg):
     spread = np.vstack([model.x0(), model.x0(), hot])  # nominal cool, one particle of the spread hot
     r = search(model, spread, np.ones((3, 2)), target, g, lim, cfg.weights)
     assert r.minutes[0] == 0
+
+
+def test_before_the_mill_has_milled_a_rest_off_the_tolerance_is_not_chosen_for_the_spread(model, cfg):
+    """A target 2.5 % below the start, a wide spread of (gamma, delta): every plan that mills scatters
+    far more than resting on, which stays 2.5 % off. Before the mill has milled, resting narrows none
+    of that spread, so the plan mills (nothing milled: history empty); once it has milled, the same
+    estimate and spread may rest, and ``binding`` then names the spread, not a limit."""
+    rng = np.random.default_rng(5)
+    x = model.x0()
+    target = 0.975 * float(x[0])  # um
+    spread = [(x, np.exp(rng.normal(0.0, 0.3, 2))) for _ in range(32)]
+    ctrl = make_controller(cfg, model, {"s_mean_um": target})
+    fresh = ctrl.plan(x, 0.0, p=np.ones(2), scenarios=spread, history=[])
+    assert fresh.u_apply[1] > 0 and fresh.extra["family"] != "rest"
+    ctrl = make_controller(cfg, model, {"s_mean_um": target})
+    later = ctrl.plan(x, 0.5, p=np.ones(2), scenarios=spread, history=[(0.5, 0.0, 0.0)])
+    assert later.u_apply[1] > 0  # a rest logged: still nothing milled
+    ctrl = make_controller(cfg, model, {"s_mean_um": target})
+    milled = ctrl.plan(x, 0.5, p=np.ones(2), scenarios=spread, history=[(0.5, 200.0, 0.2)])
+    if milled.extra["family"] == "rest":
+        assert any(b.startswith("the filter's spread") for b in milled.extra["binding"])
+    else:
+        pytest.fail(f"with the mill run, resting on was expected to win on the spread: {milled.status.reason}")
