@@ -69,6 +69,7 @@ REGISTRY: tuple[Study, ...] = (
           "--results-name hidden_mills_heldout", 6),
     Study("hidden_mills_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
           "--results-name hidden_mills_heldout_seed1", 6),
+    Study("hidden_mills_floor", "python benchmarks/hidden_mills_floor.py", 0.1),  # reads the five files above
     Study("hidden_mills_twomult", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
           "--no-energy-mult --results-name hidden_mills_twomult", 8),
     Study("hidden_mills_twomult_seed1_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "

@@ -1,0 +1,88 @@
+"""What limits the final error on the hidden mills: the estimate the last advice saw, read from the step logs.
+
+    python benchmarks/hidden_mills_floor.py     # writes results/hidden_mills_floor.json (seconds; reads results/)
+
+Reads the step logs of the default hidden-mill results files (``hidden_mills.py``, A-G on seeds
+0-2 and the held-out H-L on seeds 0-1; each step holds the plant's and the estimate's mean size
+at one advice) and relates each run's final error to the estimate's own error at the batch's last
+advice: the plan steers its estimate to the target, so where the estimate is off at the last
+advice the powder ends off by about as much, with the opposite sign. Written per run and summed up
+over the runs: the RMS of the final errors, of the estimate's errors at the last advice and at
+every hourly sample, their correlation (final error against minus the estimate's error), and the
+RMS of what is left (final error plus the estimate's error). The scatter of one sample's mean
+itself: ``hidden_mills.py --noise`` (``results/hidden_mills_noise.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+#: the default filter's results files (``benchmarks/regenerate.py``)
+FILES = ("hidden_mills", "hidden_mills_seed1_all", "hidden_mills_seed2_all", "hidden_mills_heldout",
+         "hidden_mills_heldout_seed1")
+
+
+def rel_pct(est: float, plant: float) -> float:
+    return 100.0 * (est - plant) / plant
+
+
+def run_rows(results: dict, name: str) -> list[dict]:
+    """One row per case of a results file: final error and the estimate's errors (%)."""
+    rows = []
+    for c in results["cases"]:
+        steps = c["steps"]
+        last = steps[-1]
+        at_samples = [rel_pct(s["estimate_s_mean_um"], s["plant_s_mean_um"]) for s in steps
+                      if s["t_h"] > 0 and abs(s["t_h"] - round(s["t_h"])) < 1e-6]
+        rows.append({"file": name, "case": c["case"], "final_error_pct": float(c["error_pct"]),
+                     "estimate_error_last_advice_pct": rel_pct(last["estimate_s_mean_um"], last["plant_s_mean_um"]),
+                     "last_advice_t_h": float(last["t_h"]), "estimate_errors_at_samples_pct": at_samples})
+    return rows
+
+
+def summary(rows: list[dict]) -> dict:
+    fin = np.array([r["final_error_pct"] for r in rows])
+    est = np.array([r["estimate_error_last_advice_pct"] for r in rows])
+    samp = np.concatenate([r["estimate_errors_at_samples_pct"] for r in rows])
+    rms = lambda a: float(np.sqrt(np.mean(np.square(a))))  # noqa: E731
+    return {"runs": len(rows), "final_rms_pct": rms(fin), "estimate_last_advice_rms_pct": rms(est),
+            "estimate_at_samples_rms_pct": rms(samp), "samples": int(samp.size),
+            "corr_final_vs_minus_estimate": float(np.corrcoef(fin, -est)[0, 1]),
+            "left_rms_pct": rms(fin + est),
+            "over_5pct": [f"{r['file']}:{r['case']}" for r in rows if abs(r["final_error_pct"]) > 5.0]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--no-results", action="store_true", help="print only")
+    a = ap.parse_args()
+    from bmctl.results import load_results, write_results
+
+    rows = []
+    for name in FILES:
+        rows += run_rows(load_results(name), name)
+    s = summary(rows)
+    for r in rows:
+        print(f"{r['file']:<28} {r['case']}  final {r['final_error_pct']:+6.2f} %   "
+              f"estimate at the last advice {r['estimate_error_last_advice_pct']:+6.2f} %")
+    print(f"{s['runs']} runs: final RMS {s['final_rms_pct']:.2f} %, estimate at the last advice RMS "
+          f"{s['estimate_last_advice_rms_pct']:.2f} %, at the {s['samples']} hourly samples "
+          f"{s['estimate_at_samples_rms_pct']:.2f} %; correlation of the final error with minus the "
+          f"estimate's {s['corr_final_vs_minus_estimate']:.2f}; left over {s['left_rms_pct']:.2f} % RMS")
+    if not a.no_results:
+        for r in rows:
+            r.pop("estimate_errors_at_samples_pct")
+        p = write_results("hidden_mills_floor", {"summary": s, "runs": rows},
+                          settings={"files": list(FILES)}, command="python benchmarks/hidden_mills_floor.py")
+        print(f"wrote {p}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,40 @@
+"""``benchmarks/hidden_mills_floor.py``: a run's final error against the estimate's error at its last advice."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _floor():
+    spec = importlib.util.spec_from_file_location("hidden_mills_floor", ROOT / "benchmarks" / "hidden_mills_floor.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _case(name, final_pct, est_last_um, plant_last_um, est_1h_um=50.0, plant_1h_um=50.0):
+    steps = [{"t_h": 0.0, "estimate_s_mean_um": 40.0, "plant_s_mean_um": 40.0},
+             {"t_h": 1.0, "estimate_s_mean_um": est_1h_um, "plant_s_mean_um": plant_1h_um},
+             {"t_h": 1.5, "estimate_s_mean_um": est_last_um, "plant_s_mean_um": plant_last_um}]
+    return {"case": name, "error_pct": final_pct, "steps": steps}
+
+
+def test_a_plan_that_steers_its_estimate_exactly_leaves_minus_the_estimates_error():
+    """Each run ends off by minus its estimate's error at the last advice: correlation 1, nothing left;
+    the hourly samples (not t = 0, not the half hour) give the sample RMS."""
+    fl = _floor()
+    res = {"cases": [_case("A", -2.0, 51.0, 50.0), _case("B", 4.0, 48.0, 50.0), _case("C", 1.0, 49.5, 50.0, 55.0, 50.0)]}
+    rows = fl.run_rows(res, "f")
+    assert [r["estimate_error_last_advice_pct"] for r in rows] == pytest.approx([2.0, -4.0, -1.0])
+    s = fl.summary(rows)
+    assert s["corr_final_vs_minus_estimate"] == pytest.approx(1.0)
+    assert s["left_rms_pct"] == pytest.approx(0.0, abs=1e-12)
+    assert s["samples"] == 3 and s["estimate_at_samples_rms_pct"] == pytest.approx((100 / 3) ** 0.5)
+    assert s["over_5pct"] == []
+    res["cases"].append(_case("D", 6.0, 50.0, 50.0))
+    assert fl.summary(fl.run_rows(res, "f"))["over_5pct"] == ["f:D"]
