@@ -2,6 +2,7 @@
 
     nice python benchmarks/hidden_mills.py [--cases A,B,...] [--particles 5000] [--out out/hidden_mills]
     nice python benchmarks/hidden_mills.py --cases H,I,J,K,L --results-name hidden_mills_heldout   # held out
+    nice python benchmarks/hidden_mills.py --sample-particles 1000 --results-name NAME   # larger samples
 
 Each case is a plant built from the laboratory card with gamma and delta multiplied (0.6-1.6) and one
 more card field changed (powder mass through the ball-to-powder ratio, the ball count or the ball
@@ -136,7 +137,7 @@ def sweep(card, hours: float, particles: int, seed: int) -> list[dict]:
             | {"segments": segs} for name, segs in plain_schedules(hours)]
 
 
-def sample_noise(particles: int, seed: int, repeats: int = 400) -> dict:
+def sample_noise(particles: int, seed: int, repeats: int = 400, sample_particles: int = SAMPLE_PARTICLES) -> dict:
     """How much the mean of one hourly micrograph sample scatters around the plant's mean: mill G
     after 3 h at 140 rpm (its state when the campaign first reached the target), ``repeats`` samples."""
     from bmctl.measure.sampler import micrograph_sample
@@ -147,7 +148,7 @@ def sample_noise(particles: int, seed: int, repeats: int = 400) -> dict:
     plant = Plant(hidden_card(case), g_plant, particles)
     plant.advance(140.0, 3.0, milling=1.0)
     mean = float(plant.moments()["s_mean_um"])
-    means = np.array([np.mean(micrograph_sample(plant.s * 1e6, plant.r, SAMPLE_PARTICLES, g_sample).s_um)
+    means = np.array([np.mean(micrograph_sample(plant.s * 1e6, plant.r, sample_particles, g_sample).s_um)
                       for _ in range(repeats)])
     return {"plant_s_mean_um": mean, "sample_mean_avg_um": float(means.mean()),
             "sample_mean_sd_um": float(means.std(ddof=1)),
@@ -167,7 +168,7 @@ def cli(args: list[str], env: dict) -> tuple[str, float, float]:
 
 
 def run_campaign(case: Case, target_um: float, folder: Path, particles: int, seed: int, env: dict,
-                 energy_mult: bool = True) -> dict:
+                 energy_mult: bool = True, sample_particles: int = SAMPLE_PARTICLES) -> dict:
     """The scripted operator: advise, accept, run the hidden plant, log, sample hourly."""
     from bmctl.measure.sampler import micrograph_sample
     from bmctl.measure.tables import write_table
@@ -208,7 +209,7 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
              f"{milling:.10g}", "--temperature-c", f"{plant.temperature_c:.2f}"], env)
         t += dt
         if abs(t / SAMPLE_EVERY_H - round(t / SAMPLE_EVERY_H)) < 1e-6 or t >= case.hours - 1e-9:
-            tab = micrograph_sample(plant.s * 1e6, plant.r, SAMPLE_PARTICLES, g_sample)
+            tab = micrograph_sample(plant.s * 1e6, plant.r, sample_particles, g_sample)
             path = folder / f"sample-{t:05.2f}h.csv"
             write_table(path, tab)
             cli(["campaign", "sample", str(folder), "--at-h", f"{t:.10g}", str(path)], env)
@@ -312,6 +313,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", default=",".join(c.name for c in CASES), help="comma-separated case names")
     ap.add_argument("--particles", type=int, default=5000, help="plant particles")
+    ap.add_argument("--sample-particles", type=int, default=SAMPLE_PARTICLES,
+                    help=f"particles in each hourly micrograph sample (default {SAMPLE_PARTICLES})")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(ROOT / "out" / "hidden_mills"), help="campaign folders (replaced)")
     ap.add_argument("--no-results", action="store_true", help="do not write results/hidden_mills.json")
@@ -338,15 +341,18 @@ def main() -> None:
         print(table(rec["cases"], rec["summary"]))
         return
     if a.noise:
-        rec = sample_noise(a.particles, a.seed)
-        print(f"one {SAMPLE_PARTICLES}-particle sample's mean: sd {rec['sample_mean_rel_sd_pct']:.2f} % of the plant's "
+        rec = sample_noise(a.particles, a.seed, sample_particles=a.sample_particles)
+        print(f"one {a.sample_particles}-particle sample's mean: sd {rec['sample_mean_rel_sd_pct']:.2f} % of the plant's "
               f"mean ({rec['repeats']} samples; plant {rec['plant_s_mean_um']:.2f} µm, sample means average "
               f"{rec['sample_mean_avg_um']:.2f} µm)")
         if not a.no_results:
-            print("wrote", write_results("hidden_mills_noise", rec,
+            name = "hidden_mills_noise" if a.results_name == "hidden_mills" else a.results_name
+            print("wrote", write_results(name, rec,
                                          settings={"case": "G", "rpm": 140.0, "hours": 3.0, "particles": a.particles,
-                                                   "seed": a.seed, "sample_particles": SAMPLE_PARTICLES},
-                                         command="python benchmarks/hidden_mills.py --noise"))
+                                                   "seed": a.seed, "sample_particles": a.sample_particles},
+                                         command="python benchmarks/hidden_mills.py --noise" + (
+                                             "" if name == "hidden_mills_noise" else
+                                             f" --sample-particles {a.sample_particles} --results-name {name}")))
         return
     names = [s.strip() for s in a.cases.split(",") if s.strip()]
     known = {c.name: c for c in CASES + HELD_OUT}
@@ -356,6 +362,10 @@ def main() -> None:
     cases = [known[n] for n in names]
     if a.no_energy_mult and a.results_name == "hidden_mills" and not a.no_results:
         sys.exit("hidden_mills.py: --no-energy-mult: name its results (--results-name) or pass --no-results")
+    if a.sample_particles != SAMPLE_PARTICLES and a.results_name == "hidden_mills" and not a.no_results:
+        sys.exit("hidden_mills.py: --sample-particles: name its results (--results-name) or pass --no-results")
+    if a.sample_particles < 1:
+        sys.exit(f"hidden_mills.py: --sample-particles: must be at least 1 (got {a.sample_particles})")
     out = Path(a.out)
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
@@ -382,7 +392,8 @@ def main() -> None:
               f"{case.hours:g} h; target s_mean_um = {target:.2f} ({ref['name']} on the hidden plant, "
               f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
               f"{plain_err:+.1f} % on the hidden plant", flush=True)
-        res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, not a.no_energy_mult)
+        res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, not a.no_energy_mult,
+                           a.sample_particles)
         print(f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
               f"{res['peak_c']:.1f} °C, idle while needed {res['idle_needed_h']:.2f} h (longest "
               f"{res['longest_idle_needed_h']:.2f} h); advise first {res['advise_first_s']:.1f} s, later median "
@@ -422,12 +433,14 @@ def main() -> None:
         cmd = "python benchmarks/hidden_mills.py"
         if a.results_name != "hidden_mills":
             cmd += f" --cases {','.join(c.name for c in cases)} --seed {a.seed}"
-            cmd += (" --no-energy-mult" if a.no_energy_mult else "") + f" --results-name {a.results_name}"
+            cmd += (" --no-energy-mult" if a.no_energy_mult else "")
+            cmd += (f" --sample-particles {a.sample_particles}" if a.sample_particles != SAMPLE_PARTICLES else "")
+            cmd += f" --results-name {a.results_name}"
         path = write_results(a.results_name, {"summary": summary, "cases": rows},
                              settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
                                        "controller": str(CONTROLLER.relative_to(ROOT)), "card": str(CARD.relative_to(ROOT)),
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
-                                       "sample_every_h": SAMPLE_EVERY_H, "sample_particles": SAMPLE_PARTICLES,
+                                       "sample_every_h": SAMPLE_EVERY_H, "sample_particles": a.sample_particles,
                                        "need_tol": NEED_TOL, "energy_mult": not a.no_energy_mult},
                              command=cmd)
         print(f"wrote {path}")
