@@ -11,6 +11,9 @@ over the runs: the RMS of the final errors, of the estimate's errors at the last
 every hourly sample, their correlation (final error against minus the estimate's error), and the
 RMS of what is left (final error plus the estimate's error). The scatter of one sample's mean
 itself: ``hidden_mills.py --noise`` (``results/hidden_mills_noise.json``).
+
+The same for the runs with 1000-particle samples (``hidden_mills.py --sample-particles 1000
+--results-name hidden_mills_samples1000[...]``, key ``samples1000``) where those files exist.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ sys.path.insert(0, str(ROOT))
 #: the default filter's results files (``benchmarks/regenerate.py``)
 FILES = ("hidden_mills", "hidden_mills_seed1_all", "hidden_mills_seed2_all", "hidden_mills_heldout",
          "hidden_mills_heldout_seed1")
+#: the same mills and seeds with 1000-particle samples
+FILES_1000 = tuple(f.replace("hidden_mills", "hidden_mills_samples1000", 1) for f in FILES)
 
 
 def rel_pct(est: float, plant: float) -> float:
@@ -63,26 +68,34 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-results", action="store_true", help="print only")
     a = ap.parse_args()
-    from bmctl.results import load_results, write_results
+    from bmctl.results import load_results, results_dir, write_results
 
-    rows = []
-    for name in FILES:
-        rows += run_rows(load_results(name), name)
-    s = summary(rows)
-    for r in rows:
-        print(f"{r['file']:<28} {r['case']}  final {r['final_error_pct']:+6.2f} %   "
-              f"estimate at the last advice {r['estimate_error_last_advice_pct']:+6.2f} %")
-    print(f"{s['runs']} runs: final RMS {s['final_rms_pct']:.2f} %, estimate at the last advice RMS "
-          f"{s['estimate_last_advice_rms_pct']:.2f} %, at the {s['samples']} hourly samples "
-          f"{s['estimate_at_samples_rms_pct']:.2f} %; correlation of the final error with minus the "
-          f"estimate's {s['corr_final_vs_minus_estimate']:.2f}; left over {s['left_rms_pct']:.2f} % RMS")
-    if not a.no_results:
+    out, settings = {}, {"files": list(FILES)}
+    for key, files in (("samples300", FILES), ("samples1000", FILES_1000)):
+        if key != "samples300" and not all((results_dir() / f"{f}.json").is_file() for f in files):
+            print(f"{key}: not all of {', '.join(files)} in results/; left out")
+            continue
+        rows = []
+        for name in files:
+            rows += run_rows(load_results(name), name)
+        s = summary(rows)
+        for r in rows:
+            print(f"{r['file']:<38} {r['case']}  final {r['final_error_pct']:+6.2f} %   "
+                  f"estimate at the last advice {r['estimate_error_last_advice_pct']:+6.2f} %")
+        print(f"{key}: {s['runs']} runs: final RMS {s['final_rms_pct']:.2f} %, estimate at the last advice RMS "
+              f"{s['estimate_last_advice_rms_pct']:.2f} %, at the {s['samples']} hourly samples "
+              f"{s['estimate_at_samples_rms_pct']:.2f} %; correlation of the final error with minus the "
+              f"estimate's {s['corr_final_vs_minus_estimate']:.2f}; left over {s['left_rms_pct']:.2f} % RMS\n")
         for r in rows:
             r.pop("estimate_errors_at_samples_pct")
-        p = write_results("hidden_mills_floor", {"summary": s, "runs": rows},
-                          settings={"files": list(FILES)}, command="python benchmarks/hidden_mills_floor.py")
+        if key == "samples300":
+            out.update({"summary": s, "runs": rows})
+        else:
+            out[key] = {"summary": s, "runs": rows}
+            settings[f"files_{key}"] = list(files)
+    if not a.no_results:
+        p = write_results("hidden_mills_floor", out, settings=settings, command="python benchmarks/hidden_mills_floor.py")
         print(f"wrote {p}")
-
 
 if __name__ == "__main__":
     main()

@@ -69,7 +69,6 @@ REGISTRY: tuple[Study, ...] = (
           "--results-name hidden_mills_heldout", 6),
     Study("hidden_mills_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
           "--results-name hidden_mills_heldout_seed1", 6),
-    Study("hidden_mills_floor", "python benchmarks/hidden_mills_floor.py", 0.1),  # reads the five files above
     Study("hidden_mills_twomult", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
           "--no-energy-mult --results-name hidden_mills_twomult", 8),
     Study("hidden_mills_twomult_seed1_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
@@ -80,6 +79,20 @@ REGISTRY: tuple[Study, ...] = (
           "--no-energy-mult --results-name hidden_mills_twomult_heldout", 6),
     Study("hidden_mills_twomult_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
           "--no-energy-mult --results-name hidden_mills_twomult_heldout_seed1", 6),
+    Study("hidden_mills_noise_samples1000", "python benchmarks/hidden_mills.py --noise --sample-particles 1000 "
+          "--results-name hidden_mills_noise_samples1000", 0.2),
+    Study("hidden_mills_samples1000", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
+          "--sample-particles 1000 --results-name hidden_mills_samples1000", 10),
+    Study("hidden_mills_samples1000_seed1_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
+          "--sample-particles 1000 --results-name hidden_mills_samples1000_seed1_all", 10),
+    Study("hidden_mills_samples1000_seed2_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 2 "
+          "--sample-particles 1000 --results-name hidden_mills_samples1000_seed2_all", 10),
+    Study("hidden_mills_samples1000_heldout", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 0 "
+          "--sample-particles 1000 --results-name hidden_mills_samples1000_heldout", 7),
+    Study("hidden_mills_samples1000_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
+          "--sample-particles 1000 --results-name hidden_mills_samples1000_heldout_seed1", 7),
+    # reads the default and the 1000-particle hidden-mill files above
+    Study("hidden_mills_floor", "python benchmarks/hidden_mills_floor.py", 0.1),
     Study("rest_noise", "python benchmarks/rest_noise.py", 6),
     Study("model_form", "python benchmarks/model_form.py", 3),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
