@@ -342,8 +342,8 @@ def main() -> None:
         return
     if a.noise:
         rec = sample_noise(a.particles, a.seed, sample_particles=a.sample_particles)
-        print(f"one {a.sample_particles}-particle sample's mean: sd {rec['sample_mean_rel_sd_pct']:.2f} % of the plant's "
-              f"mean ({rec['repeats']} samples; plant {rec['plant_s_mean_um']:.2f} µm, sample means average "
+        print(f"one {a.sample_particles}-particle sample's mean: sd {rec['sample_mean_rel_sd_pct']:.2f} % of the "
+              f"plant's mean ({rec['repeats']} samples; plant {rec['plant_s_mean_um']:.2f} µm, sample means average "
               f"{rec['sample_mean_avg_um']:.2f} µm)")
         if not a.no_results:
             name = "hidden_mills_noise" if a.results_name == "hidden_mills" else a.results_name

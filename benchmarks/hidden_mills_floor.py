@@ -94,7 +94,8 @@ def main() -> None:
             out[key] = {"summary": s, "runs": rows}
             settings[f"files_{key}"] = list(files)
     if not a.no_results:
-        p = write_results("hidden_mills_floor", out, settings=settings, command="python benchmarks/hidden_mills_floor.py")
+        p = write_results("hidden_mills_floor", out, settings=settings,
+                          command="python benchmarks/hidden_mills_floor.py")
         print(f"wrote {p}")
 
 if __name__ == "__main__":

@@ -28,7 +28,8 @@ def test_a_plan_that_steers_its_estimate_exactly_leaves_minus_the_estimates_erro
     """Each run ends off by minus its estimate's error at the last advice: correlation 1, nothing left;
     the hourly samples (not t = 0, not the half hour) give the sample RMS."""
     fl = _floor()
-    res = {"cases": [_case("A", -2.0, 51.0, 50.0), _case("B", 4.0, 48.0, 50.0), _case("C", 1.0, 49.5, 50.0, 55.0, 50.0)]}
+    res = {"cases": [_case("A", -2.0, 51.0, 50.0), _case("B", 4.0, 48.0, 50.0),
+                     _case("C", 1.0, 49.5, 50.0, 55.0, 50.0)]}
     rows = fl.run_rows(res, "f")
     assert [r["estimate_error_last_advice_pct"] for r in rows] == pytest.approx([2.0, -4.0, -1.0])
     s = fl.summary(rows)

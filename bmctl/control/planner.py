@@ -38,8 +38,8 @@ from ..errors import InputError
 from .base import Plan, Reference, Status, batch_end_h, check_p, check_u_prev, check_x
 from dataclasses import replace
 
-from .search import (Carry, Grid, _row, expand, fit_power, limits_of, make_grid, power_bound, search, shift_params,
-                     thermal_peaks)
+from .search import (CEILING_TOL_C, Carry, Grid, _row, expand, fit_power, limits_of, make_grid, power_bound, search,
+                     shift_params, thermal_peaks)
 
 
 #: ``binding`` names the spread when another family comes this much closer nominally (relative error)
@@ -272,7 +272,8 @@ def plan_binding(res, grid: Grid, lim, carry: Carry, ceiling_c: float) -> list[s
         out.append(f"switch budget ({res.switches} of {lim.max_switches} used)")
     if on.all() and np.all(res.minutes >= grid.lengths_min - 1e-9) and res.error > 0:
         out.append("batch time: milling throughout to the batch end")
-    closer = [(f, r) for f, r in (res.per_family or {}).items() if r["error"] < res.error - SPREAD_NOTE]
+    closer = [(f, r) for f, r in (res.per_family or {}).items()
+              if r["error"] < res.error - SPREAD_NOTE and r["peak_c"] <= ceiling_c + CEILING_TOL_C]
     if closer:  # the spread, not a limit: a closer plan's outcome scatters more over the filter's particles
         f, r = min(closer, key=lambda fr: fr[1]["error"])
         out.append(f"the filter's spread: {f} ({r['schedule']}) ends {100 * r['error']:.1f} % off nominally but "
