@@ -16,6 +16,8 @@ EPS_H = 1e-9
 BAND_PARTICLES = 64
 #: relative error of the predicted end median within which a target counts as reached
 REACH_TOL = 0.03
+#: two-sided 95 % quantile of the normal law: the sample-size hint reads the mean size to +-tolerance at 95 %
+Z95 = 1.959963984540054
 
 
 def _band_indices(w: np.ndarray, n: int) -> np.ndarray:
@@ -166,3 +168,39 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
     if not all(reach.values()) and not binding:
         binding.append("batch time: the target is not reached by the batch end at the planned inputs")
     return reach, binding
+
+
+def sampling(s_um, tolerance: float) -> dict | None:
+    """How closely one sample reads the powder's mean size, and the particle count that would read it
+    within ``tolerance`` (relative) at 95 %.
+
+    The relative standard error of a sample mean is cv / sqrt(n) (cv: the sample's coefficient of
+    variation of s); n_for_tolerance = ceil((1.96 cv / tolerance)^2).
+
+    Parameters
+    ----------
+    s_um : array_like
+        The sample's particle sizes (um).
+    tolerance : float
+        Relative error, e.g. the controller's ``[objective] tolerance``.
+
+    Returns
+    -------
+    dict or None
+        ``particles``, ``cv``, ``mean_se_pct`` (one standard error, %), ``mean_95_pct`` (the 95 %
+        half-width, %), ``tolerance_pct``, ``particles_for_tolerance``; None for fewer than two
+        particles.
+
+    Examples
+    --------
+    >>> d = sampling([40.0, 60.0] * 50, 0.02)
+    >>> d["particles"], round(d["cv"], 4), round(d["mean_se_pct"], 2), d["particles_for_tolerance"]
+    (100, 0.201, 2.01, 389)
+    """
+    s = np.asarray(s_um, dtype=float)
+    if s.size < 2 or not tolerance > 0:
+        return None
+    cv = float(np.std(s, ddof=1) / np.mean(s))
+    se = cv / math.sqrt(s.size)
+    return {"particles": int(s.size), "cv": cv, "mean_se_pct": 100.0 * se, "mean_95_pct": 100.0 * Z95 * se,
+            "tolerance_pct": 100.0 * tolerance, "particles_for_tolerance": int(math.ceil((Z95 * cv / tolerance) ** 2))}

@@ -41,7 +41,7 @@ from ..errors import InputError
 from ..limits import HOURS_MIN
 from . import db
 from . import targets as tg
-from .advice import _end_band, _measure, _schedule, _why
+from .advice import _end_band, _measure, _schedule, _why, sampling
 from .readings import estimate_warning, reading_warnings
 from ..moments.forcard import for_card
 
@@ -612,7 +612,9 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
         end; ``end`` (median and 90 % band of each moment at the batch end; ``end_nominal``: the
         controller's own prediction); ``reachable`` per target; ``binding`` constraints;
         ``solver`` (status line), ``solver_status``, ``solver_ok``, ``fallback``; ``solve_ms``,
-        ``advise_ms``; ``plan_id``.
+        ``advise_ms``; ``plan_id``; ``sampling``: how closely the latest sample reads the mean size
+        and the particle count that would read it within the controller's tolerance
+        (:func:`bmctl.campaign.advice.sampling`; None before the first sample).
     """
     t_start = time.perf_counter()
     say = progress or (lambda text: None)
@@ -663,6 +665,7 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
                 "solver_ok": bool(plan.status.success), "solve_ms": float(solve_ms),
                 "pending_samples": c.con.execute("SELECT COUNT(*) FROM samples WHERE t_h > ?",
                                                  (clock + EPS_H,)).fetchone()[0],
+                "sampling": _last_sampling(c, clock),
             }
             advise_ms = (time.perf_counter() - t_start) * 1e3
             advice["advise_ms"] = advise_ms
@@ -675,6 +678,18 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
         if campaign is None:
             c.close()
     return advice
+
+
+def _last_sampling(c: Campaign, clock: float) -> dict | None:
+    """:func:`bmctl.campaign.advice.sampling` of the latest sample at or before ``clock`` against the
+    controller's ``[objective] tolerance`` (None: no sample yet, or a controller without one)."""
+    obj = getattr(getattr(c.loop.controller, "cfg", None), "objective", None)
+    row = c.con.execute("SELECT id, t_h FROM samples WHERE t_h <= ? ORDER BY t_h DESC, id DESC LIMIT 1",
+                        (clock + EPS_H,)).fetchone()
+    if obj is None or row is None:
+        return None
+    out = sampling(c.particles(int(row[0]))[0], float(obj.tolerance))
+    return None if out is None else {"t_h": float(row[1]), **out}
 
 
 def decide(folder, accept: bool, rpm: float | None = None, milling: float | None = None, note: str = "",

@@ -123,6 +123,12 @@ def _print_advice(a: dict) -> None:
     print("binding: " + ("; ".join(a["binding"]) if a["binding"] else "no constraint binds"))
     if a["pending_samples"]:
         print(f"note: {a['pending_samples']} sample(s) after the logged time wait for the log to reach them")
+    sm = a.get("sampling")
+    if sm:
+        more = (f"; about {sm['particles_for_tolerance']} particles would read it within the "
+                f"{sm['tolerance_pct']:g} % tolerance" if sm["particles"] < sm["particles_for_tolerance"] else "")
+        print(f"sampling: the sample at {sm['t_h']:g} h ({sm['particles']} particles) reads the mean size to "
+              f"+-{sm['mean_95_pct']:.1f} % (95 %){more}")
 
 
 def run(args: argparse.Namespace) -> int:

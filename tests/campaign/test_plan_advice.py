@@ -64,3 +64,23 @@ def test_logged_history_and_plan_keep_the_mills_limits(campaign):
         h = r["t1_h"] - r["t0_h"]
         segs += [(r["mill_min"] / 60.0, r["rpm"]), (h - r["mill_min"] / 60.0, 0.0)]
     assert check_schedule([(h, r) for h, r in segs if h > 1e-12], mill) == []
+
+
+def test_advice_says_how_closely_the_last_sample_reads_the_mean_size(campaign, capsys):
+    """``sampling``: the relative standard error of the last sample's mean (sd / mean / sqrt(n), from its
+    particle table) and the count that reads it within the controller's tolerance at 95 %."""
+    from bmctl.commands.campaign import _print_advice
+
+    a = cp.advise(campaign)
+    with cp.Campaign(campaign) as c:
+        sid = c.con.execute("SELECT id FROM samples ORDER BY t_h DESC LIMIT 1").fetchone()[0]
+        s_um = np.array([r[0] for r in c.con.execute("SELECT s_um FROM particles WHERE sample_id = ?", (sid,))])
+    tol = load_controller(MPC).objective.tolerance
+    cv = s_um.std(ddof=1) / s_um.mean()
+    sm = a["sampling"]
+    assert sm["t_h"] == 1.0 and sm["particles"] == s_um.size == 200
+    assert sm["mean_se_pct"] == pytest.approx(100 * cv / np.sqrt(200))
+    n_tol = sm["particles_for_tolerance"]
+    assert 1.96 * cv / np.sqrt(n_tol) <= tol < 1.96 * cv / np.sqrt(n_tol - 1)
+    _print_advice(a)
+    assert f"about {n_tol} particles would read it within the 2 % tolerance" in capsys.readouterr().out
