@@ -128,7 +128,7 @@ def _print_advice(a: dict) -> None:
         more = (f"; about {sm['particles_for_tolerance']} particles would read it within the "
                 f"{sm['tolerance_pct']:g} % tolerance" if sm["particles"] < sm["particles_for_tolerance"] else "")
         print(f"sampling: the sample at {sm['t_h']:g} h ({sm['particles']} particles) reads the mean size to "
-              f"+-{sm['mean_95_pct']:.1f} % (95 %){more}")
+              f"±{sm['mean_95_pct']:.1f} % (95 %){more}")
 
 
 def run(args: argparse.Namespace) -> int:
