@@ -1,6 +1,7 @@
 """What limits the final error on the hidden mills: the estimate the last advice saw, read from the step logs.
 
     python benchmarks/hidden_mills_floor.py     # writes results/hidden_mills_floor.json (seconds; reads results/)
+    python benchmarks/hidden_mills_floor.py --figure docs/figures/hidden-mills-floor.png   # from that file
 
 Reads the step logs of the default hidden-mill results files (``hidden_mills.py``, A-G on seeds
 0-2 and the held-out H-L on seeds 0-1; each step holds the plant's and the estimate's mean size
@@ -64,11 +65,48 @@ def summary(rows: list[dict]) -> dict:
             "over_5pct": [f"{r['file']}:{r['case']}" for r in rows if abs(r["final_error_pct"]) > 5.0]}
 
 
+def figure(rec: dict, path: Path) -> Path:
+    """Final error against minus the estimate's error at the last advice, one point per run, for each
+    sample size in the file; the diagonal is a plan that steers its estimate exactly."""
+    from bmctl.io import pyplot, savefig
+
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(4.8, 4.4))
+    fams = [("300-particle samples", rec)] + ([("1000-particle samples", rec["samples1000"])]
+                                             if "samples1000" in rec else [])
+    lim = 0.0
+    for (label, fam), (col, mark) in zip(fams, (("C0", "o"), ("C3", "^"))):
+        x = np.array([-r["estimate_error_last_advice_pct"] for r in fam["runs"]])
+        y = np.array([r["final_error_pct"] for r in fam["runs"]])
+        lim = max(lim, float(np.max(np.abs(np.concatenate([x, y])))))
+        s = fam["summary"]
+        ax.plot(x, y, mark, color=col, ms=5, alpha=0.8, mfc="none",
+                label=f"{label}: final RMS {s['final_rms_pct']:.1f} %, r = {s['corr_final_vs_minus_estimate']:.2f}")
+    lim = 1.1 * lim
+    ax.plot([-lim, lim], [-lim, lim], "k-", lw=0.7, label="final error = minus the estimate's")
+    ax.axhspan(-5, 5, color="0.9", zorder=0)
+    ax.set_xlim(-lim, lim)
+    ax.set_ylim(-lim, lim)
+    ax.set_xlabel("minus the estimate's error at the last advice (%)", fontsize=8)
+    ax.set_ylabel("final error of the mean size (%)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=6.5, loc="upper left")
+    ax.set_title("hidden mills, every advice accepted (grey: within 5 %)", fontsize=8)
+    fig.tight_layout()
+    savefig(fig, path, dpi=110)
+    return path
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-results", action="store_true", help="print only")
+    ap.add_argument("--figure", metavar="PNG", help="draw results/hidden_mills_floor.json, run nothing")
     a = ap.parse_args()
     from bmctl.results import load_results, results_dir, write_results
+
+    if a.figure:
+        print("wrote", figure(load_results("hidden_mills_floor"), Path(a.figure)))
+        return
 
     out, settings = {}, {"files": list(FILES)}
     for key, files in (("samples300", FILES), ("samples1000", FILES_1000)):

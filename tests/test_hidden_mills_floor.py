@@ -39,3 +39,15 @@ def test_a_plan_that_steers_its_estimate_exactly_leaves_minus_the_estimates_erro
     assert s["over_5pct"] == []
     res["cases"].append(_case("D", 6.0, 50.0, 50.0))
     assert fl.summary(fl.run_rows(res, "f"))["over_5pct"] == ["f:D"]
+
+
+def test_figure_draws_both_sample_sizes_from_the_results_file(tmp_path):
+    fl = _floor()
+    runs = [{"file": "f", "case": c, "final_error_pct": e, "estimate_error_last_advice_pct": -e + 0.5}
+            for c, e in zip("ABCD", (1.0, -2.0, 3.0, 0.5))]
+    s = fl.summary([dict(r, estimate_errors_at_samples_pct=[1.0]) for r in runs])
+    rec = {"summary": s, "runs": runs, "samples1000": {"summary": s, "runs": runs}}
+    out = fl.figure(rec, tmp_path / "floor.png")
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+    assert [p.name for p in tmp_path.iterdir()] == ["floor.png"]
