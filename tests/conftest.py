@@ -24,6 +24,19 @@ def card_path(name: str) -> Path:
     return MODELS / f"{name}.toml"
 
 
+def load_benchmark(name: str):
+    """The script ``benchmarks/<name>.py`` as a module (registered in ``sys.modules``, which the
+    dataclasses of a script look their module up in)."""
+    import importlib.util
+    import sys
+
+    spec = importlib.util.spec_from_file_location(f"benchmarks_{name}", ROOT / "benchmarks" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
 @pytest.fixture(autouse=True)
 def _interpreted_mpc(monkeypatch):
     """Tests run the MPC interpreted (no background gcc, no writes to the user's cache);

@@ -2,19 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("hidden_mills_bench", ROOT / "benchmarks" / "hidden_mills.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # its dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+from tests.conftest import load_benchmark
 
 
 def test_figure_draws_every_mill_from_the_step_logs(tmp_path):
@@ -23,7 +11,7 @@ def test_figure_draws_every_mill_from_the_step_logs(tmp_path):
     rec = {"command": "python benchmarks/hidden_mills.py",
            "cases": [{"case": n, "steps": steps, "target_s_mean_um": 44.0, "final_s_mean_um": 45.0,
                       "error_pct": 2.27} for n in "ABCDE"]}
-    out = _bench().figure(rec, tmp_path / "f.png")
+    out = load_benchmark("hidden_mills").figure(rec, tmp_path / "f.png")
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
     assert [p.name for p in tmp_path.iterdir()] == ["f.png"]  # written atomically, nothing left beside it

@@ -2,19 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _floor():
-    spec = importlib.util.spec_from_file_location("hidden_mills_floor", ROOT / "benchmarks" / "hidden_mills_floor.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+from tests.conftest import load_benchmark
 
 
 def _case(name, final_pct, est_last_um, plant_last_um, est_1h_um=50.0, plant_1h_um=50.0):
@@ -27,7 +17,7 @@ def _case(name, final_pct, est_last_um, plant_last_um, est_1h_um=50.0, plant_1h_
 def test_a_plan_that_steers_its_estimate_exactly_leaves_minus_the_estimates_error():
     """Each run ends off by minus its estimate's error at the last advice: correlation 1, nothing left;
     the hourly samples (not t = 0, not the half hour) give the sample RMS."""
-    fl = _floor()
+    fl = load_benchmark("hidden_mills_floor")
     res = {"cases": [_case("A", -2.0, 51.0, 50.0), _case("B", 4.0, 48.0, 50.0),
                      _case("C", 1.0, 49.5, 50.0, 55.0, 50.0)]}
     rows = fl.run_rows(res, "f")
@@ -42,7 +32,7 @@ def test_a_plan_that_steers_its_estimate_exactly_leaves_minus_the_estimates_erro
 
 
 def test_figure_draws_both_sample_sizes_from_the_results_file(tmp_path):
-    fl = _floor()
+    fl = load_benchmark("hidden_mills_floor")
     runs = [{"file": "f", "case": c, "final_error_pct": e, "estimate_error_last_advice_pct": -e + 0.5}
             for c, e in zip("ABCD", (1.0, -2.0, 3.0, 0.5))]
     s = fl.summary([dict(r, estimate_errors_at_samples_pct=[1.0]) for r in runs])
