@@ -374,6 +374,12 @@ def check_p(model, p) -> np.ndarray:
     return pp
 
 
+def check_gamma_delta(model, p) -> np.ndarray:
+    """:func:`check_p`, then (gamma_mult, delta_mult) only: for the predictors that take those two (the
+    NLP MPC, the LQR baselines); an ``energy_mult`` the filter estimates is left out."""
+    return check_p(model, p)[:2]
+
+
 def check_u_prev(u_prev) -> np.ndarray | None:
     if u_prev is None:
         return None

@@ -17,8 +17,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..physics.constants import TIME_EPS_H
-from .base import (Plan, Reference, Status, batch_end_h, applied_input, applied_input_guarded, check_p, check_u_prev, check_x,
-                   interval_peaks, max_milling_for_ceiling, rpm_window)
+from .base import (Plan, Reference, Status, batch_end_h, applied_input, applied_input_guarded, check_gamma_delta,
+                   check_u_prev, check_x, interval_peaks, max_milling_for_ceiling, rpm_window)
 from .config import TARGET_KEYS, LQRConfig, RecipeConfig, target_centre
 from .mill import MillGuard
 from .mpc import ERR_FLOOR, X_SCALE
@@ -80,7 +80,7 @@ class _Base:
     @staticmethod
     def _check(x_est, t_h, model, p, u_prev):
         x0 = check_x(x_est)
-        pp = check_p(model, p)[:2]
+        pp = check_gamma_delta(model, p)
         up = check_u_prev(u_prev)
         t = float(t_h)
         if not math.isfinite(t) or t < 0:

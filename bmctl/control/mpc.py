@@ -29,8 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from .base import (Plan, Reference, Status, batch_end_h, applied_input_guarded, check_p, check_u_prev, check_x,
-                   interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
+from .base import (Plan, Reference, Status, batch_end_h, applied_input_guarded, check_gamma_delta, check_u_prev,
+                   check_x, interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
 from .config import DVALUE_KEYS, TARGET_KEYS, MPCConfig, target_bounds, target_centre
 from .compiled import CompiledSolvers
 from .mill import MillGuard
@@ -168,11 +168,11 @@ class MPCController(CompiledSolvers):
         ``scenarios`` (scenario MPC, ``[robust] mode = "scenario"``): further (x, p) pairs the plan must
         also serve, e.g. :func:`bmctl.control.robust.filter_scenarios`; default: copies of (x_est, p)."""
         x0 = check_x(x_est)
-        pp = check_p(self.model, p)[:2]  # the NLP predicts with (gamma_mult, delta_mult)
+        pp = check_gamma_delta(self.model, p)
         if self.n_scen > 1:
             sc = list(scenarios or [])[: self.n_scen - 1]
             sc += [(x0, pp)] * (self.n_scen - 1 - len(sc))
-            self._scen = [(check_x(a), check_p(self.model, b)[:2]) for a, b in sc]
+            self._scen = [(check_x(a), check_gamma_delta(self.model, b)) for a, b in sc]
         up = check_u_prev(u_prev)
         t = float(t_h)
         if not math.isfinite(t) or t < 0:
