@@ -136,5 +136,6 @@ def main() -> None:
                           command="python benchmarks/hidden_mills_floor.py")
         print(f"wrote {p}")
 
+
 if __name__ == "__main__":
     main()
