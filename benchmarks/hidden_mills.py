@@ -3,6 +3,7 @@
     nice python benchmarks/hidden_mills.py [--cases A,B,...] [--particles 5000] [--out out/hidden_mills]
     nice python benchmarks/hidden_mills.py --cases H,I,J,K,L --results-name hidden_mills_heldout   # held out
     nice python benchmarks/hidden_mills.py --sample-particles 1000 --results-name NAME   # larger samples
+    nice python benchmarks/hidden_mills.py --sample-on-request --results-name NAME   # extra samples when asked
 
 Each case is a plant built from the laboratory card with gamma and delta multiplied (0.6-1.6) and one
 more card field changed (powder mass through the ball-to-powder ratio, the ball count or the ball
@@ -25,8 +26,8 @@ on; H-L (:data:`HELD_OUT`) were drawn afterwards and never used to choose a sett
 Printed and written to ``results/hidden_mills.json`` (``bmctl.results``): per case the final error,
 the peak vial temperature, the longest idle stretch and the idle hours while milling was still
 needed (the plant more than 2 % from the target during a rest), the advice times (first, median,
-largest; wall and CPU of the ``advise`` process, with the load average), and the plain schedule's
-error; the summary (median and worst error, largest excess over the ceiling, longest idle stretch,
+largest; wall and CPU of the ``advise`` process, with the load average), the samples taken (and how
+many on request), and the plain schedule's error; the summary (median and worst error, largest excess over the ceiling, longest idle stretch,
 cases where accepting every advice beat the plain schedule).
 """
 
@@ -168,8 +169,10 @@ def cli(args: list[str], env: dict) -> tuple[str, float, float]:
 
 
 def run_campaign(case: Case, target_um: float, folder: Path, particles: int, seed: int, env: dict,
-                 energy_mult: bool = True, sample_particles: int = SAMPLE_PARTICLES) -> dict:
-    """The scripted operator: advise, accept, run the hidden plant, log, sample hourly."""
+                 energy_mult: bool = True, sample_particles: int = SAMPLE_PARTICLES,
+                 on_request: bool = False) -> dict:
+    """The scripted operator: advise, accept, run the hidden plant, log, sample hourly; with
+    ``on_request`` also take the extra sample an advice asks for (``sample_first``), then advise again."""
     from bmctl.measure.sampler import micrograph_sample
     from bmctl.measure.tables import write_table
     from bmctl.plant.plant import Plant
@@ -183,12 +186,25 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
          *([] if energy_mult else ["--no-energy-mult"])], env)
     t, peak = 0.0, plant.temperature_c
     advise_wall, advise_cpu, steps = [], [], []
+    samples = extra = 0
     watch = []  # per 3-min step: (length h, resting throughout, plant's relative error)
     while t < case.hours - 1e-9:
         out, wall, cpu = cli(["campaign", "advise", str(folder), "--json"], env)
         a = json.loads(out)
         advise_wall.append(wall)
         advise_cpu.append(cpu)
+        asked = None
+        while on_request and a.get("sample_first"):  # the advice caps the samples at one batch time
+            asked = a["sample_first"]
+            tab = micrograph_sample(plant.s * 1e6, plant.r, sample_particles, g_sample)
+            path = folder / f"sample-{t:05.2f}h-extra{extra + 1}.csv"
+            write_table(path, tab)
+            cli(["campaign", "sample", str(folder), "--at-h", f"{t:.10g}", str(path)], env)
+            samples, extra = samples + 1, extra + 1
+            out, wall, cpu = cli(["campaign", "advise", str(folder), "--json"], env)
+            a = json.loads(out)
+            advise_wall.append(wall)
+            advise_cpu.append(cpu)
         cli(["campaign", "decide", str(folder), "--accept"], env)
         nx = a["next"]
         dt = float(nx["interval_h"])
@@ -196,7 +212,8 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
         rpm = float(nx["rpm"]) if mill_min > 0 else 0.0
         milling = mill_min / (dt * 60.0)
         steps.append({"t_h": t, "rpm": rpm, "mill_min": mill_min, "plant_s_mean_um": plant.moments()["s_mean_um"],
-                      "estimate_s_mean_um": a["estimate"]["s_mean_um"], "plan": a.get("solver", "")[:120]})
+                      "estimate_s_mean_um": a["estimate"]["s_mean_um"], "plan": a.get("solver", "")[:120],
+                      **({"sample_first": asked} if on_request else {})})
         n = max(1, int(round(dt / WATCH_H)))
         for j in range(n):  # milling first, then the rest; the vial read every 3 min
             a0, b0 = j * dt / n, (j + 1) * dt / n
@@ -213,6 +230,7 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
             path = folder / f"sample-{t:05.2f}h.csv"
             write_table(path, tab)
             cli(["campaign", "sample", str(folder), "--at-h", f"{t:.10g}", str(path)], env)
+            samples += 1
     idle, run = [], 0.0  # rest stretches that began with the plant more than NEED_TOL from the target
     for k, (h, resting, err) in enumerate(watch):
         if resting and (run > 0 or err > NEED_TOL):
@@ -230,7 +248,7 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
             "advise_first_s": advise_wall[0], "advise_first_cpu_s": advise_cpu[0],
             "advise_later_median_s": float(np.median(later)), "advise_later_max_s": float(np.max(later)),
             "advise_later_median_cpu_s": float(np.median(advise_cpu[1:] or advise_cpu)),
-            "advices": len(advise_wall), "steps": steps}
+            "advices": len(advise_wall), "samples": samples, "extra_samples": extra, "steps": steps}
 
 
 def figure(rec: dict, path: Path) -> Path:
@@ -326,6 +344,8 @@ def main() -> None:
     ap.add_argument("--noise", action="store_true",
                     help="measure how much one sample's mean scatters (mill G after 3 h at 140 rpm): "
                          "results/hidden_mills_noise.json")
+    ap.add_argument("--sample-on-request", action="store_true",
+                    help="the operator also takes the extra sample an advice asks for (sample_first) and advises again")
     ap.add_argument("--results-name", default="hidden_mills",
                     help="results file name (a subset of the cases or another seed: e.g. hidden_mills_seed1)")
     a = ap.parse_args()
@@ -364,6 +384,8 @@ def main() -> None:
         sys.exit("hidden_mills.py: --no-energy-mult: name its results (--results-name) or pass --no-results")
     if a.sample_particles != SAMPLE_PARTICLES and a.results_name == "hidden_mills" and not a.no_results:
         sys.exit("hidden_mills.py: --sample-particles: name its results (--results-name) or pass --no-results")
+    if a.sample_on_request and a.results_name == "hidden_mills" and not a.no_results:
+        sys.exit("hidden_mills.py: --sample-on-request: name its results (--results-name) or pass --no-results")
     if a.sample_particles < 1:
         sys.exit(f"hidden_mills.py: --sample-particles: must be at least 1 (got {a.sample_particles})")
     out = Path(a.out)
@@ -393,11 +415,12 @@ def main() -> None:
               f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
               f"{plain_err:+.1f} % on the hidden plant", flush=True)
         res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, not a.no_energy_mult,
-                           a.sample_particles)
+                           a.sample_particles, a.sample_on_request)
         print(f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
               f"{res['peak_c']:.1f} °C, idle while needed {res['idle_needed_h']:.2f} h (longest "
               f"{res['longest_idle_needed_h']:.2f} h); advise first {res['advise_first_s']:.1f} s, later median "
-              f"{res['advise_later_median_s']:.1f} s (CPU {res['advise_later_median_cpu_s']:.1f} s)", flush=True)
+              f"{res['advise_later_median_s']:.1f} s (CPU {res['advise_later_median_cpu_s']:.1f} s); samples "
+              f"{res['samples']} ({res['extra_samples']} on request)", flush=True)
         rows.append({"case": case.name, "gamma_mult": case.gamma, "delta_mult": case.delta, "field": case.field,
                      "value": case.value, "hours": case.hours, "target_s_mean_um": target,
                      "reference_schedule": ref["name"], "reference_peak_c": ref["peak_c"],
@@ -412,6 +435,7 @@ def main() -> None:
         "longest_idle_needed_h": float(max(r["longest_idle_needed_h"] for r in rows)),
         "plain_median_error_pct": float(np.median(plain)), "plain_worst_error_pct": float(plain.max()),
         "campaign_beats_plain": int(np.sum(errs < plain)),
+        "samples": int(sum(r["samples"] for r in rows)), "extra_samples": int(sum(r["extra_samples"] for r in rows)),
         "advise_first_s_max": float(max(r["advise_first_s"] for r in rows)),
         "advise_first_cpu_s_max": float(max(r["advise_first_cpu_s"] for r in rows)),
         "advise_later_median_s": float(np.median([r["advise_later_median_s"] for r in rows])),
@@ -435,13 +459,15 @@ def main() -> None:
             cmd += f" --cases {','.join(c.name for c in cases)} --seed {a.seed}"
             cmd += (" --no-energy-mult" if a.no_energy_mult else "")
             cmd += (f" --sample-particles {a.sample_particles}" if a.sample_particles != SAMPLE_PARTICLES else "")
+            cmd += (" --sample-on-request" if a.sample_on_request else "")
             cmd += f" --results-name {a.results_name}"
         path = write_results(a.results_name, {"summary": summary, "cases": rows},
                              settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
                                        "controller": str(CONTROLLER.relative_to(ROOT)), "card": str(CARD.relative_to(ROOT)),
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
                                        "sample_every_h": SAMPLE_EVERY_H, "sample_particles": a.sample_particles,
-                                       "need_tol": NEED_TOL, "energy_mult": not a.no_energy_mult},
+                                       "need_tol": NEED_TOL, "energy_mult": not a.no_energy_mult,
+                                       "sample_on_request": a.sample_on_request},
                              command=cmd)
         print(f"wrote {path}")
 

@@ -18,6 +18,8 @@ BAND_PARTICLES = 64
 REACH_TOL = 0.03
 #: two-sided 95 % quantile of the normal law: the sample-size hint reads the mean size to +-tolerance at 95 %
 Z95 = 1.959963984540054
+#: an advice asks for another sample only while fewer than this many were taken at its batch time
+SAMPLES_PER_TIME_MAX = 2
 
 
 def _band_indices(w: np.ndarray, n: int) -> np.ndarray:
@@ -204,3 +206,59 @@ def sampling(s_um, tolerance: float) -> dict | None:
     se = cv / math.sqrt(s.size)
     return {"particles": int(s.size), "cv": cv, "mean_se_pct": 100.0 * se, "mean_95_pct": 100.0 * Z95 * se,
             "tolerance_pct": 100.0 * tolerance, "particles_for_tolerance": int(math.ceil((Z95 * cv / tolerance) ** 2))}
+
+
+def sample_first(estimate: dict, target: dict, tolerance: float, mill_min: int, milled_last: bool,
+                 samples_here: int, samples_before: int,
+                 samples_max: int = SAMPLES_PER_TIME_MAX) -> str | None:
+    """Why another sample should be taken before this advice is acted on, or None.
+
+    The advice's move hinges on the estimate when a target lies inside the estimate's 90 %
+    interval and the move is either a correction (milling: it cannot be undone) or a stop (the
+    first rest after milling, with the estimate within ``tolerance`` of the target). A fresh sample
+    at the same batch time is then worth more than the move: the filter reads both samples as one
+    larger sample. Asked only once the campaign has a sample (before it, the estimate is the
+    card's prior) and while fewer than ``samples_max`` samples were taken at this batch time.
+
+    Parameters
+    ----------
+    estimate : dict
+        The filter's estimate (``<key>``, ``<key>_q05``, ``<key>_q95``).
+    target : dict
+        The campaign's targets (key -> value); keys without an interval in ``estimate`` are skipped.
+    tolerance : float
+        Relative error within which the estimate counts as on target (``[objective] tolerance``).
+    mill_min : int
+        The advised milling minutes of the next interval.
+    milled_last : bool
+        Whether the last logged interval milled.
+    samples_here, samples_before : int
+        Samples taken at this batch time, and at or before it.
+    samples_max : int, optional
+        Samples at one batch time beyond which no more are asked for.
+
+    Examples
+    --------
+    >>> est = {"s_mean_um": 55.9, "s_mean_um_q05": 52.6, "s_mean_um_q95": 58.8}
+    >>> sample_first(est, {"s_mean_um": 58.0}, 0.02, 15, False, 1, 5)
+    's_mean_um 55.9 (90 % 52.6-58.8) brackets the target 58: another sample before milling'
+    >>> sample_first(est, {"s_mean_um": 58.0}, 0.02, 15, False, 2, 6) is None  # two taken here already
+    True
+    >>> sample_first(est, {"s_mean_um": 62.0}, 0.02, 15, False, 1, 5) is None  # outside the interval
+    True
+    """
+    if samples_before < 1 or samples_here >= samples_max:
+        return None
+    for k, v in target.items():
+        lo, hi, m = estimate.get(f"{k}_q05"), estimate.get(f"{k}_q95"), estimate.get(k)
+        if lo is None or hi is None or m is None or not lo <= v <= hi:
+            continue
+        near = abs(m - v) <= tolerance * abs(v)
+        if mill_min > 0:
+            move = "milling"
+        elif milled_last and near:
+            move = "stopping"
+        else:
+            continue
+        return f"{k} {m:.4g} (90 % {lo:.4g}-{hi:.4g}) brackets the target {v:g}: another sample before {move}"
+    return None

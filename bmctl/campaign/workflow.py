@@ -41,7 +41,7 @@ from ..errors import InputError
 from ..limits import HOURS_MIN
 from . import db
 from . import targets as tg
-from .advice import _end_band, _measure, _schedule, _why, sampling
+from .advice import _end_band, _measure, _schedule, _why, sample_first, sampling
 from .readings import estimate_warning, reading_warnings
 from ..moments.forcard import for_card
 
@@ -614,7 +614,9 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
         ``solver`` (status line), ``solver_status``, ``solver_ok``, ``fallback``; ``solve_ms``,
         ``advise_ms``; ``plan_id``; ``sampling``: how closely the latest sample reads the mean size
         and the particle count that would read it within the controller's tolerance
-        (:func:`bmctl.campaign.advice.sampling`; None before the first sample).
+        (:func:`bmctl.campaign.advice.sampling`; None before the first sample); ``sample_first``:
+        why another sample should be taken at this batch time before the move, or None
+        (:func:`bmctl.campaign.advice.sample_first`).
     """
     t_start = time.perf_counter()
     say = progress or (lambda text: None)
@@ -667,6 +669,7 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
                                                  (clock + EPS_H,)).fetchone()[0],
                 "sampling": _last_sampling(c, clock),
             }
+            advice["sample_first"] = _sample_first(c, advice, clock, acts)
             advise_ms = (time.perf_counter() - t_start) * 1e3
             advice["advise_ms"] = advise_ms
             cur = c.con.execute("INSERT INTO plans (t_h, rpm, milling, interval_h, advice, controller_state, "
@@ -678,6 +681,19 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
         if campaign is None:
             c.close()
     return advice
+
+
+def _sample_first(c: Campaign, advice: dict, clock: float, acts: list) -> str | None:
+    """:func:`bmctl.campaign.advice.sample_first` for this advice (None: a controller without an
+    ``[objective] tolerance``, or the batch finished)."""
+    obj = getattr(getattr(c.loop.controller, "cfg", None), "objective", None)
+    if obj is None or advice["next"]["interval_h"] <= 0:
+        return None
+    here, before = c.con.execute("SELECT SUM(ABS(t_h - ?) <= ?), COUNT(*) FROM samples WHERE t_h <= ?",
+                                 (clock, 1e-6, clock + 1e-6)).fetchone()
+    milled = bool(acts) and acts[-1].rpm > 0 and acts[-1].milling > 0
+    return sample_first(advice["estimate"], c.meta["target"], float(obj.tolerance), advice["next"]["mill_min"],
+                        milled, int(here or 0), int(before))
 
 
 def _last_sampling(c: Campaign, clock: float) -> dict | None:

@@ -121,6 +121,8 @@ def _print_advice(a: dict) -> None:
     for k, ok in a["reachable"].items():
         print(f"why: target {k} = {a['target'][k]:g} is {'reachable' if ok else 'NOT reachable'} by the batch end")
     print("binding: " + ("; ".join(a["binding"]) if a["binding"] else "no constraint binds"))
+    if a.get("sample_first"):
+        print(f"sample first: {a['sample_first']} (then advise again)")
     if a["pending_samples"]:
         print(f"note: {a['pending_samples']} sample(s) after the logged time wait for the log to reach them")
     sm = a.get("sampling")

@@ -84,3 +84,51 @@ def test_advice_says_how_closely_the_last_sample_reads_the_mean_size(campaign, c
     assert 1.96 * cv / np.sqrt(n_tol) <= tol < 1.96 * cv / np.sqrt(n_tol - 1)
     _print_advice(a)
     assert f"about {n_tol} particles would read it within the 2 % tolerance" in capsys.readouterr().out
+
+
+def _near_target(tmp_path, median_um):
+    """A 3-h campaign to 36 µm, milled 1 h at 300 rpm, with one 200-particle sample at 1 h."""
+    d = tmp_path / f"near-{median_um:g}"
+    cp.init(d, CARD, MPC, {"s_mean_um": 36.0}, hours=3.0, particles=200)
+    rng = np.random.default_rng(0)
+    with cp.Campaign(d) as c:
+        cp.log(d, 300, 0.5, 1.0, temperature_c=60.0, campaign=c)
+        cp.log(d, 300, 0.5, 1.0, temperature_c=65.0, campaign=c)
+        cp.sample(d, 1.0, [_sample(rng, median_um)], campaign=c)
+    return d, rng
+
+
+def test_a_correction_the_estimate_cannot_resolve_asks_for_one_more_sample(tmp_path, capsys):
+    """A milling move while the target lies inside the estimate's 90 % interval asks for another sample
+    at the same batch time; with two samples there the advice asks no more (and acts)."""
+    from bmctl.commands.campaign import _print_advice
+
+    d, rng = _near_target(tmp_path, 34.0)
+    a = cp.advise(d)
+    e = a["estimate"]
+    assert a["next"]["mill_min"] > 0 and e["s_mean_um_q05"] <= 36.0 <= e["s_mean_um_q95"]
+    assert abs(e["s_mean_um"] - 36.0) > 0.02 * 36.0
+    assert a["sample_first"].endswith("another sample before milling")
+    assert cp.advise(d)["sample_first"] == a["sample_first"]  # the same database, the same request
+    _print_advice(a)
+    assert "sample first: s_mean_um" in capsys.readouterr().out
+    cp.sample(d, 1.0, [_sample(rng, 34.0)])
+    assert cp.advise(d)["sample_first"] is None
+
+
+def test_stopping_on_an_estimate_the_interval_does_not_resolve_asks_for_one_more_sample(tmp_path):
+    d, _ = _near_target(tmp_path, 33.0)
+    a = cp.advise(d)
+    assert a["next"]["mill_min"] == 0 and abs(a["estimate"]["s_mean_um"] - 36.0) <= 0.02 * 36.0
+    assert a["sample_first"].endswith("another sample before stopping")
+
+
+def test_no_sample_is_asked_for_before_the_first_or_when_the_interval_excludes_the_target():
+    from bmctl.campaign.advice import sample_first
+
+    est = {"s_mean_um": 37.2, "s_mean_um_q05": 35.7, "s_mean_um_q95": 38.9}
+    assert sample_first(est, {"s_mean_um": 36.0}, 0.02, 5, True, 1, 1) is not None
+    assert sample_first(est, {"s_mean_um": 36.0}, 0.02, 5, True, 0, 0) is None  # only the card's prior
+    assert sample_first(est, {"s_mean_um": 35.0}, 0.02, 5, True, 1, 1) is None  # outside the interval
+    assert sample_first(est, {"s_mean_um": 36.0}, 0.02, 0, True, 1, 1) is None  # a rest 3 % off: not a stop
+    assert sample_first({**est, "s_mean_um": 36.3}, {"s_mean_um": 36.0}, 0.02, 0, False, 1, 1) is None  # resting on
