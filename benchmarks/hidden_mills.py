@@ -27,8 +27,9 @@ Printed and written to ``results/hidden_mills.json`` (``bmctl.results``): per ca
 the peak vial temperature, the longest idle stretch and the idle hours while milling was still
 needed (the plant more than 2 % from the target during a rest), the advice times (first, median,
 largest; wall and CPU of the ``advise`` process, with the load average), the samples taken (and how
-many on request), and the plain schedule's error; the summary (median and worst error, largest excess over the ceiling, longest idle stretch,
-cases where accepting every advice beat the plain schedule).
+many on request), and the plain schedule's error; the summary (median and worst error, largest
+excess over the ceiling, longest idle stretch, cases where accepting every advice beat the plain
+schedule, samples).
 """
 
 from __future__ import annotations

@@ -14,7 +14,9 @@ RMS of what is left (final error plus the estimate's error). The scatter of one 
 itself: ``hidden_mills.py --noise`` (``results/hidden_mills_noise.json``).
 
 The same for the runs with 1000-particle samples (``hidden_mills.py --sample-particles 1000
---results-name hidden_mills_samples1000[...]``, key ``samples1000``) where those files exist.
+--results-name hidden_mills_samples1000[...]``, key ``samples1000``) and for the runs whose operator
+takes the extra samples the advice asks for (``--sample-on-request --results-name
+hidden_mills_onrequest[...]``, key ``onrequest``) where those files exist.
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ FILES = ("hidden_mills", "hidden_mills_seed1_all", "hidden_mills_seed2_all", "hi
          "hidden_mills_heldout_seed1")
 #: the same mills and seeds with 1000-particle samples
 FILES_1000 = tuple(f.replace("hidden_mills", "hidden_mills_samples1000", 1) for f in FILES)
+#: the same with the operator taking the extra samples the advice asks for (``--sample-on-request``)
+FILES_ON_REQUEST = tuple(f.replace("hidden_mills", "hidden_mills_onrequest", 1) for f in FILES)
 
 
 def rel_pct(est: float, plant: float) -> float:
@@ -72,10 +76,10 @@ def figure(rec: dict, path: Path) -> Path:
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(4.8, 4.4))
-    fams = [("300-particle samples", rec)] + ([("1000-particle samples", rec["samples1000"])]
-                                             if "samples1000" in rec else [])
+    fams = [("300-particle samples", rec)] + [(label, rec[key]) for key, label in (
+        ("samples1000", "1000-particle samples"), ("onrequest", "300, one more when asked")) if key in rec]
     lim = 0.0
-    for (label, fam), (col, mark) in zip(fams, (("C0", "o"), ("C3", "^"))):
+    for (label, fam), (col, mark) in zip(fams, (("C0", "o"), ("C3", "^"), ("C2", "s"))):
         x = np.array([-r["estimate_error_last_advice_pct"] for r in fam["runs"]])
         y = np.array([r["final_error_pct"] for r in fam["runs"]])
         lim = max(lim, float(np.max(np.abs(np.concatenate([x, y])))))
@@ -109,7 +113,7 @@ def main() -> None:
         return
 
     out, settings = {}, {"files": list(FILES)}
-    for key, files in (("samples300", FILES), ("samples1000", FILES_1000)):
+    for key, files in (("samples300", FILES), ("samples1000", FILES_1000), ("onrequest", FILES_ON_REQUEST)):
         if key != "samples300" and not all((results_dir() / f"{f}.json").is_file() for f in files):
             print(f"{key}: not all of {', '.join(files)} in results/; left out")
             continue

@@ -91,7 +91,17 @@ REGISTRY: tuple[Study, ...] = (
           "--sample-particles 1000 --results-name hidden_mills_samples1000_heldout", 7),
     Study("hidden_mills_samples1000_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
           "--sample-particles 1000 --results-name hidden_mills_samples1000_heldout_seed1", 7),
-    # reads the default and the 1000-particle hidden-mill files above
+    Study("hidden_mills_onrequest", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
+          "--sample-on-request --results-name hidden_mills_onrequest", 9),
+    Study("hidden_mills_onrequest_seed1_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
+          "--sample-on-request --results-name hidden_mills_onrequest_seed1_all", 9),
+    Study("hidden_mills_onrequest_seed2_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 2 "
+          "--sample-on-request --results-name hidden_mills_onrequest_seed2_all", 9),
+    Study("hidden_mills_onrequest_heldout", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 0 "
+          "--sample-on-request --results-name hidden_mills_onrequest_heldout", 7),
+    Study("hidden_mills_onrequest_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
+          "--sample-on-request --results-name hidden_mills_onrequest_heldout_seed1", 7),
+    # reads the default, the 1000-particle and the on-request hidden-mill files above
     Study("hidden_mills_floor", "python benchmarks/hidden_mills_floor.py", 0.1),
     Study("rest_noise", "python benchmarks/rest_noise.py", 6),
     Study("model_form", "python benchmarks/model_form.py", 3),
