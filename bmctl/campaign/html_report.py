@@ -8,9 +8,9 @@ What it holds, in order:
    by :func:`bmctl.stats.dvalues`), and the target; as a figure over time and as a table;
 3. the measured size histograms against the filter's size law at the estimate;
 4. every advice: the estimate it saw, the recommended interval, reachability, binding
-   constraints, warnings, the decision (accepted / rejected, what instead, the note), what was
-   then logged and the deviation, and the plan to the batch end that was advised (a table per
-   advice, and all plans in one figure);
+   constraints, the sample asked for first, warnings, the decision (accepted / rejected, what instead,
+   the note), what was then logged and the deviation, and the plan to the batch end that was advised
+   (a table per advice, and all plans in one figure);
 5. the vial-temperature readings against the ceiling, with the estimate and each reading's check;
 6. the log as recorded.
 
@@ -290,6 +290,7 @@ def _advice_section(d: ReportData) -> hs.Markup:
                  ("target", ", ".join(f"{k} = {v:g}" for k, v in a["target"].items())),
                  ("reachable by the batch end", reach or "n/a"),
                  ("binding", "; ".join(map(str, a.get("binding", []))) or "no constraint binds"),
+                 ("sample first", a.get("sample_first") or "not asked"),
                  ("warnings", "; ".join(map(str, a.get("warnings", []))) or "none"),
                  ("solver", a.get("solver", "")),
                  ("decision", dec), ("note", note or "none"),

@@ -114,6 +114,9 @@ def test_a_correction_the_estimate_cannot_resolve_asks_for_one_more_sample(tmp_p
     assert "sample first: s_mean_um" in capsys.readouterr().out
     cp.sample(d, 1.0, [_sample(rng, 34.0)])
     assert cp.advise(d)["sample_first"] is None
+    cp.report(d)
+    page = (d / "report.html").read_text()
+    assert page.count("<dt>sample first</dt><dd>s_mean_um") == 2 and "<dd>not asked</dd>" in page
 
 
 def test_stopping_on_an_estimate_the_interval_does_not_resolve_asks_for_one_more_sample(tmp_path):
