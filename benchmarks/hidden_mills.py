@@ -346,7 +346,8 @@ def main() -> None:
                     help="measure how much one sample's mean scatters (mill G after 3 h at 140 rpm): "
                          "results/hidden_mills_noise.json")
     ap.add_argument("--sample-on-request", action="store_true",
-                    help="the operator also takes the extra sample an advice asks for (sample_first) and advises again")
+                    help="the operator also takes the extra sample an advice asks for (sample_first), then "
+                         "advises again")
     ap.add_argument("--results-name", default="hidden_mills",
                     help="results file name (a subset of the cases or another seed: e.g. hidden_mills_seed1)")
     a = ap.parse_args()

@@ -690,7 +690,7 @@ def _sample_first(c: Campaign, advice: dict, clock: float, acts: list) -> str | 
     if obj is None or advice["next"]["interval_h"] <= 0:
         return None
     here, before = c.con.execute("SELECT SUM(ABS(t_h - ?) <= ?), COUNT(*) FROM samples WHERE t_h <= ?",
-                                 (clock, 1e-6, clock + 1e-6)).fetchone()
+                                 (clock, EPS_H, clock + EPS_H)).fetchone()
     milled = bool(acts) and acts[-1].rpm > 0 and acts[-1].milling > 0
     return sample_first(advice["estimate"], c.meta["target"], float(obj.tolerance), advice["next"]["mill_min"],
                         milled, int(here or 0), int(before))
