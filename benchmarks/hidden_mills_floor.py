@@ -10,7 +10,9 @@ advice: the plan steers its estimate to the target, so where the estimate is off
 advice the powder ends off by about as much, with the opposite sign. Written per run and summed up
 over the runs: the RMS of the final errors, of the estimate's errors at the last advice and at
 every hourly sample, their correlation (final error against minus the estimate's error), and the
-RMS of what is left (final error plus the estimate's error). The scatter of one sample's mean
+RMS of what is left (final error plus the estimate's error); and the rests longer than the idle
+bar (1 h) that began with the plant more than 2 % from the target, with the plant's and the
+estimate's error against the target at their start. The scatter of one sample's mean
 itself: ``hidden_mills.py --noise`` (``results/hidden_mills_noise.json``).
 
 The same for the runs with 1000-particle samples (``hidden_mills.py --sample-particles 1000
@@ -39,8 +41,38 @@ FILES_1000 = tuple(f.replace("hidden_mills", "hidden_mills_samples1000", 1) for 
 FILES_ON_REQUEST = tuple(f.replace("hidden_mills", "hidden_mills_onrequest", 1) for f in FILES)
 
 
+#: the idle rule's distance from the target (``hidden_mills.NEED_TOL``), also the controller's tolerance
+NEED_TOL = 0.02
+#: the longest idle stretch the benchmark's bar allows (h)
+IDLE_BAR_H = 1.0
+
+
 def rel_pct(est: float, plant: float) -> float:
     return 100.0 * (est - plant) / plant
+
+
+def idle_stretches(case: dict) -> list[dict]:
+    """Rests of a run's step log that began with the plant more than :data:`NEED_TOL` from the target:
+    start, hours (to the next milling advice or the batch end), the plant's and the estimate's error
+    against the target at the start (%). Whole advice intervals only (the benchmark's own count also
+    takes the rest after a burst)."""
+    steps, tgt = case["steps"], case.get("target_s_mean_um")
+    if tgt is None or not steps or "mill_min" not in steps[0]:
+        return []
+    out, k = [], 0
+    while k < len(steps):
+        s = steps[k]
+        if s["mill_min"] > 0 or abs(s["plant_s_mean_um"] - tgt) <= NEED_TOL * tgt:
+            k += 1
+            continue
+        j = k
+        while j + 1 < len(steps) and steps[j + 1]["mill_min"] == 0:
+            j += 1
+        end = steps[j + 1]["t_h"] if j + 1 < len(steps) else float(case["hours"])
+        out.append({"t_h": s["t_h"], "hours": end - s["t_h"], "plant_error_pct": rel_pct(s["plant_s_mean_um"], tgt),
+                    "estimate_error_pct": rel_pct(s["estimate_s_mean_um"], tgt)})
+        k = j + 1
+    return out
 
 
 def run_rows(results: dict, name: str) -> list[dict]:
@@ -53,7 +85,8 @@ def run_rows(results: dict, name: str) -> list[dict]:
                       if s["t_h"] > 0 and abs(s["t_h"] - round(s["t_h"])) < 1e-6]
         rows.append({"file": name, "case": c["case"], "final_error_pct": float(c["error_pct"]),
                      "estimate_error_last_advice_pct": rel_pct(last["estimate_s_mean_um"], last["plant_s_mean_um"]),
-                     "last_advice_t_h": float(last["t_h"]), "estimate_errors_at_samples_pct": at_samples})
+                     "last_advice_t_h": float(last["t_h"]), "estimate_errors_at_samples_pct": at_samples,
+                     "idle_over_bar": [r for r in idle_stretches(c) if r["hours"] > IDLE_BAR_H + 1e-9]})
     return rows
 
 
@@ -62,11 +95,15 @@ def summary(rows: list[dict]) -> dict:
     est = np.array([r["estimate_error_last_advice_pct"] for r in rows])
     samp = np.concatenate([r["estimate_errors_at_samples_pct"] for r in rows])
     rms = lambda a: float(np.sqrt(np.mean(np.square(a))))  # noqa: E731
+    idle = [i for r in rows for i in r.get("idle_over_bar", [])]
     return {"runs": len(rows), "final_rms_pct": rms(fin), "estimate_last_advice_rms_pct": rms(est),
             "estimate_at_samples_rms_pct": rms(samp), "samples": int(samp.size),
             "corr_final_vs_minus_estimate": float(np.corrcoef(fin, -est)[0, 1]),
             "left_rms_pct": rms(fin + est),
-            "over_5pct": [f"{r['file']}:{r['case']}" for r in rows if abs(r["final_error_pct"]) > 5.0]}
+            "over_5pct": [f"{r['file']}:{r['case']}" for r in rows if abs(r["final_error_pct"]) > 5.0],
+            "idle_over_bar": len(idle),
+            "idle_over_bar_estimate_within_tol": sum(abs(i["estimate_error_pct"]) <= 100 * NEED_TOL for i in idle),
+            "idle_over_bar_plant_error_abs_max_pct": max((abs(i["plant_error_pct"]) for i in idle), default=0.0)}
 
 
 def figure(rec: dict, path: Path) -> Path:
@@ -124,10 +161,15 @@ def main() -> None:
         for r in rows:
             print(f"{r['file']:<38} {r['case']}  final {r['final_error_pct']:+6.2f} %   "
                   f"estimate at the last advice {r['estimate_error_last_advice_pct']:+6.2f} %")
+            for i in r["idle_over_bar"]:
+                print(f"{'':<41}rest from {i['t_h']:g} h for {i['hours']:.1f} h: plant {i['plant_error_pct']:+.2f} %, "
+                      f"estimate {i['estimate_error_pct']:+.2f} % from the target")
         print(f"{key}: {s['runs']} runs: final RMS {s['final_rms_pct']:.2f} %, estimate at the last advice RMS "
               f"{s['estimate_last_advice_rms_pct']:.2f} %, at the {s['samples']} hourly samples "
               f"{s['estimate_at_samples_rms_pct']:.2f} %; correlation of the final error with minus the "
-              f"estimate's {s['corr_final_vs_minus_estimate']:.2f}; left over {s['left_rms_pct']:.2f} % RMS\n")
+              f"estimate's {s['corr_final_vs_minus_estimate']:.2f}; left over {s['left_rms_pct']:.2f} % RMS; "
+              f"{s['idle_over_bar']} rests over {IDLE_BAR_H:g} h while needed, {s['idle_over_bar_estimate_within_tol']} "
+              f"begun with the estimate within the tolerance\n")
         for r in rows:
             r.pop("estimate_errors_at_samples_pct")
         if key == "samples300":

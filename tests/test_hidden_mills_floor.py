@@ -41,3 +41,21 @@ def test_figure_draws_both_sample_sizes_from_the_results_file(tmp_path):
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
     assert [p.name for p in tmp_path.iterdir()] == ["floor.png"]
+
+
+def test_idle_stretches_are_rests_begun_off_the_target_to_the_next_burst():
+    """A rest begun 4 % off the target lasts to the next milling advice (1.5 h) and is over the bar; a rest
+    begun within 2 % is not counted; the last rest runs to the batch end."""
+    fl = load_benchmark("hidden_mills_floor")
+    plant = [40.0, 52.0, 52.0, 52.0, 52.0, 51.0, 51.0, 53.0]
+    est = [40.0, 50.5, 50.0, 50.0, 50.0, 50.5, 50.5, 52.0]
+    mill = [30, 0, 0, 0, 10, 0, 0, 0]
+    steps = [{"t_h": 0.5 * k, "mill_min": m, "plant_s_mean_um": p, "estimate_s_mean_um": e}
+             for k, (m, p, e) in enumerate(zip(mill, plant, est))]
+    case = {"case": "A", "error_pct": 6.0, "target_s_mean_um": 50.0, "hours": 4.0, "steps": steps}
+    got = fl.idle_stretches(case)
+    assert [(r["t_h"], r["hours"]) for r in got] == [(0.5, 1.5), (3.5, 0.5)]
+    assert got[0]["plant_error_pct"] == pytest.approx(4.0) and got[0]["estimate_error_pct"] == pytest.approx(1.0)
+    s = fl.summary(fl.run_rows({"cases": [case, dict(case, case="B", error_pct=-1.0)]}, "f"))
+    assert s["idle_over_bar"] == 2 and s["idle_over_bar_estimate_within_tol"] == 2
+    assert s["idle_over_bar_plant_error_abs_max_pct"] == pytest.approx(4.0)
