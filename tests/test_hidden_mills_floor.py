@@ -56,6 +56,7 @@ def test_idle_stretches_are_rests_begun_off_the_target_to_the_next_burst():
     got = fl.idle_stretches(case)
     assert [(r["t_h"], r["hours"]) for r in got] == [(0.5, 1.5), (3.5, 0.5)]
     assert got[0]["plant_error_pct"] == pytest.approx(4.0) and got[0]["estimate_error_pct"] == pytest.approx(1.0)
-    s = fl.summary(fl.run_rows({"cases": [case, dict(case, case="B", error_pct=-1.0)]}, "f"))
+    other = dict(case, case="B", error_pct=-1.0, steps=steps[:-1] + [dict(steps[-1], estimate_s_mean_um=51.0)])
+    s = fl.summary(fl.run_rows({"cases": [case, other]}, "f"))
     assert s["idle_over_bar"] == 2 and s["idle_over_bar_estimate_within_tol"] == 2
     assert s["idle_over_bar_plant_error_abs_max_pct"] == pytest.approx(4.0)
