@@ -189,6 +189,13 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
     advise_wall, advise_cpu, steps = [], [], []
     samples = extra = 0
     watch = []  # per 3-min step: (length h, resting throughout, plant's relative error)
+
+    def take_sample(name: str) -> None:  # a micrograph table of the hidden plant, sampled at the logged time
+        tab = micrograph_sample(plant.s * 1e6, plant.r, sample_particles, g_sample)
+        path = folder / name
+        write_table(path, tab)
+        cli(["campaign", "sample", str(folder), "--at-h", f"{t:.10g}", str(path)], env)
+
     while t < case.hours - 1e-9:
         out, wall, cpu = cli(["campaign", "advise", str(folder), "--json"], env)
         a = json.loads(out)
@@ -197,10 +204,7 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
         asked = None
         while on_request and a.get("sample_first"):  # the advice caps the samples at one batch time
             asked = a["sample_first"]
-            tab = micrograph_sample(plant.s * 1e6, plant.r, sample_particles, g_sample)
-            path = folder / f"sample-{t:05.2f}h-extra{extra + 1}.csv"
-            write_table(path, tab)
-            cli(["campaign", "sample", str(folder), "--at-h", f"{t:.10g}", str(path)], env)
+            take_sample(f"sample-{t:05.2f}h-extra{extra + 1}.csv")
             samples, extra = samples + 1, extra + 1
             out, wall, cpu = cli(["campaign", "advise", str(folder), "--json"], env)
             a = json.loads(out)
@@ -227,10 +231,7 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
              f"{milling:.10g}", "--temperature-c", f"{plant.temperature_c:.2f}"], env)
         t += dt
         if abs(t / SAMPLE_EVERY_H - round(t / SAMPLE_EVERY_H)) < 1e-6 or t >= case.hours - 1e-9:
-            tab = micrograph_sample(plant.s * 1e6, plant.r, sample_particles, g_sample)
-            path = folder / f"sample-{t:05.2f}h.csv"
-            write_table(path, tab)
-            cli(["campaign", "sample", str(folder), "--at-h", f"{t:.10g}", str(path)], env)
+            take_sample(f"sample-{t:05.2f}h.csv")
             samples += 1
     idle, run = [], 0.0  # rest stretches that began with the plant more than NEED_TOL from the target
     for k, (h, resting, err) in enumerate(watch):

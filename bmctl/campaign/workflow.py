@@ -669,7 +669,7 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
                                                  (clock + EPS_H,)).fetchone()[0],
                 "sampling": _last_sampling(c, clock),
             }
-            advice["sample_first"] = _sample_first(c, advice, clock, acts)
+            advice["sample_first"] = _sample_first(c, advice, clock, history)
             advise_ms = (time.perf_counter() - t_start) * 1e3
             advice["advise_ms"] = advise_ms
             cur = c.con.execute("INSERT INTO plans (t_h, rpm, milling, interval_h, advice, controller_state, "
@@ -683,28 +683,36 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
     return advice
 
 
-def _sample_first(c: Campaign, advice: dict, clock: float, acts: list) -> str | None:
-    """:func:`bmctl.campaign.advice.sample_first` for this advice (None: a controller without an
-    ``[objective] tolerance``, or the batch finished)."""
+def _tolerance(c: Campaign) -> float | None:
+    """The controller's ``[objective] tolerance`` (None: a controller without one)."""
     obj = getattr(getattr(c.loop.controller, "cfg", None), "objective", None)
-    if obj is None or advice["next"]["interval_h"] <= 0:
+    return None if obj is None else float(obj.tolerance)
+
+
+def _sample_first(c: Campaign, advice: dict, clock: float, history: list) -> str | None:
+    """:func:`bmctl.campaign.advice.sample_first` for this advice (None: a controller without an
+    ``[objective] tolerance``, or the batch finished); ``history``: the logged intervals as the
+    planner takes them."""
+    from ..control.planner import milled
+
+    tol = _tolerance(c)
+    if tol is None or advice["next"]["interval_h"] <= 0:
         return None
     here, before = c.con.execute("SELECT SUM(ABS(t_h - ?) <= ?), COUNT(*) FROM samples WHERE t_h <= ?",
                                  (clock, EPS_H, clock + EPS_H)).fetchone()
-    milled = bool(acts) and acts[-1].rpm > 0 and acts[-1].milling > 0
-    return sample_first(advice["estimate"], c.meta["target"], float(obj.tolerance), advice["next"]["mill_min"],
-                        milled, int(here or 0), int(before))
+    return sample_first(advice["estimate"], c.meta["target"], tol, advice["next"]["mill_min"],
+                        milled(history[-1:]), int(here or 0), int(before))
 
 
 def _last_sampling(c: Campaign, clock: float) -> dict | None:
     """:func:`bmctl.campaign.advice.sampling` of the latest sample at or before ``clock`` against the
     controller's ``[objective] tolerance`` (None: no sample yet, or a controller without one)."""
-    obj = getattr(getattr(c.loop.controller, "cfg", None), "objective", None)
+    tol = _tolerance(c)
     row = c.con.execute("SELECT id, t_h FROM samples WHERE t_h <= ? ORDER BY t_h DESC, id DESC LIMIT 1",
                         (clock + EPS_H,)).fetchone()
-    if obj is None or row is None:
+    if tol is None or row is None:
         return None
-    out = sampling(c.particles(int(row[0]))[0], float(obj.tolerance))
+    out = sampling(c.particles(int(row[0]))[0], tol)
     return None if out is None else {"t_h": float(row[1]), **out}
 
 
