@@ -4,11 +4,14 @@
     nice python benchmarks/hidden_mills.py --cases H,I,J,K,L --results-name hidden_mills_heldout   # held out
     nice python benchmarks/hidden_mills.py --sample-particles 1000 --results-name NAME   # larger samples
     nice python benchmarks/hidden_mills.py --sample-on-request --results-name NAME   # extra samples when asked
+    nice python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --results-name hidden_mills_unseen
 
 Each case is a plant built from the laboratory card with gamma and delta multiplied (0.6-1.6) and one
 more card field changed (powder mass through the ball-to-powder ratio, the ball count or the ball
 size). The campaign is given only the card. Mills A-G are the ones the controller was developed
-on; H-L (:data:`HELD_OUT`) were drawn afterwards and never used to choose a setting. Per case:
+on; H-L (:data:`HELD_OUT`) were drawn afterwards and never used to choose a setting; ``--mills``
+runs mills of your own from a TOML file (:func:`load_mills`; ``benchmarks/mills-unseen.toml``
+holds seven, M-S, drawn after the controller was final). Per case:
 
 1. **A reachable target.** A plain-schedule sweep on the hidden plant (one rpm held for the whole
    batch, 100-460 rpm in 20 rpm steps, and the paper's 30 min on / 10 min off at 400-500 rpm):
@@ -90,6 +93,63 @@ HELD_OUT = (
     Case("K", 1.2, 0.8, "mill.ball_diameter_m", 0.009, 6.0, 150.0),
     Case("L", 0.75, 1.45, "mill.ball_to_powder_ratio", 8.0, 12.0, 240.0),
 )
+
+
+def load_mills(path: Path) -> tuple[Case, ...]:
+    """Hidden mills from a TOML file (``--mills``): ``[[mill]]`` tables with ``name``, ``gamma_mult``,
+    ``delta_mult``, ``field`` (a numeric card field as ``section.key``), ``value``, ``hours`` and
+    ``rpm_ref`` (the reference constant rpm that defines the target, in the sweep's 100-460 rpm).
+    Every hidden card is built and validated here; a problem is one :class:`~bmctl.errors.InputError`
+    line naming the file and the field."""
+    from typing import Annotated
+
+    from pydantic import Field, ValidationError, field_validator, model_validator
+
+    from bmctl.config import Finite, Strict, format_validation_error, load_card, read_toml, validate
+    from bmctl.errors import InputError
+    from bmctl.limits import HOURS_MIN
+
+    class MillRow(Strict):
+        name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,16}$")]
+        gamma_mult: Annotated[float, Field(ge=0.1, le=10)]
+        delta_mult: Annotated[float, Field(ge=0.1, le=10)]
+        field: Annotated[str, Field(pattern=r"^[a-z_]+\.[A-Za-z0-9_]+$")]
+        value: int | Finite  # an integer field (ball_count) keeps its type
+        hours: Annotated[float, Field(ge=max(HOURS_MIN, INTERVAL_H), le=48)]
+        rpm_ref: Annotated[float, Field(ge=100, le=460)]
+
+        @field_validator("field")
+        @classmethod
+        def _numeric_card_field(cls, v: str) -> str:
+            sec, key = v.split(".")
+            cur = load_card(CARD).model_dump().get(sec)
+            if not isinstance(cur, dict) or key not in cur:
+                raise ValueError(f"not a field of the card {CARD.name} (got {v!r})")
+            if isinstance(cur[key], bool) or not isinstance(cur[key], (int, float)):
+                raise ValueError(f"not a numeric card field (got {v!r})")
+            return v
+
+    class MillSet(Strict):
+        mill: Annotated[list[MillRow], Field(min_length=1, max_length=64)]
+
+        @model_validator(mode="after")
+        def _unique(self):
+            names = [m.name for m in self.mill]
+            dup = sorted({n for n in names if names.count(n) > 1})
+            if dup:
+                raise ValueError(f"mill: names must be unique (repeated: {', '.join(dup)})")
+            return self
+
+    ms = validate(MillSet, read_toml(path), str(path))
+    cases = []
+    for i, m in enumerate(ms.mill):
+        case = Case(m.name, m.gamma_mult, m.delta_mult, m.field, m.value, m.hours, m.rpm_ref)
+        try:
+            hidden_card(case)
+        except ValidationError as exc:
+            raise InputError(format_validation_error(f"{path}: mill[{i}] ({m.name}): the hidden card", exc)) from None
+        cases.append(case)
+    return tuple(cases)
 
 
 def hidden_card(case: Case):
@@ -331,7 +391,10 @@ def main() -> None:
     from bmctl.results import write_results
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--cases", default=",".join(c.name for c in CASES), help="comma-separated case names")
+    ap.add_argument("--cases", help="comma-separated case names (default A-G, or every mill of --mills)")
+    ap.add_argument("--mills", metavar="TOML",
+                    help="hidden mills of your own instead of A-L ([[mill]] tables: name, gamma_mult, delta_mult, "
+                         "field, value, hours, rpm_ref; e.g. benchmarks/mills-unseen.toml)")
     ap.add_argument("--particles", type=int, default=5000, help="plant particles")
     ap.add_argument("--sample-particles", type=int, default=SAMPLE_PARTICLES,
                     help=f"particles in each hourly micrograph sample (default {SAMPLE_PARTICLES})")
@@ -377,8 +440,20 @@ def main() -> None:
                                              "" if name == "hidden_mills_noise" else
                                              f" --sample-particles {a.sample_particles} --results-name {name}")))
         return
-    names = [s.strip() for s in a.cases.split(",") if s.strip()]
-    known = {c.name: c for c in CASES + HELD_OUT}
+    pool = CASES + HELD_OUT
+    if a.mills:
+        from bmctl.errors import InputError
+
+        try:
+            pool = load_mills(Path(a.mills))
+        except InputError as exc:
+            print(f"hidden_mills.py: error: {exc}", file=sys.stderr)
+            sys.exit(2)
+        if a.results_name == "hidden_mills" and not a.no_results:
+            sys.exit("hidden_mills.py: --mills: name its results (--results-name) or pass --no-results")
+    names = [s.strip() for s in (a.cases or ",".join(c.name for c in (pool if a.mills else CASES))).split(",")
+             if s.strip()]
+    known = {c.name: c for c in pool}
     bad = [n for n in names if n not in known]
     if bad:
         sys.exit(f"hidden_mills.py: --cases: unknown mill(s) {', '.join(bad)} (known: {', '.join(known)})")
@@ -459,6 +534,9 @@ def main() -> None:
     if not a.no_results and (len(rows) == len(CASES) or a.results_name != "hidden_mills"):
         cmd = "python benchmarks/hidden_mills.py"
         if a.results_name != "hidden_mills":
+            if a.mills:
+                mp = Path(a.mills).resolve()
+                cmd += f" --mills {mp.relative_to(ROOT) if mp.is_relative_to(ROOT) else mp}"
             cmd += f" --cases {','.join(c.name for c in cases)} --seed {a.seed}"
             cmd += (" --no-energy-mult" if a.no_energy_mult else "")
             cmd += (f" --sample-particles {a.sample_particles}" if a.sample_particles != SAMPLE_PARTICLES else "")

@@ -1,0 +1,76 @@
+"""``benchmarks/hidden_mills.py --mills``: hidden mills of a user's own from a TOML file."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bmctl.errors import InputError
+from tests.conftest import load_benchmark
+
+ROOT = Path(__file__).resolve().parents[1]
+ROW = ('name = "X"\ngamma_mult = 1.2\ndelta_mult = 0.8\nfield = "mill.ball_count"\nvalue = 9\nhours = 6.0\n'
+       'rpm_ref = 300.0\n')
+
+
+def _file(tmp_path, text: str) -> Path:
+    p = tmp_path / "mills.toml"
+    p.write_text(text)
+    return p
+
+
+def test_shipped_mills_load_and_change_the_named_field_of_the_card():
+    hm = load_benchmark("hidden_mills")
+    cases = hm.load_mills(ROOT / "benchmarks" / "mills-unseen.toml")
+    assert [c.name for c in cases] == list("MNOPQRS")
+    known = {c.name for c in hm.CASES + hm.HELD_OUT}
+    assert not known & {c.name for c in cases}  # none of them is a mill the controller was developed or held out on
+    q = next(c for c in cases if c.name == "Q")
+    card = hm.hidden_card(q)
+    assert card.material.yield_stress_Pa == pytest.approx(95e6)
+    lab = hm.hidden_card(hm.Case("lab", 1.0, 1.0, q.field, 78.7e6, q.hours, q.rpm_ref))
+    assert card.stochastic.gamma_per_um2 == pytest.approx(1.6 * lab.stochastic.gamma_per_um2)
+    assert card.stochastic.delta_per_um2 == pytest.approx(1.6 * lab.stochastic.delta_per_um2)
+
+
+@pytest.mark.parametrize("text, where", [
+    ("[[mill]]\n" + ROW.replace('"mill.ball_count"', '"mill.ball_cuont"'),
+     "mill[0].field: not a field of the card"),
+    ("[[mill]]\n" + ROW.replace("gamma_mult = 1.2", "gama_mult = 1.2"),
+     "mill[0].gamma_mult: required field is missing (+1 more problem)"),
+    ("[[mill]]\n" + ROW.replace("rpm_ref = 300.0", "rpm_ref = 900.0"), "mill[0].rpm_ref:"),
+    ("[[mill]]\n" + ROW + "[[mill]]\n" + ROW, "names must be unique (repeated: X)"),
+    ("[[mill]]\n" + ROW.replace("value = 9", "value = 9.5"), "mill[0] (X): the hidden card: mill.ball_count:"),
+    ("[[mill]]\n" + ROW.replace("value = 9", "value = -0.01").replace("ball_count", "ball_diameter_m"),
+     "mill[0] (X): the hidden card: mill.ball_diameter_m:"),
+    ("mill = []\n", "mill:"),
+    ("[[mill]\n", "malformed TOML"),
+])
+def test_a_bad_mills_file_names_the_file_and_the_field(tmp_path, text, where):
+    p = _file(tmp_path, text)
+    with pytest.raises(InputError) as e:
+        load_benchmark("hidden_mills").load_mills(p)
+    msg = str(e.value)
+    assert msg.startswith(str(p)) and where in msg and "\n" not in msg
+
+
+def test_the_benchmark_refuses_a_bad_mills_file_with_exit_2_and_one_line(tmp_path):
+    p = _file(tmp_path, "[[mill]]\n" + ROW.replace("hours = 6.0", "hours = -1"))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hidden_mills.py"), "--mills", str(p),
+                        "--no-results", "--out", str(out)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "mill[0].hours" in lines[0] and "Traceback" not in r.stderr
+    assert not out.exists()  # nothing written
+
+
+def test_unknown_case_of_a_mills_file_is_refused(tmp_path):
+    p = _file(tmp_path, "[[mill]]\n" + ROW)
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hidden_mills.py"), "--mills", str(p),
+                        "--cases", "A", "--no-results", "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "unknown mill(s) A (known: X)" in r.stderr
