@@ -69,6 +69,12 @@ REGISTRY: tuple[Study, ...] = (
           "--results-name hidden_mills_heldout", 6),
     Study("hidden_mills_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
           "--results-name hidden_mills_heldout_seed1", 6),
+    Study("hidden_mills_unseen", "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml "
+          "--cases M,N,O,P,Q,R,S --seed 0 --results-name hidden_mills_unseen", 8),
+    Study("hidden_mills_unseen_seed1", "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml "
+          "--cases M,N,O,P,Q,R,S --seed 1 --results-name hidden_mills_unseen_seed1", 8),
+    Study("hidden_mills_onrequest_unseen", "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml "
+          "--cases M,N,O,P,Q,R,S --seed 0 --sample-on-request --results-name hidden_mills_onrequest_unseen", 8),
     Study("hidden_mills_twomult", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
           "--no-energy-mult --results-name hidden_mills_twomult", 8),
     Study("hidden_mills_twomult_seed1_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
