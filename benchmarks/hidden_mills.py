@@ -152,6 +152,12 @@ def load_mills(path: Path) -> tuple[Case, ...]:
     return tuple(cases)
 
 
+def _shown(path: Path) -> str:
+    """A path as a results file records it: relative to the repository when inside it."""
+    p = Path(path).resolve()
+    return str(p.relative_to(ROOT) if p.is_relative_to(ROOT) else p)
+
+
 def hidden_card(case: Case):
     """The hidden plant's card: the lab card with gamma, delta and one more field changed."""
     from bmctl.config import load_card, with_factors
@@ -231,7 +237,7 @@ def cli(args: list[str], env: dict) -> tuple[str, float, float]:
 
 def run_campaign(case: Case, target_um: float, folder: Path, particles: int, seed: int, env: dict,
                  energy_mult: bool = True, sample_particles: int = SAMPLE_PARTICLES,
-                 on_request: bool = False) -> dict:
+                 on_request: bool = False, controller: Path = CONTROLLER) -> dict:
     """The scripted operator: advise, accept, run the hidden plant, log, sample hourly; with
     ``on_request`` also take the extra sample an advice asks for (``sample_first``), then advise again."""
     from bmctl.measure.sampler import micrograph_sample
@@ -242,7 +248,7 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
     ss = np.random.SeedSequence([seed, ord(case.name)])
     g_plant, g_sample = (np.random.default_rng(s) for s in ss.spawn(2))
     plant = Plant(card, g_plant, particles)
-    cli(["campaign", "init", str(folder), "--model", str(CARD), "--controller", str(CONTROLLER), "--target",
+    cli(["campaign", "init", str(folder), "--model", str(CARD), "--controller", str(controller), "--target",
          f"s_mean_um={target_um:.4f}", "--hours", f"{case.hours:g}", "--seed", "0",
          *([] if energy_mult else ["--no-energy-mult"])], env)
     t, peak = 0.0, plant.temperature_c
@@ -412,6 +418,8 @@ def main() -> None:
     ap.add_argument("--sample-on-request", action="store_true",
                     help="the operator also takes the extra sample an advice asks for (sample_first), then "
                          "advises again")
+    ap.add_argument("--controller", metavar="TOML",
+                    help=f"the campaign's controller config (default {CONTROLLER.relative_to(ROOT)})")
     ap.add_argument("--results-name", default="hidden_mills",
                     help="results file name (a subset of the cases or another seed: e.g. hidden_mills_seed1)")
     a = ap.parse_args()
@@ -451,6 +459,19 @@ def main() -> None:
             sys.exit(2)
         if a.results_name == "hidden_mills" and not a.no_results:
             sys.exit("hidden_mills.py: --mills: name its results (--results-name) or pass --no-results")
+    controller = CONTROLLER
+    if a.controller:
+        from bmctl.control.config import load_controller
+        from bmctl.errors import InputError
+
+        try:
+            load_controller(a.controller)
+        except InputError as exc:
+            print(f"hidden_mills.py: error: {exc}", file=sys.stderr)
+            sys.exit(2)
+        controller = Path(a.controller).resolve()
+        if a.results_name == "hidden_mills" and not a.no_results:
+            sys.exit("hidden_mills.py: --controller: name its results (--results-name) or pass --no-results")
     names = [s.strip() for s in (a.cases or ",".join(c.name for c in (pool if a.mills else CASES))).split(",")
              if s.strip()]
     known = {c.name: c for c in pool}
@@ -493,7 +514,7 @@ def main() -> None:
               f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
               f"{plain_err:+.1f} % on the hidden plant", flush=True)
         res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, not a.no_energy_mult,
-                           a.sample_particles, a.sample_on_request)
+                           a.sample_particles, a.sample_on_request, controller)
         print(f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
               f"{res['peak_c']:.1f} °C, idle while needed {res['idle_needed_h']:.2f} h (longest "
               f"{res['longest_idle_needed_h']:.2f} h); advise first {res['advise_first_s']:.1f} s, later median "
@@ -535,16 +556,17 @@ def main() -> None:
         cmd = "python benchmarks/hidden_mills.py"
         if a.results_name != "hidden_mills":
             if a.mills:
-                mp = Path(a.mills).resolve()
-                cmd += f" --mills {mp.relative_to(ROOT) if mp.is_relative_to(ROOT) else mp}"
+                cmd += f" --mills {_shown(Path(a.mills))}"
             cmd += f" --cases {','.join(c.name for c in cases)} --seed {a.seed}"
+            if a.controller:
+                cmd += f" --controller {_shown(controller)}"
             cmd += (" --no-energy-mult" if a.no_energy_mult else "")
             cmd += (f" --sample-particles {a.sample_particles}" if a.sample_particles != SAMPLE_PARTICLES else "")
             cmd += (" --sample-on-request" if a.sample_on_request else "")
             cmd += f" --results-name {a.results_name}"
         path = write_results(a.results_name, {"summary": summary, "cases": rows},
                              settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
-                                       "controller": str(CONTROLLER.relative_to(ROOT)), "card": str(CARD.relative_to(ROOT)),
+                                       "controller": _shown(controller), "card": str(CARD.relative_to(ROOT)),
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
                                        "sample_every_h": SAMPLE_EVERY_H, "sample_particles": a.sample_particles,
                                        "need_tol": NEED_TOL, "energy_mult": not a.no_energy_mult,

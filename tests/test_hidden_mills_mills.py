@@ -74,3 +74,27 @@ def test_unknown_case_of_a_mills_file_is_refused(tmp_path):
                         "--cases", "A", "--no-results", "--out", str(tmp_path / "o")],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode != 0 and "unknown mill(s) A (known: X)" in r.stderr
+
+
+def test_a_bad_controller_file_is_refused_with_exit_2_and_one_line(tmp_path):
+    bad = tmp_path / "ctrl.toml"
+    bad.write_text((ROOT / "benchmarks" / "mpc-narrow-pool.toml").read_text().replace("pool_band = 0.015",
+                                                                                       "pool_band = 3"))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hidden_mills.py"), "--controller", str(bad),
+                        "--cases", "A", "--no-results", "--out", str(out)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "plan.pool_band" in lines[0] and str(bad) in lines[0] and "Traceback" not in r.stderr
+    assert not out.exists()
+
+
+def test_the_narrow_pool_variant_differs_from_the_default_in_the_pool_band_only():
+    from bmctl.control.config import load_controller
+
+    a = load_controller(ROOT / "benchmarks" / "mpc-narrow-pool.toml").model_dump()
+    b = load_controller(ROOT / "controllers" / "mpc-default.toml").model_dump()
+    assert a["plan"].pop("pool_band") < b["plan"].pop("pool_band")
+    a.pop("name"), b.pop("name")
+    a.pop("description", None), b.pop("description", None)
+    assert a == b
