@@ -1,7 +1,7 @@
 """How closely the campaign's filter reads the powder along the hidden-mill schedules, and whether its
 noise settings could read it closer.
 
-    nice python benchmarks/estimate_replay.py      # writes results/estimate_replay.json (~10 min on two cores; --workers N)
+    nice python benchmarks/estimate_replay.py   # writes results/estimate_replay.json (~20 min on two cores)
 
 The schedules the campaigns ran (the step logs of the five default hidden-mill results files:
 ``hidden_mills``, ``hidden_mills_seed1_all``, ``hidden_mills_seed2_all``, ``hidden_mills_heldout``,
@@ -132,8 +132,9 @@ def main() -> None:
               f"each run {v['last3_rms_pct']:.2f} %")
     if not a.no_results and a.runs == 0:
         print("wrote", write_results("estimate_replay", rec,
-                                     settings={"files": list(FILES), "sample_particles": SAMPLE, "plant_particles": PLANT,
-                                               "filter_particles": FILTER, "interval_h": hm.INTERVAL_H},
+                                     settings={"files": list(FILES), "sample_particles": SAMPLE,
+                                               "plant_particles": PLANT, "filter_particles": FILTER,
+                                               "interval_h": hm.INTERVAL_H},
                                      command="python benchmarks/estimate_replay.py"))
 
 

@@ -130,7 +130,7 @@ REGISTRY: tuple[Study, ...] = (
           "--sample-on-request --results-name hidden_mills_onrequest_heldout_seed1", 7),
     # reads the default, the 1000-particle and the on-request hidden-mill files above
     Study("hidden_mills_floor", "python benchmarks/hidden_mills_floor.py", 0.1),
-    Study("estimate_replay", "python benchmarks/estimate_replay.py", 10),
+    Study("estimate_replay", "python benchmarks/estimate_replay.py", 20),
     Study("rest_noise", "python benchmarks/rest_noise.py", 6),
     Study("model_form", "python benchmarks/model_form.py", 3),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
