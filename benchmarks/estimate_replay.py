@@ -105,7 +105,8 @@ def main() -> None:
     ap.add_argument("--no-results", action="store_true", help="do not write results/estimate_replay.json")
     a = ap.parse_args()
     cases = {c.name: c for c in hm.CASES + hm.HELD_OUT}
-    jobs = [(f, load_results(f)["settings"]["seed"], row) for f in FILES for row in load_results(f)["cases"]]
+    recs = {f: load_results(f) for f in FILES}
+    jobs = [(f, rec["settings"]["seed"], row) for f, rec in recs.items() for row in rec["cases"]]
     if a.runs > 0:
         jobs = jobs[: a.runs]
     tasks = [(hm.hidden_card(cases[row["case"]]).model_dump(), str(hm.CARD), row["steps"], hm.INTERVAL_H)

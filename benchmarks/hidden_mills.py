@@ -109,6 +109,8 @@ def load_mills(path: Path) -> tuple[Case, ...]:
     from bmctl.errors import InputError
     from bmctl.limits import HOURS_MIN
 
+    lab = load_card(CARD).model_dump()  # the fields a hidden mill may change
+
     class MillRow(Strict):
         name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,16}$")]
         gamma_mult: Annotated[float, Field(ge=0.1, le=10)]
@@ -122,7 +124,7 @@ def load_mills(path: Path) -> tuple[Case, ...]:
         @classmethod
         def _numeric_card_field(cls, v: str) -> str:
             sec, key = v.split(".")
-            cur = load_card(CARD).model_dump().get(sec)
+            cur = lab.get(sec)
             if not isinstance(cur, dict) or key not in cur:
                 raise ValueError(f"not a field of the card {CARD.name} (got {v!r})")
             if isinstance(cur[key], bool) or not isinstance(cur[key], (int, float)):
@@ -448,30 +450,20 @@ def main() -> None:
                                              "" if name == "hidden_mills_noise" else
                                              f" --sample-particles {a.sample_particles} --results-name {name}")))
         return
-    pool = CASES + HELD_OUT
-    if a.mills:
-        from bmctl.errors import InputError
+    from bmctl.control.config import load_controller
+    from bmctl.errors import InputError
 
-        try:
-            pool = load_mills(Path(a.mills))
-        except InputError as exc:
-            print(f"hidden_mills.py: error: {exc}", file=sys.stderr)
-            sys.exit(2)
-        if a.results_name == "hidden_mills" and not a.no_results:
-            sys.exit("hidden_mills.py: --mills: name its results (--results-name) or pass --no-results")
-    controller = CONTROLLER
-    if a.controller:
-        from bmctl.control.config import load_controller
-        from bmctl.errors import InputError
-
-        try:
+    try:  # a bad mills or controller file: one line, exit 2, before anything is written
+        pool = load_mills(Path(a.mills)) if a.mills else CASES + HELD_OUT
+        if a.controller:
             load_controller(a.controller)
-        except InputError as exc:
-            print(f"hidden_mills.py: error: {exc}", file=sys.stderr)
-            sys.exit(2)
-        controller = Path(a.controller).resolve()
-        if a.results_name == "hidden_mills" and not a.no_results:
-            sys.exit("hidden_mills.py: --controller: name its results (--results-name) or pass --no-results")
+    except InputError as exc:
+        print(f"hidden_mills.py: error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    controller = Path(a.controller).resolve() if a.controller else CONTROLLER
+    for flag, given in (("--mills", a.mills), ("--controller", a.controller)):
+        if given and a.results_name == "hidden_mills" and not a.no_results:
+            sys.exit(f"hidden_mills.py: {flag}: name its results (--results-name) or pass --no-results")
     names = [s.strip() for s in (a.cases or ",".join(c.name for c in (pool if a.mills else CASES))).split(",")
              if s.strip()]
     known = {c.name: c for c in pool}
