@@ -181,6 +181,9 @@ class PlanSearch(Strict):
     #: 1 = as in the open-loop expected
     #: squared error; less counts on the feedback of later plans
     risk: Annotated[float, Field(ge=0, le=10)] = 0.25
+    #: when resting on is predicted outside ``[objective] tolerance``, also weigh single bursts now
+    #: (then rest) in the spread-scored pool: small steps toward the target (docs/control.md, "Nudges")
+    nudge: bool = False
 
 
 class ReferencePoint(Target):

@@ -183,7 +183,8 @@ class PlanController:
         ps_cfg = self.cfg.plan
         kw = dict(substeps=ps_cfg.substeps, rpm_step=ps_cfg.rpm_step, band=ps_cfg.error_band,
                   coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool, pool_band=ps_cfg.pool_band, risk=ps_cfg.risk,
-                  rest_within=None if milled(hist) else self.cfg.objective.tolerance)
+                  rest_within=None if milled(hist) else self.cfg.objective.tolerance,
+                  nudge_above=self.cfg.objective.tolerance if ps_cfg.nudge else None)
         args = (self.model, np.array(x0s), np.array(ps), target, grid, lim, self.cfg.weights, carry)
         res, scope = None, "global"
         if extra:  # the previous plan still reaches the target: a local search around it

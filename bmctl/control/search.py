@@ -853,6 +853,37 @@ def coarse_families(grid: Grid, lim: Limits, rpm_step: float) -> tuple[np.ndarra
     return np.array(rows, dtype=float), fam
 
 
+def _nudge_lengths(grid: Grid, lim: Limits) -> set:
+    m = max(float(lim.min_mill), 1.0)
+    return {round(v) for v in (m, 2 * m, grid.interval_min) if v <= grid.interval_min + 1e-9}
+
+
+def nudge_rows(grid: Grid, lim: Limits, rpm_step: float) -> np.ndarray:
+    """Parameter rows of single bursts now, then rest: every coarse rpm, for one and two minimum
+    milling periods and a whole interval (what ``nudge_above`` of :func:`search` weighs).
+
+    Parameters
+    ----------
+    grid : Grid
+    lim : Limits
+    rpm_step : float
+
+    Examples
+    --------
+    >>> from bmctl.moments import make_moment_model
+    >>> from bmctl.control.config import load_controller
+    >>> m = make_moment_model("models/alni-1to1-300rpm-lab.toml")
+    >>> lim = limits_of(load_controller("controllers/mpc-default.toml"), m)
+    >>> rows = nudge_rows(make_grid(0.0, 4.0, 0.5), lim, 100.0)
+    >>> sorted({float(c) for c in rows[:, PARAMS.index("cap")]})
+    [5.0, 10.0, 30.0]
+    """
+    st = max(lim.rpm_step, round(rpm_step / lim.rpm_step) * lim.rpm_step)
+    rpms = np.unique(np.append(np.arange(lim.rpm_lo, lim.rpm_hi + 1e-9, st), lim.rpm_hi))
+    return np.array([_row(r, grid.interval_min, 1, grid.K, cap=float(c))
+                     for r in rpms for c in sorted(_nudge_lengths(grid, lim))], dtype=float)
+
+
 def neighbours(p: np.ndarray, grid: Grid, lim: Limits, minutes_used: float) -> np.ndarray:
     """Parameter rows next to ``p`` on the operable grid: rpm of either phase by one or two dial steps,
     milling minutes per cycle by 1 and 5, cycle length and phase split by one interval, and the
@@ -911,7 +942,7 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
            substeps: int = 2, rpm_step: float = 20.0, band: float = 0.002, rounds: int = 1, keep: int = 6,
            extra=None, coarse: bool = True, coarse_factor: int = 2, pool: int = 8, pool_band: float = 0.03,
            risk: float = 0.25, give_up_above: float | None = None,
-           rest_within: float | None = None) -> SearchResult | None:
+           rest_within: float | None = None, nudge_above: float | None = None) -> SearchResult | None:
     """Coarse batch over the families, then rounds of neighbours of the best few (and of the best per
     family), every candidate operable over the whole horizon; the best within the error band are then
     scored on the spread.
@@ -964,6 +995,14 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         Resting on (no milling to the batch end) enters the spread-scored pool only when its own
         predicted error is within this, or when no plan that mills is in the pool. The planner
         passes its ``[objective] tolerance`` while the mill has not milled yet in the batch.
+    nudge_above : float, optional
+        When resting on is predicted further than this (relative error) from the target, single
+        bursts now, then rest (:func:`nudge_rows`: every coarse rpm, one and two minimum milling
+        periods and a whole interval) are evaluated too, and the nominally closest of each length
+        that comes closer than resting joins the spread-scored pool: a small step toward the target
+        whose outcome the spread scatters little, weighed against resting on and against the closer
+        but wider plans. ``None``: off (the planner passes ``[objective] tolerance`` when
+        ``[plan] nudge`` is set).
 
     Examples
     --------
@@ -1094,6 +1133,20 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         best = new_best
     if give_up_above is not None and float(np.min(C["err"])) > give_up_above:
         return None  # the result's error (that of one of the candidates) would exceed it too
+    nudges: list[int] = []
+    if nudge_above is not None and x0s.shape[0] > 1:
+        still = [i for i in range(len(C["rms"])) if C["mh"][i] <= 0.0 and not C["defer"][i]]
+        e_rest = min((C["nom"][i] for i in still), default=0.0)
+        if e_rest > nudge_above:
+            n0 = len(C["rms"])
+            Pn = nudge_rows(grid, lim, rpm_step)
+            evaluate_rows(Pn, ["constant"] * Pn.shape[0], grid, store=True)
+            ids = [i for i in range(len(C["rms"])) if (i >= n0 or C["F"][i] == "constant") and C["mh"][i] > 0.0
+                   and C["exc"][i] <= CEILING_TOL_C and C["nom"][i] < e_rest - 1e-9
+                   and round(float(np.sum(C["min"][i]))) in _nudge_lengths(grid, lim)]
+            for m in sorted({round(float(np.sum(C["min"][i]))) for i in ids}):
+                sub = [i for i in ids if round(float(np.sum(C["min"][i]))) == m]
+                nudges.append(min(sub, key=lambda i: (round(C["nom"][i], 9), i)))
     Xs = None
     if x0s.shape[0] > 1:  # the spread: a pool of the nominally closest plans, scored on every particle
         sc = scores()
@@ -1114,6 +1167,7 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
             ids = [i for i in by_cost if C["F"][i] == f]
             if ids:
                 cand.append(ids[0])
+        cand += [i for i in nudges if i in set(near.tolist())]  # small steps toward the target (nudge_above)
         cand = np.array(sorted(dict.fromkeys(int(i) for i in cand)))
         R = np.array([C["rpm"][i] for i in cand])
         A = np.array([C["min"][i] for i in cand])
