@@ -96,6 +96,27 @@ REGISTRY: tuple[Study, ...] = (
     Study("hidden_mills_narrowpool_unseen_seed1",
           "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 1 "
           "--controller benchmarks/mpc-narrow-pool.toml --results-name hidden_mills_narrowpool_unseen_seed1", 8),
+    Study("hidden_mills_nudge",
+          "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
+          "--controller benchmarks/mpc-nudge.toml --results-name hidden_mills_nudge", 8),
+    Study("hidden_mills_nudge_seed1_all",
+          "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
+          "--controller benchmarks/mpc-nudge.toml --results-name hidden_mills_nudge_seed1_all", 8),
+    Study("hidden_mills_nudge_seed2_all",
+          "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 2 "
+          "--controller benchmarks/mpc-nudge.toml --results-name hidden_mills_nudge_seed2_all", 8),
+    Study("hidden_mills_nudge_heldout",
+          "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 0 "
+          "--controller benchmarks/mpc-nudge.toml --results-name hidden_mills_nudge_heldout", 6),
+    Study("hidden_mills_nudge_heldout_seed1",
+          "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
+          "--controller benchmarks/mpc-nudge.toml --results-name hidden_mills_nudge_heldout_seed1", 6),
+    Study("hidden_mills_nudge_unseen",
+          "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 0 "
+          "--controller benchmarks/mpc-nudge.toml --results-name hidden_mills_nudge_unseen", 8),
+    Study("hidden_mills_nudge_unseen_seed1",
+          "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 1 "
+          "--controller benchmarks/mpc-nudge.toml --results-name hidden_mills_nudge_unseen_seed1", 8),
     Study("hidden_mills_twomult", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
           "--no-energy-mult --results-name hidden_mills_twomult", 8),
     Study("hidden_mills_twomult_seed1_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "

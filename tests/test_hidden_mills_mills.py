@@ -98,3 +98,14 @@ def test_the_narrow_pool_variant_differs_from_the_default_in_the_pool_band_only(
     a.pop("name"), b.pop("name")
     a.pop("description", None), b.pop("description", None)
     assert a == b
+
+
+def test_the_nudge_variant_differs_from_the_default_in_the_nudge_only():
+    from bmctl.control.config import load_controller
+
+    a = load_controller(ROOT / "benchmarks" / "mpc-nudge.toml").model_dump()
+    b = load_controller(ROOT / "controllers" / "mpc-default.toml").model_dump()
+    assert a["plan"].pop("nudge") and not b["plan"].pop("nudge")
+    for d in (a, b):
+        d.pop("name"), d.pop("description", None)
+    assert a == b

@@ -297,3 +297,37 @@ def test_before_the_mill_has_milled_a_rest_off_the_tolerance_is_not_chosen_for_t
         assert any(b.startswith("the filter's spread") for b in milled.extra["binding"])
     else:
         pytest.fail(f"with the mill run, resting on was expected to win on the spread: {milled.status.reason}")
+
+
+def _on_the_hump(model):
+    """The card's state after 1 h at 240 rpm (growing, near the welding hump's top), a spread of 32
+    particles about it (gamma, delta log-sd 0.25, size 3 %) and the logged hour."""
+    g = make_grid(0.0, 1.0, 0.5)
+    x = evaluate(model, model.x0()[None], np.ones((1, 2)), np.full((1, 2), 240.0), np.full((1, 2), 30.0),
+                 g).x_end[0, 0]
+    rng = np.random.default_rng(0)
+    P = np.exp(rng.normal(0.0, 0.25, (32, 2)))
+    X = np.repeat(x[None], 32, axis=0)
+    X[:, 0] *= np.exp(rng.normal(0.0, 0.03, 32))
+    return x, list(zip(X, P)), [(0.5, 240.0, 1.0), (0.5, 240.0, 1.0)]
+
+
+def test_a_nudge_replaces_a_rest_off_the_tolerance(model, cfg):
+    """Target 3 % above the powder near the hump's top, 4 h left: without nudges the spread-scored pool
+    holds the plans that come closest (they scatter) and the cheapest, and resting on, 2.9 % off,
+    wins; with ``[plan] nudge`` a single short burst now, predicted within the tolerance, joins the
+    pool and is advised. The plan is the burst and then rest."""
+    x, spread, hist = _on_the_hump(model)
+    target = {"s_mean_um": 1.03 * float(x[0])}
+    tol = cfg.objective.tolerance
+    plain = make_controller(cfg, model, target)
+    plain.set_target(target, 5.0)
+    a = plain.plan(x, 1.0, p=np.ones(2), scenarios=spread, history=hist)
+    assert a.extra["family"] == "rest" and a.extra["error"] > tol
+    nudged = cfg.model_copy(update={"plan": cfg.plan.model_copy(update={"nudge": True})})
+    ctrl = make_controller(nudged, model, target)
+    ctrl.set_target(target, 5.0)
+    b = ctrl.plan(x, 1.0, p=np.ones(2), scenarios=spread, history=hist)
+    mins = np.asarray(b.extra["minutes"])
+    assert 0 < mins[0] <= 2 * cfg.mill.min_mill_min and not mins[1:].any()
+    assert b.u_apply[1] > 0 and b.extra["error"] <= tol
