@@ -111,7 +111,7 @@ def main() -> None:
         jobs = jobs[: a.runs]
     tasks = [(hm.hidden_card(cases[row["case"]]).model_dump(), str(hm.CARD), row["steps"], hm.INTERVAL_H)
              for _, _, row in jobs]
-    seeds = [np.random.SeedSequence([seed, ord(row["case"]), 77]) for _, seed, row in jobs]  # one per run
+    seeds = [np.random.SeedSequence([seed, *map(ord, row["case"]), 77]) for _, seed, row in jobs]  # one per run
     client = client_for(None, a.workers)
     try:
         with tqdm(total=len(tasks), desc="replays", unit="run") as bar:

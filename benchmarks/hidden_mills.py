@@ -63,6 +63,8 @@ SAMPLE_PARTICLES = 300
 #: a rest counts as idle while milling is still needed when the plant is this far from the target
 NEED_TOL = 0.02
 WATCH_H = 0.05  # the plant's vial temperature is read this often (3 min)
+#: the fastest plain schedule of the sweep (rpm): every hidden mill must reach it
+SWEEP_RPM_MAX = 500.0
 
 
 @dataclass(frozen=True)
@@ -176,7 +178,7 @@ def hidden_card(case: Case):
 def plain_schedules(hours: float) -> list[tuple[str, list]]:
     """The plain schedules of the sweep: (name, [(hours, rpm), ...])."""
     out = [(f"{r:.0f} rpm continuous", [(hours, float(r))]) for r in range(100, 461, 20)]
-    for r in (400.0, 450.0, 500.0):
+    for r in (400.0, 450.0, SWEEP_RPM_MAX):
         cyc = []
         t = 0.0
         while t < hours - 1e-9:
@@ -237,6 +239,18 @@ def cli(args: list[str], env: dict) -> tuple[str, float, float]:
     return p.stdout, wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
 
 
+def case_seeds(seed: int, name: str) -> np.random.SeedSequence:
+    """The seed sequence of one mill's campaign (its plant and its samples): the run's seed and the
+    code points of the mill's name (a one-letter name: ``[seed, ord(name)]``).
+
+    Examples
+    --------
+    >>> case_seeds(1, "C").entropy, case_seeds(1, "T12").entropy
+    ([1, 67], [1, 84, 49, 50])
+    """
+    return np.random.SeedSequence([int(seed), *map(ord, name)])
+
+
 def run_campaign(case: Case, target_um: float, folder: Path, particles: int, seed: int, env: dict,
                  energy_mult: bool = True, sample_particles: int = SAMPLE_PARTICLES,
                  on_request: bool = False, controller: Path = CONTROLLER) -> dict:
@@ -247,7 +261,7 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
     from bmctl.plant.plant import Plant
 
     card = hidden_card(case)
-    ss = np.random.SeedSequence([seed, ord(case.name)])
+    ss = case_seeds(seed, case.name)
     g_plant, g_sample = (np.random.default_rng(s) for s in ss.spawn(2))
     plant = Plant(card, g_plant, particles)
     cli(["campaign", "init", str(folder), "--model", str(CARD), "--controller", str(controller), "--target",
@@ -455,8 +469,14 @@ def main() -> None:
 
     try:  # a bad mills or controller file: one line, exit 2, before anything is written
         pool = load_mills(Path(a.mills)) if a.mills else CASES + HELD_OUT
-        if a.controller:
-            load_controller(a.controller)
+        ctrl_cfg = load_controller(a.controller or CONTROLLER)
+        top = max(SWEEP_RPM_MAX, min(ctrl_cfg.bounds.rpm_max, load_card(CARD).mill.rpm_max))
+        for i, case in enumerate(pool):  # the operator cannot run an advice above the mill's top speed
+            if hidden_card(case).mill.rpm_max < top:
+                raise InputError(f"{a.mills}: mill[{i}] ({case.name}): mill.rpm_max: the hidden mill must reach the "
+                                 f"{top:g} rpm that the sweep and the controller may ask for (got "
+                                 f"{hidden_card(case).mill.rpm_max:g}); a mill's top speed is not hidden from its "
+                                 "operator: give it on the card and the controller's [bounds] instead")
     except InputError as exc:
         print(f"hidden_mills.py: error: {exc}", file=sys.stderr)
         sys.exit(2)
@@ -489,11 +509,18 @@ def main() -> None:
     card_sweeps: dict[float, list] = {}
     rows = []
     t_start = time.perf_counter()
-    for case in cases:
-        hidden = hidden_card(case)
-        hs = sweep(hidden, case.hours, a.particles, a.seed)
+    refs = {}
+    for i, case in enumerate(cases):  # every target first: a mill without one stops the run before any campaign
+        hs = sweep(hidden_card(case), case.hours, a.particles, a.seed)
         ok = [r for r in hs[:19] if r["peak_c"] <= CEILING_C - 3.0]
-        ref = min(ok, key=lambda r: abs(float(r["name"].split()[0]) - case.rpm_ref))
+        if not ok:
+            print(f"hidden_mills.py: error: {a.mills + ': ' if a.mills else ''}mill {case.name}: no constant speed of the sweep stays "
+                  f"3 °C under the {CEILING_C:g} °C ceiling on the hidden plant, so no target can be chosen",
+                  file=sys.stderr)
+            sys.exit(2)
+        refs[case.name] = (hs, min(ok, key=lambda r: abs(float(r["name"].split()[0]) - case.rpm_ref)))
+    for case in cases:
+        hs, ref = refs[case.name]
         target = round(ref["s_mean_um"], 2)
         if case.hours not in card_sweeps:
             card_sweeps[case.hours] = sweep(card, case.hours, a.particles, a.seed)

@@ -109,3 +109,44 @@ def test_the_nudge_variant_differs_from_the_default_in_the_nudge_only():
     for d in (a, b):
         d.pop("name"), d.pop("description", None)
     assert a == b
+
+
+def test_a_hidden_mill_slower_than_the_sweep_is_refused_before_anything_runs(tmp_path):
+    """A top speed under the 500 rpm the sweep and the controller may ask for: one line naming the
+    file, the mill and mill.rpm_max, exit 2, nothing written (the operator could not run the advice)."""
+    row = ROW.replace('"mill.ball_count"', '"mill.rpm_max"').replace("value = 9", "value = 400.0")
+    p = _file(tmp_path, "[[mill]]\n" + row)
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hidden_mills.py"), "--mills", str(p),
+                        "--no-results", "--out", str(out)], capture_output=True, text=True, timeout=120)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr
+    assert str(p) in lines[0] and "(X)" in lines[0] and "mill.rpm_max" in lines[0]
+    assert not out.exists()
+
+
+def test_each_mill_name_seeds_its_own_campaign():
+    """Names of several letters are allowed by the mills file: their campaigns are seeded apart, and a
+    one-letter name keeps the seed sequence of the shipped mills."""
+    hm = load_benchmark("hidden_mills")
+    draws = {n: hm.case_seeds(0, n).generate_state(2).tolist() for n in ("C", "T1", "T2", "T12")}
+    assert len({tuple(v) for v in draws.values()}) == 4
+    import numpy as np
+
+    assert draws["C"] == np.random.SeedSequence([0, 67]).generate_state(2).tolist()
+
+
+def test_a_hidden_mill_without_a_target_under_the_ceiling_stops_before_any_campaign(tmp_path):
+    """A vial that starts at 79 °C: no constant speed of the sweep stays 3 °C under the 80 °C ceiling,
+    so no target can be chosen: one line naming the file and the mill, exit 2, no campaign run."""
+    row = (ROW.replace('"mill.ball_count"', '"thermal.ambient_C"').replace("value = 9", "value = 79.0")
+           .replace("hours = 6.0", "hours = 0.5"))
+    p = _file(tmp_path, "[[mill]]\n" + row)
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hidden_mills.py"), "--mills", str(p),
+                        "--particles", "200", "--no-results", "--out", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr
+    assert str(p) in lines[0] and "mill X" in lines[0] and "no constant speed" in lines[0]
+    assert not any(out.glob("case-*"))
