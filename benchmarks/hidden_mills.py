@@ -510,11 +510,12 @@ def main() -> None:
     rows = []
     t_start = time.perf_counter()
     refs = {}
-    for i, case in enumerate(cases):  # every target first: a mill without one stops the run before any campaign
+    for case in cases:  # every target first: a mill without one stops the run before any campaign
         hs = sweep(hidden_card(case), case.hours, a.particles, a.seed)
         ok = [r for r in hs[:19] if r["peak_c"] <= CEILING_C - 3.0]
         if not ok:
-            print(f"hidden_mills.py: error: {a.mills + ': ' if a.mills else ''}mill {case.name}: no constant speed of the sweep stays "
+            where = f"{a.mills}: " if a.mills else ""
+            print(f"hidden_mills.py: error: {where}mill {case.name}: no constant speed of the sweep stays "
                   f"3 °C under the {CEILING_C:g} °C ceiling on the hidden plant, so no target can be chosen",
                   file=sys.stderr)
             sys.exit(2)
