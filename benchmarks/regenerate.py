@@ -75,6 +75,10 @@ REGISTRY: tuple[Study, ...] = (
           "--cases M,N,O,P,Q,R,S --seed 1 --results-name hidden_mills_unseen_seed1", 8),
     Study("hidden_mills_onrequest_unseen", "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml "
           "--cases M,N,O,P,Q,R,S --seed 0 --sample-on-request --results-name hidden_mills_onrequest_unseen", 8),
+    Study("hidden_mills_fields", "python benchmarks/hidden_mills.py --mills benchmarks/mills-fields.toml "
+          "--cases V1,V2,V3,V4,V5,V6 --seed 0 --results-name hidden_mills_fields", 7),
+    Study("hidden_mills_fields_seed1", "python benchmarks/hidden_mills.py --mills benchmarks/mills-fields.toml "
+          "--cases V1,V2,V3,V4,V5,V6 --seed 1 --results-name hidden_mills_fields_seed1", 7),
     Study("hidden_mills_narrowpool",
           "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
           "--controller benchmarks/mpc-narrow-pool.toml --results-name hidden_mills_narrowpool", 8),

@@ -1138,10 +1138,9 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         still = [i for i in range(len(C["rms"])) if C["mh"][i] <= 0.0 and not C["defer"][i]]
         e_rest = min((C["nom"][i] for i in still), default=0.0)
         if e_rest > nudge_above:
-            n0 = len(C["rms"])
             Pn = nudge_rows(grid, lim, rpm_step)
-            evaluate_rows(Pn, ["constant"] * Pn.shape[0], grid, store=True)
-            ids = [i for i in range(len(C["rms"])) if (i >= n0 or C["F"][i] == "constant") and C["mh"][i] > 0.0
+            evaluate_rows(Pn, ["constant"] * Pn.shape[0], grid, store=True)  # (those already evaluated: skipped)
+            ids = [i for i in range(len(C["rms"])) if C["F"][i] == "constant" and C["mh"][i] > 0.0
                    and C["exc"][i] <= CEILING_TOL_C and C["nom"][i] < e_rest - 1e-9
                    and round(float(np.sum(C["min"][i]))) in _nudge_lengths(grid, lim)]
             for m in sorted({round(float(np.sum(C["min"][i]))) for i in ids}):
