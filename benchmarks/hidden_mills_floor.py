@@ -18,7 +18,11 @@ itself: ``hidden_mills.py --noise`` (``results/hidden_mills_noise.json``).
 The same for the runs with 1000-particle samples (``hidden_mills.py --sample-particles 1000
 --results-name hidden_mills_samples1000[...]``, key ``samples1000``) and for the runs whose operator
 takes the extra samples the advice asks for (``--sample-on-request --results-name
-hidden_mills_onrequest[...]``, key ``onrequest``) where those files exist.
+hidden_mills_onrequest[...]``, key ``onrequest``) where those files exist, and for the default on the
+mills of ``benchmarks/mills-unseen.toml`` (key ``unseen``) and ``benchmarks/mills-fields.toml`` (key
+``fields``). For every set also the estimate's error at the half-hour advices, which see no new
+sample (the state predicted over the half hour since the last one): their RMS and the RMS of each
+run's mean of them (what the model's form adds the same way all along a run).
 """
 
 from __future__ import annotations
@@ -39,6 +43,12 @@ FILES = ("hidden_mills", "hidden_mills_seed1_all", "hidden_mills_seed2_all", "hi
 FILES_1000 = tuple(f.replace("hidden_mills", "hidden_mills_samples1000", 1) for f in FILES)
 #: the same with the operator taking the extra samples the advice asks for (``--sample-on-request``)
 FILES_ON_REQUEST = tuple(f.replace("hidden_mills", "hidden_mills_onrequest", 1) for f in FILES)
+
+
+#: the default controller on the mills drawn after it was final (``--mills benchmarks/mills-unseen.toml``)
+FILES_UNSEEN = ("hidden_mills_unseen", "hidden_mills_unseen_seed1")
+#: ... and on the mills that change card fields none of the others change (``benchmarks/mills-fields.toml``)
+FILES_FIELDS = ("hidden_mills_fields", "hidden_mills_fields_seed1")
 
 
 #: the idle rule's distance from the target (``hidden_mills.NEED_TOL``), also the controller's tolerance
@@ -83,9 +93,12 @@ def run_rows(results: dict, name: str) -> list[dict]:
         last = steps[-1]
         at_samples = [rel_pct(s["estimate_s_mean_um"], s["plant_s_mean_um"]) for s in steps
                       if s["t_h"] > 0 and abs(s["t_h"] - round(s["t_h"])) < 1e-6]
+        between = [rel_pct(s["estimate_s_mean_um"], s["plant_s_mean_um"]) for s in steps
+                   if s["t_h"] > 1 and abs(s["t_h"] - round(s["t_h"])) > 1e-6]  # predicted since the last sample
         rows.append({"file": name, "case": c["case"], "final_error_pct": float(c["error_pct"]),
                      "estimate_error_last_advice_pct": rel_pct(last["estimate_s_mean_um"], last["plant_s_mean_um"]),
                      "last_advice_t_h": float(last["t_h"]), "estimate_errors_at_samples_pct": at_samples,
+                     "estimate_errors_between_samples_pct": between,
                      "idle_over_bar": [r for r in idle_stretches(c) if r["hours"] > IDLE_BAR_H + 1e-9]})
     return rows
 
@@ -94,10 +107,18 @@ def summary(rows: list[dict]) -> dict:
     fin = np.array([r["final_error_pct"] for r in rows])
     est = np.array([r["estimate_error_last_advice_pct"] for r in rows])
     samp = np.concatenate([r["estimate_errors_at_samples_pct"] for r in rows])
+    betw = np.concatenate([r["estimate_errors_between_samples_pct"] for r in rows])
+    # a run's own mean error between samples: what the half hours since a sample add, the same way all along
+    bias = np.array([np.mean(r["estimate_errors_between_samples_pct"]) for r in rows
+                     if r["estimate_errors_between_samples_pct"]])
     rms = lambda a: float(np.sqrt(np.mean(np.square(a))))  # noqa: E731
     idle = [i for r in rows for i in r.get("idle_over_bar", [])]
     return {"runs": len(rows), "final_rms_pct": rms(fin), "estimate_last_advice_rms_pct": rms(est),
             "estimate_at_samples_rms_pct": rms(samp), "samples": int(samp.size),
+            "estimate_between_samples_rms_pct": rms(betw), "between_samples": int(betw.size),
+            "run_mean_between_samples_rms_pct": rms(bias),
+            "last_advice_between_samples": sum(abs(r["last_advice_t_h"] - round(r["last_advice_t_h"])) > 1e-6
+                                               for r in rows),
             "corr_final_vs_minus_estimate": float(np.corrcoef(fin, -est)[0, 1]),
             "left_rms_pct": rms(fin + est),
             "over_5pct": [f"{r['file']}:{r['case']}" for r in rows if abs(r["final_error_pct"]) > 5.0],
@@ -150,7 +171,8 @@ def main() -> None:
         return
 
     out, settings = {}, {"files": list(FILES)}
-    for key, files in (("samples300", FILES), ("samples1000", FILES_1000), ("onrequest", FILES_ON_REQUEST)):
+    for key, files in (("samples300", FILES), ("samples1000", FILES_1000), ("onrequest", FILES_ON_REQUEST),
+                       ("unseen", FILES_UNSEEN), ("fields", FILES_FIELDS)):
         if key != "samples300" and not all((results_dir() / f"{f}.json").is_file() for f in files):
             print(f"{key}: not all of {', '.join(files)} in results/; left out")
             continue
@@ -170,8 +192,12 @@ def main() -> None:
               f"estimate's {s['corr_final_vs_minus_estimate']:.2f}; left over {s['left_rms_pct']:.2f} % RMS; "
               f"{s['idle_over_bar']} rests over {IDLE_BAR_H:g} h while needed, {s['idle_over_bar_estimate_within_tol']} "
               f"begun with the estimate within the tolerance\n")
+        print(f"{key}: the estimate at the half-hour advices since the last sample: RMS "
+              f"{s['estimate_between_samples_rms_pct']:.2f} % ({s['between_samples']}), each run's mean of them RMS "
+              f"{s['run_mean_between_samples_rms_pct']:.2f} %; the last advice between samples in "
+              f"{s['last_advice_between_samples']} of {s['runs']} runs\n")
         for r in rows:
-            r.pop("estimate_errors_at_samples_pct")
+            r.pop("estimate_errors_at_samples_pct"), r.pop("estimate_errors_between_samples_pct")
         if key == "samples300":
             out.update({"summary": s, "runs": rows})
         else:
