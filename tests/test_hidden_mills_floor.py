@@ -27,6 +27,10 @@ def test_a_plan_that_steers_its_estimate_exactly_leaves_minus_the_estimates_erro
     assert s["left_rms_pct"] == pytest.approx(0.0, abs=1e-12)
     assert s["samples"] == 3 and s["estimate_at_samples_rms_pct"] == pytest.approx((100 / 3) ** 0.5)
     assert s["over_5pct"] == []
+    # the half hour after the sample: predicted, no sample of its own (t = 1.5 h, the last advice)
+    assert s["between_samples"] == 3 and s["estimate_between_samples_rms_pct"] == pytest.approx(7 ** 0.5)
+    assert s["run_mean_between_samples_rms_pct"] == pytest.approx(7 ** 0.5)
+    assert s["last_advice_between_samples"] == 3
     res["cases"].append(_case("D", 6.0, 50.0, 50.0))
     assert fl.summary(fl.run_rows(res, "f"))["over_5pct"] == ["f:D"]
 
@@ -35,7 +39,8 @@ def test_figure_draws_both_sample_sizes_from_the_results_file(tmp_path):
     fl = load_benchmark("hidden_mills_floor")
     runs = [{"file": "f", "case": c, "final_error_pct": e, "estimate_error_last_advice_pct": -e + 0.5}
             for c, e in zip("ABCD", (1.0, -2.0, 3.0, 0.5))]
-    s = fl.summary([dict(r, estimate_errors_at_samples_pct=[1.0]) for r in runs])
+    s = fl.summary([dict(r, estimate_errors_at_samples_pct=[1.0], estimate_errors_between_samples_pct=[2.0],
+                         last_advice_t_h=11.5) for r in runs])
     rec = {"summary": s, "runs": runs, "samples1000": {"summary": s, "runs": runs}}
     out = fl.figure(rec, tmp_path / "floor.png")
     data = out.read_bytes()
