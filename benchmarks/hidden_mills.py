@@ -253,8 +253,10 @@ def case_seeds(seed: int, name: str) -> np.random.SeedSequence:
 
 def run_campaign(case: Case, target_um: float, folder: Path, particles: int, seed: int, env: dict,
                  energy_mult: bool = True, sample_particles: int = SAMPLE_PARTICLES,
-                 on_request: bool = False, controller: Path = CONTROLLER) -> dict:
-    """The scripted operator: advise, accept, run the hidden plant, log, sample hourly; with
+                 on_request: bool = False, controller: Path = CONTROLLER,
+                 sample_every_h: float = SAMPLE_EVERY_H) -> dict:
+    """The scripted operator: advise, accept, run the hidden plant, log, sample every
+    ``sample_every_h`` (hourly) and at the batch end; with
     ``on_request`` also take the extra sample an advice asks for (``sample_first``), then advise again."""
     from bmctl.measure.sampler import micrograph_sample
     from bmctl.measure.tables import write_table
@@ -312,7 +314,7 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
         cli(["campaign", "log", str(folder), "--rpm", f"{rpm:g}", "--hours", f"{dt:.10g}", "--milling",
              f"{milling:.10g}", "--temperature-c", f"{plant.temperature_c:.2f}"], env)
         t += dt
-        if abs(t / SAMPLE_EVERY_H - round(t / SAMPLE_EVERY_H)) < 1e-6 or t >= case.hours - 1e-9:
+        if abs(t / sample_every_h - round(t / sample_every_h)) < 1e-6 or t >= case.hours - 1e-9:
             take_sample(f"sample-{t:05.2f}h.csv")
             samples += 1
     idle, run = [], 0.0  # rest stretches that began with the plant more than NEED_TOL from the target
@@ -420,6 +422,9 @@ def main() -> None:
     ap.add_argument("--particles", type=int, default=5000, help="plant particles")
     ap.add_argument("--sample-particles", type=int, default=SAMPLE_PARTICLES,
                     help=f"particles in each hourly micrograph sample (default {SAMPLE_PARTICLES})")
+    ap.add_argument("--sample-every-h", type=float, default=SAMPLE_EVERY_H,
+                    help=f"hours between the operator's samples, a multiple of the {INTERVAL_H:g} h interval "
+                         f"(default {SAMPLE_EVERY_H:g})")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default=str(ROOT / "out" / "hidden_mills"), help="campaign folders (replaced)")
     ap.add_argument("--no-results", action="store_true", help="do not write results/hidden_mills.json")
@@ -497,6 +502,13 @@ def main() -> None:
         sys.exit("hidden_mills.py: --sample-particles: name its results (--results-name) or pass --no-results")
     if a.sample_on_request and a.results_name == "hidden_mills" and not a.no_results:
         sys.exit("hidden_mills.py: --sample-on-request: name its results (--results-name) or pass --no-results")
+    k = a.sample_every_h / INTERVAL_H
+    if not (k >= 1 and abs(k - round(k)) < 1e-9):
+        print(f"hidden_mills.py: error: --sample-every-h: must be a positive multiple of the {INTERVAL_H:g} h "
+              f"interval (got {a.sample_every_h:g})", file=sys.stderr)
+        sys.exit(2)
+    if a.sample_every_h != SAMPLE_EVERY_H and a.results_name == "hidden_mills" and not a.no_results:
+        sys.exit("hidden_mills.py: --sample-every-h: name its results (--results-name) or pass --no-results")
     if a.sample_particles < 1:
         sys.exit(f"hidden_mills.py: --sample-particles: must be at least 1 (got {a.sample_particles})")
     out = Path(a.out)
@@ -534,7 +546,7 @@ def main() -> None:
               f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
               f"{plain_err:+.1f} % on the hidden plant", flush=True)
         res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, not a.no_energy_mult,
-                           a.sample_particles, a.sample_on_request, controller)
+                           a.sample_particles, a.sample_on_request, controller, a.sample_every_h)
         print(f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
               f"{res['peak_c']:.1f} °C, idle while needed {res['idle_needed_h']:.2f} h (longest "
               f"{res['longest_idle_needed_h']:.2f} h); advise first {res['advise_first_s']:.1f} s, later median "
@@ -582,13 +594,14 @@ def main() -> None:
                 cmd += f" --controller {_shown(controller)}"
             cmd += (" --no-energy-mult" if a.no_energy_mult else "")
             cmd += (f" --sample-particles {a.sample_particles}" if a.sample_particles != SAMPLE_PARTICLES else "")
+            cmd += (f" --sample-every-h {a.sample_every_h:g}" if a.sample_every_h != SAMPLE_EVERY_H else "")
             cmd += (" --sample-on-request" if a.sample_on_request else "")
             cmd += f" --results-name {a.results_name}"
         path = write_results(a.results_name, {"summary": summary, "cases": rows},
                              settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
                                        "controller": _shown(controller), "card": str(CARD.relative_to(ROOT)),
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
-                                       "sample_every_h": SAMPLE_EVERY_H, "sample_particles": a.sample_particles,
+                                       "sample_every_h": a.sample_every_h, "sample_particles": a.sample_particles,
                                        "need_tol": NEED_TOL, "energy_mult": not a.no_energy_mult,
                                        "sample_on_request": a.sample_on_request},
                              command=cmd)
