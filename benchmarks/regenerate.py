@@ -79,6 +79,18 @@ REGISTRY: tuple[Study, ...] = (
           "--cases V1,V2,V3,V4,V5,V6 --seed 0 --results-name hidden_mills_fields", 7),
     Study("hidden_mills_fields_seed1", "python benchmarks/hidden_mills.py --mills benchmarks/mills-fields.toml "
           "--cases V1,V2,V3,V4,V5,V6 --seed 1 --results-name hidden_mills_fields_seed1", 7),
+    Study("hidden_mills_halfhourly_seed1_all",
+          "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
+          "--sample-every-h 0.5 --results-name hidden_mills_halfhourly_seed1_all", 9),
+    Study("hidden_mills_halfhourly_seed2_all",
+          "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 2 "
+          "--sample-every-h 0.5 --results-name hidden_mills_halfhourly_seed2_all", 9),
+    Study("hidden_mills_halfhourly_unseen",
+          "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 0 "
+          "--sample-every-h 0.5 --results-name hidden_mills_halfhourly_unseen", 9),
+    Study("hidden_mills_halfhourly_unseen_seed1",
+          "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 1 "
+          "--sample-every-h 0.5 --results-name hidden_mills_halfhourly_unseen_seed1", 9),
     Study("hidden_mills_narrowpool",
           "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
           "--controller benchmarks/mpc-narrow-pool.toml --results-name hidden_mills_narrowpool", 8),

@@ -150,3 +150,13 @@ def test_a_hidden_mill_without_a_target_under_the_ceiling_stops_before_any_campa
     assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr
     assert str(p) in lines[0] and "mill X" in lines[0] and "no constant speed" in lines[0]
     assert not any(out.glob("case-*"))
+
+
+@pytest.mark.parametrize("every", ["0.7", "0", "-1"])
+def test_a_sampling_interval_off_the_advice_grid_is_refused(tmp_path, every):
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hidden_mills.py"), "--sample-every-h", every,
+                        "--no-results", "--out", str(out)], capture_output=True, text=True, timeout=120)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "--sample-every-h" in lines[0] and "Traceback" not in r.stderr
+    assert not out.exists()
