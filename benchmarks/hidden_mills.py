@@ -477,18 +477,16 @@ def main() -> None:
         ctrl_cfg = load_controller(a.controller or CONTROLLER)
         top = max(SWEEP_RPM_MAX, min(ctrl_cfg.bounds.rpm_max, load_card(CARD).mill.rpm_max))
         for i, case in enumerate(pool):  # the operator cannot run an advice above the mill's top speed
-            if hidden_card(case).mill.rpm_max < top:
+            rpm_max = hidden_card(case).mill.rpm_max
+            if rpm_max < top:
                 raise InputError(f"{a.mills}: mill[{i}] ({case.name}): mill.rpm_max: the hidden mill must reach the "
-                                 f"{top:g} rpm that the sweep and the controller may ask for (got "
-                                 f"{hidden_card(case).mill.rpm_max:g}); a mill's top speed is not hidden from its "
-                                 "operator: give it on the card and the controller's [bounds] instead")
+                                 f"{top:g} rpm that the sweep and the controller may ask for (got {rpm_max:g}); a "
+                                 "mill's top speed is not hidden from its operator: give it on the card and the "
+                                 "controller's [bounds] instead")
     except InputError as exc:
         print(f"hidden_mills.py: error: {exc}", file=sys.stderr)
         sys.exit(2)
     controller = Path(a.controller).resolve() if a.controller else CONTROLLER
-    for flag, given in (("--mills", a.mills), ("--controller", a.controller)):
-        if given and a.results_name == "hidden_mills" and not a.no_results:
-            sys.exit(f"hidden_mills.py: {flag}: name its results (--results-name) or pass --no-results")
     names = [s.strip() for s in (a.cases or ",".join(c.name for c in (pool if a.mills else CASES))).split(",")
              if s.strip()]
     known = {c.name: c for c in pool}
@@ -496,19 +494,17 @@ def main() -> None:
     if bad:
         sys.exit(f"hidden_mills.py: --cases: unknown mill(s) {', '.join(bad)} (known: {', '.join(known)})")
     cases = [known[n] for n in names]
-    if a.no_energy_mult and a.results_name == "hidden_mills" and not a.no_results:
-        sys.exit("hidden_mills.py: --no-energy-mult: name its results (--results-name) or pass --no-results")
-    if a.sample_particles != SAMPLE_PARTICLES and a.results_name == "hidden_mills" and not a.no_results:
-        sys.exit("hidden_mills.py: --sample-particles: name its results (--results-name) or pass --no-results")
-    if a.sample_on_request and a.results_name == "hidden_mills" and not a.no_results:
-        sys.exit("hidden_mills.py: --sample-on-request: name its results (--results-name) or pass --no-results")
     k = a.sample_every_h / INTERVAL_H
     if not (k >= 1 and abs(k - round(k)) < 1e-9):
         print(f"hidden_mills.py: error: --sample-every-h: must be a positive multiple of the {INTERVAL_H:g} h "
               f"interval (got {a.sample_every_h:g})", file=sys.stderr)
         sys.exit(2)
-    if a.sample_every_h != SAMPLE_EVERY_H and a.results_name == "hidden_mills" and not a.no_results:
-        sys.exit("hidden_mills.py: --sample-every-h: name its results (--results-name) or pass --no-results")
+    changed = (("--mills", a.mills), ("--controller", a.controller), ("--no-energy-mult", a.no_energy_mult),
+               ("--sample-particles", a.sample_particles != SAMPLE_PARTICLES),
+               ("--sample-on-request", a.sample_on_request), ("--sample-every-h", a.sample_every_h != SAMPLE_EVERY_H))
+    for flag, given in changed:  # a run off the default protocol must not overwrite the default's results
+        if given and a.results_name == "hidden_mills" and not a.no_results:
+            sys.exit(f"hidden_mills.py: {flag}: name its results (--results-name) or pass --no-results")
     if a.sample_particles < 1:
         sys.exit(f"hidden_mills.py: --sample-particles: must be at least 1 (got {a.sample_particles})")
     out = Path(a.out)

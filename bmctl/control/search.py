@@ -1140,12 +1140,15 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         if e_rest > nudge_above:
             Pn = nudge_rows(grid, lim, rpm_step)
             evaluate_rows(Pn, ["constant"] * Pn.shape[0], grid, store=True)  # (those already evaluated: skipped)
-            ids = [i for i in range(len(C["rms"])) if C["F"][i] == "constant" and C["mh"][i] > 0.0
-                   and C["exc"][i] <= CEILING_TOL_C and C["nom"][i] < e_rest - 1e-9
-                   and round(float(np.sum(C["min"][i]))) in _nudge_lengths(grid, lim)]
-            for m in sorted({round(float(np.sum(C["min"][i]))) for i in ids}):
-                sub = [i for i in ids if round(float(np.sum(C["min"][i]))) == m]
-                nudges.append(min(sub, key=lambda i: (round(C["nom"][i], 9), i)))
+            lengths, best_of_length = _nudge_lengths(grid, lim), {}
+            for i in range(len(C["rms"])):  # the nominally closest burst of each length that beats resting
+                m = round(float(np.sum(C["min"][i])))
+                if (C["F"][i] == "constant" and C["mh"][i] > 0.0 and C["exc"][i] <= CEILING_TOL_C
+                        and C["nom"][i] < e_rest - 1e-9 and m in lengths):
+                    j = best_of_length.get(m)
+                    if j is None or round(C["nom"][i], 9) < round(C["nom"][j], 9):
+                        best_of_length[m] = i
+            nudges = [best_of_length[m] for m in sorted(best_of_length)]
     Xs = None
     if x0s.shape[0] > 1:  # the spread: a pool of the nominally closest plans, scored on every particle
         sc = scores()
