@@ -16,7 +16,8 @@ source), so a process that finds the library builds nothing; the step is
 :func:`bmctl.control.compiled.compiled_step`, which the MPC's initial guess uses too. While the
 library does not exist yet (the first process on a card), gcc runs in the background and the
 numpy step is used; both evaluate the same equations, so the band agrees to
-rounding (tests/campaign/test_campaign.py).
+rounding (tests/campaign/test_campaign.py). Particles that carry ``energy_mult`` (the campaign
+filter's default) always take the numpy step.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ __all__ = ["compiled_step", "propagate", "step_function"]
 
 
 def propagate(model, X: np.ndarray, P: np.ndarray, schedule: list[dict], substeps: int | None = None) -> np.ndarray:
-    """States of the particles ``X`` (n, 6) with parameters ``P`` (n, 2) after the schedule's rows.
+    """States of the particles ``X`` (n, 6) with parameters ``P`` (n, 2) or (n, 3) after the schedule's rows.
 
     With ``substeps`` (a plan made on the operable grid: the substeps its search predicted with)
     the numpy step is used with that many RKC substeps per row, so the band and the plan come from
@@ -39,7 +40,9 @@ def propagate(model, X: np.ndarray, P: np.ndarray, schedule: list[dict], substep
     ----------
     model : MomentModel
     X, P : ndarray
-        Particle states and parameter multipliers (one row each).
+        Particle states and parameter multipliers (one row each): ``gamma_mult, delta_mult`` and,
+        when the filter learns it, ``energy_mult`` (then the numpy step: the compiled rate field
+        takes the first two only).
     schedule : list of dict
         Rows with ``t0_h, t1_h, rpm, milling`` (:func:`bmctl.campaign.advice._schedule`).
 
@@ -59,12 +62,13 @@ def propagate(model, X: np.ndarray, P: np.ndarray, schedule: list[dict], substep
             X = interval_step(model, X, P, np.full(n, float(row["rpm"])), np.full(n, a), L, substeps)
         return X
     fns: dict[float, object] = {}
+    two = P.ndim == 2 and P.shape[1] == 2  # the compiled step takes (gamma_mult, delta_mult) only
     for row in schedule:
         dt = row["t1_h"] - row["t0_h"]
         u = np.array([row["rpm"], row["milling"]], dtype=float)
         k = round(dt, 12)
         if k not in fns:
-            lib = compiled_step(model, dt)
+            lib = compiled_step(model, dt) if two else None
             fns[k] = None if lib is None else lib.map(X.shape[0])
         F = fns[k]
         if F is None:

@@ -95,3 +95,18 @@ def test_fresh_process_advise_equals_in_process(tmp_path, private_cache):
     for k, e in kept["end"].items():
         for q in ("q05", "median", "q95"):
             assert fresh["end"][k][q] == pytest.approx(e[q], rel=1e-4), (k, q)
+
+
+def test_end_band_with_energy_mult_takes_the_numpy_step(monkeypatch):
+    """Particles with a third multiplier (energy_mult) are not fed to the two-multiplier compiled
+    step: the band is MomentModel.step's with all three (it crashed once the library existed)."""
+    m = make_moment_model(CARD)
+    monkeypatch.setattr(band, "compiled_step", lambda model, dt: band.step_function(model, dt))
+    rng = np.random.default_rng(2)
+    X = np.tile(m.x0(), (8, 1)) * rng.uniform(0.95, 1.05, (8, 6))
+    P = np.column_stack([rng.uniform(0.8, 1.2, (8, 2)), np.full(8, 1.4)])
+    sched = [{"t0_h": 0.0, "t1_h": 0.5, "rpm": 400.0, "milling": 0.5}]
+    got = band.propagate(m, X, P, sched)
+    want = m.step(X, np.array([400.0, 0.5]), 0.5, P)
+    np.testing.assert_array_equal(got, want)
+    assert not np.allclose(got[:, 0], m.step(X, np.array([400.0, 0.5]), 0.5, P[:, :2])[:, 0])
