@@ -112,6 +112,12 @@ REGISTRY: tuple[Study, ...] = (
     Study("hidden_mills_narrowpool_unseen_seed1",
           "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 1 "
           "--controller benchmarks/mpc-narrow-pool.toml --results-name hidden_mills_narrowpool_unseen_seed1", 8),
+    Study("hidden_mills_lqr",
+          "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
+          "--controller controllers/lqr-baseline.toml --results-name hidden_mills_lqr", 12),
+    Study("hidden_mills_lqr_unseen",
+          "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 0 "
+          "--controller controllers/lqr-baseline.toml --results-name hidden_mills_lqr_unseen", 12),
     Study("hidden_mills_nudge",
           "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
           "--controller benchmarks/mpc-nudge.toml --results-name hidden_mills_nudge", 8),
