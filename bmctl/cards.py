@@ -665,6 +665,8 @@ def window_warnings(card, rpms, coeff_window: dict | None = None) -> list[str]:
     >>> print(window_warnings(card, [300.0, 500.0])[0])  # doctest: +NORMALIZE_WHITESPACE
     alni-1to1-300rpm-lab: steady vial temperature 213 °C at 500 rpm is outside 25–121 °C, the range the model
     was calibrated for (the card's validity.calibrated_temperature_max_C): its predictions there are extrapolations
+    >>> window_warnings(card, [400.0])[0].split(" is outside")[0]  # just past the range: one decimal
+    'alni-1to1-300rpm-lab: steady vial temperature 121.1 °C at 400 rpm'
     """
     win = operating_window(card, coeff_window)
     if win["temperature_c"] is None:
@@ -675,5 +677,7 @@ def window_warnings(card, rpms, coeff_window: dict | None = None) -> list[str]:
     if not out:
         return []
     T, r = max(out, key=lambda tr: max(tr[0] - hi, lo - tr[0]))
-    return [f"{card.card.name}: steady vial temperature {T:.0f} °C at {r:g} rpm is outside {lo:.0f}–{hi:.0f} °C, "
+    # a temperature just past the range would round onto its end ("121 °C ... outside 25–121 °C")
+    t_txt = f"{T:.0f}" if round(T) not in (round(lo), round(hi)) else f"{T:.1f}"
+    return [f"{card.card.name}: steady vial temperature {t_txt} °C at {r:g} rpm is outside {lo:.0f}–{hi:.0f} °C, "
             f"the range the model was calibrated for ({win['why']}): its predictions there are extrapolations"]
