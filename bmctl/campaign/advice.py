@@ -150,8 +150,11 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
         if not all(reach.values()) and not binding:
             binding.append("none of the mill's limits: the model cannot reach the target from this estimate")
         return reach, binding
-    U = np.asarray(plan.u, dtype=float)
-    on = U[:, 1] > 1e-3
+    # the planned rows as the schedule shows them (whole minutes): a milling share the mill's limits
+    # round to a rest binds nothing ("rpm at its upper bound" beside "next: 0 rpm")
+    rows = [r for r in sched if r.get("planned", True)]
+    U = np.array([[r["rpm"], r["milling"]] for r in rows], dtype=float).reshape(-1, 2)
+    on = np.array([r["mill_min"] > 0 for r in rows], dtype=bool)
     b = getattr(cfg, "bounds", None)
     if b is not None and on.any():
         hi = min(b.rpm_max, c.loop.model.rpm_max)
@@ -159,7 +162,8 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
             binding.append(f"rpm at its upper bound ({hi:g} rpm)")
         if np.any(U[on, 0] <= b.rpm_min + 1.0):
             binding.append(f"rpm at its lower bound ({b.rpm_min:g} rpm)")
-        if b.rpm_step_max is not None and U.shape[0] > 1 and np.any(np.abs(np.diff(U[:, 0])) >= b.rpm_step_max - 1.0):
+        both = on[1:] & on[:-1]  # consecutive milling intervals
+        if b.rpm_step_max is not None and np.any(np.abs(np.diff(U[:, 0]))[both] >= b.rpm_step_max - 1.0):
             binding.append(f"rpm rate limit ({b.rpm_step_max:g} rpm per interval)")
         if np.all(U[on, 1] >= b.milling_max - 1e-3) and on.all():
             binding.append(f"milling share at its maximum ({b.milling_max:g}) throughout")

@@ -135,3 +135,28 @@ def test_no_sample_is_asked_for_before_the_first_or_when_the_interval_excludes_t
     assert sample_first(est, {"s_mean_um": 35.0}, 0.02, 5, True, 1, 1) is None  # outside the interval
     assert sample_first(est, {"s_mean_um": 36.0}, 0.02, 0, True, 1, 1) is None  # a rest 3 % off: not a stop
     assert sample_first({**est, "s_mean_um": 36.3}, {"s_mean_um": 36.0}, 0.02, 0, False, 1, 1) is None  # resting on
+
+
+def test_binding_reads_the_schedule_the_mill_runs_not_the_unrounded_plan():
+    """An NLP plan's small milling shares at the top speed that whole minutes round to rests bind
+    nothing: "rpm at its upper bound" is named only when a shown row mills there."""
+    from types import SimpleNamespace
+
+    from bmctl.campaign.advice import _why
+
+    cfg = load_controller(ROOT / "controllers" / "mpc-nominal.toml")
+    c = SimpleNamespace(meta={"target": {"s_mean_um": 36.0}},
+                        loop=SimpleNamespace(controller=SimpleNamespace(cfg=cfg), model=SimpleNamespace(rpm_max=600.0)))
+    plan = SimpleNamespace(extra={}, u=np.array([[500.0, 0.01]] * 4), t_peak_c=np.full(4, 30.0),
+                           status=SimpleNamespace(t_ceiling_c=80.0))
+    end = {"s_mean_um": {"median": 40.0, "q05": 39.0, "q95": 41.0}}
+
+    def rows(mill_min):
+        return [{"t0_h": 0.5 * k, "t1_h": 0.5 * k + 0.5, "rpm": 500.0 if mill_min else 0.0, "milling": mill_min / 30.0,
+                 "mill_min": mill_min, "rest_min": 30 - mill_min, "planned": True} for k in range(4)]
+
+    _, resting = _why(c, plan, rows(0), end, None)
+    assert not any("upper bound" in b for b in resting)
+    assert resting == ["batch time: the target is not reached by the batch end at the planned inputs"]
+    _, milling = _why(c, plan, rows(12), end, None)
+    assert any("upper bound" in b for b in milling)
