@@ -118,6 +118,9 @@ REGISTRY: tuple[Study, ...] = (
     Study("hidden_mills_lqr_unseen",
           "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 0 "
           "--controller controllers/lqr-baseline.toml --results-name hidden_mills_lqr_unseen", 12),
+    Study("hidden_mills_scenario",
+          "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
+          "--controller controllers/mpc-scenario.toml --results-name hidden_mills_scenario", 18),
     Study("hidden_mills_nudge",
           "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
           "--controller benchmarks/mpc-nudge.toml --results-name hidden_mills_nudge", 8),
