@@ -644,6 +644,12 @@ def operating_window(card, coeff_window: dict | None = None) -> dict[str, Any]:
     return {"temperature_c": (lo, hi), "why": " and ".join(why)}
 
 
+#: a steady vial temperature this close to the window's ends counts as inside it: the card states its
+#: calibrated maximum to 0.1 °C (the 400 rpm steady vial of the calibration runs), so the very speeds it was
+#: calibrated at must not warn by a rounding
+WINDOW_SLACK_K = 0.5
+
+
 def window_warnings(card, rpms, coeff_window: dict | None = None) -> list[str]:
     """One warning line when the steady vial temperature at a milling speed in use leaves
     :func:`operating_window` (the hottest or coldest offender is named); empty otherwise.
@@ -663,21 +669,21 @@ def window_warnings(card, rpms, coeff_window: dict | None = None) -> list[str]:
     >>> window_warnings(card, [300.0])
     []
     >>> print(window_warnings(card, [300.0, 500.0])[0])  # doctest: +NORMALIZE_WHITESPACE
-    alni-1to1-300rpm-lab: steady vial temperature 213 °C at 500 rpm is outside 25–121 °C, the range the model
+    alni-1to1-300rpm-lab: steady vial temperature 213 °C at 500 rpm is outside 25–121.1 °C, the range the model
     was calibrated for (the card's validity.calibrated_temperature_max_C): its predictions there are extrapolations
-    >>> window_warnings(card, [400.0])[0].split(" is outside")[0]  # just past the range: one decimal
-    'alni-1to1-300rpm-lab: steady vial temperature 121.1 °C at 400 rpm'
+    >>> window_warnings(card, [400.0])  # the calibration's own 400 rpm: within WINDOW_SLACK_K of the maximum
+    []
     """
     win = operating_window(card, coeff_window)
     if win["temperature_c"] is None:
         return []
     lo, hi = win["temperature_c"]
     temps = {float(r): steady_temperature_c(card, float(r)) for r in set(rpms) if r > 0}
-    out = [(T, r) for r, T in temps.items() if not lo <= T <= hi]
+    out = [(T, r) for r, T in temps.items() if not lo - WINDOW_SLACK_K <= T <= hi + WINDOW_SLACK_K]
     if not out:
         return []
     T, r = max(out, key=lambda tr: max(tr[0] - hi, lo - tr[0]))
-    # a temperature just past the range would round onto its end ("121 °C ... outside 25–121 °C")
-    t_txt = f"{T:.0f}" if round(T) not in (round(lo), round(hi)) else f"{T:.1f}"
-    return [f"{card.card.name}: steady vial temperature {t_txt} °C at {r:g} rpm is outside {lo:.0f}–{hi:.0f} °C, "
+    # as many decimals as it takes for a temperature just past the range not to print as its end
+    d = next((k for k in range(3) if round(T, k) not in (round(lo, k), round(hi, k))), 3)
+    return [f"{card.card.name}: steady vial temperature {T:.{d}f} °C at {r:g} rpm is outside {lo:g}–{hi:g} °C, "
             f"the range the model was calibrated for ({win['why']}): its predictions there are extrapolations"]

@@ -235,6 +235,20 @@ def test_window_warns_outside_the_calibrated_temperatures(tmp_path):
     assert not window_warnings(card, [300.0], {"temperature_c": (25.0, 349.0)})
 
 
+def test_window_slack_and_the_printed_temperature_lies_outside_the_printed_window():
+    """The calibration's own 400 rpm (its steady vial is the card's rounded maximum) does not warn; a
+    temperature just past a window's end prints with the decimals that show it outside."""
+    import re
+
+    card = load_card(LAB)
+    assert window_warnings(card, [400.0]) == []
+    T = steady_temperature_c(card, 300.0)
+    for hi in (T - 0.51, T - 0.6, T - 0.95, T - 3.0):
+        (w,) = window_warnings(card, [300.0], {"temperature_c": (25.0, hi)})
+        t_txt, lo_txt, hi_txt = re.search(r"temperature ([0-9.]+) °C at 300 rpm is outside ([0-9.]+)–([0-9.]+) °C", w).groups()
+        assert float(t_txt) > float(hi_txt), w
+
+
 def test_card_show_says_whether_the_card_has_coefficients(tmp_path, capsys):
     assert main(["card", "show", str(LAB)]) == 0
     out = capsys.readouterr().out
