@@ -182,7 +182,8 @@ class PlanSearch(Strict):
     #: squared error; less counts on the feedback of later plans
     risk: Annotated[float, Field(ge=0, le=10)] = 0.25
     #: when resting on is predicted outside ``[objective] tolerance``, also weigh single bursts now
-    #: (then rest) in the spread-scored pool: small steps toward the target (docs/control.md, "Nudges")
+    #: (then rest) in the spread-scored pool: small steps toward the target (docs/control.md, "Nudges");
+    #: weighed once the mill has milled in the batch
     nudge: bool = False
 
 

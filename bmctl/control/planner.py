@@ -181,10 +181,13 @@ class PlanController:
                     extra.append((np.array(_row(float(np.max(r_q[0][on])), grid.interval_min, 1, grid.K,
                                                 cap=float(m_q.sum()))), "constant"))
         ps_cfg = self.cfg.plan
+        has_milled = milled(hist)
+        # before the first milling resting is kept out of the pool (rest_within): a nudge there would be a
+        # token burst after which resting is let back in, so nudges are weighed once the mill has milled
         kw = dict(substeps=ps_cfg.substeps, rpm_step=ps_cfg.rpm_step, band=ps_cfg.error_band,
                   coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool, pool_band=ps_cfg.pool_band, risk=ps_cfg.risk,
-                  rest_within=None if milled(hist) else self.cfg.objective.tolerance,
-                  nudge_above=self.cfg.objective.tolerance if ps_cfg.nudge else None)
+                  rest_within=None if has_milled else self.cfg.objective.tolerance,
+                  nudge_above=self.cfg.objective.tolerance if ps_cfg.nudge and has_milled else None)
         args = (self.model, np.array(x0s), np.array(ps), target, grid, lim, self.cfg.weights, carry)
         res, scope = None, "global"
         if extra:  # the previous plan still reaches the target: a local search around it

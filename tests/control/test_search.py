@@ -331,3 +331,17 @@ def test_a_nudge_replaces_a_rest_off_the_tolerance(model, cfg):
     mins = np.asarray(b.extra["minutes"])
     assert 0 < mins[0] <= 2 * cfg.mill.min_mill_min and not mins[1:].any()
     assert b.u_apply[1] > 0 and b.extra["error"] <= tol
+
+
+def test_no_nudge_before_the_mill_has_milled(model, cfg):
+    """Before the batch's first milling resting is kept out of the pool; a nudge there would be a token
+    burst that lets resting back in for the rest of the batch, so nudges are weighed only once the mill
+    has milled: the same state without a milled history gets no burst-then-rest plan."""
+    x, spread, hist = _on_the_hump(model)
+    target = {"s_mean_um": 1.03 * float(x[0])}
+    nudged = cfg.model_copy(update={"plan": cfg.plan.model_copy(update={"nudge": True})})
+    ctrl = make_controller(nudged, model, target)
+    ctrl.set_target(target, 5.0)
+    b = ctrl.plan(x, 1.0, p=np.ones(2), scenarios=spread, history=[])
+    mins = np.asarray(b.extra["minutes"])
+    assert not (0 < mins[0] <= 2 * cfg.mill.min_mill_min and not mins[1:].any())
