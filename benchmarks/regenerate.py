@@ -128,10 +128,12 @@ REGISTRY: tuple[Study, ...] = (
           "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 2 --controller benchmarks/mpc-nudge.toml "
           "--sample-every-h 0.5 --results-name hidden_mills_halfhourly_nudge_seed2_all", 10),
     Study("hidden_mills_halfhourly_nudge_unseen",
-          "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 0 --controller benchmarks/mpc-nudge.toml "
+          "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 0 "
+          "--controller benchmarks/mpc-nudge.toml "
           "--sample-every-h 0.5 --results-name hidden_mills_halfhourly_nudge_unseen", 10),
     Study("hidden_mills_halfhourly_nudge_unseen_seed1",
-          "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 1 --controller benchmarks/mpc-nudge.toml "
+          "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 1 "
+          "--controller benchmarks/mpc-nudge.toml "
           "--sample-every-h 0.5 --results-name hidden_mills_halfhourly_nudge_unseen_seed1", 10),
     Study("hidden_mills_nudge",
           "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
