@@ -1169,7 +1169,8 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
             ids = [i for i in by_cost if C["F"][i] == f]
             if ids:
                 cand.append(ids[0])
-        cand += [i for i in nudges if i in set(near.tolist())]  # small steps toward the target (nudge_above)
+        in_band = set(near.tolist())
+        cand += [i for i in nudges if i in in_band]  # small steps toward the target (nudge_above)
         cand = np.array(sorted(dict.fromkeys(int(i) for i in cand)))
         R = np.array([C["rpm"][i] for i in cand])
         A = np.array([C["min"][i] for i in cand])

@@ -312,6 +312,14 @@ def _on_the_hump(model):
     return x, list(zip(X, P)), [(0.5, 240.0, 1.0), (0.5, 240.0, 1.0)]
 
 
+def _nudging(cfg, model, target):
+    """The plan controller of ``cfg`` with ``[plan] nudge`` on, aimed at ``target`` at 5 h."""
+    nudged = cfg.model_copy(update={"plan": cfg.plan.model_copy(update={"nudge": True})})
+    ctrl = make_controller(nudged, model, target)
+    ctrl.set_target(target, 5.0)
+    return ctrl
+
+
 def test_a_nudge_replaces_a_rest_off_the_tolerance(model, cfg):
     """Target 3 % above the powder near the hump's top, 4 h left: without nudges the spread-scored pool
     holds the plans that come closest (they scatter) and the cheapest, and resting on, 2.9 % off,
@@ -324,9 +332,7 @@ def test_a_nudge_replaces_a_rest_off_the_tolerance(model, cfg):
     plain.set_target(target, 5.0)
     a = plain.plan(x, 1.0, p=np.ones(2), scenarios=spread, history=hist)
     assert a.extra["family"] == "rest" and a.extra["error"] > tol
-    nudged = cfg.model_copy(update={"plan": cfg.plan.model_copy(update={"nudge": True})})
-    ctrl = make_controller(nudged, model, target)
-    ctrl.set_target(target, 5.0)
+    ctrl = _nudging(cfg, model, target)
     b = ctrl.plan(x, 1.0, p=np.ones(2), scenarios=spread, history=hist)
     mins = np.asarray(b.extra["minutes"])
     assert 0 < mins[0] <= 2 * cfg.mill.min_mill_min and not mins[1:].any()
@@ -339,9 +345,7 @@ def test_no_nudge_before_the_mill_has_milled(model, cfg):
     has milled: the same state without a milled history gets no burst-then-rest plan."""
     x, spread, hist = _on_the_hump(model)
     target = {"s_mean_um": 1.03 * float(x[0])}
-    nudged = cfg.model_copy(update={"plan": cfg.plan.model_copy(update={"nudge": True})})
-    ctrl = make_controller(nudged, model, target)
-    ctrl.set_target(target, 5.0)
+    ctrl = _nudging(cfg, model, target)
     b = ctrl.plan(x, 1.0, p=np.ones(2), scenarios=spread, history=[])
     mins = np.asarray(b.extra["minutes"])
     assert not (0 < mins[0] <= 2 * cfg.mill.min_mill_min and not mins[1:].any())
