@@ -89,23 +89,16 @@ def test_a_bad_controller_file_is_refused_with_exit_2_and_one_line(tmp_path):
     assert not out.exists()
 
 
-def test_the_narrow_pool_variant_differs_from_the_default_in_the_pool_band_only():
+@pytest.mark.parametrize("variant, key, differs", [
+    ("mpc-narrow-pool.toml", "pool_band", lambda v, d: v < d),  # a narrower pool
+    ("mpc-nudge.toml", "nudge", lambda v, d: v and not d),  # nudges on
+])
+def test_each_benchmark_variant_differs_from_the_default_in_one_plan_field(variant, key, differs):
     from bmctl.control.config import load_controller
 
-    a = load_controller(ROOT / "benchmarks" / "mpc-narrow-pool.toml").model_dump()
+    a = load_controller(ROOT / "benchmarks" / variant).model_dump()
     b = load_controller(ROOT / "controllers" / "mpc-default.toml").model_dump()
-    assert a["plan"].pop("pool_band") < b["plan"].pop("pool_band")
-    a.pop("name"), b.pop("name")
-    a.pop("description", None), b.pop("description", None)
-    assert a == b
-
-
-def test_the_nudge_variant_differs_from_the_default_in_the_nudge_only():
-    from bmctl.control.config import load_controller
-
-    a = load_controller(ROOT / "benchmarks" / "mpc-nudge.toml").model_dump()
-    b = load_controller(ROOT / "controllers" / "mpc-default.toml").model_dump()
-    assert a["plan"].pop("nudge") and not b["plan"].pop("nudge")
+    assert differs(a["plan"].pop(key), b["plan"].pop(key))
     for d in (a, b):
         d.pop("name"), d.pop("description", None)
     assert a == b
