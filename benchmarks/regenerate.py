@@ -192,6 +192,7 @@ REGISTRY: tuple[Study, ...] = (
     Study("hidden_mills_floor", "python benchmarks/hidden_mills_floor.py", 0.1),
     Study("estimate_replay", "python benchmarks/estimate_replay.py", 20),
     Study("rest_noise", "python benchmarks/rest_noise.py", 6),
+    Study("feed_sample", "python benchmarks/feed_sample.py", 2),
     Study("model_form", "python benchmarks/model_form.py", 3),
     Study("moments_shipped", "python benchmarks/moments_table.py", 0.1),
     Study("moments_confirm", "python benchmarks/moments_confirm.py --shipped", 3),

@@ -176,6 +176,47 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
     return reach, binding
 
 
+def reach_line(key: str, target: float, end: dict | None, reachable: bool) -> str:
+    """The ``why`` line of one target: reached by the predicted median, only inside the 90 % band,
+    or not at all, with the numbers that say which.
+
+    A target inside the band but away from the median is reachable only if the mill is not what the
+    estimate says: the advice does not call that plainly "reachable" (the band at the first advice
+    is the card's wide prior and holds nearly every target).
+
+    Parameters
+    ----------
+    key : str
+        The target's quantity (e.g. ``s_mean_um``).
+    target : float
+        The target value.
+    end : dict or None
+        The predicted batch end of ``key``: ``median``, ``q05``, ``q95`` (``advise``'s ``end``).
+    reachable : bool
+        ``advise``'s ``reachable`` for the target.
+
+    Examples
+    --------
+    >>> reach_line("s_mean_um", 30.0, {"median": 30.4, "q05": 27.0, "q95": 35.0}, True)
+    'target s_mean_um = 30 is reachable by the batch end (predicted median 30.4)'
+    >>> reach_line("s_mean_um", 30.0, {"median": 34.93, "q05": 23.57, "q95": 72.33}, True)
+    'target s_mean_um = 30 lies inside the 90 % band of the batch end [23.57, 72.33], but the predicted median misses it (34.93, +16.4 %): reachable only if the mill is not what the estimate says; samples narrow the band'
+    >>> reach_line("s_mean_um", 400.0, {"median": 41.1, "q05": 39.0, "q95": 44.0}, False)
+    'target s_mean_um = 400 is NOT reachable by the batch end (predicted median 41.1, 90 % band [39, 44])'
+    """
+    head = f"target {key} = {target:g}"
+    if end is None:
+        return f"{head} is {'reachable' if reachable else 'NOT reachable'} by the batch end"
+    m, lo, hi = end["median"], end["q05"], end["q95"]
+    if not reachable:
+        return f"{head} is NOT reachable by the batch end (predicted median {m:.4g}, 90 % band [{lo:.4g}, {hi:.4g}])"
+    if abs(m - target) <= REACH_TOL * abs(target):
+        return f"{head} is reachable by the batch end (predicted median {m:.4g})"
+    return (f"{head} lies inside the 90 % band of the batch end [{lo:.4g}, {hi:.4g}], but the predicted median "
+            f"misses it ({m:.4g}, {100 * (m - target) / target:+.1f} %): reachable only if the mill is not what "
+            "the estimate says; samples narrow the band")
+
+
 def sampling(s_um, tolerance: float) -> dict | None:
     """How closely one sample reads the powder's mean size, and the particle count that would read it
     within ``tolerance`` (relative) at 95 %.

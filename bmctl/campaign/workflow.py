@@ -616,7 +616,8 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
         and the particle count that would read it within the controller's tolerance
         (:func:`bmctl.campaign.advice.sampling`; None before the first sample); ``sample_first``:
         why another sample should be taken at this batch time before the move, or None
-        (:func:`bmctl.campaign.advice.sample_first`).
+        (:func:`bmctl.campaign.advice.sample_first`); ``notes``: what the advice stands on when
+        that is not the mill's own data (before the first sample: the card's starting powder).
     """
     t_start = time.perf_counter()
     say = progress or (lambda text: None)
@@ -670,6 +671,7 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
                 "sampling": _last_sampling(c, clock),
             }
             advice["sample_first"] = _sample_first(c, advice, clock, history)
+            advice["notes"] = _notes(c, est)
             advise_ms = (time.perf_counter() - t_start) * 1e3
             advice["advise_ms"] = advise_ms
             cur = c.con.execute("INSERT INTO plans (t_h, rpm, milling, interval_h, advice, controller_state, "
@@ -681,6 +683,16 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
         if campaign is None:
             c.close()
     return advice
+
+
+def _notes(c: Campaign, est: dict) -> list[str]:
+    """What the operator should know about the advice's footing: before the campaign's first sample
+    the estimate is the card's starting powder, so a feed that differs from the card is steered as
+    if it did not until a sample shows it."""
+    if c.con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]:
+        return []
+    return [f"no sample yet: the estimate is the card's starting powder (s_mean_um {est['s_mean_um']:.4g}); "
+            "if the feed may differ, sample it first (bmctl campaign sample DIR --at-h 0 FILE) and advise again"]
 
 
 def _tolerance(c: Campaign) -> float | None:

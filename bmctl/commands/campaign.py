@@ -91,6 +91,8 @@ def _estimate_lines(est: dict) -> list[str]:
 
 
 def _print_advice(a: dict) -> None:
+    from ..campaign.advice import reach_line
+
     nx = a["next"]
     print(f"advice at t = {a['t_h']:g} h (plan {a['plan_id']}; {a['solver']}; advise {a['advise_ms']:.0f} ms)")
     for w in a.get("warnings", []):
@@ -119,8 +121,10 @@ def _print_advice(a: dict) -> None:
             e = a["end"][k]
             print(f"  {k:<14} {e['median']:.4g}  [{e['q05']:.4g}, {e['q95']:.4g}]")
     for k, ok in a["reachable"].items():
-        print(f"why: target {k} = {a['target'][k]:g} is {'reachable' if ok else 'NOT reachable'} by the batch end")
+        print("why: " + reach_line(k, a["target"][k], a["end"].get(k), ok))
     print("binding: " + ("; ".join(a["binding"]) if a["binding"] else "no constraint binds"))
+    for n in a.get("notes", []):
+        print(f"note: {n}")
     if a.get("sample_first"):
         print(f"sample first: {a['sample_first']} (then advise again)")
     if a["pending_samples"]:

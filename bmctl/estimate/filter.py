@@ -67,6 +67,7 @@ from .resampling import SCHEMES, effective_sample_size, resample
 
 N_MOMENTS = 4  # s_mean, s_std, r_mean, r_std: the log-moment block z
 GAIN_MIN = 0.05  # the smallest vial heating gain over the card's thermal law
+FEED_VAR_FLOOR = 1e-10  # the variance of a log moment the feed's sample does not fit (its prior is the card's)
 
 
 class FilterSettings(Strict):
@@ -124,6 +125,12 @@ class FilterSettings(Strict):
         Roughening constant K of Gordon et al. (jitter std = K * range * N^(-1/d)).
     initial_spread : float
         Relative spread of the initial moment states.
+    feed_log_std : float
+        Prior std of the log moments of the feed powder beyond ``initial_spread``, spent on the
+        first sample when it is taken before any milling (a sample of the feed): a feed that
+        differs from the card's ``[initial]`` is read off its sample instead of collapsing the
+        filter onto the particle nearest to it (docs/estimation.md, "The feed"). Blocks (size,
+        shape) the sample does not fit keep the card's. 0: the card's starting powder is held.
     learning_rate : float
         Cap on the power-likelihood learning rate eta (1: the per-sample calibration alone).
     calibrate_learning_rate : bool
@@ -158,6 +165,7 @@ class FilterSettings(Strict):
     param_walk_per_sqrt_h: float = 0.01
     roughening: float = 0.05
     initial_spread: float = 0.02
+    feed_log_std: Annotated[float, Field(ge=0, le=3)] = 1.0
     learning_rate: Annotated[float, Field(gt=0, le=1)] = 1.0
     calibrate_learning_rate: bool = True
     defensive: Annotated[float, Field(ge=0, lt=1)] = 0.1
@@ -344,6 +352,7 @@ class ParticleFilter:
         # each particle's drift of ln(s_mean, s_std) per milling hour over the moment model (1/h)
         self.drift = st.size_drift_prior_per_h * rng.standard_normal(N) if st.size_drift_prior_per_h > 0 \
             else np.zeros(N)
+        self.feed_open = st.feed_log_std > 0  # the feed's prior not yet spent: no sample, no milling
 
     # --- state ------------------------------------------------------------------------------
     def get_state(self) -> dict:
@@ -351,7 +360,8 @@ class ParticleFilter:
         return {"X": self.X.copy(), "logP": self.logP.copy(), "logw": self.logw.copy(), "t_h": self.t_h,
                 "pending_h": self.pending_h, "pending_model_h": self.pending_model_h, "q": self.q.copy(),
                 "n_resampled": self.n_resampled, "n_degenerate": self.n_degenerate, "rng": self.rng.bit_generator.state,
-                "gain": self.gain.copy(), "gain_var": self.gain_var, "drift": self.drift.copy()}
+                "gain": self.gain.copy(), "gain_var": self.gain_var, "drift": self.drift.copy(),
+                "feed_open": self.feed_open}
 
     def set_state(self, state: dict) -> None:
         """Restore a state from :meth:`get_state` (the settings and the model are the constructor's)."""
@@ -369,6 +379,7 @@ class ParticleFilter:
         self.gain = np.array(state["gain"], dtype=float) if "gain" in state else np.ones(self.X.shape[0])
         self.gain_var = float(state.get("gain_var", self.settings.thermal_gain_prior_std**2))
         self.drift = np.array(state["drift"], dtype=float) if "drift" in state else np.zeros(self.X.shape[0])
+        self.feed_open = bool(state.get("feed_open", False))  # a state written before: the card's feed held
 
     # --- basics -----------------------------------------------------------------------------
     @property
@@ -416,6 +427,8 @@ class ParticleFilter:
         if np.any(bad):  # a failed model step keeps the particle where it was (and reports nothing)
             X[bad] = self.X[bad]
         mill_h = dt_h * float(np.clip(u[1], 0.0, 1.0)) if float(u[0]) > 0 else 0.0
+        if mill_h > 0:
+            self.feed_open = False  # the powder has changed: the feed is no longer what a sample reads
         if st.size_drift_prior_per_h > 0 and mill_h > 0:  # the model's missed size drift while milling
             f = np.exp(self.drift * mill_h)
             X[:, 0] *= f
@@ -484,6 +497,7 @@ class ParticleFilter:
             n_meas = raster.n
             logw_s, eta = self._sample_update(raster, tau_m)
             logw += logw_s
+            self.feed_open = False
         elif tau_m > 0:
             self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((N, N_MOMENTS)))
         self.X = self._feasible(self.X)
@@ -552,11 +566,14 @@ class ParticleFilter:
         if st.adapt and tau > 0:
             self._adapt(fit, M, tau, eta_vec)
         qvar = self.q**2 * tau  # (4,) discrepancy variance
+        if self.feed_open:  # a sample of the feed: its moments' prior beyond the card's, where the sample fits
+            qvar = np.maximum(qvar + st.feed_log_std**2 * np.repeat(fit.ok, 2), FEED_VAR_FLOOR)
+        moved = bool(np.any(qvar > 0))
 
-        if tau > 0 and st.proposal == "bootstrap":
+        if moved and st.proposal == "bootstrap":
             Z = M + rng.standard_normal((N, N_MOMENTS)) * np.sqrt(qvar)[None, :]
             corr = np.zeros(N)
-        elif tau > 0:
+        elif moved:
             # block-diagonal Gaussian proposal; a block without a proper fit falls back to the prior
             A = np.diag(np.sqrt(eta_vec)) @ fit.info @ np.diag(np.sqrt(eta_vec))  # eta-tempered information
             for b in range(2):
