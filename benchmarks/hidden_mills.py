@@ -4,6 +4,7 @@
     nice python benchmarks/hidden_mills.py --cases H,I,J,K,L --results-name hidden_mills_heldout   # held out
     nice python benchmarks/hidden_mills.py --sample-particles 1000 --results-name NAME   # larger samples
     nice python benchmarks/hidden_mills.py --sample-on-request --results-name NAME   # extra samples when asked
+    nice python benchmarks/hidden_mills.py --sample-feed --results-name NAME   # the feed sampled at 0 h too
     nice python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --results-name hidden_mills_unseen
 
 Each case is a plant built from the laboratory card with gamma and delta multiplied (0.6-1.6) and one
@@ -254,10 +255,11 @@ def case_seeds(seed: int, name: str) -> np.random.SeedSequence:
 def run_campaign(case: Case, target_um: float, folder: Path, particles: int, seed: int, env: dict,
                  energy_mult: bool = True, sample_particles: int = SAMPLE_PARTICLES,
                  on_request: bool = False, controller: Path = CONTROLLER,
-                 sample_every_h: float = SAMPLE_EVERY_H) -> dict:
+                 sample_every_h: float = SAMPLE_EVERY_H, sample_feed: bool = False) -> dict:
     """The scripted operator: advise, accept, run the hidden plant, log, sample every
     ``sample_every_h`` (hourly) and at the batch end; with
-    ``on_request`` also take the extra sample an advice asks for (``sample_first``), then advise again."""
+    ``on_request`` also take the extra sample an advice asks for (``sample_first``), then advise again;
+    with ``sample_feed`` also sample the feed at 0 h, before the first advice."""
     from bmctl.measure.sampler import micrograph_sample
     from bmctl.measure.tables import write_table
     from bmctl.plant.plant import Plant
@@ -280,6 +282,9 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
         write_table(path, tab)
         cli(["campaign", "sample", str(folder), "--at-h", f"{t:.10g}", str(path)], env)
 
+    if sample_feed:  # the feed, before the first advice (the filter reads it: FilterSettings.feed_log_std)
+        take_sample("sample-00.00h-feed.csv")
+        samples += 1
     while t < case.hours - 1e-9:
         out, wall, cpu = cli(["campaign", "advise", str(folder), "--json"], env)
         a = json.loads(out)
@@ -439,6 +444,8 @@ def main() -> None:
     ap.add_argument("--sample-on-request", action="store_true",
                     help="the operator also takes the extra sample an advice asks for (sample_first), then "
                          "advises again")
+    ap.add_argument("--sample-feed", action="store_true",
+                    help="the operator also samples the feed at 0 h, before the first advice")
     ap.add_argument("--controller", metavar="TOML",
                     help=f"the campaign's controller config (default {CONTROLLER.relative_to(ROOT)})")
     ap.add_argument("--results-name", default="hidden_mills",
@@ -501,7 +508,8 @@ def main() -> None:
         sys.exit(2)
     changed = (("--mills", a.mills), ("--controller", a.controller), ("--no-energy-mult", a.no_energy_mult),
                ("--sample-particles", a.sample_particles != SAMPLE_PARTICLES),
-               ("--sample-on-request", a.sample_on_request), ("--sample-every-h", a.sample_every_h != SAMPLE_EVERY_H))
+               ("--sample-on-request", a.sample_on_request), ("--sample-every-h", a.sample_every_h != SAMPLE_EVERY_H),
+               ("--sample-feed", a.sample_feed))
     for flag, given in changed:  # a run off the default protocol must not overwrite the default's results
         if given and a.results_name == "hidden_mills" and not a.no_results:
             sys.exit(f"hidden_mills.py: {flag}: name its results (--results-name) or pass --no-results")
@@ -542,7 +550,7 @@ def main() -> None:
               f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
               f"{plain_err:+.1f} % on the hidden plant", flush=True)
         res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, not a.no_energy_mult,
-                           a.sample_particles, a.sample_on_request, controller, a.sample_every_h)
+                           a.sample_particles, a.sample_on_request, controller, a.sample_every_h, a.sample_feed)
         print(f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
               f"{res['peak_c']:.1f} °C, idle while needed {res['idle_needed_h']:.2f} h (longest "
               f"{res['longest_idle_needed_h']:.2f} h); advise first {res['advise_first_s']:.1f} s, later median "
@@ -592,6 +600,7 @@ def main() -> None:
             cmd += (f" --sample-particles {a.sample_particles}" if a.sample_particles != SAMPLE_PARTICLES else "")
             cmd += (f" --sample-every-h {a.sample_every_h:g}" if a.sample_every_h != SAMPLE_EVERY_H else "")
             cmd += (" --sample-on-request" if a.sample_on_request else "")
+            cmd += (" --sample-feed" if a.sample_feed else "")
             cmd += f" --results-name {a.results_name}"
         path = write_results(a.results_name, {"summary": summary, "cases": rows},
                              settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
@@ -599,7 +608,7 @@ def main() -> None:
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
                                        "sample_every_h": a.sample_every_h, "sample_particles": a.sample_particles,
                                        "need_tol": NEED_TOL, "energy_mult": not a.no_energy_mult,
-                                       "sample_on_request": a.sample_on_request},
+                                       "sample_on_request": a.sample_on_request, "sample_feed": a.sample_feed},
                              command=cmd)
         print(f"wrote {path}")
 
