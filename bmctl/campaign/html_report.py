@@ -254,6 +254,21 @@ def _samples_table(d: ReportData) -> hs.Markup:
     return hs.table(header, rows)
 
 
+def _why(a: dict) -> str:
+    """The advice's ``why`` lines (:func:`bmctl.campaign.advice.reach_line`); a target or end band
+    that is not plain numbers is shown as the bare verdict."""
+    from .advice import reach_line
+
+    out = []
+    for k, ok in a.get("reachable", {}).items():
+        v, e = a.get("target", {}).get(k), a.get("end", {}).get(k)
+        num = (lambda x: isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
+        if num(v) and isinstance(e, dict) and all(num(e.get(q)) for q in ("median", "q05", "q95")):
+            out.append(reach_line(str(k), float(v), e, bool(ok)))
+        else:
+            out.append(f"{k} {'reachable' if ok else 'NOT reachable'}")
+    return "; ".join(out)
+
 def _advice_section(d: ReportData) -> hs.Markup:
     acts = {a.id: a for a in d.actions}
     parts = []
@@ -283,15 +298,16 @@ def _advice_section(d: ReportData) -> hs.Markup:
                                                          f"{x.rpm:g} rpm, mill {mm} min, rest {round(x.hours * 60) - mm} min"))
         dev = "; ".join(d.deviations.get(aid, "") for aid in p["actions"] if d.deviations.get(aid)) or "none"
         est = a["estimate"]
-        reach = "; ".join(f"{k} {'reachable' if ok else 'NOT reachable'}" for k, ok in a.get("reachable", {}).items())
+        reach = _why(a)
         items = [("recommended next", rec),
                  ("estimate seen", "; ".join(f"{k} {_band(est, k)}" for k in ("s_mean_um", "d50_um", "temperature_c")
                                              if k in est)),
                  ("target", ", ".join(f"{k} = {v:g}" for k, v in a["target"].items())),
-                 ("reachable by the batch end", reach or "n/a"),
+                 ("why", reach or "n/a"),
                  ("binding", "; ".join(map(str, a.get("binding", []))) or "no constraint binds"),
                  ("sample first", a.get("sample_first") or "not asked"),
                  ("warnings", "; ".join(map(str, a.get("warnings", []))) or "none"),
+                 ("notes", "; ".join(map(str, a.get("notes", []))) or "none"),
                  ("solver", a.get("solver", "")),
                  ("decision", dec), ("note", note or "none"),
                  ("then logged", "; ".join(ran) or "nothing yet"), ("deviation", dev)]
