@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -34,6 +35,23 @@ def test_shipped_mills_load_and_change_the_named_field_of_the_card():
     lab = hm.hidden_card(hm.Case("lab", 1.0, 1.0, q.field, 78.7e6, q.hours, q.rpm_ref))
     assert card.stochastic.gamma_per_um2 == pytest.approx(1.6 * lab.stochastic.gamma_per_um2)
     assert card.stochastic.delta_per_um2 == pytest.approx(1.6 * lab.stochastic.delta_per_um2)
+
+
+def test_feed_vial_mills_change_new_fields_or_earlier_ones_further():
+    hm = load_benchmark("hidden_mills")
+    earlier = hm.CASES + hm.HELD_OUT + hm.load_mills(ROOT / "benchmarks" / "mills-unseen.toml") \
+        + hm.load_mills(ROOT / "benchmarks" / "mills-fields.toml")
+    cases = hm.load_mills(ROOT / "benchmarks" / "mills-feed-vial.toml")
+    assert [c.name for c in cases] == [f"W{i}" for i in range(1, 7)]
+    new = {c.field for c in cases} - {c.field for c in earlier}
+    assert new == {"thermal.heat_capacity_J_per_K", "initial.s_std_um", "thermal.ambient_C"}
+    lab = hm.hidden_card(hm.Case("lab", 1.0, 1.0, "mill.ball_count", 10, 6.0, 300.0)).model_dump()
+    for c in cases:  # a field an earlier mill changed is changed further from the card here
+        sec, key = c.field.split(".")
+        for e in (e for e in earlier if e.field == c.field):
+            assert abs(math.log(c.value / lab[sec][key])) > abs(math.log(e.value / lab[sec][key])), (c.name, e.name)
+    w2 = next(c for c in cases if c.name == "W2")
+    assert hm.hidden_card(w2).initial.s_mean_um == pytest.approx(60.0)  # a feed unlike the card's 40 um
 
 
 @pytest.mark.parametrize("text, where", [
