@@ -259,15 +259,18 @@ def _why(a: dict) -> str:
     that is not plain numbers is shown as the bare verdict."""
     from .advice import reach_line
 
+    def num(x) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
     out = []
     for k, ok in a.get("reachable", {}).items():
         v, e = a.get("target", {}).get(k), a.get("end", {}).get(k)
-        num = (lambda x: isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x))
         if num(v) and isinstance(e, dict) and all(num(e.get(q)) for q in ("median", "q05", "q95")):
             out.append(reach_line(str(k), float(v), e, bool(ok)))
         else:
             out.append(f"{k} {'reachable' if ok else 'NOT reachable'}")
     return "; ".join(out)
+
 
 def _advice_section(d: ReportData) -> hs.Markup:
     acts = {a.id: a for a in d.actions}
