@@ -188,6 +188,14 @@ REGISTRY: tuple[Study, ...] = (
           "--sample-on-request --results-name hidden_mills_onrequest_heldout", 7),
     Study("hidden_mills_onrequest_heldout_seed1", "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
           "--sample-on-request --results-name hidden_mills_onrequest_heldout_seed1", 7),
+    Study("hidden_mills_feedvial", "python benchmarks/hidden_mills.py --mills benchmarks/mills-feed-vial.toml "
+          "--cases W1,W2,W3,W4,W5,W6 --seed 0 --results-name hidden_mills_feedvial", 8),
+    Study("hidden_mills_feedvial_seed1", "python benchmarks/hidden_mills.py --mills benchmarks/mills-feed-vial.toml "
+          "--cases W1,W2,W3,W4,W5,W6 --seed 1 --results-name hidden_mills_feedvial_seed1", 8),
+    Study("hidden_mills_feedvial_feed", "python benchmarks/hidden_mills.py --mills benchmarks/mills-feed-vial.toml "
+          "--cases W1,W2,W3,W4,W5,W6 --seed 0 --sample-feed --results-name hidden_mills_feedvial_feed", 8),
+    Study("hidden_mills_feedvial_feed_seed1", "python benchmarks/hidden_mills.py --mills benchmarks/mills-feed-vial.toml "
+          "--cases W1,W2,W3,W4,W5,W6 --seed 1 --sample-feed --results-name hidden_mills_feedvial_feed_seed1", 8),
     # reads the default, the 1000-particle and the on-request hidden-mill files above
     Study("hidden_mills_floor", "python benchmarks/hidden_mills_floor.py", 0.1),
     Study("estimate_replay", "python benchmarks/estimate_replay.py", 20),
