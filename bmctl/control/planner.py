@@ -260,7 +260,15 @@ def plan_binding(res, grid: Grid, lim, carry: Carry, ceiling_c: float) -> list[s
     t = grid.t0_h + np.concatenate([[0.0], np.cumsum(grid.lengths_min)[:-1]]) / 60.0
     pk = res.peaks_c.max(axis=0) if res.peaks_c is not None and res.peaks_c.size else np.zeros(grid.K)
     hot = np.flatnonzero(pk >= ceiling_c - 0.5)
-    if hot.size:
+    others = [r for f, r in (res.per_family or {}).items() if f != "rest"]
+    if not on.any() and res.peak_c > ceiling_c + CEILING_TOL_C and others \
+            and all(r["peak_c"] > ceiling_c + CEILING_TOL_C for r in others):
+        # the vial (in one scenario at least) is at the ceiling now: every plan that mills now is over it,
+        # so the plan shown rests to the end; the next advice, from a cooler vial, plans milling again
+        out.append(f"vial-temperature ceiling ({ceiling_c:g} °C) now: the vial is at it (up to {res.peak_c:.1f} °C in "
+                   "the filter's spread), so no plan may start milling; this one rests, and the next advice, "
+                   "with the vial cooler, plans milling again")
+    elif hot.size:
         out.append(f"vial-temperature ceiling ({ceiling_c:g} °C) from {t[hot[0]]:g} h")
     top = np.flatnonzero(on & (res.rpm >= lim.rpm_hi - 1e-6))
     if top.size:

@@ -14,6 +14,7 @@ from bmctl.control import make_controller
 from bmctl.control.config import load_controller, validate_controller
 from bmctl.control.design import interval_segments
 from bmctl.control.mill import check_schedule
+from bmctl.control.planner import plan_binding
 from bmctl.control.search import (Carry, coarse_families, evaluate, expand, limits_of, make_grid, neighbours,
                                   operable, search)
 from bmctl.moments.model import make_moment_model
@@ -274,6 +275,10 @@ def test_a_vial_above_the_ceiling_rests_instead_of_milling_on(model, cfg):
     spread = np.vstack([model.x0(), model.x0(), hot])  # nominal cool, one particle of the spread hot
     r = search(model, spread, np.ones((3, 2)), target, g, lim, cfg.weights)
     assert r.minutes[0] == 0
+    # binding says why the plan shown rests to the end: the vial now, not a target out of reach
+    now = "vial-temperature ceiling (80 °C) now"
+    assert any(b.startswith(now) and "next advice" in b for b in plan_binding(r, g, lim, Carry(), lim.ceiling_c))
+    assert not any(b.startswith(now) for b in plan_binding(cool, g, lim, Carry(), lim.ceiling_c))
 
 
 def test_before_the_mill_has_milled_a_rest_off_the_tolerance_is_not_chosen_for_the_spread(model, cfg):
