@@ -194,7 +194,8 @@ REGISTRY: tuple[Study, ...] = (
           "--cases W1,W2,W3,W4,W5,W6 --seed 1 --results-name hidden_mills_feedvial_seed1", 8),
     Study("hidden_mills_feedvial_feed", "python benchmarks/hidden_mills.py --mills benchmarks/mills-feed-vial.toml "
           "--cases W1,W2,W3,W4,W5,W6 --seed 0 --sample-feed --results-name hidden_mills_feedvial_feed", 8),
-    Study("hidden_mills_feedvial_feed_seed1", "python benchmarks/hidden_mills.py --mills benchmarks/mills-feed-vial.toml "
+    Study("hidden_mills_feedvial_feed_seed1",
+          "python benchmarks/hidden_mills.py --mills benchmarks/mills-feed-vial.toml "
           "--cases W1,W2,W3,W4,W5,W6 --seed 1 --sample-feed --results-name hidden_mills_feedvial_feed_seed1", 8),
     # reads the default, the 1000-particle and the on-request hidden-mill files above
     Study("hidden_mills_floor", "python benchmarks/hidden_mills_floor.py", 0.1),

@@ -199,8 +199,11 @@ def reach_line(key: str, target: float, end: dict | None, reachable: bool) -> st
     --------
     >>> reach_line("s_mean_um", 30.0, {"median": 30.4, "q05": 27.0, "q95": 35.0}, True)
     'target s_mean_um = 30 is reachable by the batch end (predicted median 30.4)'
-    >>> reach_line("s_mean_um", 30.0, {"median": 34.93, "q05": 23.57, "q95": 72.33}, True)
-    'target s_mean_um = 30 lies inside the 90 % band of the batch end [23.57, 72.33], but the predicted median misses it (34.93, +16.4 %): reachable only if the mill is not what the estimate says; samples narrow the band'
+    >>> import textwrap
+    >>> print(textwrap.fill(reach_line("s_mean_um", 30.0, {"median": 34.93, "q05": 23.57, "q95": 72.33}, True), 100))
+    target s_mean_um = 30 lies inside the 90 % band of the batch end [23.57, 72.33], but the predicted
+    median misses it (34.93, +16.4 %): reachable only if the mill is not what the estimate says; samples
+    narrow the band
     >>> reach_line("s_mean_um", 400.0, {"median": 41.1, "q05": 39.0, "q95": 44.0}, False)
     'target s_mean_um = 400 is NOT reachable by the batch end (predicted median 41.1, 90 % band [39, 44])'
     """
