@@ -5,6 +5,7 @@
     nice python benchmarks/hidden_mills.py --sample-particles 1000 --results-name NAME   # larger samples
     nice python benchmarks/hidden_mills.py --sample-on-request --results-name NAME   # extra samples when asked
     nice python benchmarks/hidden_mills.py --sample-feed --results-name NAME   # the feed sampled at 0 h too
+    nice python benchmarks/hidden_mills.py --card models/OTHER.toml --mills FILE --results-name NAME   # another card
     nice python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --results-name hidden_mills_unseen
 
 Each case is a plant built from the laboratory card with gamma and delta multiplied (0.6-1.6) and one
@@ -98,12 +99,12 @@ HELD_OUT = (
 )
 
 
-def load_mills(path: Path) -> tuple[Case, ...]:
+def load_mills(path: Path, card: Path = CARD) -> tuple[Case, ...]:
     """Hidden mills from a TOML file (``--mills``): ``[[mill]]`` tables with ``name``, ``gamma_mult``,
     ``delta_mult``, ``field`` (a numeric card field as ``section.key``), ``value``, ``hours`` and
     ``rpm_ref`` (the reference constant rpm that defines the target, in the sweep's 100-460 rpm).
-    Every hidden card is built and validated here; a problem is one :class:`~bmctl.errors.InputError`
-    line naming the file and the field."""
+    Every hidden card (``card`` changed) is built and validated here; a problem is one
+    :class:`~bmctl.errors.InputError` line naming the file and the field."""
     from typing import Annotated
 
     from pydantic import Field, ValidationError, field_validator, model_validator
@@ -112,7 +113,7 @@ def load_mills(path: Path) -> tuple[Case, ...]:
     from bmctl.errors import InputError
     from bmctl.limits import HOURS_MIN
 
-    lab = load_card(CARD).model_dump()  # the fields a hidden mill may change
+    lab = load_card(card).model_dump()  # the fields a hidden mill may change
 
     class MillRow(Strict):
         name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,16}$")]
@@ -129,7 +130,7 @@ def load_mills(path: Path) -> tuple[Case, ...]:
             sec, key = v.split(".")
             cur = lab.get(sec)
             if not isinstance(cur, dict) or key not in cur:
-                raise ValueError(f"not a field of the card {CARD.name} (got {v!r})")
+                raise ValueError(f"not a field of the card {Path(card).name} (got {v!r})")
             if isinstance(cur[key], bool) or not isinstance(cur[key], (int, float)):
                 raise ValueError(f"not a numeric card field (got {v!r})")
             return v
@@ -150,7 +151,7 @@ def load_mills(path: Path) -> tuple[Case, ...]:
     for i, m in enumerate(ms.mill):
         case = Case(m.name, m.gamma_mult, m.delta_mult, m.field, m.value, m.hours, m.rpm_ref)
         try:
-            hidden_card(case)
+            hidden_card(case, card)
         except ValidationError as exc:
             raise InputError(format_validation_error(f"{path}: mill[{i}] ({m.name}): the hidden card", exc)) from None
         cases.append(case)
@@ -163,11 +164,12 @@ def _shown(path: Path) -> str:
     return str(p.relative_to(ROOT) if p.is_relative_to(ROOT) else p)
 
 
-def hidden_card(case: Case):
-    """The hidden plant's card: the lab card with gamma, delta and one more field changed."""
+def hidden_card(case: Case, card_path: Path = CARD):
+    """The hidden plant's card: the given card (the lab card by default) with gamma, delta and one
+    more field changed."""
     from bmctl.config import load_card, with_factors
 
-    card = with_factors(load_card(CARD), case.gamma, case.delta)
+    card = with_factors(load_card(card_path), case.gamma, case.delta)
     d = card.model_dump()
     sec, key = case.field.split(".")
     d[sec][key] = case.value
@@ -255,7 +257,7 @@ def case_seeds(seed: int, name: str) -> np.random.SeedSequence:
 def run_campaign(case: Case, target_um: float, folder: Path, particles: int, seed: int, env: dict,
                  energy_mult: bool = True, sample_particles: int = SAMPLE_PARTICLES,
                  on_request: bool = False, controller: Path = CONTROLLER,
-                 sample_every_h: float = SAMPLE_EVERY_H, sample_feed: bool = False) -> dict:
+                 sample_every_h: float = SAMPLE_EVERY_H, sample_feed: bool = False, card_path: Path = CARD) -> dict:
     """The scripted operator: advise, accept, run the hidden plant, log, sample every
     ``sample_every_h`` (hourly) and at the batch end; with
     ``on_request`` also take the extra sample an advice asks for (``sample_first``), then advise again;
@@ -264,11 +266,11 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
     from bmctl.measure.tables import write_table
     from bmctl.plant.plant import Plant
 
-    card = hidden_card(case)
+    card = hidden_card(case, card_path)
     ss = case_seeds(seed, case.name)
     g_plant, g_sample = (np.random.default_rng(s) for s in ss.spawn(2))
     plant = Plant(card, g_plant, particles)
-    cli(["campaign", "init", str(folder), "--model", str(CARD), "--controller", str(controller), "--target",
+    cli(["campaign", "init", str(folder), "--model", str(card_path), "--controller", str(controller), "--target",
          f"s_mean_um={target_um:.4f}", "--hours", f"{case.hours:g}", "--seed", "0",
          *([] if energy_mult else ["--no-energy-mult"])], env)
     t, peak = 0.0, plant.temperature_c
@@ -446,6 +448,9 @@ def main() -> None:
                          "advises again")
     ap.add_argument("--sample-feed", action="store_true",
                     help="the operator also samples the feed at 0 h, before the first advice")
+    ap.add_argument("--card", metavar="TOML",
+                    help=f"the card the campaigns are given and the hidden mills change (default "
+                         f"{CARD.relative_to(ROOT)}; it needs its moment coefficients, <card>.moments.toml)")
     ap.add_argument("--controller", metavar="TOML",
                     help=f"the campaign's controller config (default {CONTROLLER.relative_to(ROOT)})")
     ap.add_argument("--results-name", default="hidden_mills",
@@ -479,12 +484,18 @@ def main() -> None:
     from bmctl.control.config import load_controller
     from bmctl.errors import InputError
 
-    try:  # a bad mills or controller file: one line, exit 2, before anything is written
-        pool = load_mills(Path(a.mills)) if a.mills else CASES + HELD_OUT
+    card_path = Path(a.card).resolve() if a.card else CARD
+    try:  # a bad card, mills or controller file: one line, exit 2, before anything is written
+        card = load_card(card_path)
+        if a.card:  # the campaign refuses a card without its own moment coefficients: say so before any sweep
+            from bmctl.moments.forcard import for_card
+
+            for_card(card_path)
+        pool = load_mills(Path(a.mills), card_path) if a.mills else CASES + HELD_OUT
         ctrl_cfg = load_controller(a.controller or CONTROLLER)
-        top = max(SWEEP_RPM_MAX, min(ctrl_cfg.bounds.rpm_max, load_card(CARD).mill.rpm_max))
+        top = max(SWEEP_RPM_MAX, min(ctrl_cfg.bounds.rpm_max, card.mill.rpm_max))
         for i, case in enumerate(pool):  # the operator cannot run an advice above the mill's top speed
-            rpm_max = hidden_card(case).mill.rpm_max
+            rpm_max = hidden_card(case, card_path).mill.rpm_max
             if rpm_max < top:
                 raise InputError(f"{a.mills}: mill[{i}] ({case.name}): mill.rpm_max: the hidden mill must reach the "
                                  f"{top:g} rpm that the sweep and the controller may ask for (got {rpm_max:g}); a "
@@ -506,7 +517,7 @@ def main() -> None:
         print(f"hidden_mills.py: error: --sample-every-h: must be a positive multiple of the {INTERVAL_H:g} h "
               f"interval (got {a.sample_every_h:g})", file=sys.stderr)
         sys.exit(2)
-    changed = (("--mills", a.mills), ("--controller", a.controller), ("--no-energy-mult", a.no_energy_mult),
+    changed = (("--card", a.card), ("--mills", a.mills), ("--controller", a.controller), ("--no-energy-mult", a.no_energy_mult),
                ("--sample-particles", a.sample_particles != SAMPLE_PARTICLES),
                ("--sample-on-request", a.sample_on_request), ("--sample-every-h", a.sample_every_h != SAMPLE_EVERY_H),
                ("--sample-feed", a.sample_feed))
@@ -521,13 +532,12 @@ def main() -> None:
     cache = Path(tempfile.mkdtemp(prefix="bmctl-hidden-cache-"))  # a fresh compile cache: first advise is cold
     env = {**os.environ, "PYTHONPATH": str(ROOT), "XDG_CACHE_HOME": str(cache), "MPLBACKEND": "Agg"}
     load0 = os.getloadavg()
-    card = load_card(CARD)
     card_sweeps: dict[float, list] = {}
     rows = []
     t_start = time.perf_counter()
     refs = {}
     for case in cases:  # every target first: a mill without one stops the run before any campaign
-        hs = sweep(hidden_card(case), case.hours, a.particles, a.seed)
+        hs = sweep(hidden_card(case, card_path), case.hours, a.particles, a.seed)
         ok = [r for r in hs[:19] if r["peak_c"] <= CEILING_C - 3.0]
         if not ok:
             where = f"{a.mills}: " if a.mills else ""
@@ -550,7 +560,8 @@ def main() -> None:
               f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
               f"{plain_err:+.1f} % on the hidden plant", flush=True)
         res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, not a.no_energy_mult,
-                           a.sample_particles, a.sample_on_request, controller, a.sample_every_h, a.sample_feed)
+                           a.sample_particles, a.sample_on_request, controller, a.sample_every_h, a.sample_feed,
+                           card_path)
         print(f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
               f"{res['peak_c']:.1f} °C, idle while needed {res['idle_needed_h']:.2f} h (longest "
               f"{res['longest_idle_needed_h']:.2f} h); advise first {res['advise_first_s']:.1f} s, later median "
@@ -591,6 +602,8 @@ def main() -> None:
     if not a.no_results and (len(rows) == len(CASES) or a.results_name != "hidden_mills"):
         cmd = "python benchmarks/hidden_mills.py"
         if a.results_name != "hidden_mills":
+            if a.card:
+                cmd += f" --card {_shown(card_path)}"
             if a.mills:
                 cmd += f" --mills {_shown(Path(a.mills))}"
             cmd += f" --cases {','.join(c.name for c in cases)} --seed {a.seed}"
@@ -604,7 +617,7 @@ def main() -> None:
             cmd += f" --results-name {a.results_name}"
         path = write_results(a.results_name, {"summary": summary, "cases": rows},
                              settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
-                                       "controller": _shown(controller), "card": str(CARD.relative_to(ROOT)),
+                                       "controller": _shown(controller), "card": _shown(card_path),
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
                                        "sample_every_h": a.sample_every_h, "sample_particles": a.sample_particles,
                                        "need_tol": NEED_TOL, "energy_mult": not a.no_energy_mult,
