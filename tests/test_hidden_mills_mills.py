@@ -171,3 +171,31 @@ def test_a_sampling_interval_off_the_advice_grid_is_refused(tmp_path, every):
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and "--sample-every-h" in lines[0] and "Traceback" not in r.stderr
     assert not out.exists()
+
+
+def test_a_card_without_moment_coefficients_is_refused_with_exit_2_and_one_line(tmp_path):
+    card = tmp_path / "mine.toml"  # a copy of a shipped card without its <card>.moments.toml beside it
+    card.write_text((ROOT / "models" / "alni-1to3-300rpm-hadjiafxenti.toml").read_text())
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hidden_mills.py"), "--card", str(card),
+                        "--no-results", "--out", str(out)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(card) in lines[0] and "moment coefficients" in lines[0]
+    assert "Traceback" not in r.stderr and not out.exists()
+
+
+def test_mills_around_another_card_change_that_card():
+    hm = load_benchmark("hidden_mills")
+    other = ROOT / "models" / "alni-1to3-300rpm-hadjiafxenti.toml"
+    cases = hm.load_mills(ROOT / "benchmarks" / "mills-1to3.toml", other)
+    y4 = next(c for c in cases if c.name == "Y4")
+    from bmctl.config import load_card, with_factors
+
+    base = with_factors(load_card(other), y4.gamma, y4.delta)
+    card = hm.hidden_card(y4, other)
+    assert card.initial.s_mean_um == pytest.approx(50.0)
+    assert card.stochastic.gamma_per_um2 == pytest.approx(base.stochastic.gamma_per_um2)
+    assert card.material.model_dump() == base.material.model_dump()  # the 1:3 powder, not the lab card's
+    lab = load_card(hm.CARD)
+    assert card.material.model_dump() != lab.material.model_dump()
