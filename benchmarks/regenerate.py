@@ -197,6 +197,11 @@ REGISTRY: tuple[Study, ...] = (
     Study("hidden_mills_feedvial_feed_seed1",
           "python benchmarks/hidden_mills.py --mills benchmarks/mills-feed-vial.toml "
           "--cases W1,W2,W3,W4,W5,W6 --seed 1 --sample-feed --results-name hidden_mills_feedvial_feed_seed1", 8),
+    Study("hidden_mills_1to3", "python benchmarks/hidden_mills.py --card models/alni-1to3-300rpm-hadjiafxenti.toml "
+          "--mills benchmarks/mills-1to3.toml --cases Y1,Y2,Y3,Y4,Y5,Y6 --seed 0 --results-name hidden_mills_1to3", 8),
+    Study("hidden_mills_1to3_seed1", "python benchmarks/hidden_mills.py --card models/alni-1to3-300rpm-hadjiafxenti.toml "
+          "--mills benchmarks/mills-1to3.toml --cases Y1,Y2,Y3,Y4,Y5,Y6 --seed 1 --results-name hidden_mills_1to3_seed1",
+          8),
     # reads the default, the 1000-particle and the on-request hidden-mill files above
     Study("hidden_mills_floor", "python benchmarks/hidden_mills_floor.py", 0.1),
     Study("estimate_replay", "python benchmarks/estimate_replay.py", 20),
