@@ -99,11 +99,11 @@ HELD_OUT = (
 )
 
 
-def load_mills(path: Path, card: Path = CARD) -> tuple[Case, ...]:
+def load_mills(path: Path, card_path: Path = CARD) -> tuple[Case, ...]:
     """Hidden mills from a TOML file (``--mills``): ``[[mill]]`` tables with ``name``, ``gamma_mult``,
     ``delta_mult``, ``field`` (a numeric card field as ``section.key``), ``value``, ``hours`` and
     ``rpm_ref`` (the reference constant rpm that defines the target, in the sweep's 100-460 rpm).
-    Every hidden card (``card`` changed) is built and validated here; a problem is one
+    Every hidden card (``card_path`` changed) is built and validated here; a problem is one
     :class:`~bmctl.errors.InputError` line naming the file and the field."""
     from typing import Annotated
 
@@ -113,7 +113,7 @@ def load_mills(path: Path, card: Path = CARD) -> tuple[Case, ...]:
     from bmctl.errors import InputError
     from bmctl.limits import HOURS_MIN
 
-    lab = load_card(card).model_dump()  # the fields a hidden mill may change
+    base = load_card(card_path).model_dump()  # the fields a hidden mill may change
 
     class MillRow(Strict):
         name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,16}$")]
@@ -128,9 +128,9 @@ def load_mills(path: Path, card: Path = CARD) -> tuple[Case, ...]:
         @classmethod
         def _numeric_card_field(cls, v: str) -> str:
             sec, key = v.split(".")
-            cur = lab.get(sec)
+            cur = base.get(sec)
             if not isinstance(cur, dict) or key not in cur:
-                raise ValueError(f"not a field of the card {Path(card).name} (got {v!r})")
+                raise ValueError(f"not a field of the card {Path(card_path).name} (got {v!r})")
             if isinstance(cur[key], bool) or not isinstance(cur[key], (int, float)):
                 raise ValueError(f"not a numeric card field (got {v!r})")
             return v
@@ -151,7 +151,7 @@ def load_mills(path: Path, card: Path = CARD) -> tuple[Case, ...]:
     for i, m in enumerate(ms.mill):
         case = Case(m.name, m.gamma_mult, m.delta_mult, m.field, m.value, m.hours, m.rpm_ref)
         try:
-            hidden_card(case, card)
+            hidden_card(case, card_path)
         except ValidationError as exc:
             raise InputError(format_validation_error(f"{path}: mill[{i}] ({m.name}): the hidden card", exc)) from None
         cases.append(case)
@@ -517,7 +517,8 @@ def main() -> None:
         print(f"hidden_mills.py: error: --sample-every-h: must be a positive multiple of the {INTERVAL_H:g} h "
               f"interval (got {a.sample_every_h:g})", file=sys.stderr)
         sys.exit(2)
-    changed = (("--card", a.card), ("--mills", a.mills), ("--controller", a.controller), ("--no-energy-mult", a.no_energy_mult),
+    changed = (("--card", a.card), ("--mills", a.mills), ("--controller", a.controller),
+               ("--no-energy-mult", a.no_energy_mult),
                ("--sample-particles", a.sample_particles != SAMPLE_PARTICLES),
                ("--sample-on-request", a.sample_on_request), ("--sample-every-h", a.sample_every_h != SAMPLE_EVERY_H),
                ("--sample-feed", a.sample_feed))
