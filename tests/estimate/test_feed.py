@@ -43,16 +43,16 @@ def _read_feed(model, seed: int, feed_log_std: float):
 
 @pytest.mark.parametrize("feed_log_std", [1.0, 0.0])
 def test_a_sample_of_the_feed_is_read_not_held_to_the_card(model, feed_log_std):
-    covered, off = 0, []
+    covered, off, spread = 0, [], []
     for seed in range(20):
         est, sample_mean = _read_feed(model, seed, feed_log_std)
         covered += est["s_mean_um_q05"] <= TRUTH_UM <= est["s_mean_um_q95"]
         off.append(abs(est["s_mean_um"] / sample_mean - 1))
-        spread = est["gamma_mult_q95"] / est["gamma_mult_q05"]
+        spread.append(est["gamma_mult_q95"] / est["gamma_mult_q05"])
     if feed_log_std > 0:
         assert covered >= 15  # 90 % intervals over 20 feeds: P(fewer than 15) < 5 % if calibrated
         assert max(off) < 0.015  # a broad feed prior: the posterior mean is the sample's own
-        assert spread > 2.0  # a feed sample says nothing of gamma: its prior (log sd 0.4) stays
+        assert min(spread) > 2.0  # a feed sample says nothing of gamma: its prior (log sd 0.4) stays
     else:  # the card's starting powder held within initial_spread: the cloud cannot reach 60 um
         assert covered == 0 and min(off) > 0.25
 
