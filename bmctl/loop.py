@@ -127,6 +127,8 @@ class LoopConfig:
         Vial-temperature ceiling whose crossings are counted.
     power_w : callable or None
         Mean mill power (W) at an rpm, for the energy tally.
+    sample_feed : bool
+        Also sample the feed at 0 h, before the first decision (as ``campaign sample --at-h 0``).
     """
 
     hours: float
@@ -134,6 +136,7 @@ class LoopConfig:
     temperature_reading: bool = True
     ceiling_c: float | None = None
     power_w: Callable[[float], float] | None = None
+    sample_feed: bool = False
 
 
 @dataclass
@@ -255,8 +258,20 @@ class ClosedLoop:
         self.est = est.as_dict()
         return sampled
 
+    def observe_feed(self) -> None:
+        """Sample the feed before anything has run (once, at the first step when
+        ``cfg.sample_feed``); the estimate is updated, no interval is recorded. No vial reading
+        goes with it (the vial is at the card's room temperature, as in a campaign's
+        ``sample --at-h 0``)."""
+        s_um, r = self.sensor.sample(self.mill, self.sample_rng)
+        self.est = self.estimator.update(s_um, r, temperature_c=None).as_dict()
+        self.stats["feed_sampled"] = True
+
     def step(self) -> StepRecord:
-        """One control interval: decide, apply, observe."""
+        """One control interval: decide, apply, observe (the feed first when
+        ``cfg.sample_feed`` and nothing has run)."""
+        if self.k == 0 and self.cfg.sample_feed and not self.stats.get("feed_sampled"):
+            self.observe_feed()
         interval = self.controller.interval_h
         t_h = self.k * interval
         dt = min(interval, self.cfg.hours - t_h)

@@ -37,6 +37,7 @@ class SamplingSpec(Strict):
     noise: Range(0.0, 1.0) = 0.03  # relative measurement noise
     render: bool = False
     temperature_reading: bool = True
+    feed: bool = False  # also sample the feed at 0 h, before the first decision (campaign: sample --at-h 0)
 
 
 class EstimatorSpec(Strict):

@@ -121,7 +121,8 @@ def build(sc: Scenario, base: Path, seed: int) -> ClosedLoop:
     sp = sc.sampling
     sensor = MicrographSensor(sp.particles, sp.um_per_px, sp.noise, sp.render)
     cfg = LoopConfig(hours=sc.hours, sample_every_h=sp.every_h, temperature_reading=sp.temperature_reading,
-                     ceiling_c=_ceiling(sc, controller), power_w=lambda rpm: kinematics(card, rpm).mean_power_W)
+                     ceiling_c=_ceiling(sc, controller), power_w=lambda rpm: kinematics(card, rpm).mean_power_W,
+                     sample_feed=sp.feed)
     return ClosedLoop(plant, sensor, pf, controller, g_sample, cfg)
 
 
@@ -370,6 +371,7 @@ def summarise(sc: Scenario, loop: ClosedLoop) -> dict:
         "fallbacks": st["fallbacks"],
         "median_solve_ms": float(np.median(solve)),
         "steps": loop.k,
+        "feed_sampled": bool(st.get("feed_sampled", False)),
         "solver_log": st.get("log", []),
     }
 

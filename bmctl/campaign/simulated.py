@@ -88,6 +88,10 @@ def trial_steps(scenario_path, folder, seed: int = 0):
     with wf.Campaign(folder) as c:
         interval = c.loop.controller.interval_h
         kind = c.meta["controller_kind"]
+        if sc.sampling.feed:  # the feed before anything runs, as ClosedLoop.observe_feed
+            s_um, rr = sensor.sample(plant, trial_loop.sample_rng)
+            wf.sample(folder, 0.0, [ParticleTable.from_size_aspect(s_um, rr)], campaign=c)
+            stats["feed_sampled"] = True
         for k in range(trial_loop.steps):
             t = c.clock_h()
             advice = wf.advise(folder, campaign=c)
