@@ -122,7 +122,7 @@ def _chosen(argv: list[str]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit status (0 ok, 2 bad input)."""
+    """Run the CLI; returns the exit status (0 ok, 2 bad input, 130 interrupted, 141 output pipe closed)."""
     try:
         if argv is None:  # the bmctl command's own process: the numpy field's heap setting
             from .moments.npfield import keep_heap
@@ -134,10 +134,18 @@ def main(argv: list[str] | None = None) -> int:
         from .work import set_budget
 
         set_budget(getattr(args, "budget_cpu_h", None), getattr(args, "budget_memory_gb", None))
-        return int(args._run(args) or 0)
+        rc = int(args._run(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return rc
     except InputError as exc:
         print(f"bmctl: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `bmctl ... | head`: the reader left; quiet, as Unix tools are
+        import os
+
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # no second error when Python flushes stdout at exit
+        return 141
     except OSError as exc:  # an output that cannot be written (disk full, permissions): one line, no traceback
         where = exc.filename if exc.filename is not None else "output"
         print(f"bmctl: error: {one_line(f'{where}: {exc.strerror or exc}')}", file=sys.stderr)

@@ -45,6 +45,10 @@ def parse(text: str, where: str = "--target") -> dict[str, float]:
             raise InputError(f"{where}: unknown target {k!r} (one of {', '.join(known_keys())})")
         if k in out:
             raise InputError(f"{where}: {k} given twice")
+        if ":" in v:  # design and trial scenarios take windows; a campaign steers to one value
+            mid = _mid(v)
+            raise InputError(f"{where}: {k}={v}: a campaign takes one value per target, not a window"
+                             + (f" (e.g. {k}={mid})" if mid else "") + "; windows are for design and trial scenarios")
         val = finite_float(v, f"{where}: {k}")
         if val <= 0:
             raise InputError(f"{where}: {k}: must be > 0 (got {v})")
@@ -52,6 +56,20 @@ def parse(text: str, where: str = "--target") -> dict[str, float]:
     if "d50_um" in out and "s_mean_um" in out:
         raise InputError(f"{where}: d50_um and s_mean_um both set the size; give one")
     return out
+
+
+def _mid(window: str) -> str:
+    """The middle of a window ``"lo:hi"`` as text for a message (empty when it is not two finite numbers).
+
+    >>> _mid("60:70"), _mid("a:b")
+    ('65', '')
+    """
+    try:
+        lo, hi = (float(x) for x in window.split(":"))
+    except ValueError:
+        return ""
+    mid = (lo + hi) / 2
+    return f"{mid:g}" if math.isfinite(mid) else ""
 
 
 def controller_target(target: dict[str, float], est: dict) -> dict[str, float]:

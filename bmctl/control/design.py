@@ -369,7 +369,9 @@ def schedule_toml(d: Design) -> str:
     lines = [
         f"# Designed by `bmctl design` for {d.card_name}: target {tgt} at {d.hours:g} h (objective {d.objective})",
         f"# controller {d.controller_name or 'mpc'}; {r.method}: {r.status}, {r.solve_s:.1f} s; "
-        f"{r.switches} on/off switches; predicted D50 {r.outputs['d50_um']:.2f} µm, error {100 * r.error:.2f} %",
+        f"{r.switches} on/off switches; predicted "
+        + ", ".join(f"{k} {r.outputs[k]:.4g}" for k in d.target if k in r.outputs)
+        + f" (error {100 * r.error:.2f} %)",
         f"# predicted (moment model): s mean {last[0]:.2f} µm, s std {last[1]:.2f} µm, r mean {last[2]:.4f}, "
         f"r std {last[3]:.4f}; peak vial T {np.max(d.t_peak_c):.1f} °C (ceiling {d.ceiling_c:g} °C)",
         "# rpm 0 = rest; milling times are whole minutes",

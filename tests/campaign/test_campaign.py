@@ -55,6 +55,8 @@ def test_target_parse_errors():
     for bad in ("d10_um=3", "d50_um=-1", "d50_um", "d50_um=45,s_mean_um=40", ""):
         with pytest.raises(InputError):
             tg.parse(bad)
+    with pytest.raises(InputError, match="not a window .e.g. d50_um=65."):  # design's window form, named
+        tg.parse("d50_um=60:70")
 
 
 # --- the log -----------------------------------------------------------------------------------

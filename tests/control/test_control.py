@@ -447,6 +447,9 @@ def test_design_writes_a_schedule_simulate_reads(tmp_path, capsys, model):
     s_final = float(rows[-1].split(",")[4])
     assert s_final == pytest.approx(Xs[-1, 0], rel=0.03)
     assert math.isfinite(s_final)
+    header = (out / "schedule.toml").read_text().splitlines()[1]  # the prediction of the target's own quantity
+    predicted = float(header.split("predicted s_mean_um ")[1].split()[0])
+    assert predicted == pytest.approx(s_final, rel=1e-3) and "D50" not in header
 
 
 def test_window_target_has_lo_below_hi_and_no_cost_inside(model):
