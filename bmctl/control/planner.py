@@ -270,6 +270,10 @@ def plan_binding(res, grid: Grid, lim, carry: Carry, ceiling_c: float) -> list[s
                    "with the vial cooler, plans milling again")
     elif hot.size:
         out.append(f"vial-temperature ceiling ({ceiling_c:g} °C) from {t[hot[0]]:g} h")
+    elif getattr(res, "over_ceiling", None):  # the plan stays clear of the ceiling, closer ones do not
+        r = res.over_ceiling
+        out.append(f"vial-temperature ceiling ({ceiling_c:g} °C): closer schedules run over it ({r['schedule']}: "
+                   f"{100 * r['error']:.1f} % off, peak {r['peak_c']:.1f} °C)")
     top = np.flatnonzero(on & (res.rpm >= lim.rpm_hi - 1e-6))
     if top.size:
         out.append(f"rpm at its upper bound ({lim.rpm_hi:g} rpm) from {t[top[0]]:g} h")

@@ -62,6 +62,9 @@ DEFER_PENALTY = 0.005
 RISK_COST = 1e-4
 #: a candidate whose predicted peak is above the ceiling by more than this (degC) is over it
 CEILING_TOL_C = 0.05
+#: a candidate over the ceiling that comes this much closer (relative error) than the plan is named
+#: in the plan's binding limits: the ceiling is what keeps the plan from it
+CLOSER_OVER_CEILING = 0.005
 
 
 @dataclass(frozen=True)
@@ -756,6 +759,9 @@ class SearchResult:
         Predicted states at the interval ends, per scenario.
     peaks_c : ndarray, (S, K)
         Peak vial temperature per interval, per scenario.
+    over_ceiling : dict or None
+        The nominally closest candidate that the ceiling ruled out, where it comes at least
+        :data:`CLOSER_OVER_CEILING` closer than the plan (``_summary`` form), else None.
     """
 
     params: np.ndarray
@@ -776,6 +782,7 @@ class SearchResult:
     at_min_rest: bool = False
     X: np.ndarray | None = None
     peaks_c: np.ndarray | None = None
+    over_ceiling: dict | None = None
 
 
 def _row(rA, MA, jA, kA, rB=0.0, MB=0.0, jB=1.0, cap=NO_CAP, oA=0.0):
@@ -1197,6 +1204,10 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         ids = [i for i, ff in enumerate(C["F"]) if ff == f]
         if ids:
             per_family[f] = _summary(C, best_of(ids) if f != C["F"][best] else best, grid)
+    over = [i for i in range(len(C["err"]))
+            if C["exc"][i] > CEILING_TOL_C and C["err"][i] < C["err"][best] - CLOSER_OVER_CEILING]
+    over_ceiling = (_summary(C, min(over, key=lambda i: (C["err"][i], i)), grid)
+                    if over and C["exc"][best] <= CEILING_TOL_C else None)
     X, pk = runs[C["run"][best]].trajectory(C["idx"][best], x0s[:1])
     if Xs is not None:
         X = np.concatenate([X, Xs], axis=0)
@@ -1204,7 +1215,7 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
                         np.asarray(C["min"][best]), float(C["err"][best]), float(C["rms"][best]),
                         float(C["peak"][best]), int(C["sw"][best]), float(C["E"][best]), float(C["mh"][best]),
                         X[0, -1].copy(), per_family, len(C["rms"]) + work["coarse"], int(work["nodes"]),
-                        bool(C["atm"][best]), bool(C["atr"][best]), X, pk)
+                        bool(C["atm"][best]), bool(C["atr"][best]), X, pk, over_ceiling)
 
 
 def _summary(C: dict, i: int, grid: Grid) -> dict:

@@ -281,6 +281,24 @@ def test_a_vial_above_the_ceiling_rests_instead_of_milling_on(model, cfg):
     assert not any(b.startswith(now) for b in plan_binding(cool, g, lim, Carry(), lim.ceiling_c))
 
 
+def test_binding_names_the_ceiling_when_it_keeps_closer_schedules_out(model, cfg):
+    """A reduction that needs the vial over the ceiling: the plan stays under it (peak a little
+    below, so not "at the ceiling from ..."), and binding names the ceiling with the closer
+    schedule it rules out, not only the batch time."""
+    g, lim = make_grid(0.0, 6.0, 0.5), limits_of(cfg, model)
+    X = model.simulate(model.x0(), [[380.0, 1.0]] * 12, 0.5)
+    assert X[:, 4].max() > lim.ceiling_c + 10  # what reaches it runs far over the ceiling
+    r = search(model, model.x0()[None], np.ones((1, 2)), {"s_mean_um": float(X[-1, 0])}, g, lim, cfg.weights)
+    assert r.peak_c <= lim.ceiling_c and r.over_ceiling is not None
+    assert r.over_ceiling["error"] < r.error and r.over_ceiling["peak_c"] > lim.ceiling_c
+    binding = plan_binding(r, g, lim, Carry(), lim.ceiling_c)
+    assert any(b.startswith("vial-temperature ceiling (80 °C): closer schedules run over it") for b in binding)
+    easy = model.simulate(model.x0(), [[250.0, 1.0]] * 12, 0.5)  # a cool target the plan reaches
+    r = search(model, model.x0()[None], np.ones((1, 2)), {"s_mean_um": float(easy[-1, 0])}, g, lim, cfg.weights)
+    assert r.error < 0.01 and r.over_ceiling is None
+    assert not any("ceiling" in b for b in plan_binding(r, g, lim, Carry(), lim.ceiling_c))
+
+
 def test_before_the_mill_has_milled_a_rest_off_the_tolerance_is_not_chosen_for_the_spread(model, cfg):
     """A target 2.5 % below the start, a wide spread of (gamma, delta): every plan that mills scatters
     far more than resting on, which stays 2.5 % off. Before the mill has milled, resting narrows none
