@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import errno
 import io
 import itertools
 import json
@@ -372,6 +373,9 @@ def atomic_path(path: str | os.PathLike, suffix: str = ""):
         path.parent.mkdir(parents=True, exist_ok=True)
         if path.is_dir():
             raise IsADirectoryError(21, "is a folder, cannot be written as a file", str(path))
+        if path.exists() and not path.is_file():  # a rename would replace the pipe or device itself
+            raise OSError(errno.EINVAL, "not a regular file (a pipe, device or socket is not replaced by an output)",
+                          str(path))
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
         os.fchmod(fd, 0o666 & ~_umask())
     except OSError as exc:  # name the destination, not the temporary file

@@ -450,3 +450,19 @@ def test_resume_of_a_damaged_trial_carries_on_or_names_the_file(tmp_path, capsys
 
 def _err_lines(err: str) -> list[str]:
     return [ln for ln in err.splitlines() if ln.strip()]
+
+
+def test_an_output_never_replaces_a_pipe_or_device(tmp_path):
+    """An atomic write renames its temporary file onto the destination: onto a FIFO (or, as root,
+    /dev/null) that replaced the special file itself with a regular one."""
+    import os
+    import stat
+
+    from bmctl.io import write_text
+
+    fifo = tmp_path / "out.fifo"
+    os.mkfifo(fifo)
+    with pytest.raises(OSError, match="not a regular file"):
+        write_text(fifo, "x")
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+    assert [p.name for p in tmp_path.iterdir()] == ["out.fifo"]  # no temporary file left

@@ -233,7 +233,7 @@ class _Doc(BaseModel):
 class _Next(_Doc):
     rpm: Range(0.0, 1e5)
     milling: Range(0.0, 1.0)
-    interval_h: Range(0.0, 1000.0, lo_open=True)
+    interval_h: Range(0.0, 1000.0)  # 0 at the batch end: the advice is the end state, nothing to run
     mill_min: Range(0.0, 60_000.0)
     rest_min: Range(0.0, 60_000.0)
 

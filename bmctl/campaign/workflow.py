@@ -30,6 +30,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import shutil
 import time
 from dataclasses import dataclass
@@ -748,6 +749,9 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
             clock = c.clock_h()
             if plan is None or abs(plan[1] - clock) > 1e-6:
                 raise InputError(f"{folder}: no advice for the logged time {clock:g} h; run `bmctl campaign advise` first")
+            if clock >= c.meta["hours"] - EPS_H:
+                raise InputError(f"{folder}: the batch ended at {c.meta['hours']:g} h: nothing left to decide "
+                                 f"(`bmctl campaign report {folder}` for the whole campaign)")
             replaced = c.con.execute("SELECT COUNT(*) FROM decisions WHERE plan_id = ?", (plan[0],)).fetchone()[0]
             c.con.execute("INSERT INTO decisions (plan_id, accepted, rpm, milling, note, created_at) VALUES "
                           "(?, ?, ?, ?, ?, ?)", (plan[0], int(bool(accept)), rpm if not accept else plan[2],
@@ -789,14 +793,29 @@ def status(folder, campaign: Campaign | None = None) -> dict:
             "deviations": devs, "warnings": warnings, "db_bytes": db.db_path(folder).stat().st_size}
 
 
+def _not_a_campaign_file(folder, dest: Path, flag: str) -> None:
+    """Refuse an output that would replace the campaign's database (or its journal) or one of the
+    input copies under ``DIR/inputs`` (later verbs check those copies and would refuse the campaign)."""
+    real = Path(os.path.realpath(dest))
+    base = Path(os.path.realpath(folder))
+    inputs = base / "inputs"
+    dbfile = Path(os.path.realpath(db.db_path(folder)))
+    if real == dbfile or real.name.startswith(dbfile.name) and real.parent == dbfile.parent \
+            or inputs == real or inputs in real.parents:
+        raise InputError(f"{flag}: {dest} is the campaign's own file (its database or an input copy); "
+                         "choose another path")
+
+
 def report(folder, out=None, campaign: Campaign | None = None) -> Path:
     """Write the self-contained HTML report (default ``DIR/report.html``); returns its path."""
     from .html_report import write_report
 
+    dest = Path(out) if out else Path(folder) / "report.html"
+    _not_a_campaign_file(folder, dest, "--out")
     c = campaign or Campaign(folder)
     try:
         with db.transaction(c.con, write=False, where=str(folder)):
-            path = write_report(c, Path(out) if out else Path(folder) / "report.html")
+            path = write_report(c, dest)
     finally:
         if campaign is None:
             c.close()

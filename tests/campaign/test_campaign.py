@@ -389,3 +389,32 @@ def test_out_of_range_campaign_flags_are_refused(fresh_campaign, tmp_path):
     with pytest.raises(InputError, match="--rpm 5000: above the mill's rpm_max"):
         cp.log(d, 5000.0, 0.5)
     assert cp.status(d)["counts"]["actions"] == 0
+
+
+def test_an_advice_at_the_batch_end_keeps_the_campaign_readable(tmp_path, capsys):
+    """Advising once the whole batch is logged stores the end state (a zero-length next interval);
+    every verb still reads the campaign (the check once refused that advice and locked the campaign
+    out of its own report) and decide says the batch is over."""
+    d = tmp_path / "c"
+    _init(d, hours=1.0)
+    cp.log(d, 300.0, 1.0)
+    assert main(["campaign", "advise", str(d)]) == 0
+    assert "next: batch finished" in capsys.readouterr().out
+    for verb in (["status"], ["advise"], ["report", "--out", str(tmp_path / "r.html")]):
+        assert main(["campaign", verb[0], str(d), *verb[1:]]) == 0, verb
+    capsys.readouterr()
+    assert main(["campaign", "decide", str(d), "--accept"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the batch ended at 1 h: nothing left to decide" in err[0]
+
+
+@pytest.mark.parametrize("dest", ["campaign.sqlite", "inputs/alni-1to1-300rpm-lab.toml", "inputs/new.html"])
+def test_the_report_never_overwrites_the_campaigns_own_files(tmp_path, capsys, dest):
+    d = tmp_path / "c"
+    _init(d)
+    before = {p: p.read_bytes() for p in d.rglob("*") if p.is_file()}
+    assert main(["campaign", "report", str(d), "--out", str(d / dest)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "the campaign's own file" in err[0]
+    assert {p: p.read_bytes() for p in d.rglob("*") if p.is_file()} == before
+    assert main(["campaign", "status", str(d)]) == 0
