@@ -174,6 +174,8 @@ def get_meta(con: sqlite3.Connection, where: str = "meta") -> dict:
 
 
 # --- what a damaged or edited database may hold -------------------------------------------------
+#: the largest float below 1: r is in [0, 1), as the particle-table reader takes it
+BELOW_ONE = math.nextafter(1.0, 0.0)
 #: numeric columns and the range every row must keep (NULL allowed where the schema allows it)
 NUMERIC = (
     ("actions", "t0_h", 0.0, 1000.0, False), ("actions", "t1_h", 0.0, 1000.0, False),
@@ -186,7 +188,7 @@ NUMERIC = (
     ("particles", "sample_id", 1, 2**62, False), ("particles", "particle_id", 1, 2**62, False),
     ("particles", "x_um", -1e300, 1e300, True), ("particles", "y_um", -1e300, 1e300, True),
     ("particles", "area_um2", 0.0, 1e300, False), ("particles", "perimeter_um", 0.0, 1e300, False),
-    ("particles", "s_um", 1e-3, 1e4, False), ("particles", "r", 0.0, 0.999999999, False),
+    ("particles", "s_um", 1e-3, 1e4, False), ("particles", "r", 0.0, BELOW_ONE, False),
     ("estimator_states", "t_h", -1.0, 1000.0, False),
     ("plans", "t_h", 0.0, 1000.0, False), ("plans", "rpm", 0.0, 1e5, False), ("plans", "milling", 0.0, 1.0, False),
     ("plans", "interval_h", 1e-12, 1000.0, False), ("plans", "advise_ms", 0.0, 1e12, False),
@@ -310,8 +312,9 @@ def check(con: sqlite3.Connection, path) -> None:
             row = con.execute(f"SELECT rowid, {col} FROM {table} WHERE {null}(typeof({col}) NOT IN ('real', 'integer') "
                               f"OR NOT ({col} BETWEEN ? AND ?)) LIMIT 1", (lo, hi)).fetchone()
             if row is not None:
+                rng = f"[{lo:g}, 1)" if hi == BELOW_ONE else f"[{lo:g}, {hi:g}]"
                 raise InputError(f"{path}: {table} row {row[0]}: {col} = {str(row[1])[:40]!r}: not a number in "
-                                 f"[{lo:g}, {hi:g}] (damaged or edited)")
+                                 f"{rng} (damaged or edited)")
         for table, col in BLOBS:
             row = con.execute(f"SELECT rowid FROM {table} WHERE typeof({col}) != 'blob' LIMIT 1").fetchone()
             if row is not None:

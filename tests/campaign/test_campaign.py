@@ -418,3 +418,14 @@ def test_the_report_never_overwrites_the_campaigns_own_files(tmp_path, capsys, d
     assert len(err) == 1 and "the campaign's own file" in err[0]
     assert {p: p.read_bytes() for p in d.rglob("*") if p.is_file()} == before
     assert main(["campaign", "status", str(d)]) == 0
+
+
+@pytest.mark.parametrize("table", ["s_um,r\n40,0.9999999995\n40,0.2\n", "area_um2,perimeter_um\n1,1e10\n"])
+def test_a_table_the_reader_takes_keeps_the_campaign_readable(tmp_path, capsys, table):
+    """r just below 1 is a valid particle (the reader takes r in [0, 1)); the database check once
+    stopped at 0.999999999 and refused the campaign after the sample was stored."""
+    d = tmp_path / "c"
+    _init(d)
+    (tmp_path / "t.csv").write_text(table)
+    assert main(["campaign", "sample", str(d), "--at-h", "0", str(tmp_path / "t.csv")]) == 0
+    assert main(["campaign", "status", str(d)]) == 0, capsys.readouterr().err
