@@ -203,7 +203,10 @@ TEXT = (("actions", "deviation"), ("decisions", "note"), ("particles", "image"))
 #: what every stored estimate holds (``init`` writes the prior with all of them): a finite
 #: number in the range, and the same for its 90 % band ``_q05``/``_q95``
 ESTIMATE_RANGES = {"s_mean_um": (1e-3, 1e4), "s_std_um": (0.0, 1e4), "r_mean": (0.0, 1.0), "r_std": (0.0, 1.0),
-                   "temperature_c": (-273.15, 4000.0)}
+                   "temperature_c": (-273.15, 4000.0), "d50_um": (1e-3, 1e5)}
+#: what else an estimate holds is a number too (the filter writes numbers only); these are read
+#: by the verbs and the report and must be there
+ESTIMATE_NUMBERS = ("t_h", "gamma_mult", "delta_mult")
 
 
 def _number(v) -> bool:
@@ -211,15 +214,18 @@ def _number(v) -> bool:
 
 
 def _check_estimate(doc, where: str) -> None:
-    """An estimate document as the filter writes it: a table of finite numbers (text, booleans
-    and null allowed for other keys), with every key of :data:`ESTIMATE_RANGES` and its band."""
+    """An estimate document as the filter writes it: a table of finite numbers, with every key
+    of :data:`ESTIMATE_RANGES` and its band in range and :data:`ESTIMATE_NUMBERS` there."""
     if not isinstance(doc, dict):
         raise InputError(f"{where}: not an estimate table")
     for k, v in doc.items():
-        if _number(v) and not math.isfinite(v):
+        if not _number(v):
+            raise InputError(f"{where}: {k[:60]!r} = {str(v)[:40]!r}: expected a number")
+        if not math.isfinite(v):
             raise InputError(f"{where}: {k[:60]!r} = {v}: not finite")
-        if isinstance(v, (dict, list)):
-            raise InputError(f"{where}: {k[:60]!r}: a {type(v).__name__}, expected a number")
+    for k in ESTIMATE_NUMBERS:
+        if k not in doc:
+            raise InputError(f"{where}: {k}: missing")
     for k, (lo, hi) in ESTIMATE_RANGES.items():
         for key in (k, f"{k}_q05", f"{k}_q95"):
             v = doc.get(key)
@@ -246,15 +252,35 @@ class _Band(_Doc):
     q95: Range(-1e300, 1e300)
 
 
+class _Row(_Doc):
+    """One interval of the plan advised to the batch end."""
+
+    t0_h: Range(0.0, 1000.0)
+    t1_h: Range(0.0, 1000.0)
+    rpm: Range(0.0, 1e5)
+    mill_min: Range(0.0, 60_000.0)
+    rest_min: Range(0.0, 60_000.0)
+    planned: StrictBool = True
+
+
+_Text = Annotated[str, StringConstraints(max_length=2000)]
+
+
 class AdviceDoc(_Doc):
     """What :func:`check` requires of a stored advice (``plans.advice``); other keys are kept."""
 
     t_h: Range(0.0, 1000.0)
     next: _Next
+    estimate: dict
+    target: dict[Annotated[str, StringConstraints(max_length=60)], Range(-1e300, 1e300)]
     reachable: dict[Annotated[str, StringConstraints(max_length=60)], StrictBool]
-    binding: list[Annotated[str, StringConstraints(max_length=2000)]]
+    binding: list[_Text]
     end: dict[str, _Band] = {}
-    schedule: list[dict] = []
+    schedule: list[_Row] = []
+    warnings: list[_Text] = []
+    notes: list[_Text] = []
+    sample_first: _Text | None = None
+    solver: _Text = ""
 
 
 def _check_advice(doc, where: str) -> None:
@@ -272,8 +298,7 @@ def _check_advice(doc, where: str) -> None:
     for k in a.reachable:
         if k not in known_keys():
             raise InputError(f"{where}: reachable: {k[:60]!r} is not a target key")
-    if "estimate" in doc:
-        _check_estimate(doc["estimate"], f"{where}: estimate")
+    _check_estimate(doc["estimate"], f"{where}: estimate")
 
 
 def _check_sources(doc, where: str) -> None:
@@ -291,15 +316,16 @@ JSON_CHECKS = {("estimator_states", "estimate"): _check_estimate, ("plans", "adv
                ("samples", "sources"): _check_sources, ("samples", "report"): _check_report}
 
 
-def check(con: sqlite3.Connection, path) -> None:
+def check(con: sqlite3.Connection, path, prior: bool = True) -> None:
     """Refuse a damaged or edited database with one line naming the table, row and column.
 
     Every table of the schema must be there; every numeric column a number (not text or a
     BLOB) within its range (:data:`NUMERIC`); every JSON column a document of bounded depth
     (:func:`bmctl.io.loads_json`) with the content its verb writes (:data:`JSON_CHECKS`:
     estimates with every moment and band finite and in range, advice with a finite next
-    action); state columns BLOBs. The states themselves are checked when they are read
-    (:func:`unpack`).
+    action, the plan's rows, target and notes); state columns BLOBs; the rows' links (the
+    filter's prior there unless ``prior`` is False, as while ``init`` writes it; every sample
+    with particles). The states themselves are checked when they are read (:func:`unpack`).
     """
     try:
         have = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
@@ -331,8 +357,24 @@ def check(con: sqlite3.Connection, path) -> None:
                 if not isinstance(text, str):
                     raise InputError(f"{where}: not a JSON document (damaged or edited)")
                 check_doc(bio.loads_json(text, where), where)
+        _check_links(con, path, prior)
     except sqlite3.DatabaseError as exc:
         raise InputError(f"{path}: damaged campaign database ({exc})") from None
+
+
+def _check_links(con: sqlite3.Connection, path, prior: bool = True) -> None:
+    """What the rows say of each other: the filter's prior is there (``prior``: ``init`` writes
+    it, every estimate starts from it), every sample has particles and every particle a sample."""
+    if prior and con.execute("SELECT COUNT(*) FROM estimator_states WHERE t_h < 0").fetchone()[0] == 0:
+        raise InputError(f"{path}: estimator_states: the prior (written by `campaign init`) is missing "
+                         "(damaged or edited)")
+    row = con.execute("SELECT id FROM samples WHERE id NOT IN (SELECT sample_id FROM particles) LIMIT 1").fetchone()
+    if row is not None:
+        raise InputError(f"{path}: samples row {row[0]}: no particles (damaged or edited)")
+    row = con.execute("SELECT rowid, sample_id FROM particles WHERE sample_id NOT IN (SELECT id FROM samples) "
+                      "LIMIT 1").fetchone()
+    if row is not None:
+        raise InputError(f"{path}: particles row {row[0]}: sample_id {row[1]} is no sample (damaged or edited)")
 
 
 def check_inputs(folder: str | Path, inputs: dict, where: str) -> None:

@@ -137,12 +137,12 @@ class Campaign:
         The campaign folder (``campaign.sqlite`` and ``inputs/``).
     """
 
-    def __init__(self, folder):
+    def __init__(self, folder, _new: bool = False):
         self.folder = Path(folder)
         self.con = db.open_db(self.folder)
         where = str(db.db_path(self.folder))
         try:
-            db.check(self.con, where)
+            db.check(self.con, where, prior=not _new)  # init opens it before writing the prior
             self.meta = _check_meta(db.get_meta(self.con, where), where)
             db.check_inputs(self.folder, self.meta["inputs"], where)
         except BaseException:
@@ -445,7 +445,7 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
             db.set_meta(con, **meta)
     finally:
         con.close()
-    with Campaign(folder) as c, db.transaction(c.con, where=str(folder)):
+    with Campaign(folder, _new=True) as c, db.transaction(c.con, where=str(folder)):
         c._write_node(-1.0)  # the prior
     return meta
 

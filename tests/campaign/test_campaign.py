@@ -429,3 +429,46 @@ def test_a_table_the_reader_takes_keeps_the_campaign_readable(tmp_path, capsys, 
     (tmp_path / "t.csv").write_text(table)
     assert main(["campaign", "sample", str(d), "--at-h", "0", str(tmp_path / "t.csv")]) == 0
     assert main(["campaign", "status", str(d)]) == 0, capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def advised_campaign(tmp_path_factory):
+    """A campaign with a logged interval, a sample and an advice (every table has rows)."""
+    d = tmp_path_factory.mktemp("advised") / "c"
+    _init(d)
+    cp.log(d, 300.0, 0.5, temperature_c=40.0)
+    cp.sample(d, 0.5, [ROOT / "examples" / "samples" / "lab-300rpm-0p5h.csv"])
+    cp.advise(d)
+    return d
+
+
+@pytest.mark.parametrize("damage, named", [
+    ("DELETE FROM estimator_states", "the prior"),
+    ("DELETE FROM estimator_states WHERE t_h < 0", "the prior"),
+    ("DELETE FROM particles", "samples row 1: no particles"),
+    ("UPDATE particles SET sample_id = 99", "samples row 1: no particles"),
+    ("UPDATE estimator_states SET estimate = json_set(estimate, '$.gamma_mult', 'x')", "'gamma_mult'"),
+    ("UPDATE estimator_states SET estimate = json_set(estimate, '$.t_h', 'x')", "'t_h'"),
+    ("UPDATE estimator_states SET estimate = json_remove(estimate, '$.d50_um')", "d50_um: missing"),
+    ("UPDATE estimator_states SET estimate = json_remove(estimate, '$.d50_um_q05')", "d50_um_q05: missing"),
+    ("UPDATE estimator_states SET estimate = json_set(estimate, '$.d50_um', json('null'))", "'d50_um'"),
+    ("UPDATE plans SET advice = json_set(advice, '$.schedule', json('[{\"rpm\": \"x\"}]'))", "schedule"),
+    ("UPDATE plans SET advice = json_remove(advice, '$.estimate')", "estimate"),
+    ("UPDATE plans SET advice = json_set(advice, '$.target', 'x')", "target"),
+    ("UPDATE plans SET advice = json_set(advice, '$.notes', 5)", "notes"),
+])
+@pytest.mark.parametrize("verb", ["status", "advise", "report", "sample"])
+def test_edited_rows_are_refused_in_one_line_by_every_verb(advised_campaign, tmp_path, capsys, damage, named, verb):
+    """Edits the table and column checks let through once reached the verbs as tracebacks
+    (TypeError in the estimate's node, KeyError or a format error in the report)."""
+    d = tmp_path / "c"
+    shutil.copytree(advised_campaign, d)
+    con = sqlite3.connect(str(d / db.DB_NAME))
+    con.execute(damage)
+    con.commit()
+    con.close()
+    extra = {"report": ["--out", str(tmp_path / "r.html")],
+             "sample": ["--at-h", "0.5", str(ROOT / "examples" / "samples" / "lab-300rpm-0p5h.csv")]}
+    assert main(["campaign", verb, str(d), *extra.get(verb, [])]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
+    assert len(err) == 1 and db.DB_NAME in err[0] and named in err[0], err
