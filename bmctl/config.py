@@ -320,7 +320,7 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     p = Path(path)
     raw = read_input_bytes(p, max_bytes=TOML_MAX_BYTES)
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")  # a byte-order mark (Windows editors) is not part of the TOML
     except UnicodeDecodeError as exc:
         raise InputError(f"{p}: cannot read: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     return loads_toml(text, str(p))

@@ -37,6 +37,8 @@ def finite_float(text: str, where: str) -> float:
         What to name in the message, e.g. ``"--hours"`` or ``"--target: s_mean_um"``.
     """
     try:
+        if "_" in str(text):  # Python reads "4_0" as 40; a user's digits with a stray underscore are a typo
+            raise ValueError
         v = float(text)
     except ValueError:
         raise InputError(f"{where}: not a number: {text!r}") from None

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from typing import Callable
 
-from ..control.config import TARGET_KEYS
+from ..control.config import TARGET_KEYS, check_dvalue_order, target_value
 from ..errors import InputError, finite_float
 
 #: extra target keys: name -> (maps value and estimate dict to controller targets, one-line meaning)
@@ -52,9 +52,10 @@ def parse(text: str, where: str = "--target") -> dict[str, float]:
         val = finite_float(v, f"{where}: {k}")
         if val <= 0:
             raise InputError(f"{where}: {k}: must be > 0 (got {v})")
-        out[k] = val
+        out[k] = target_value(k, val, where) if k in TARGET_KEYS else val
     if "d50_um" in out and "s_mean_um" in out:
         raise InputError(f"{where}: d50_um and s_mean_um both set the size; give one")
+    check_dvalue_order(out, where)
     return out
 
 

@@ -502,7 +502,7 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
     c = campaign or Campaign(folder)
     try:
         if rpm > c.rpm_max():
-            raise InputError(f"--rpm {rpm:g}: above the mill's rpm_max ({c.rpm_max():g}) in the campaign's card")
+            raise InputError(f"--rpm {rpm:.12g}: above the mill's rpm_max ({c.rpm_max():g}) in the campaign's card")
         with db.transaction(c.con, where=str(folder)):
             clock = c.clock_h()
             t0 = clock if from_h is None else _finite(from_h, "--from-h", 0)
@@ -548,6 +548,14 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
     at_h = _finite(at_h, "--at-h", 0)
     if not inputs:
         raise InputError("sample: give at least one image or particle table")
+    seen = set()
+    for i in inputs:  # one micrograph counted twice would read as a sample twice its size
+        if hasattr(i, "s_um"):
+            continue
+        key = os.path.realpath(i)
+        if key in seen:
+            raise InputError(f"sample: {i} given twice (each image or table is one part of the sample)")
+        seen.add(key)
     table, images, x, y, reports = _measure(list(inputs), um_per_px, accept_unusable)  # before the lock: may take seconds
     c = campaign or Campaign(folder)
     try:
@@ -743,7 +751,7 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
     c = campaign or Campaign(folder)
     try:
         if rpm is not None and rpm > c.rpm_max():
-            raise InputError(f"--rpm {rpm:g}: above the mill's rpm_max ({c.rpm_max():g}) in the campaign's card")
+            raise InputError(f"--rpm {rpm:.12g}: above the mill's rpm_max ({c.rpm_max():g}) in the campaign's card")
         with db.transaction(c.con, where=str(folder)):
             plan = c.latest_plan()
             clock = c.clock_h()

@@ -28,9 +28,25 @@ MOMENT_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
 DVALUE_KEYS = ("d50_um", "d90_um", "span")
 #: everything a target may name: the moments, then the D-values (outputs of the moment model)
 TARGET_KEYS = MOMENT_KEYS + DVALUE_KEYS
-#: allowed range of each target key (open interval)
-TARGET_RANGE = {"s_mean_um": (0.0, 1e5), "s_std_um": (0.0, 1e5), "r_mean": (0.0, 1.0), "r_std": (0.0, 0.5),
-                "d50_um": (0.0, 1e5), "d90_um": (0.0, 1e5), "span": (0.0, 100.0)}
+#: allowed range of each target key (open interval; sizes above 1 nm, the particle tables' floor)
+TARGET_RANGE = {"s_mean_um": (1e-3, 1e5), "s_std_um": (0.0, 1e5), "r_mean": (0.0, 1.0), "r_std": (0.0, 0.5),
+                "d50_um": (1e-3, 1e5), "d90_um": (1e-3, 1e5), "span": (0.0, 100.0)}
+
+
+def check_dvalue_order(target: dict, source: str) -> None:
+    """D90 above D50 where a target names both (a window: its lowest D90 above the highest D50).
+
+    >>> check_dvalue_order({"d50_um": 45.0, "d90_um": 40.0}, "--target")
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: --target: d90_um (40) must be above d50_um (45): no size law has D90 <= D50
+    """
+    if "d50_um" in target and "d90_um" in target:
+        d50_hi = target_bounds(target["d50_um"])[1]
+        d90_lo = target_bounds(target["d90_um"])[0]
+        if d90_lo <= d50_hi:
+            raise InputError(f"{source}: d90_um ({format_target(target['d90_um'])}) must be above d50_um "
+                             f"({format_target(target['d50_um'])}): no size law has D90 <= D50")
 
 
 def target_value(key: str, value, source: str):
@@ -79,6 +95,7 @@ def check_target_dict(d, source: str) -> dict:
         if k not in TARGET_KEYS:
             raise InputError(f"{source}: unknown target {k!r} (one of {', '.join(TARGET_KEYS)})")
         out[k] = target_value(k, v, source)
+    check_dvalue_order(out, source)
     return out
 
 
@@ -106,6 +123,10 @@ class Target(Strict):
                     target_value(k, v, "target")
                 except InputError as exc:
                     raise ValueError(str(exc).split(": ", 2)[-1]) from None
+        try:
+            check_dvalue_order({k: getattr(self, k) for k in TARGET_KEYS if getattr(self, k) is not None}, "target")
+        except InputError as exc:
+            raise ValueError(str(exc).split(": ", 1)[-1]) from None
         return self
 
     def as_dict(self) -> dict:
@@ -455,4 +476,5 @@ def parse_target(text: str, source: str = "--target") -> dict:
         if len(parts) > 2:
             raise InputError(f"{source}: {k}: expected a number or lo:hi (got {v!r})")
         out[k] = target_value(k, parts if len(parts) == 2 else parts[0], source)
+    check_dvalue_order(out, source)
     return out

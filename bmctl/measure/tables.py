@@ -131,6 +131,8 @@ class ParticleTable:
 
 def _parse(path: str, lineno: int, col: str, text: str) -> float:
     try:
+        if "_" in text:  # Python reads "4_0" as 40: not a number a table means
+            raise ValueError
         v = float(text)
     except ValueError:
         raise InputError(f"{path}: row {lineno}, column {col}: not a number ({text!r})") from None
@@ -183,6 +185,9 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
         raise InputError(f"{p}: empty particle table (no header, no rows)")
     reader = csv.reader([ln for _, ln in lines])
     header = [h.strip() for h in next(reader)]
+    twice = sorted({h for h in header if h and header.count(h) > 1})
+    if twice:
+        raise InputError(f"{p}: column {quote(twice[0])} appears twice in the header (which one holds the data?)")
     if {"area_um2", "perimeter_um"} <= set(header):
         cols = ("area_um2", "perimeter_um")
     elif {"s_um", "r"} <= set(header):
@@ -192,7 +197,7 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
     idx = [header.index(c) for c in cols]
     vals = []
     for (lineno, _), row in zip(lines[1:], reader):
-        if len(row) < len(header):
+        if len(row) != len(header) and not (len(row) > len(header) and not "".join(row[len(header):]).strip()):
             raise InputError(f"{p}: row {lineno}: {len(row)} fields, header has {len(header)}")
         a, b = (_parse(p, lineno, c, row[j]) for c, j in zip(cols, idx))
         if a <= 0:

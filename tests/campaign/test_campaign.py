@@ -57,6 +57,10 @@ def test_target_parse_errors():
             tg.parse(bad)
     with pytest.raises(InputError, match="not a window .e.g. d50_um=65."):  # design's window form, named
         tg.parse("d50_um=60:70")
+    with pytest.raises(InputError, match="must be in"):  # below a nanometre: no particle is that small
+        tg.parse("s_mean_um=1e-320")
+    with pytest.raises(InputError, match="D90 <= D50"):
+        tg.parse("d50_um=45,d90_um=40")
 
 
 # --- the log -----------------------------------------------------------------------------------
@@ -472,3 +476,12 @@ def test_edited_rows_are_refused_in_one_line_by_every_verb(advised_campaign, tmp
     assert main(["campaign", verb, str(d), *extra.get(verb, [])]) == 2
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip() and not ln.startswith("[")]
     assert len(err) == 1 and db.DB_NAME in err[0] and named in err[0], err
+
+
+def test_one_file_given_twice_is_not_a_sample_twice_its_size(fresh_campaign, tmp_path, capsys):
+    d = tmp_path / "c"
+    shutil.copytree(fresh_campaign, d)
+    csv = ROOT / "examples" / "samples" / "lab-300rpm-0p5h.csv"
+    assert main(["campaign", "sample", str(d), "--at-h", "0", str(csv), str(csv)]) == 2
+    assert "given twice" in capsys.readouterr().err
+    assert cp.status(d)["counts"]["samples"] == 0

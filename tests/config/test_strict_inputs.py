@@ -61,6 +61,14 @@ def test_integers_are_accepted_where_floats_are_expected(tmp_path):
     assert load_card(p).thermal.heat_capacity_J_per_K == 400.0
 
 
+def test_a_card_saved_with_a_byte_order_mark_is_read(tmp_path):
+    """Windows editors may save UTF-8 with a BOM; it is not part of the TOML (it was "Invalid
+    statement (at line 1, column 1)")."""
+    p = tmp_path / "bom.toml"
+    p.write_bytes(b"\xef\xbb\xbf" + open(LAB, "rb").read())
+    assert load_card(p).model_dump() == load_card(LAB).model_dump()
+
+
 def test_schedule_rpm_string_and_huge_segment_are_refused(tmp_path, capsys):
     s = tmp_path / "s.toml"
     s.write_text('[[segment]]\nhours = 1\nrpm = "250"\n')

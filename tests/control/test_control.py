@@ -392,7 +392,8 @@ def _write(tmp_path, name, text):
 
 
 @pytest.mark.parametrize("case", ["missing", "malformed", "unknown-field", "bad-value", "no-kind", "recipe",
-                                  "bad-target", "nan-target", "neg-hours", "nan-hours", "bad-model"])
+                                  "bad-target", "nan-target", "d90-below-d50", "neg-hours", "nan-hours",
+                                  "bad-model"])
 def test_design_bad_input_one_line_exit_2(tmp_path, capsys, case):
     ctrl = str(CTRL / "mpc-fast.toml")
     target, hours, card = "s_mean_um=45", "1", str(CARD)
@@ -412,6 +413,8 @@ def test_design_bad_input_one_line_exit_2(tmp_path, capsys, case):
         target = "s_mean=45"
     elif case == "nan-target":
         target = "s_mean_um=nan"
+    elif case == "d90-below-d50":  # no size law has it: refused before any search
+        target = "d50_um=45,d90_um=40"
     elif case == "neg-hours":
         hours = "-2"
     elif case == "nan-hours":

@@ -240,6 +240,9 @@ def test_table_raises_perimeter_noise_to_bound(tmp_path):
         ("s_um,r\n10,1.2\n", "column r: must be in [0, 1)"),
         ("s_um,r\n10,-0.1\n", "column r: must be in [0, 1)"),
         ("s_um,r\n10,inf\n", "must be finite"),
+        ("s_um,r\n4_0,0.1\n", "row 2, column s_um: not a number ('4_0')"),  # float() would read 40
+        ("s_um,r,s_um\n40,0.1,50\n", "column 's_um' appears twice"),
+        ("s_um,r\n40,0.1,7\n", "row 2: 3 fields, header has 2"),
     ],
 )
 def test_table_errors_name_file_and_place(tmp_path, text, needle):
@@ -380,3 +383,9 @@ def test_cli_bad_input_exits_2_without_output(capsys, tmp_path, png_image, case)
     assert "Traceback" not in err
     assert not out.exists()
     assert not list(tmp_path.glob(".out.csv.*"))  # no temporary left behind
+
+
+def test_trailing_empty_fields_of_a_spreadsheet_export_are_read(tmp_path):
+    p = tmp_path / "t.csv"
+    p.write_text("s_um,r\n40,0.1,,\n50,0.2,\n")
+    assert read_table(p).s_um.tolist() == [40.0, 50.0]
