@@ -788,7 +788,9 @@ def status(folder, campaign: Campaign | None = None) -> dict:
             if plan is not None:
                 dec = c.con.execute("SELECT accepted, rpm, milling FROM decisions WHERE plan_id = ? ORDER BY id DESC "
                                     "LIMIT 1", (plan[0],)).fetchone()
-            devs = [r[0] for r in c.con.execute("SELECT deviation FROM actions WHERE deviation != '' ORDER BY t0_h")]
+            devs = [f"at {r[0]:g} h: {r[1]}" for r in c.con.execute("SELECT t0_h, deviation FROM actions "
+                                                                     "WHERE deviation != '' ORDER BY t0_h")]
+            replaced = n["decisions"] - c.con.execute("SELECT COUNT(DISTINCT plan_id) FROM decisions").fetchone()[0]
             warnings = c.temperature_warnings(since_h=None if plan is None else float(plan[1]))
     finally:
         if campaign is None:
@@ -796,7 +798,10 @@ def status(folder, campaign: Campaign | None = None) -> dict:
     return {"folder": str(folder), "clock_h": clock, "hours": c.meta["hours"], "target": c.meta["target"],
             "counts": n, "pending_samples": pending, "estimate": est if t_node >= 0 else est,
             "latest_advice": None if plan is None else {"id": plan[0], "t_h": plan[1], "rpm": plan[2],
-                                                        "milling": plan[3], "current": abs(plan[1] - clock) < 1e-6},
+                                                        "milling": plan[3], "current": abs(plan[1] - clock) < 1e-6,
+                                                        **{k: json.loads(plan[5])["next"][k]
+                                                           for k in ("interval_h", "mill_min", "rest_min")}},
+            "decisions_replaced": replaced,
             "decision": None if dec is None else {"accepted": bool(dec[0]), "rpm": dec[1], "milling": dec[2]},
             "deviations": devs, "warnings": warnings, "db_bytes": db.db_path(folder).stat().st_size}
 

@@ -20,7 +20,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=type(parser))
     sub.required = True
     p = sub.add_parser("init", help="start a campaign in DIR")
-    p.add_argument("dir", metavar="DIR")
+    p.add_argument("dir", metavar="DIR", help="a new campaign folder (campaign.sqlite and inputs/ are written there)")
     p.add_argument("--model", required=True, metavar="CARD", help="model card (models/*.toml)")
     p.add_argument("--controller", required=True, metavar="CONFIG", help="controller config (controllers/*.toml)")
     p.add_argument("--target", required=True, metavar="K=V[,K=V]",
@@ -28,15 +28,16 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="batch length (h); default: the card's")
     p.add_argument("--temperature-max-c", type=float_arg("--temperature-max-c"), default=None, metavar="C",
                    help="vial-temperature ceiling (°C); default: the controller's")
-    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the estimator")
-    p.add_argument("--particles", type=int_arg("--particles", 50, 200_000), default=1000, help="filter particles")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the estimator (default: 0)")
+    p.add_argument("--particles", type=int_arg("--particles", 50, 200_000), default=1000,
+                   help="filter particles (default: 1000)")
     p.add_argument("--energy-mult", action=argparse.BooleanOptionalAction, default=True,
                    help="the filter also learns energy_mult, the mill's impact energy per particle against the card's "
                         "(a mill whose balls or powder mass the card does not describe); --no-energy-mult: "
                         "gamma_mult, delta_mult only (default: on)")
     add_identify_flag(p)
     p = sub.add_parser("log", help="record what the mill ran")
-    p.add_argument("dir", metavar="DIR")
+    p.add_argument("dir", metavar="DIR", help="the campaign folder (campaign.sqlite and inputs/)")
     p.add_argument("--rpm", required=True, type=rpm_arg("--rpm"), help="sun-disc speed (0: a rest, no milling)")
     p.add_argument("--hours", required=True, type=hours_arg("--hours"), help="length of the interval (h)")
     p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=1.0,
@@ -46,7 +47,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--from-h", type=hours_arg("--from-h", zero=True), default=None, metavar="H",
                    help="start of the interval (default: end of the last one); overlaps and gaps are refused")
     p = sub.add_parser("sample", help="measure a sample and update the estimate")
-    p.add_argument("dir", metavar="DIR")
+    p.add_argument("dir", metavar="DIR", help="the campaign folder (campaign.sqlite and inputs/)")
     p.add_argument("--at-h", required=True, type=hours_arg("--at-h", zero=True), metavar="H", help="batch time the sample was taken (h)")
     p.add_argument("inputs", nargs="+", metavar="IMAGE_OR_TABLE", help="micrographs and/or particle tables (.csv)")
     p.add_argument("--um-per-px", type=float_arg("--um-per-px", 0, strict=True), default=None, metavar="X",
@@ -54,22 +55,23 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--accept-unusable", action="store_true",
                    help="use images whose measurement verdict is unusable (default: refused)")
     p = sub.add_parser("advise", help="estimate, recommended next action, plan to the batch end, and why")
-    p.add_argument("dir", metavar="DIR")
+    p.add_argument("dir", metavar="DIR", help="the campaign folder (campaign.sqlite and inputs/)")
     p.add_argument("--json", action="store_true", help="print the advice as JSON")
     add_identify_flag(p)
     p = sub.add_parser("decide", help="accept or reject the latest advice")
-    p.add_argument("dir", metavar="DIR")
+    p.add_argument("dir", metavar="DIR", help="the campaign folder (campaign.sqlite and inputs/)")
     g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--accept", action="store_true")
-    g.add_argument("--reject", action="store_true")
+    g.add_argument("--accept", action="store_true", help="the advice is run as recommended")
+    g.add_argument("--reject", action="store_true",
+                   help="the advice is not run; --rpm/--milling may say what is run instead")
     p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="with --reject: what will be run instead")
-    p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=None, help="with --reject: milling share instead")
+    p.add_argument("--milling", type=float_arg("--milling", 0, 1), default=None, help="with --reject: milling share instead (0-1; default: not stated)")
     p.add_argument("--note", default="", help="free text kept with the decision")
     p = sub.add_parser("status", help="where the campaign stands")
-    p.add_argument("dir", metavar="DIR")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("dir", metavar="DIR", help="the campaign folder (campaign.sqlite and inputs/)")
+    p.add_argument("--json", action="store_true", help="print the status as JSON")
     p = sub.add_parser("report", help="self-contained HTML report")
-    p.add_argument("dir", metavar="DIR")
+    p.add_argument("dir", metavar="DIR", help="the campaign folder (campaign.sqlite and inputs/)")
     p.add_argument("--out", default=None, metavar="HTML", help="default DIR/report.html")
 
 
@@ -222,14 +224,19 @@ def _run(args: argparse.Namespace) -> int:
         n = s["counts"]
         print(f"campaign {d}: logged to {s['clock_h']:g} of {s['hours']:g} h; {n['actions']} actions, {n['samples']} "
               f"samples ({s['pending_samples']} waiting), {n['particles']} particles, {n['temperatures']} temperature "
-              f"readings, {n['plans']} advices, {n['decisions']} decisions; {s['db_bytes'] / 1e6:.2f} MB")
+              f"readings, {n['plans']} advices, {n['decisions']} decisions"
+              + (f" ({s['decisions_replaced']} replaced by a later one)" if s["decisions_replaced"] else "")
+              + f"; {s['db_bytes'] / 1e6:.2f} MB")
         print("target: " + ", ".join(f"{k} = {x:g}" for k, x in s["target"].items()))
         print(f"estimate at {s['estimate']['t_h']:g} h:" if s["estimate"]["t_h"] >= 0 else "estimate (prior):")
         print("\n".join(_estimate_lines(s["estimate"])))
         la = s["latest_advice"]
         if la:
             dec = s["decision"]
-            print(f"latest advice: {la['rpm']:g} rpm, milling {la['milling']:.3g} at {la['t_h']:g} h"
+            what = ("batch finished" if la["interval_h"] <= 0 else f"rest {la['rest_min']:.0f} min"
+                    if la["mill_min"] == 0 else f"{la['rpm']:g} rpm, mill {la['mill_min']:.0f} min, "
+                    f"rest {la['rest_min']:.0f} min")
+            print(f"latest advice at {la['t_h']:g} h: {what}"
                   + ("" if la["current"] else " (superseded by the log)")
                   + ("; no decision" if dec is None else f"; {'accepted' if dec['accepted'] else 'rejected'}"))
         for dv in s["deviations"]:

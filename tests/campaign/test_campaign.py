@@ -485,3 +485,20 @@ def test_one_file_given_twice_is_not_a_sample_twice_its_size(fresh_campaign, tmp
     assert main(["campaign", "sample", str(d), "--at-h", "0", str(csv), str(csv)]) == 2
     assert "given twice" in capsys.readouterr().err
     assert cp.status(d)["counts"]["samples"] == 0
+
+
+def test_status_says_the_advice_as_advise_does(fresh_campaign, tmp_path, capsys):
+    """status once printed "latest advice: 370 rpm, milling 0.167"; it says the minutes, as advise does,
+    counts the decisions a later one replaced and dates each deviation."""
+    d = tmp_path / "c"
+    shutil.copytree(fresh_campaign, d)
+    cp.advise(d)
+    cp.decide(d, True)
+    cp.decide(d, False, rpm=250.0)
+    cp.log(d, 250.0, 0.5)
+    capsys.readouterr()
+    assert main(["campaign", "status", str(d)]) == 0
+    out = capsys.readouterr().out
+    assert "2 decisions (1 replaced by a later one)" in out
+    assert "latest advice at 0 h: 300 rpm, mill 30 min, rest 0 min (superseded by the log); rejected" in out
+    assert "at 0 h: deviation from the recommendation (advice rejected): rpm 250 (recommended 300)" in out
