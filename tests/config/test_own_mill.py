@@ -42,6 +42,9 @@ def test_doc_card_shows_and_simulates(tmp_path, capsys):
     assert main(["card", "show", str(p)]) == 0
     out = capsys.readouterr().out
     assert "ball mass          7.148 g" in out and "660.3 °C (melting point of Al)" in out
+    shown = re.search(r"\$ bmctl card show my-mill.toml\n(.*?)```", DOC.read_text(), re.S).group(1)
+    out = out.replace(str(tmp_path) + "/", "")  # the page runs it where the card is
+    assert shown == "".join(ln.rstrip() + "\n" for ln in out.splitlines()), "the page's card show output is stale"
     rc = main(["simulate", str(p), "--hours", "1", "--particles", "500", "--out", str(tmp_path / "o"), "--no-progress"])
     assert rc == 0, capsys.readouterr().err
     rows = list(csv.DictReader((tmp_path / "o" / "moments.csv").read_text().splitlines()))
