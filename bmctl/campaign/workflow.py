@@ -44,6 +44,7 @@ from . import db
 from . import targets as tg
 from .advice import _end_band, _measure, _schedule, _why, sample_first, sampling
 from .readings import estimate_warning, reading_warnings
+from ..measure.names import path_text
 from ..moments.forcard import for_card
 
 # The campaign's particle filter (changes from FilterSettings' defaults; ``init`` records them in the
@@ -569,7 +570,7 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
                                 (at_h, json.dumps(srcs), um_per_px, len(table), summ["s_median_um"],
                                  summ["r_median"], json.dumps(reports), db.now()))
             sid = cur.lastrowid
-            rows = [(sid, i + 1, images[i], None if not np.isfinite(x[i]) else float(x[i]),
+            rows = [(sid, i + 1, path_text(images[i]), None if not np.isfinite(x[i]) else float(x[i]),
                      None if not np.isfinite(y[i]) else float(y[i]), float(table.area_um2[i]),
                      float(table.perimeter_um[i]), float(table.s_um[i]), float(table.r[i])) for i in range(len(table))]
             _insert_particles(c.con, rows)

@@ -30,8 +30,9 @@ def run(args) -> int:
     import numpy as np
 
     from ..config import load_card
-    from ..io import write_text
+    from ..io import output_set, write_text
     from ..measure.compare import compare_figure, predicted_population, two_sample
+    from ..measure.names import path_text
     from ..schedule import Schedule
     from ..measure.tables import read_table
 
@@ -55,11 +56,12 @@ def run(args) -> int:
     doc = {"sample": args.sample, "model": args.model, "schedule": args.schedule, "at_h": args.at_h,
            "seed": args.seed, "n_measured": len(table), "m_predicted": int(s_pred.size),
            "s_um": s_stat.as_dict(), "r": r_stat.as_dict()}
-    compare_figure(out / "compare.png", table.s_um, table.r, s_pred, r_pred,
-                   title=f"{args.sample} vs {args.model} at {args.at_h:g} h (seed {args.seed})")
-    write_text(out / "compare.json", json.dumps(doc, indent=2) + "\n")
+    with output_set():  # the figure and the JSON, or neither
+        compare_figure(out / "compare.png", table.s_um, table.r, s_pred, r_pred,
+                       title=f"{path_text(args.sample)} vs {path_text(args.model)} at {args.at_h:g} h (seed {args.seed})")
+        write_text(out / "compare.json", json.dumps(doc, indent=2) + "\n")
     for name, st, unit in (("s", s_stat, " µm"), ("r", r_stat, "")):
         print(f"{name}: median measured {st.median_measured:.4g}{unit}, predicted {st.median_predicted:.4g}{unit}; "
               f"KS D = {st.ks:.3f} (p = {st.ks_p:.3g}), Anderson-Darling A = {st.ad:.2f} (p = {st.ad_p:.3g})")
-    print(f"compare: wrote {out / 'compare.png'}, {out / 'compare.json'}")
+    print(f"compare: wrote {path_text(out / 'compare.png')}, {path_text(out / 'compare.json')}")
     return 0

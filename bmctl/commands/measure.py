@@ -85,11 +85,11 @@ def run(args: argparse.Namespace) -> int:
     """Measure all inputs, print a summary and warnings, write ``--out`` and what goes beside it."""
     import numpy as np
 
-    from ..io import write_text
+    from ..io import output_set
     from ..measure.micrograph import measure_micrograph
-    from ..measure.overlay import write_overlay
+    from ..measure.names import path_text
     from ..measure.scale import check_scale
-    from ..measure.tables import ParticleLocations, ParticleTable, check_table, read_table, write_table
+    from ..measure.tables import ParticleLocations, ParticleTable, check_table, read_table
 
     scale = check_scale(args.um_per_px) if args.um_per_px is not None else None
     bar_um = check_scale(args.scale_bar_um, "--scale-bar-um") if args.scale_bar_um is not None else None
@@ -98,10 +98,11 @@ def run(args: argparse.Namespace) -> int:
     tables, locs, lines, results, reports, warned = [], [], [], [], [], []
     next_id = 1
     for path in args.inputs:
+        name = path_text(path)  # printed and in the table: bytes that are not UTF-8 as escapes
         if _is_table(path):
             t = read_table(path)
             x = y = np.full(len(t), np.nan)
-            lines.append(f"{path}: {len(t)} particles (table)")
+            lines.append(f"{name}: {len(t)} particles (table)")
             reports.append({"table": path, "count": len(t)})
         else:
             polarity = "dark" if args.dark_particles else "bright" if args.bright_particles else "auto"
@@ -112,15 +113,15 @@ def run(args: argparse.Namespace) -> int:
             results.append(res)
             reports.append(res.report())
             excl = f", data bar from row {res.info_bar_row} excluded" if res.info_bar_row is not None else ""
-            lines.append(f"{path}: {len(t)} particles; {res.scale.um_per_px:.5g} µm/px from {res.scale.source} "
+            lines.append(f"{name}: {len(t)} particles; {res.scale.um_per_px:.5g} µm/px from {res.scale.source} "
                          f"({res.scale.detail}){excl}; min area {res.min_area_px} px")
-            warned.append(f"bmctl: {path}: {_polarity_text(res)}; verdict {res.verdict}"
+            warned.append(f"bmctl: {name}: {_polarity_text(res)}; verdict {res.verdict}"
                           + (f" ({'; '.join(res.verdict_reasons)})" if res.verdict_reasons else ""))
-            warned += [f"bmctl: warning: {path}: {w.message}" for w in res.warnings]
+            warned += [f"bmctl: warning: {name}: {w.message}" for w in res.warnings]
         ids = np.arange(next_id, next_id + len(t))
         next_id += len(t)
         tables.append(t)
-        locs.append(ParticleLocations(ids, (path,) * len(t), np.asarray(x, float), np.asarray(y, float)))
+        locs.append(ParticleLocations(ids, (name,) * len(t), np.asarray(x, float), np.asarray(y, float)))
     table = ParticleTable.concat(tables)
     if len(table) == 0:
         raise InputError(f"{args.inputs[0]}: no particles found (check the scale, --min-area-px, --crop)")
@@ -128,27 +129,59 @@ def run(args: argparse.Namespace) -> int:
                             np.concatenate([q.x_um for q in locs]), np.concatenate([q.y_um for q in locs]))
     written = []
     if args.out:
-        folder = Path(args.out).parent
-        if not args.no_overlay:
-            img_index = [i for i, p in enumerate(args.inputs) if not _is_table(p)]
-            for res, out_png, i in zip(results, _overlay_names(results, folder), img_index):
-                ids = locs[i].particle_id
-                write_overlay(out_png, res.image, res.segmentation.labels, res.segmentation.offset, ids,
-                              excluded_from_row=res.info_bar_row, scale_bar=res.scale_bar,
-                              title=f"{Path(res.name).name}: {len(res.table)} particles, {res.scale.um_per_px:.4g} µm/px, "
-                                    f"{res.segmentation.polarity} particles, verdict {res.verdict}")
-                reports[i]["overlay"] = str(out_png)
-                written.append(str(out_png))
-        summ = table.summary()
-        doc = {"table": str(args.out), "count": summ["count"], "s_median_um": summ["s_median_um"],
-               "r_median": summ["r_median"], "inputs": reports}
-        write_text(folder / "measure.json", json.dumps(doc, indent=2) + "\n")
-        write_table(args.out, table, loc)
+        with output_set():  # the table, measure.json and the overlays, or none of them
+            written = _write_set(args, results, locs, reports, table, loc)
     summ = table.summary()
     for w in warned:  # only once every input is read: a bad input still prints one line
         print(w, file=sys.stderr)
     print("\n".join(lines))
     print(f"measure: {summ['count']} particles, median s = {summ['s_median_um']:.4g} µm, median r = {summ['r_median']:.3f}"
-          + (f"; wrote {args.out}, {Path(args.out).parent / 'measure.json'}" + (f" and {len(written)} overlay(s)" if written else "")
-             if args.out else ""))
+          + (f"; wrote {path_text(args.out)}, {path_text(Path(args.out).parent / 'measure.json')}"
+             + (f" and {len(written)} overlay(s)" if written else "") if args.out else ""))
     return 0
+
+
+def _write_set(args, results, locs, reports, table, loc) -> list[str]:
+    """Write the overlays, ``measure.json`` and the table (call inside :func:`bmctl.io.output_set`).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The command line (``--out``, ``--no-overlay``, the inputs).
+    results : list of MicrographResult
+        The measured images, in the order of the image inputs.
+    locs : list of ParticleLocations
+        Per input (tables and images), the particles' ids.
+    reports : list of dict
+        Per input, its ``measure.json`` entry (an image's gets its overlay's path).
+    table : ParticleTable
+        All particles.
+    loc : ParticleLocations
+        All particles' ids, images and centroids.
+
+    Returns
+    -------
+    list of str
+        The overlays written.
+    """
+    from ..io import write_text
+    from ..measure.names import path_text
+    from ..measure.overlay import write_overlay
+    from ..measure.tables import write_table
+
+    folder, written = Path(args.out).parent, []
+    if not args.no_overlay:
+        img_index = [i for i, p in enumerate(args.inputs) if not _is_table(p)]
+        for res, out_png, i in zip(results, _overlay_names(results, folder), img_index):
+            write_overlay(out_png, res.image, res.segmentation.labels, res.segmentation.offset, locs[i].particle_id,
+                          excluded_from_row=res.info_bar_row, scale_bar=res.scale_bar,
+                          title=f"{path_text(Path(res.name).name)}: {len(res.table)} particles, {res.scale.um_per_px:.4g} µm/px, "
+                                f"{res.segmentation.polarity} particles, verdict {res.verdict}")
+            reports[i]["overlay"] = str(out_png)
+            written.append(str(out_png))
+    summ = table.summary()
+    doc = {"table": str(args.out), "count": summ["count"], "s_median_um": summ["s_median_um"],
+           "r_median": summ["r_median"], "inputs": reports}
+    write_text(folder / "measure.json", json.dumps(doc, indent=2) + "\n")
+    write_table(args.out, table, loc)
+    return written

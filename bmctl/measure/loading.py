@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
 import re
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -14,26 +17,121 @@ from ..errors import InputError
 #: the largest image read (pixels): a 16-bit SEM frame is <= ~25 Mpx; a small compressed file can
 #: claim billions of pixels and exhaust memory when decoded (a decompression bomb)
 MAX_PIXELS = 100_000_000
+#: Pillow colour modes decoded through Pillow's own conversion to RGB (imageio would hand their
+#: raw channels over as if they were RGB(A): a CMYK JPEG read so is uniform)
+CONVERTED_MODES = ("CMYK", "YCbCr", "LAB", "HSV")
+#: numpy dtype kinds that are pixel values: bool, signed and unsigned integer, real float
+PIXEL_KINDS = "biuf"
+
+
+@dataclass(frozen=True)
+class ImageHeader:
+    """What a file's header says, read without decoding the pixels.
+
+    Attributes
+    ----------
+    pixels : int or None
+        Pixels of all pages or frames together (None: unknown).
+    images : int or None
+        Images in what is read: the pages of a TIFF's first series (colour samples and
+        reduced-resolution pages not counted), the frames of a GIF or APNG, one for a camera's
+        multi-picture JPEG (None: unknown).
+    mode : str or None
+        Pillow's colour mode; for a TIFF, ``"CMYK"`` for inks (photometric separated), else None.
+    """
+
+    pixels: int | None = None
+    images: int | None = None
+    mode: str | None = None
+
+
+@contextlib.contextmanager
+def quiet_tifffile():
+    """Silence tifffile's logger inside the block (it prints damaged headers to stderr itself;
+    bmctl reports a bad file in one line of its own)."""
+    log = logging.getLogger("tifffile")
+    level = log.level
+    log.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        log.setLevel(level)
+
+
+def _is_tiff(path: str) -> bool:
+    return path.lower().endswith((".tif", ".tiff"))
+
+
+def _tiff_header(path: str) -> ImageHeader:
+    import tifffile
+
+    with tifffile.TiffFile(path) as tif:
+        pixels = sum(int(np.prod(pg.shape)) for pg in tif.pages)
+        if not tif.series:
+            return ImageHeader(pixels, 0)
+        first = tif.series[0]
+        images = int(np.prod([n for n, ax in zip(first.shape, first.axes) if ax not in "YXS"]))
+        cmyk = first.keyframe.photometric == tifffile.PHOTOMETRIC.SEPARATED  # tifffile hands over the raw inks
+        return ImageHeader(pixels, images, "CMYK" if cmyk else None)
+
+
+def _pillow_header(path: str) -> ImageHeader:
+    from PIL import Image
+
+    with Image.open(path) as im:
+        frames = max(1, int(getattr(im, "n_frames", 1)))
+        images = 1 if im.format == "MPO" else frames  # a camera JPEG's further pictures are previews: its first is read
+        return ImageHeader(int(im.size[0]) * int(im.size[1]) * frames, images, im.mode)
+
+
+def image_header(path: str) -> ImageHeader:
+    """The file's :class:`ImageHeader` (TIFF via tifffile, other formats via Pillow); fields the
+    header does not give are None.
+
+    Parameters
+    ----------
+    path : str
+        The image file.
+    """
+    try:
+        with quiet_tifffile():
+            return _tiff_header(path) if _is_tiff(path) else _pillow_header(path)
+    except Exception:  # noqa: BLE001 - unreadable headers are reported by the reader itself
+        return ImageHeader()
 
 
 def image_pixels(path: str) -> int | None:
     """Pixels the file's header claims (all pages of a TIFF), read without decoding; None if unknown."""
-    try:
-        if path.lower().endswith((".tif", ".tiff")):
-            import tifffile
+    return image_header(path).pixels
 
-            with tifffile.TiffFile(path) as tif:
-                return sum(int(np.prod(pg.shape)) for pg in tif.pages)
-        from PIL import Image
 
-        with Image.open(path) as im:
-            return int(im.size[0]) * int(im.size[1]) * max(1, getattr(im, "n_frames", 1))
-    except Exception:  # noqa: BLE001 - unreadable headers are reported by the reader itself
-        return None
+def _check_header(head: ImageHeader, name: str) -> None:
+    if head.pixels is not None and head.pixels > MAX_PIXELS:
+        raise InputError(f"{name}: image too large ({head.pixels:,} pixels, limit {MAX_PIXELS:,}); crop or downsample it first")
+    if head.images == 0:
+        raise InputError(f"{name}: cannot read image (the file holds no image)")
+    if head.images is not None and head.images > 1:
+        raise InputError(f"{name}: holds {head.images} images (pages or frames), one image is expected; "
+                         f"save the one to measure as a file of its own")
+
+
+def _decode(path: str, head: ImageHeader) -> np.ndarray:
+    from PIL import Image
+    from skimage import io
+
+    with warnings.catch_warnings(), quiet_tifffile():  # imageio warns while probing plugins on junk files
+        warnings.simplefilter("ignore")
+        if head.mode in CONVERTED_MODES:
+            with Image.open(path) as im:
+                return np.asarray(im.convert("RGB"))
+        return io.imread(path)
 
 
 def load_image(path: str | os.PathLike) -> np.ndarray:
     """Read a micrograph as a 2-D float array in [0, 1] (colour is averaged to gray).
+
+    A palette image is read as its colours; a CMYK (or other Pillow colour space) image is
+    converted to RGB by Pillow first; a single-frame GIF is one image.
 
     Parameters
     ----------
@@ -46,45 +144,72 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     Raises
     ------
     bmctl.errors.InputError
-        The file is missing, not an image, or not a 2-D (gray or colour) image.
+        The file is missing, not an image, a stack of several images (pages or frames), an image
+        with transparent pixels, of a pixel type that is not a number (complex), or not a 2-D
+        (gray or colour) image.
     """
-    from skimage import io
-
-    p = str(path)
     from ..io import check_input_file
+    from .names import path_text
 
+    p = os.fspath(path)
+    name = path_text(p)
     check_input_file(p)  # a regular file of a sane size (no FIFO, no device)
-    n = image_pixels(p)
-    if n is not None and n > MAX_PIXELS:
-        raise InputError(f"{p}: image too large ({n:,} pixels, limit {MAX_PIXELS:,}); crop or downsample it first")
+    head = image_header(p)
+    _check_header(head, name)
     try:
-        with warnings.catch_warnings():  # imageio warns while probing plugins on junk files
-            warnings.simplefilter("ignore")
-            img = io.imread(p)
+        img = _decode(p, head)
     except Exception as exc:  # imageio/PIL/tifffile raise many types
-        raise InputError(f"{p}: cannot read image ({type(exc).__name__})") from None
-    return as_gray_float(img, p)
+        raise InputError(f"{name}: cannot read image ({type(exc).__name__})") from None
+    return as_gray_float(img, name)
 
 
 def as_gray_float(img, name: str = "image") -> np.ndarray:
-    """Convert an array (gray, RGB or RGBA; any numeric dtype) to gray float in [0, 1].
+    """Convert an array (gray, gray and alpha, RGB or RGBA; any integer, bool or real dtype) to
+    gray float in [0, 1].
 
-    Integer images are scaled by their dtype's range; float images are taken as they are.
+    Integer images are scaled by their dtype's range; float images are taken as they are. An
+    alpha channel must be opaque everywhere (it is then dropped); a leading axis of one frame
+    (a single-frame GIF) is dropped.
+
+    Parameters
+    ----------
+    img : array_like
+        The pixels, shape (H, W), (H, W, C) with C in 2, 3, 4, or (1, H, W, C).
+    name : str, optional
+        The file, named in a message.
+
+    Returns
+    -------
+    ndarray of float, shape (H, W)
     """
     img = np.asarray(img)
-    if img.ndim == 3 and img.shape[-1] in (3, 4):
-        img = img[..., :3].astype(float).mean(axis=-1) if img.dtype.kind == "f" else _scale_int(img[..., :3]).mean(axis=-1)
+    if img.dtype.kind not in PIXEL_KINDS:
+        raise InputError(f"{name}: pixel type {img.dtype} is not supported (expected integer or real gray or colour values)")
+    if img.ndim == 4 and img.shape[0] == 1:  # one frame of an animation format
+        img = img[0]
+    if img.ndim == 3 and img.shape[-1] in (2, 3, 4):
+        img = _opaque(img, name)
+        img = img.astype(float).mean(axis=-1) if img.dtype.kind == "f" else _scale_int(img).mean(axis=-1)
     elif img.ndim == 2:
         img = img.astype(float) if img.dtype.kind == "f" else _scale_int(img)
     else:
         raise InputError(f"{name}: not a 2-D gray or colour image (shape {img.shape})")
-    if img.dtype.kind == "b":
-        img = img.astype(float)
     if img.size == 0 or min(img.shape) < 8:
         raise InputError(f"{name}: image too small (shape {img.shape})")
     if not np.all(np.isfinite(img)):
         raise InputError(f"{name}: image has NaN or infinite pixels")
     return img
+
+
+def _opaque(img: np.ndarray, name: str) -> np.ndarray:
+    """The colour (or gray) channels of ``img`` (H, W, C); an alpha channel (C = 2 or 4) must be opaque."""
+    if img.shape[-1] in (1, 3):
+        return img
+    alpha = img[..., -1]
+    full = True if img.dtype.kind == "b" else 1.0 if img.dtype.kind == "f" else np.iinfo(img.dtype).max
+    if np.any(alpha != full):
+        raise InputError(f"{name}: has transparent pixels (alpha); flatten it first")
+    return img[..., :-1]
 
 
 def _scale_int(img: np.ndarray) -> np.ndarray:

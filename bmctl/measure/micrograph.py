@@ -237,13 +237,15 @@ def check_verdicts(reports, accept_unusable: bool = False, flag: str = "--accept
     >>> check_verdicts([{"image": "a.png", "verdict": {"value": "doubtful", "reasons": ["polarity unclear"]}}])
     ['a.png: verdict doubtful (polarity unclear): check its overlay before trusting its particles']
     """
+    from .names import path_text
+
     lines = []
     for rep in reports:
         v = rep.get("verdict") if isinstance(rep, dict) else None
         if not isinstance(v, dict):
             continue
         value, why = v.get("value"), "; ".join(str(r) for r in v.get("reasons", []))
-        name = rep.get("image", "image")
+        name = path_text(str(rep.get("image", "image")))  # printable: bytes of a path that are not UTF-8 as escapes
         if value == "unusable" and not accept_unusable:
             raise InputError(f"{name}: verdict unusable ({why}); the measurement does not hold, "
                              f"check its overlay (bmctl measure) or pass {flag}")

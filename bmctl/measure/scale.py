@@ -186,8 +186,10 @@ def scale_from_metadata(path: str | os.PathLike) -> Scale | None:
     if path.suffix.lower() in (".tif", ".tiff"):
         import tifffile
 
+        from .loading import quiet_tifffile
+
         try:
-            with tifffile.TiffFile(path) as tif:
+            with quiet_tifffile(), tifffile.TiffFile(path) as tif:
                 page = tif.pages[0]
                 tags = page.tags
                 width = int(page.shape[-1] if page.ndim == 2 else page.shape[1])

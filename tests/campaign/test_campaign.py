@@ -502,3 +502,15 @@ def test_status_says_the_advice_as_advise_does(fresh_campaign, tmp_path, capsys)
     assert "2 decisions (1 replaced by a later one)" in out
     assert "latest advice at 0 h: 300 rpm, mill 30 min, rest 0 min (superseded by the log); rejected" in out
     assert "at 0 h: deviation from the recommendation (advice rejected): rpm 250 (recommended 300)" in out
+
+
+def test_a_micrograph_under_a_path_that_is_not_utf8_is_sampled(fresh_campaign, tmp_path, capsys):
+    """A file name's bytes need not be UTF-8; the particles' image column once took the raw
+    path and the insert failed with a traceback."""
+    d = tmp_path / "c"
+    shutil.copytree(fresh_campaign, d)
+    odd = tmp_path / os.fsdecode(b"bad\xff\xfename")
+    odd.mkdir()
+    shutil.copy(ROOT / "examples" / "micrograph-2h.tif", odd / "m.tif")
+    assert main(["campaign", "sample", str(d), "--at-h", "0", str(odd / "m.tif")]) == 0, capsys.readouterr().err
+    assert main(["campaign", "report", str(d), "--out", str(tmp_path / "r.html")]) == 0

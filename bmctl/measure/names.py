@@ -1,0 +1,40 @@
+"""A user's path as text that can be printed, drawn and written to a UTF-8 table.
+
+A file name on Linux is bytes; Python holds bytes that are not UTF-8 as lone surrogates
+(``'\\udcff'``), which a UTF-8 file, a strict terminal and matplotlib's text cannot take.
+:func:`path_text` writes each such byte as its escape (``\\xff``); every other path is
+returned as it is.
+"""
+
+from __future__ import annotations
+
+import os
+
+
+def path_text(path: str | os.PathLike) -> str:
+    """``path`` as printable text: bytes that are not UTF-8 as ``\\xNN`` escapes.
+
+    Parameters
+    ----------
+    path : path-like
+        A path as given on the command line (or joined from one).
+
+    Returns
+    -------
+    str
+        The path, unchanged unless it holds bytes that are not UTF-8.
+
+    Examples
+    --------
+    >>> path_text("a/b.png")
+    'a/b.png'
+    >>> path_text(b"bad\\xff.png".decode("utf-8", "surrogateescape"))
+    'bad\\\\xff.png'
+    """
+    text = os.fspath(path)
+    if isinstance(text, bytes):
+        text = os.fsdecode(text)
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a surrogate that stands for no byte (not from a file name)
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")

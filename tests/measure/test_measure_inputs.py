@@ -1,0 +1,216 @@
+"""Unusual micrograph files and paths: what `bmctl measure` (and `bmctl compare`) read, what they
+refuse in one line, and that their output set is written whole or not at all."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from bmctl.cli import main
+from bmctl.errors import InputError
+from bmctl.measure.loading import load_image
+from bmctl.measure.tables import ParticleTable, write_table
+
+MODEL = Path(__file__).resolve().parents[2] / "models" / "alni-1to1-300rpm-lab.toml"
+BAD_NAME = os.fsdecode(b"bad\xff\xfename")  # a folder name whose bytes are not UTF-8
+
+
+def _discs(size: int = 128) -> np.ndarray:
+    """A gray uint8 image: nine bright discs (radius 7 px) on a dark background."""
+    img = np.full((size, size), 30, np.uint8)
+    yy, xx = np.mgrid[:size, :size]
+    for cy in (24, 64, 104):
+        for cx in (24, 64, 104):
+            img[(yy - cy) ** 2 + (xx - cx) ** 2 <= 49] = 220
+    return img
+
+
+def _cli(capsys, argv):
+    rc = main(argv)
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+def _one_error_line(err: str, name: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"bmctl: error: {name}"), err
+    return lines[0]
+
+
+# --- paths whose bytes are not UTF-8, and the output set ----------------------------------------
+
+def test_measure_path_with_non_utf8_bytes_writes_the_whole_set(capsys, tmp_path):
+    folder = tmp_path / BAD_NAME
+    folder.mkdir()
+    Image.fromarray(_discs()).save(folder / "ok.png")
+    out = tmp_path / "out" / "t.csv"
+    rc, stdout, err = _cli(capsys, ["measure", str(folder / "ok.png"), "--um-per-px", "0.5", "--out", str(out)])
+    assert rc == 0, err
+    stdout.encode("utf-8"), err.encode("utf-8")  # printable on a strict UTF-8 terminal (no lone surrogates)
+    assert "bad\\xff\\xfename" in stdout
+    table = out.read_text(encoding="utf-8")  # the table is UTF-8: the bytes are written as escapes
+    assert "bad\\xff\\xfename/ok.png" in table
+    doc = json.loads((out.parent / "measure.json").read_text(encoding="utf-8"))
+    assert doc["inputs"][0]["image"] == str(folder / "ok.png")  # JSON keeps the exact path (\udcff escapes)
+    assert sorted(p.name for p in out.parent.iterdir()) == ["measure.json", "ok.overlay.png", "t.csv"]
+
+
+def test_measure_late_write_failure_leaves_none_of_the_set(capsys, tmp_path, monkeypatch):
+    import bmctl.measure.tables as tables
+
+    def full_disk(path, *a, **k):
+        raise OSError(28, "No space left on device", str(path))
+
+    monkeypatch.setattr(tables, "write_table", full_disk)
+    Image.fromarray(_discs()).save(tmp_path / "ok.png")
+    out = tmp_path / "out" / "t.csv"
+    rc, _, err = _cli(capsys, ["measure", str(tmp_path / "ok.png"), "--um-per-px", "0.5", "--out", str(out)])
+    assert rc == 2
+    _one_error_line(err, str(out))
+    assert list(out.parent.iterdir()) == []  # no overlay, no measure.json, no temporary file
+
+
+def _sample_table(path: Path) -> None:
+    rng = np.random.default_rng(0)
+    write_table(path, ParticleTable.from_size_aspect(rng.lognormal(np.log(40.0), 0.3, 50), rng.uniform(0.0, 0.2, 50)))
+
+
+def test_compare_path_with_non_utf8_bytes(capsys, tmp_path):
+    folder = tmp_path / BAD_NAME
+    folder.mkdir()
+    _sample_table(folder / "t.csv")
+    out = folder / "cmp"
+    rc, stdout, err = _cli(capsys, ["compare", str(folder / "t.csv"), "--model", str(MODEL), "--at-h", "0.5",
+                                    "--particles", "100", "--out", str(out)])
+    assert rc == 0, err
+    stdout.encode("utf-8")
+    assert "bad\\xff\\xfename" in stdout
+    assert (out / "compare.png").is_file()
+    assert json.loads((out / "compare.json").read_text())["sample"] == str(folder / "t.csv")
+
+
+def test_compare_late_write_failure_leaves_neither_file(capsys, tmp_path, monkeypatch):
+    import bmctl.io
+
+    def full_disk(path, text):
+        raise OSError(28, "No space left on device", str(path))
+
+    _sample_table(tmp_path / "t.csv")
+    monkeypatch.setattr(bmctl.io, "write_text", full_disk)
+    out = tmp_path / "cmp"
+    rc, _, err = _cli(capsys, ["compare", str(tmp_path / "t.csv"), "--model", str(MODEL), "--at-h", "0.5",
+                               "--particles", "100", "--out", str(out)])
+    assert rc == 2
+    _one_error_line(err, str(out / "compare.json"))
+    assert not out.exists() or list(out.iterdir()) == []
+
+
+# --- files refused in one line -------------------------------------------------------------------
+
+def _complex_tif(path: Path) -> None:
+    import tifffile
+
+    tifffile.imwrite(path, (np.random.default_rng(0).random((64, 64)) + 1j).astype(np.complex64))
+
+
+def _stack_tif(path: Path) -> None:
+    import tifffile
+
+    tifffile.imwrite(path, np.stack([_discs()] * 3), photometric="minisblack")
+
+
+def _two_frame_gif(path: Path) -> None:
+    frames = [Image.fromarray(_discs()), Image.fromarray(255 - _discs())]
+    frames[0].save(path, save_all=True, append_images=frames[1:])
+
+
+def _transparent_png(path: Path) -> None:
+    rgba = np.dstack([_discs()] * 3 + [np.full((128, 128), 255, np.uint8)])
+    rgba[:20, :20, 3] = 0
+    Image.fromarray(rgba).save(path)
+
+
+def _no_page_tif(path: Path) -> None:
+    path.write_bytes(b"II*\x00\x08\x00\x00\x00")  # the first page's offset points at the header itself
+
+
+REFUSED = {
+    "complex.tif": (_complex_tif, "pixel type complex64"),
+    "stack.tif": (_stack_tif, "holds 3 images"),
+    "anim.gif": (_two_frame_gif, "holds 2 images"),
+    "alpha.png": (_transparent_png, "transparent pixels (alpha)"),
+    "nopage.tif": (_no_page_tif, "holds no image"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(REFUSED))
+def test_load_image_refuses(tmp_path, name):
+    make, why = REFUSED[name]
+    make(tmp_path / name)
+    with pytest.raises(InputError, match=re.escape(why)):
+        load_image(tmp_path / name)
+
+
+@pytest.mark.parametrize("name", sorted(REFUSED))
+def test_cli_refuses_in_one_line_and_writes_nothing(capsys, caplog, tmp_path, name):
+    make, why = REFUSED[name]
+    make(tmp_path / name)
+    out = tmp_path / "out" / "t.csv"
+    caplog.set_level(logging.DEBUG)
+    rc, _, err = _cli(capsys, ["measure", str(tmp_path / name), "--um-per-px", "0.5", "--out", str(out)])
+    assert rc == 2
+    assert why in _one_error_line(err, str(tmp_path / name))
+    assert not [r for r in caplog.records if r.name.startswith("tifffile")]  # tifffile's own log lines silenced
+    assert not out.parent.exists()
+
+
+# --- files read as one gray image ----------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["cmyk.jpg", "cmyk.tif"])
+def test_cmyk_is_read_as_its_gray(tmp_path, name):
+    Image.fromarray(_discs()).convert("CMYK").save(tmp_path / name, **({"quality": 95} if name.endswith(".jpg") else {}))
+    img = load_image(tmp_path / name)
+    assert img.shape == (128, 128)
+    assert np.corrcoef(img.ravel(), _discs().ravel().astype(float))[0, 1] > 0.95
+    assert img[64, 64] - img[0, 0] > 0.5  # a bright disc on a dark background, as drawn
+
+
+@pytest.mark.parametrize("mode", ["P", "L"])
+def test_single_frame_gif_is_one_gray_image(tmp_path, mode):
+    Image.fromarray(_discs()).convert(mode).save(tmp_path / "one.gif")
+    img = load_image(tmp_path / "one.gif")
+    assert img.shape == (128, 128)
+    assert np.allclose(img, _discs() / 255.0, atol=0.02)
+
+
+@pytest.mark.parametrize("mode", ["LA", "RGBA"])
+def test_opaque_alpha_is_dropped(tmp_path, mode):
+    Image.fromarray(_discs()).convert(mode).save(tmp_path / "a.png")
+    assert np.allclose(load_image(tmp_path / "a.png"), _discs() / 255.0, atol=0.01)
+
+
+def test_planar_rgb_tiff_and_reduced_page_are_one_image(tmp_path):
+    import tifffile
+
+    rgb = np.stack([_discs()] * 3)
+    tifffile.imwrite(tmp_path / "planar.tif", rgb, photometric="rgb", planarconfig="separate")
+    assert np.allclose(load_image(tmp_path / "planar.tif"), _discs() / 255.0)
+    tifffile.imwrite(tmp_path / "thumb.tif", _discs())
+    tifffile.imwrite(tmp_path / "thumb.tif", _discs()[::4, ::4], append=True, subfiletype=1)  # a reduced-resolution preview
+    assert load_image(tmp_path / "thumb.tif").shape == (128, 128)
+
+
+def test_tifffile_log_lines_are_silenced(capsys, caplog, tmp_path):
+    _no_page_tif(tmp_path / "h.tif")
+    caplog.set_level(logging.DEBUG)
+    rc, _, err = _cli(capsys, ["measure", str(tmp_path / "h.tif"), "--um-per-px", "0.5"])
+    assert rc == 2
+    _one_error_line(err, str(tmp_path / "h.tif"))
+    assert not [r for r in caplog.records if r.name.startswith("tifffile")]  # tifffile would print them to stderr
