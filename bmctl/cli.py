@@ -150,10 +150,24 @@ def main(argv: list[str] | None = None) -> int:
         where = exc.filename if exc.filename is not None else "output"
         print(f"bmctl: error: {one_line(f'{where}: {exc.strerror or exc}')}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as exc:
+        if not _interrupt(exc):  # a SystemError of its own is a bug: its traceback is wanted
+            raise
         print("bmctl: interrupted (Ctrl-C): no output was left half-written (each file, or the whole set, is "
               "renamed into place only when complete); a trial can be carried on with --resume DIR", file=sys.stderr)
         return 130
+
+
+def _interrupt(exc: BaseException) -> bool:
+    """Ctrl-C, also where compiled (numba) code reports it as a SystemError caused by a
+    KeyboardInterrupt."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -251,6 +251,30 @@ def test_ctrl_c_in_the_plant_exits_130_and_leaves_no_output(tmp_path, capsys, mo
     assert not out.exists() or not any(out.iterdir())
 
 
+def test_ctrl_c_inside_compiled_code_is_an_interrupt_not_a_traceback(tmp_path, capsys, monkeypatch):
+    """numba reports Ctrl-C in a compiled loop as a SystemError whose cause is the KeyboardInterrupt."""
+    from bmctl.plant import plant
+
+    def interrupted(self, *a, **k):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError("CPUDispatcher(<function run_steps>) returned a result with an exception set") from exc
+
+    monkeypatch.setattr(plant.Plant, "_run", interrupted)
+    out = tmp_path / "o"
+    assert main(["simulate", str(FAN), "--hours", "0.2", "--particles", "200", "--out", str(out),
+                 "--no-progress"]) == 130
+    assert _err(capsys).startswith("bmctl: interrupted (Ctrl-C)")
+
+    def broken(self, *a, **k):  # a SystemError of its own is not swallowed
+        raise SystemError("a bug")
+
+    monkeypatch.setattr(plant.Plant, "_run", broken)
+    with pytest.raises(SystemError, match="a bug"):
+        main(["simulate", str(FAN), "--hours", "0.2", "--particles", "200", "--out", str(out), "--no-progress"])
+
+
 @pytest.mark.slow
 def test_ctrl_c_while_writing_leaves_no_half_output_set(tmp_path, capsys, monkeypatch):
     from bmctl import plots
