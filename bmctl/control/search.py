@@ -761,7 +761,8 @@ class SearchResult:
         Peak vial temperature per interval, per scenario.
     over_ceiling : dict or None
         The nominally closest candidate that the ceiling ruled out, where it comes at least
-        :data:`CLOSER_OVER_CEILING` closer than the plan (``_summary`` form), else None.
+        :data:`CLOSER_OVER_CEILING` closer than every candidate under the ceiling (``_summary``
+        form), else None.
     """
 
     params: np.ndarray
@@ -1204,8 +1205,12 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         ids = [i for i, ff in enumerate(C["F"]) if ff == f]
         if ids:
             per_family[f] = _summary(C, best_of(ids) if f != C["F"][best] else best, grid)
+    # closer than every schedule under the ceiling (not only the plan: the spread may choose a plan
+    # other than the nominally closest, and then the ceiling is not what keeps it)
+    under = [C["err"][i] for i in range(len(C["err"])) if C["exc"][i] <= CEILING_TOL_C]
+    closest_under = min(under) if under else np.inf
     over = [i for i in range(len(C["err"]))
-            if C["exc"][i] > CEILING_TOL_C and C["err"][i] < C["err"][best] - CLOSER_OVER_CEILING]
+            if C["exc"][i] > CEILING_TOL_C and C["err"][i] < closest_under - CLOSER_OVER_CEILING]
     over_ceiling = (_summary(C, min(over, key=lambda i: (C["err"][i], i)), grid)
                     if over and C["exc"][best] <= CEILING_TOL_C else None)
     X, pk = runs[C["run"][best]].trajectory(C["idx"][best], x0s[:1])

@@ -514,3 +514,18 @@ def test_a_micrograph_under_a_path_that_is_not_utf8_is_sampled(fresh_campaign, t
     shutil.copy(ROOT / "examples" / "micrograph-2h.tif", odd / "m.tif")
     assert main(["campaign", "sample", str(d), "--at-h", "0", str(odd / "m.tif")]) == 0, capsys.readouterr().err
     assert main(["campaign", "report", str(d), "--out", str(tmp_path / "r.html")]) == 0
+
+
+def test_the_ceiling_is_not_named_when_a_plan_under_it_comes_closer(tmp_path):
+    """A fresh campaign to a growth target: a two-phase plan under the ceiling ends nominally closest
+    and the filter's spread picks another; a schedule over the ceiling that beats the plan (not the
+    two-phase one) was once named as if the ceiling kept the plan from the target."""
+    d = tmp_path / "c"
+    cp.init(d, CARD, ROOT / "controllers" / "mpc-default.toml", {"s_mean_um": 45.0}, hours=6.0, particles=1000)
+    rng = np.random.default_rng(1)
+    s, r = rng.lognormal(np.log(40.0), 0.1, 300), rng.beta(2.0, 60.0, 300)
+    cp.sample(d, 0.0, [ParticleTable.from_size_aspect(s, r)])
+    adv = cp.advise(d)
+    spread = [b for b in adv["binding"] if b.startswith("the filter's spread")]
+    assert spread, adv["binding"]  # the situation: a closer plan under the ceiling exists
+    assert not any("closer schedules run over it" in b for b in adv["binding"]), adv["binding"]
