@@ -695,14 +695,44 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
     return advice
 
 
+#: a 90 % interval of the mean size wider than this share of it (either side) after a sample is
+#: noted as an uncertain estimate
+UNCERTAIN_HALF_WIDTH = 0.25
+
+
 def _notes(c: Campaign, est: dict) -> list[str]:
     """What the operator should know about the advice's footing: before the campaign's first sample
     the estimate is the card's starting powder, so a feed that differs from the card is steered as
-    if it did not until a sample shows it."""
+    if it did not until a sample shows it; after samples, an estimate whose 90 % interval of the
+    mean size is wider than :data:`UNCERTAIN_HALF_WIDTH` either side (samples that disagree with
+    the model widen it) is said to be uncertain.
+    """
     if c.con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]:
-        return []
+        line = _uncertain(est)
+        return [line] if line else []
     return [f"no sample yet: the estimate is the card's starting powder (s_mean_um {est['s_mean_um']:.4g}); "
             "if the feed may differ, sample it first (bmctl campaign sample DIR --at-h 0 FILE) and advise again"]
+
+
+def _uncertain(est: dict) -> str:
+    """The note of an uncertain estimate (empty when the interval is narrower than
+    :data:`UNCERTAIN_HALF_WIDTH` either side of the mean).
+
+    Examples
+    --------
+    >>> est = {"s_mean_um": 55.0, "s_mean_um_q05": 29.1, "s_mean_um_q95": 101.6}
+    >>> print(_uncertain(est))  # doctest: +NORMALIZE_WHITESPACE
+    the estimate is uncertain: s_mean_um 55 [29.1, 101.6] µm (90 %), -47/+85 %: the samples disagree with
+    the model or are few; a sample before acting on this advice narrows it
+    """
+    m, lo, hi = (est.get(k) for k in ("s_mean_um", "s_mean_um_q05", "s_mean_um_q95"))
+    if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (m, lo, hi)) or m <= 0:
+        return ""
+    if lo >= m * (1 - UNCERTAIN_HALF_WIDTH) and hi <= m * (1 + UNCERTAIN_HALF_WIDTH):
+        return ""
+    return (f"the estimate is uncertain: s_mean_um {m:.4g} [{lo:.4g}, {hi:.4g}] µm (90 %), "
+            f"{100 * (lo / m - 1):.0f}/+{100 * (hi / m - 1):.0f} %: the samples disagree with the model or are few; "
+            "a sample before acting on this advice narrows it")
 
 
 def _tolerance(c: Campaign) -> float | None:

@@ -529,3 +529,27 @@ def test_the_ceiling_is_not_named_when_a_plan_under_it_comes_closer(tmp_path):
     spread = [b for b in adv["binding"] if b.startswith("the filter's spread")]
     assert spread, adv["binding"]  # the situation: a closer plan under the ceiling exists
     assert not any("closer schedules run over it" in b for b in adv["binding"]), adv["binding"]
+
+
+def test_an_estimate_the_samples_leave_uncertain_is_noted(tmp_path):
+    """Samples that disagree with the model (no growth where the card predicts it) widen the
+    filter's interval of the mean size past a factor of two; advise says so in a note."""
+    d = tmp_path / "c"
+    cp.init(d, CARD, RECIPE, {"s_mean_um": 45.0}, hours=6.0, particles=1000, seed=3)
+
+    def table(mean, seed):
+        rng = np.random.default_rng(seed)
+        return ParticleTable.from_size_aspect(rng.lognormal(np.log(mean), 0.1, 300), rng.beta(2.0, 60.0, 300))
+
+    cp.sample(d, 0.0, [table(40.0, 0)])
+    assert not cp.advise(d)["notes"]  # one sample of the feed: a narrow estimate, nothing to note
+    cp.log(d, 300.0, 0.5)
+    cp.sample(d, 0.5, [table(40.0, 1)])
+    cp.log(d, 280.0, 0.5)
+    cp.log(d, 0.0, 0.5)
+    cp.sample(d, 1.5, [table(33.0, 2)])
+    cp.log(d, 280.0, 0.5)
+    adv = cp.advise(d)
+    est = adv["estimate"]
+    assert est["s_mean_um_q95"] > 2 * est["s_mean_um_q05"]
+    assert any(n.startswith("the estimate is uncertain: s_mean_um") for n in adv["notes"]), adv["notes"]
