@@ -111,14 +111,41 @@ def create(folder: str | Path) -> sqlite3.Connection:
     return con
 
 
-def open_db(folder: str | Path) -> sqlite3.Connection:
-    """Open an existing campaign; a missing, foreign or newer database is a one-line InputError."""
+def _connect_read_only(path: Path) -> sqlite3.Connection:
+    """A read-only connection (``mode=ro``), for a campaign the user may not write (an archive, a
+    share mounted read-only); ``immutable`` where SQLite cannot even keep its shared-memory file
+    beside it (nobody can write it then either)."""
+    from urllib.parse import quote
+
+    uri = f"file:{quote(str(path.resolve()))}?mode=ro"
+    try:
+        con = sqlite3.connect(uri, uri=True, timeout=LOCK_TIMEOUT_S, isolation_level=None)
+        con.execute("SELECT version FROM schema_version").fetchone()
+        return con
+    except sqlite3.OperationalError:
+        return sqlite3.connect(uri + "&immutable=1", uri=True, timeout=LOCK_TIMEOUT_S, isolation_level=None)
+
+
+def open_db(folder: str | Path, read_only: bool = False) -> sqlite3.Connection:
+    """Open an existing campaign; a missing, foreign or newer database is a one-line InputError.
+    ``read_only`` (the verbs that only read): a database the user may not write is opened
+    read-only instead of refused."""
     path = db_path(folder)
     if not path.exists():
         raise InputError(f"{folder}: no campaign here ({path.name} not found; start one with `bmctl campaign init`)")
     try:
-        con = _connect(path)
-        row = con.execute("SELECT version FROM schema_version").fetchone()
+        try:
+            con = _connect(path)
+            row = con.execute("SELECT version FROM schema_version").fetchone()
+        except sqlite3.OperationalError as exc:
+            locked_out = "readonly" in str(exc) or "unable to open" in str(exc)
+            if locked_out and not read_only:
+                raise InputError(f"{path}: read-only for this user: this command records to the campaign "
+                                 "(`status` and `report` read it as it is)") from None
+            if not locked_out:
+                raise
+            con = _connect_read_only(path)
+            row = con.execute("SELECT version FROM schema_version").fetchone()
     except sqlite3.DatabaseError as exc:
         raise InputError(f"{path}: cannot be read as a bmctl campaign database ({exc})") from None
     if row is None or row[0] != SCHEMA_VERSION:

@@ -136,11 +136,14 @@ class Campaign:
     ----------
     folder : path-like
         The campaign folder (``campaign.sqlite`` and ``inputs/``).
+    read_only : bool, optional
+        For the verbs that only read (``status``, ``report``): a database the user may not
+        write is opened read-only instead of refused.
     """
 
-    def __init__(self, folder, _new: bool = False):
+    def __init__(self, folder, _new: bool = False, read_only: bool = False):
         self.folder = Path(folder)
-        self.con = db.open_db(self.folder)
+        self.con = db.open_db(self.folder, read_only=read_only)
         where = str(db.db_path(self.folder))
         try:
             db.check(self.con, where, prior=not _new)  # init opens it before writing the prior
@@ -806,7 +809,7 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
 def status(folder, campaign: Campaign | None = None) -> dict:
     """Where the campaign stands: clock, counts, the current estimate, the latest advice and decision,
     the deviations, and the temperature warnings since the latest advice."""
-    c = campaign or Campaign(folder)
+    c = campaign or Campaign(folder, read_only=True)
     try:
         with db.transaction(c.con, write=False, where=str(folder)):
             clock = c.clock_h()
@@ -856,7 +859,7 @@ def report(folder, out=None, campaign: Campaign | None = None) -> Path:
 
     dest = Path(out) if out else Path(folder) / "report.html"
     _not_a_campaign_file(folder, dest, "--out")
-    c = campaign or Campaign(folder)
+    c = campaign or Campaign(folder, read_only=True)
     try:
         with db.transaction(c.con, write=False, where=str(folder)):
             path = write_report(c, dest)

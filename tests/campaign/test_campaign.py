@@ -553,3 +553,21 @@ def test_an_estimate_the_samples_leave_uncertain_is_noted(tmp_path):
     est = adv["estimate"]
     assert est["s_mean_um_q95"] > 2 * est["s_mean_um_q05"]
     assert any(n.startswith("the estimate is uncertain: s_mean_um") for n in adv["notes"]), adv["notes"]
+
+
+def test_status_and_report_read_a_campaign_the_user_may_not_write(advised_campaign, tmp_path, capsys, monkeypatch):
+    """An archived campaign (a read-only file or share): the verbs that only read open it read-only;
+    one that records says it is read-only (it said "cannot be read as a bmctl campaign database")."""
+    d = tmp_path / "c"
+    shutil.copytree(advised_campaign, d)
+
+    def locked(path):  # what sqlite3 says when the user may not write the file or its folder
+        raise sqlite3.OperationalError("attempt to write a readonly database")
+
+    monkeypatch.setattr(db, "_connect", locked)
+    assert main(["campaign", "status", str(d)]) == 0
+    assert main(["campaign", "report", str(d), "--out", str(tmp_path / "r.html")]) == 0
+    capsys.readouterr()
+    assert main(["campaign", "log", str(d), "--rpm", "300", "--hours", "0.5"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "read-only for this user" in err[0], err
