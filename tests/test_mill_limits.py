@@ -90,3 +90,18 @@ def test_min_time_design_is_shorter_than_the_batch_and_within_tolerance():
     assert d.result.error <= cfg.objective.tolerance
     assert d.hours < 2.0 - 1e-9
     assert len(d.pareto) == len(cfg.objective.sweep)
+
+
+@pytest.mark.slow
+def test_min_time_says_when_the_schedule_is_done_within_the_shortest_batch(tmp_path, capsys):
+    """A window the powder enters after minutes of milling: the sweep's shortest batch (3 h) is
+    reported beside the time the schedule is done, which is what min_time is asked for."""
+    from bmctl.cli import main
+
+    out = tmp_path / "d"
+    assert main(["design", str(ROOT / "models/alni-1to1-300rpm-lab.toml"), "--target", "d50_um=55:65",
+                 "--objective", "min_time", "--plant-seeds", "0", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    done = float(text.split("the schedule is done after ")[1].split(" h")[0])
+    segs = (out / "schedule.toml").read_text().count("[[segment]]")
+    assert 0 < done < 3.0 and segs >= 1 and "3 h is the shortest batch length the sweep tried" in text

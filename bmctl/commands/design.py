@@ -90,6 +90,10 @@ def run(args) -> int:
     print(f"{d.card_name}: {d.hours:g} h ({d.objective}), {n} segment{'s' if n != 1 else ''}, {r.switches} switches, "
           f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} °C "
           f"(ceiling {d.ceiling_c:g} °C); {r.method} ({r.status}), {r.solve_s:.1f} s")
+    done_h = sum(h for h, _ in d.segments)
+    if d.objective == "min_time" and done_h < d.hours - 1e-9:  # the sweep's grid is coarser than the milling
+        print(f"  the schedule is done after {done_h:.2f} h (its last milling, then nothing to run); {d.hours:g} h "
+              "is the shortest batch length the sweep tried")
     if d.local is not None and d.local is not r:
         print(f"  local NLP (from the search's best schedules): error {100 * d.local.error:.2f} %, "
               f"{d.local.switches} switches, peak T {d.local.peak_c:.1f} °C: not better")

@@ -209,7 +209,8 @@ def run(args) -> int:
     last = estimates[-1]
     d = last.as_dict()
     print(f"{card.card.name}: {len(samples)} samples to t = {t_end:g} h, {what}; {health}")
-    print(f"  at {last.t_h:g} h: s mean {d['s_mean_um']:.1f} µm [{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
+    print(f"  at {last.t_h:g} h (mean [90 % interval]): s mean {d['s_mean_um']:.1f} µm "
+          f"[{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
           f"r mean {d['r_mean']:.3f} [{d['r_mean_q05']:.3f}, {d['r_mean_q95']:.3f}], "
           f"gamma_mult {d['gamma_mult']:.2f} [{d['gamma_mult_q05']:.2f}, {d['gamma_mult_q95']:.2f}], "
           f"delta_mult {d['delta_mult']:.2f} [{d['delta_mult_q05']:.2f}, {d['delta_mult_q95']:.2f}]")

@@ -59,10 +59,12 @@ def run(args) -> int:
         for line in (run_warnings(card, res.t_h, res.band("temperature_c")[0], res.band("s_mean_um")[0])
                      + window_warnings(card, [rpm for _, rpm in segs])):
             print(f"bmctl: warning: {res.name}: {line}", file=sys.stderr)
-    print(f"{'schedule':28s} {'h':>5s} {'kJ':>7s} {'Tpeak':>6s} {'s_mean':>16s} {'s_std':>16s} {'r_mean':>17s}")
+    print("ensemble mean [5-95 % over the plants] at each schedule's end; peak vial temperature: mean over the plants")
+    print(f"{'schedule':28s} {'h':>5s} {'kJ':>7s} {'peak °C':>7s} {'s_mean µm':>19s} {'s_std µm':>19s} "
+          f"{'r_mean':>21s}")
     for r in rows:
-        print(f"{r[0][:28]:28s} {r[1]:5.1f} {r[2]:7.0f} {r[3]:6.1f} {r[5]:6.1f} [{r[6]:4.0f},{r[7]:4.0f}] "
-              f"{r[8]:6.1f} [{r[9]:4.0f},{r[10]:4.0f}] {r[11]:6.3f} [{r[12]:.2f},{r[13]:.2f}]")
+        print(f"{r[0][:28]:28s} {r[1]:5.1f} {r[2]:7.0f} {r[3]:7.1f} {r[5]:6.1f} [{r[6]:5.1f},{r[7]:5.1f}] "
+              f"{r[8]:6.1f} [{r[9]:5.1f},{r[10]:5.1f}] {r[11]:6.3f} [{r[12]:.3f},{r[13]:.3f}]")
     for p in write_outputs(results, out):
         print(f"  wrote {p}")
     return 0
