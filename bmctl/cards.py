@@ -670,7 +670,8 @@ def window_warnings(card, rpms, coeff_window: dict | None = None) -> list[str]:
     []
     >>> print(window_warnings(card, [300.0, 500.0])[0])  # doctest: +NORMALIZE_WHITESPACE
     alni-1to1-300rpm-lab: steady vial temperature 213 °C at 500 rpm is outside 25–121.1 °C, the range the model
-    was calibrated for (the card's validity.calibrated_temperature_max_C): its predictions there are extrapolations
+    was calibrated for (the card's validity.calibrated_temperature_max_C): its predictions at that speed are
+    extrapolations, also in bursts that keep the vial cooler
     >>> window_warnings(card, [400.0])  # the calibration's own 400 rpm: within WINDOW_SLACK_K of the maximum
     []
     """
@@ -686,4 +687,5 @@ def window_warnings(card, rpms, coeff_window: dict | None = None) -> list[str]:
     # as many decimals as it takes for a temperature just past the range not to print as its end
     d = next((k for k in range(3) if round(T, k) not in (round(lo, k), round(hi, k))), 3)
     return [f"{card.card.name}: steady vial temperature {T:.{d}f} °C at {r:g} rpm is outside {lo:g}–{hi:g} °C, "
-            f"the range the model was calibrated for ({win['why']}): its predictions there are extrapolations"]
+            f"the range the model was calibrated for ({win['why']}): its predictions at that speed are "
+            "extrapolations, also in bursts that keep the vial cooler"]
