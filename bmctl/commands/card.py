@@ -1,5 +1,7 @@
-"""Model cards: show what a card implies (derived masses, law of mixtures, kinematics per rpm, validity,
-its moment coefficients and the operating window they were calibrated for)."""
+"""Model cards: what a card implies (masses, mixtures, kinematics per rpm, validity, coefficients).
+
+``card show`` prints the derived masses, the law of mixtures, the kinematics per rpm, the validity,
+the card's moment coefficients and the operating window they were calibrated for."""
 
 from __future__ import annotations
 

@@ -47,8 +47,9 @@ def configure(p):
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,
-                   help="local Dask worker processes for the plant runs (default: the machine's CPUs; 0 or 1: "
-                        "serial, no Dask); same seed, same coefficients either way")
+                   help="local Dask worker processes for the plant runs (default: serial for a small ensemble, else "
+                        "one per CPU, bmctl.parallel.auto_workers; 0 or 1: serial, no Dask); same seed, same "
+                        "coefficients either way")
     p.add_argument("--figures", default=None, metavar="DIR",
                    help="also write validation.png (model vs plant on held-out schedules) and nrmse.png here")
 

@@ -61,7 +61,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
 def _polarity_text(res) -> str:
     seg = res.segmentation
     how = {"user": "as given", "edges": f"edge vote {seg.polarity_vote:.2f}" if seg.polarity_vote is not None else "",
-           "evidence": "near-tie of the edge vote, decided by particle convexity"}.get(seg.polarity_source, seg.polarity_source)
+           "evidence": "near-tie of the edge vote, decided by the readings' verdicts and counts"}.get(seg.polarity_source, seg.polarity_source)
     return f"{seg.polarity} particles ({how})"
 
 

@@ -100,7 +100,8 @@ def run(args) -> int:
     print(f"{sc.scenario.name} seed {args.seed}: final error {err}; max T {summary['max_temperature_c']:.1f} °C, "
           f"{summary['temperature_violations']} violations; energy {summary['energy_kj']:.0f} kJ; "
           f"{summary['fallbacks']} fallbacks; median solve {summary['median_solve_ms']:.0f} ms")
-    print(f"  wrote {out}/trajectory.csv, summary.json, trial.png"
+    print(f"  wrote {out}/trajectory.csv, summary.json, trial.json, trial.png"
+          + ("" if args.campaign else ", checkpoint.npz")
           + (f"; the campaign in {out}/campaign (bmctl campaign report {out}/campaign)" if args.campaign else ""))
     return 0
 

@@ -36,7 +36,7 @@ Proposal
     Andrieu 2000). This keeps the filter alive when n measured particles make the
     likelihood far narrower than the model's one-step error.
 Resampling
-    when ESS < ``ess_fraction`` N (filterpy schemes, seeded), then roughening of the log
+    when ESS < ``ess_fraction`` N (``bmctl.estimate.resampling``, drawn from the filter's generator), then roughening of the log
     parameters (Gordon, Salmond & Smith 1993).
 
 Misspecification (docs/estimation.md): the plant's particles do not follow the implied laws
@@ -80,7 +80,7 @@ class FilterSettings(Strict):
     ess_fraction : float
         Resample when ESS < ess_fraction * N.
     scheme : str
-        Resampling scheme (filterpy): systematic, stratified, residual, multinomial.
+        Resampling scheme (``bmctl.estimate.resampling``): systematic, stratified, residual, multinomial.
     process_noise_per_sqrt_h : tuple of 4 floats
         Model-discrepancy random walk of ln(s_mean, s_std, r_mean, r_std) per sqrt(hour).
         Defaults from the moment model's one-step (1 h) errors against the plant

@@ -202,10 +202,12 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
 
 def estimate_rows(estimates: Sequence[Estimate]) -> tuple[list[str], list[list]]:
     """CSV header and rows: t_h, n_measured, ess, resampled, degenerate (:func:`collapsed`), eta_size,
-    eta_shape, then mean/q05/q95."""
+    eta_shape, then mean/q05/q95 of every state and parameter, then of the size statistics
+    (volume-weighted D-values and span, area-weighted mean and mode) where every estimate has them."""
     names = estimates[0].names
+    stats = [k for k in estimates[0].size_stats if all(k in e.size_stats for e in estimates)]
     header = ["t_h", "n_measured", "ess", "resampled", "degenerate", "eta_size", "eta_shape"]
-    for n in names:
+    for n in list(names) + stats:
         header += [n, f"{n}_q05", f"{n}_q95"]
     rows = []
     for e in estimates:
@@ -213,6 +215,8 @@ def estimate_rows(estimates: Sequence[Estimate]) -> tuple[list[str], list[list]]
                float(e.eta[1])]
         for k in range(len(names)):
             row += [float(e.mean[k]), float(e.q05[k]), float(e.q95[k])]
+        for k in stats:
+            row += [float(v) for v in e.size_stats[k]]
         rows.append(row)
     return header, rows
 

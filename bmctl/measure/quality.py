@@ -141,16 +141,27 @@ def check_segmentation(labels, raw_labels, foreground, valid, min_area_px: int) 
         if border > BORDER_SHARE:
             out.append(QualityWarning("border", border, BORDER_SHARE,
                                       f"{border:.0%} of the particles are cut by the image border or the excluded area (large particles are under-counted)"))
-    med = median_size_px(raw_labels, valid, min_area_px)
-    if np.isfinite(med):
-        lo = median_size_px(raw_labels, valid, max(1, min_area_px // 2))
-        hi = median_size_px(raw_labels, valid, 2 * min_area_px)
-        jump = max(abs(v / med - 1.0) for v in (lo, hi) if np.isfinite(v)) if np.isfinite(lo) or np.isfinite(hi) else 0.0
-        if jump > MIN_AREA_JUMP:
-            out.append(QualityWarning("min-area", jump, MIN_AREA_JUMP,
-                                      f"median size moves by {jump:.0%} when --min-area-px {min_area_px} is halved or doubled "
-                                      f"({lo:.1f} / {med:.1f} / {hi:.1f} px): the size distribution reaches the detection limit"))
+    jump, (lo, med, hi) = min_area_jump(raw_labels, valid, min_area_px)
+    if jump > MIN_AREA_JUMP:
+        px = " / ".join(f"{v:.1f}" if np.isfinite(v) else "none" for v in (lo, med, hi))
+        out.append(QualityWarning("min-area", jump, MIN_AREA_JUMP,
+                                  f"median size moves by {jump:.0%} when --min-area-px {min_area_px} is halved or doubled "
+                                  f"({px} px): the size distribution reaches the detection limit"))
     return out
+
+
+def min_area_jump(labels: np.ndarray, valid: np.ndarray, min_area_px: int) -> tuple[float, tuple[float, float, float]]:
+    """How far the median particle size moves when the speck limit is halved or doubled (relative;
+    1.0 where either leaves no particle), with the three medians (px; NaN: no particle). 0 where
+    the image has no particle at the limit itself."""
+    med = median_size_px(labels, valid, min_area_px)
+    lo = median_size_px(labels, valid, max(1, min_area_px // 2))
+    hi = median_size_px(labels, valid, 2 * min_area_px)
+    if not np.isfinite(med):
+        return 0.0, (lo, med, hi)
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return 1.0, (lo, med, hi)
+    return float(max(abs(lo / med - 1.0), abs(hi / med - 1.0))), (lo, med, hi)
 
 
 # --- evidence for the reliability verdict ---------------------------------------------------------
@@ -245,13 +256,7 @@ def evidence(seg, min_area_px: int) -> dict:
     edge |= ndi.binary_dilation(~valid)
     cut = set(np.unique(raw[edge & (raw > 0)]).tolist()) & big
     out["border"] = len(cut) / len(big) if big else 0.0
-    med = median_size_px(raw, valid, min_area_px)
-    jump = 0.0
-    if np.isfinite(med):
-        others = [median_size_px(raw, valid, max(1, min_area_px // 2)), median_size_px(raw, valid, 2 * min_area_px)]
-        others = [v for v in others if np.isfinite(v)]
-        jump = max((abs(v / med - 1.0) for v in others), default=1.0) if len(others) == 2 else 1.0
-    out["min_area_jump"] = float(jump)
+    out["min_area_jump"], _ = min_area_jump(raw, valid, min_area_px)
     out["polarity_margin"] = None if seg.polarity_vote is None else float(abs(seg.polarity_vote - 0.5))
     out["faint_share"] = float(seg.faint_dropped / max(seg.faint_dropped + len(big), 1))
     if seg.smoothed is not None:
