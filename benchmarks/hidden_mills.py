@@ -568,6 +568,9 @@ def _main() -> None:
                     help=f"hours between the operator's samples, a multiple of the {INTERVAL_H:g} h interval "
                          f"up to 1000 h (default {SAMPLE_EVERY_H:g})")
     ap.add_argument("--seed", type=int_arg("--seed", 0), default=SEED, help=f"a non-negative integer (default {SEED})")
+    ap.add_argument("--workers", type=int_arg("--workers", 1, 256), default=1,
+                    help="mills run side by side (default 1); each mill's campaign is seeded by its name, so the "
+                         "results are the same for any number, but advice times then share the machine")
     ap.add_argument("--out", default=str(ROOT / "out" / "hidden_mills"),
                     help=f"the campaign folders go here (default out/hidden_mills in the repository; a relative path "
                          f"is taken from the current folder). A new or empty folder is used; a folder an earlier run "
@@ -695,7 +698,8 @@ def _main() -> None:
     cache = Path(tempfile.mkdtemp(prefix="bmctl-hidden-cache-"))  # a fresh compile cache: first advise is cold
     env = {**os.environ, "PYTHONPATH": str(ROOT), "XDG_CACHE_HOME": str(cache), "MPLBACKEND": "Agg"}
     load0 = os.getloadavg()
-    for case in cases:
+    plans = []
+    for case in cases:  # the target and the plain schedule chosen on the card, per mill
         hs, ref = refs[case.name]
         target = round(ref["s_mean_um"], 2)
         if case.hours not in card_sweeps:
@@ -703,19 +707,35 @@ def _main() -> None:
         cs = [r for r in card_sweeps[case.hours] if r["peak_c"] <= CEILING_C]
         pick = min(cs, key=lambda r: abs(r["s_mean_um"] - target))
         plain_hidden = next(r for r in hs if r["name"] == pick["name"])
-        plain_err = 100 * (plain_hidden["s_mean_um"] - target) / target
-        print(f"case {case.name}: gamma x{case.gamma:g}, delta x{case.delta:g}, {case.field} = {case.value:g}, "
-              f"{case.hours:g} h; target s_mean_um = {target:.2f} ({ref['name']} on the hidden plant, "
-              f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
-              f"{plain_err:+.1f} % on the hidden plant", flush=True)
+        plans.append((case, ref, target, pick, plain_hidden, 100 * (plain_hidden["s_mean_um"] - target) / target))
+
+    def one(plan):  # a mill's campaign (its own generators, its own folder: runs side by side unchanged)
+        case, ref, target, pick, _, plain_err = plan
+        head = (f"case {case.name}: gamma x{case.gamma:g}, delta x{case.delta:g}, {case.field} = {case.value:g}, "
+                f"{case.hours:g} h; target s_mean_um = {target:.2f} ({ref['name']} on the hidden plant, "
+                f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
+                f"{plain_err:+.1f} % on the hidden plant")
+        if a.workers == 1:
+            print(head, flush=True)
         res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, not a.no_energy_mult,
                            a.sample_particles, a.sample_on_request, controller, a.sample_every_h, a.sample_feed,
                            card_path)
-        print(f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
+        print(("" if a.workers == 1 else head + "\n")
+              + f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
               f"{res['peak_c']:.1f} °C, idle while needed {res['idle_needed_h']:.2f} h (longest "
               f"{res['longest_idle_needed_h']:.2f} h); advise first {res['advise_first_s']:.1f} s, later median "
               f"{res['advise_later_median_s']:.1f} s (CPU {res['advise_later_median_cpu_s']:.1f} s); samples "
               f"{res['samples']} ({res['extra_samples']} on request)", flush=True)
+        return res
+
+    if a.workers == 1:
+        results = [one(p) for p in plans]
+    else:
+        from concurrent.futures import ThreadPoolExecutor  # the work is in each mill's bmctl processes
+
+        with ThreadPoolExecutor(max_workers=a.workers) as pool:
+            results = list(pool.map(one, plans))
+    for (case, ref, target, pick, plain_hidden, plain_err), res in zip(plans, results):
         rows.append({"case": case.name, "gamma_mult": case.gamma, "delta_mult": case.delta, "field": case.field,
                      "value": case.value, "hours": case.hours, "target_s_mean_um": target,
                      "reference_schedule": ref["name"], "reference_peak_c": ref["peak_c"],

@@ -208,3 +208,53 @@ def test_results_name_is_a_plain_name(name, stem):
 def test_results_name_refuses_a_path_or_odd_characters(name):
     with pytest.raises(InputError, match="^--results-name: must be a plain file name"):
         load_benchmark("hidden_mills").results_name(name)
+
+
+TINY_MILLS = """
+[[mill]]
+name = "T1"
+gamma_mult = 1.3
+delta_mult = 0.8
+field = "mill.ball_count"
+value = 11
+hours = 1.0
+rpm_ref = 300.0
+
+[[mill]]
+name = "T2"
+gamma_mult = 0.8
+delta_mult = 1.2
+field = "mill.ball_to_powder_ratio"
+value = 9
+hours = 1.0
+rpm_ref = 300.0
+"""
+
+
+@pytest.mark.slow
+def test_mills_side_by_side_give_the_results_of_one_at_a_time(tmp_path):
+    """--workers 2 runs the two mills' campaigns at once; each is seeded by its name and has its own
+    folder, so every decision, sample and error is the same as with --workers 1 (advice times aside)."""
+    mills = tmp_path / "mills.toml"
+    mills.write_text(TINY_MILLS)
+    env = {**os.environ, "BMCTL_RESULTS_DIR": str(tmp_path / "results")}
+    recs = []
+    for n in (1, 2):
+        r = subprocess.run([sys.executable, str(SCRIPT), "--mills", str(mills), "--particles", "500", "--workers",
+                            str(n), "--out", str(tmp_path / f"o{n}"), "--results-name", f"w{n}"], env=env,
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr[-2000:]
+        recs.append(json.loads((tmp_path / "results" / f"w{n}.json").read_text()))
+    import re
+
+    timing = ("advise_", "load_", "wall_s")
+
+    def decisions(case):  # everything but the times (a plan's line, cut to a length, says its solve time)
+        out = {k: v for k, v in case.items() if not k.startswith(timing)}
+        out["steps"] = [{k: v for k, v in st.items() if k != "plan"} for st in case["steps"]]
+        out["plans"] = [re.sub(r"[0-9.]+ ms.*", "", st["plan"]) for st in case["steps"]]
+        return out
+
+    assert [c["case"] for c in recs[0]["cases"]] == [c["case"] for c in recs[1]["cases"]] == ["T1", "T2"]
+    for c1, c2 in zip(recs[0]["cases"], recs[1]["cases"]):
+        assert decisions(c1) == decisions(c2)
