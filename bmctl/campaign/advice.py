@@ -176,7 +176,21 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
     return reach, binding
 
 
-def reach_line(key: str, target: float, end: dict | None, reachable: bool) -> str:
+def cooling_now(binding) -> bool:
+    """Whether the plan rests to the batch end because the vial is at the ceiling now (``binding``
+    as :func:`bmctl.control.planner.plan_binding` words it): reachability is judged by the next
+    advice, when a plan may mill again.
+
+    >>> cooling_now(["vial-temperature ceiling (80 °C) now: the vial is at it (...)"])
+    True
+    >>> cooling_now(["vial-temperature ceiling (80 °C) from 2 h"])
+    False
+    """
+    return any(isinstance(b, str) and b.startswith("vial-temperature ceiling (") and ") now:" in b
+               for b in binding or [])
+
+
+def reach_line(key: str, target: float, end: dict | None, reachable: bool, cooling: bool = False) -> str:
     """The ``why`` line of one target: reached by the predicted median, only inside the 90 % band,
     or not at all, with the numbers that say which.
 
@@ -194,6 +208,9 @@ def reach_line(key: str, target: float, end: dict | None, reachable: bool) -> st
         The predicted batch end of ``key``: ``median``, ``q05``, ``q95`` (``advise``'s ``end``).
     reachable : bool
         ``advise``'s ``reachable`` for the target.
+    cooling : bool, optional
+        The plan rests to the batch end because the vial is at the ceiling now
+        (:func:`cooling_now`): an unreachable verdict is the resting plan's, not the target's.
 
     Examples
     --------
@@ -206,11 +223,19 @@ def reach_line(key: str, target: float, end: dict | None, reachable: bool) -> st
     narrow the band
     >>> reach_line("s_mean_um", 400.0, {"median": 41.1, "q05": 39.0, "q95": 44.0}, False)
     'target s_mean_um = 400 is NOT reachable by the batch end (predicted median 41.1, 90 % band [39, 44])'
+    >>> print(textwrap.fill(reach_line("d50_um", 45.0, {"median": 95.5, "q05": 88.6, "q95": 104.4}, False,
+    ...                                cooling=True), 100))
+    target d50_um = 45: not judged at this advice: the vial is at the ceiling, so the plan shown rests
+    to the batch end (ending at 95.5 if it did); the next advice, with the vial cooler, plans milling
+    again
     """
     head = f"target {key} = {target:g}"
     if end is None:
         return f"{head} is {'reachable' if reachable else 'NOT reachable'} by the batch end"
     m, lo, hi = end["median"], end["q05"], end["q95"]
+    if not reachable and cooling:
+        return (f"{head}: not judged at this advice: the vial is at the ceiling, so the plan shown rests to the "
+                f"batch end (ending at {m:.4g} if it did); the next advice, with the vial cooler, plans milling again")
     if not reachable:
         return f"{head} is NOT reachable by the batch end (predicted median {m:.4g}, 90 % band [{lo:.4g}, {hi:.4g}])"
     if abs(m - target) <= REACH_TOL * abs(target):

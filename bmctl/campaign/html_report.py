@@ -257,7 +257,7 @@ def _samples_table(d: ReportData) -> hs.Markup:
 def _why(a: dict) -> str:
     """The advice's ``why`` lines (:func:`bmctl.campaign.advice.reach_line`); a target or end band
     that is not plain numbers is shown as the bare verdict."""
-    from .advice import reach_line
+    from .advice import cooling_now, reach_line
 
     def num(x) -> bool:
         return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
@@ -266,7 +266,7 @@ def _why(a: dict) -> str:
     for k, ok in a.get("reachable", {}).items():
         v, e = a.get("target", {}).get(k), a.get("end", {}).get(k)
         if num(v) and isinstance(e, dict) and all(num(e.get(q)) for q in ("median", "q05", "q95")):
-            out.append(reach_line(str(k), float(v), e, bool(ok)))
+            out.append(reach_line(str(k), float(v), e, bool(ok), cooling_now(a.get("binding"))))
         else:
             out.append(f"{k} {'reachable' if ok else 'NOT reachable'}")
     return "; ".join(out)

@@ -93,7 +93,7 @@ def _estimate_lines(est: dict) -> list[str]:
 
 
 def _print_advice(a: dict) -> None:
-    from ..campaign.advice import reach_line
+    from ..campaign.advice import cooling_now, reach_line
 
     nx = a["next"]
     print(f"advice at t = {a['t_h']:g} h (plan {a['plan_id']}; {a['solver']}; advise {a['advise_ms']:.0f} ms)")
@@ -123,7 +123,7 @@ def _print_advice(a: dict) -> None:
             e = a["end"][k]
             print(f"  {k:<14} {e['median']:.4g}  [{e['q05']:.4g}, {e['q95']:.4g}]")
     for k, ok in a["reachable"].items():
-        print("why: " + reach_line(k, a["target"][k], a["end"].get(k), ok))
+        print("why: " + reach_line(k, a["target"][k], a["end"].get(k), ok, cooling_now(a["binding"])))
     print("binding: " + ("; ".join(a["binding"]) if a["binding"] else "no constraint binds"))
     for n in a.get("notes", []):
         print(f"note: {n}")

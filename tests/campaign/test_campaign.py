@@ -571,3 +571,20 @@ def test_status_and_report_read_a_campaign_the_user_may_not_write(advised_campai
     assert main(["campaign", "log", str(d), "--rpm", "300", "--hours", "0.5"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "read-only for this user" in err[0], err
+
+
+def test_the_readme_walkthrough_says_why_it_rests_not_that_the_target_is_out_of_reach(tmp_path, capsys):
+    """The README's campaign: a reading at the 60 degC ceiling makes every plan rest first, and the plan
+    shown rests to the batch end; why once said the target is NOT reachable."""
+    d = tmp_path / "run1"
+    assert main(["campaign", "init", str(d), "--model", str(CARD), "--controller",
+                 str(ROOT / "controllers" / "mpc-default.toml"), "--target", "d50_um=45", "--hours", "12",
+                 "--temperature-max-c", "60"]) == 0
+    assert main(["campaign", "log", str(d), "--rpm", "300", "--hours", "0.5", "--temperature-c", "60.1"]) == 0
+    assert main(["campaign", "sample", str(d), "--at-h", "0.5",
+                 str(ROOT / "examples" / "samples" / "lab-300rpm-0p5h.csv")]) == 0
+    capsys.readouterr()
+    assert main(["campaign", "advise", str(d)]) == 0
+    out = capsys.readouterr().out
+    assert "binding: vial-temperature ceiling (60 °C) now:" in out
+    assert "why: target d50_um = 45: not judged at this advice" in out and "NOT reachable" not in out
