@@ -27,6 +27,7 @@ import os
 from typing import Any
 
 from .errors import InputError
+from .limits import BALL_TO_POWDER_RANGE
 
 #: tables every card file must have ([material] may be left out when [powder] is given)
 REQUIRED_TABLES = ("card", "process", "mill", "stochastic", "partition", "thermal", "initial", "simulation")
@@ -180,8 +181,13 @@ def resolve_card_data(data: dict[str, Any], source: str) -> dict[str, Any]:
         n_b = mill.get("ball_count")
         m_p, m_b = _num(powder, "mass_kg", ""), _num(mat, "impactor_mass_kg", "")
         if m_p is not None and m_b is not None and isinstance(n_b, int) and not isinstance(n_b, bool) and n_b > 0:
-            _fill_or_check(mill, "ball_to_powder_ratio", n_b * m_b / m_p, POWDER_MASS_RTOL, f"{source}: mill",
-                           f"{n_b} balls of {m_b * 1e3:.4g} g over powder.mass_kg {m_p:g}")
+            why = f"{n_b} balls of {m_b * 1e3:.4g} g over powder.mass_kg {m_p:g}"
+            lo, hi = BALL_TO_POWDER_RANGE
+            if "ball_to_powder_ratio" not in mill and not lo <= n_b * m_b / m_p <= hi:
+                raise InputError(f"{source}: mill.ball_count, powder.mass_kg: {why} give a ball-to-powder ratio of "
+                                 f"{n_b * m_b / m_p:.4g}, outside {lo:g}-{hi:g} (mechanical alloying uses 1:1 to "
+                                 "100:1); check both")
+            _fill_or_check(mill, "ball_to_powder_ratio", n_b * m_b / m_p, POWDER_MASS_RTOL, f"{source}: mill", why)
     # completeness: every field that has a meaning is stated or derived
     for name in tables + tuple(t for t in ("powder", "validity") if t in d):
         model = ModelCard.model_fields[name].annotation

@@ -20,7 +20,7 @@ from typing import Annotated, Any, Literal, TypeVar
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from .errors import InputError, quote
-from .limits import HOURS_MAX, HOURS_MIN, PHASE_MAX_MINUTES, PHASE_MIN_MINUTES, RPM_MAX
+from .limits import BALL_TO_POWDER_RANGE, HOURS_MAX, HOURS_MIN, PHASE_MAX_MINUTES, PHASE_MIN_MINUTES, RPM_MAX
 
 T = TypeVar("T", bound=BaseModel)
 
@@ -126,7 +126,7 @@ class Mill(Strict):
     ball_material: str | None = None  # a bmctl.materials name: gives density and modulus
     ball_diameter_m: Range(1e-4, 0.05) = 0.010  # 0.1-50 mm grinding balls
     ball_count: Annotated[int, Field(ge=1, le=100_000)] = 10
-    ball_to_powder_ratio: Range(1.0, 100.0) = 10.0  # mass ratio; mechanical alloying uses 1:1-100:1
+    ball_to_powder_ratio: Range(*BALL_TO_POWDER_RANGE) = 10.0  # mass ratio; mechanical alloying uses 1:1-100:1
     ball_modulus_Pa: Range(1e9, 1.2e12) = 200e9  # polymers excluded; diamond is 1.2 TPa
     ball_density_kg_m3: Range(1000.0, 20000.0) = 7900.0  # nylon-coated to tungsten
     rpm_max: Range(0.0, RPM_MAX, lo_open=True) = 600.0  # the mill's own limit (kinematics: RPM above)

@@ -16,3 +16,6 @@ HOURS_MAX = 1000.0
 RPM_MAX = 2000.0
 #: a mill or rest phase of a cycle, in minutes: 6 s to a day
 PHASE_MIN_MINUTES, PHASE_MAX_MINUTES = 0.1, 1440.0
+
+#: ball-to-powder mass ratios a card may hold (mechanical alloying uses 1:1 to 100:1)
+BALL_TO_POWDER_RANGE = (1.0, 100.0)

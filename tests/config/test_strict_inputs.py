@@ -228,3 +228,16 @@ def test_run_leaving_the_validity_range_warns(tmp_path, capsys):
                "--no-progress"])
     err = capsys.readouterr().err
     assert rc == 0 and "warning" in err and "above the card's maximum 30 °C" in err
+
+
+def test_a_ball_count_whose_derived_ratio_is_absurd_names_both_fields(tmp_path):
+    """400 balls over 2.7 g of powder: the message names what the user wrote (the ball count and the
+    powder mass), not only the derived ratio's pydantic bound."""
+    import re as _re
+
+    from tests.config.test_own_mill import doc_card
+
+    p = doc_card(tmp_path)
+    p.write_text(_re.sub(r"ball_count = \d+", "ball_count = 400", p.read_text()))
+    with pytest.raises(InputError, match=r"mill.ball_count, powder.mass_kg: 400 balls .* ratio of 1059"):
+        load_card(p)
