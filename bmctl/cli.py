@@ -153,8 +153,11 @@ def main(argv: list[str] | None = None) -> int:
     except (KeyboardInterrupt, SystemError) as exc:
         if not _interrupt(exc):  # a SystemError of its own is a bug: its traceback is wanted
             raise
+        words = sys.argv[1:] if argv is None else list(argv)
+        resumable = _chosen(words) == ["trial"] and "--campaign" not in words
         print("bmctl: interrupted (Ctrl-C): no output was left half-written (each file, or the whole set, is "
-              "renamed into place only when complete); a trial can be carried on with --resume DIR", file=sys.stderr)
+              "renamed into place only when complete)" + ("; carry the trial on with --resume DIR" if resumable else ""),
+              file=sys.stderr)
         return 130
 
 

@@ -106,13 +106,14 @@ class Scenario(Strict):
 
 
 def resolve(path: str, base: Path) -> Path:
-    """A path from a scenario: as given (from the working directory), else next to the scenario,
-    else relative to the scenario folder's parent (the project root)."""
+    """A path from a scenario: next to the scenario, else relative to the scenario folder's parent
+    (the project root), else as given (from the working directory). The scenario's own folder comes
+    first, so the same scenario runs the same files from any working directory."""
     p = Path(path)
-    for cand in (p, base / p, base.parent / p):
+    for cand in (base / p, base.parent / p, p):
         if cand.exists():
             return cand
-    raise InputError(f"{path}: file not found (looked in ., {base}, {base.parent})")
+    raise InputError(f"{path}: file not found (looked in {base}, {base.parent}, .)")
 
 
 def load_scenario(path: str | Path) -> Scenario:

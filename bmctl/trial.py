@@ -145,6 +145,23 @@ def _append_row(path: Path, row: list) -> None:
         os.fsync(fh.fileno())
 
 
+def inputs_digest(sc: Scenario, scenario_path) -> str:
+    """sha256 of the scenario file and the files it names (the card, the plant's card, the
+    controller, the cards' moment coefficients where present): a resume refuses a trial whose
+    inputs changed since it began."""
+    import hashlib
+
+    from .moments.coeffs import coeffs_path
+
+    base = Path(scenario_path).resolve().parent
+    files = [Path(scenario_path)] + [resolve(r, base) for r in (sc.model, sc.plant.model, sc.controller.config) if r]
+    files += [coeffs_path(f) for f in files[1:] if coeffs_path(f).is_file()]
+    h = hashlib.sha256()
+    for f in files:
+        h.update(io.read_input_bytes(f))
+    return h.hexdigest()
+
+
 def _read_meta(path: Path) -> dict:
     if not path.exists() and not path.is_symlink():
         raise InputError(f"--resume: {path} not found")
@@ -200,9 +217,15 @@ def _kept_rows(traj: Path, steps: int) -> str:
     return "".join(lines[: steps + 1])
 
 
+#: loop tallies that appear during a run (a solver fallback's log line, the feed sampled): a
+#: checkpoint may hold them where a fresh loop does not
+GROWN_KEYS = frozenset({"log", "feed_sampled"})
+
+
 def _finite_numbers(value) -> bool:
-    """Whether ``value`` is None, a boolean, a finite number, or a list, table or numeric array of them."""
-    if value is None or isinstance(value, bool):
+    """Whether ``value`` is None, a boolean, a finite number, short text (a plan's family name), or
+    a list, table or numeric array of them."""
+    if value is None or isinstance(value, bool) or (isinstance(value, str) and len(value) <= 10_000):
         return True
     if isinstance(value, dict):
         return all(_finite_numbers(v) for v in value.values())
@@ -222,12 +245,15 @@ def _misfit(template, value, path: str = "") -> str | None:
     where = path or "/"
     num = (int, float)
     if isinstance(template, dict):
-        if not isinstance(value, dict) or set(value) != set(template):
+        if not isinstance(value, dict) or not set(template) <= set(value) or set(value) - set(template) - GROWN_KEYS:
             return f"{where}: expected a table with keys {sorted(template)[:6]}"
         for k in template:
             why = _misfit(template[k], value[k], f"{path}/{k}")
             if why:
                 return why
+        for k in set(value) - set(template):  # a tally grown during the run: plain data
+            if not _finite_numbers(value[k]):
+                return f"{path}/{k}: expected plain data"
         return None
     if isinstance(template, np.ndarray):
         if not isinstance(value, np.ndarray) or value.dtype.kind != template.dtype.kind or value.shape != template.shape:
@@ -245,8 +271,8 @@ def _misfit(template, value, path: str = "") -> str | None:
             if why:
                 return why
         return None
-    if template is None:  # not set yet in a fresh loop (an input, a warm start, a flag): finite numbers or booleans
-        return None if _finite_numbers(value) else f"{where}: expected nothing, finite numbers or booleans"
+    if template is None:  # not set yet in a fresh loop (an input, a warm start, a flag): plain data
+        return None if _finite_numbers(value) else f"{where}: expected nothing, finite numbers, booleans or text"
     if isinstance(template, bool):
         return None if isinstance(value, bool) else f"{where}: expected true or false"
     if isinstance(template, num):
@@ -268,6 +294,9 @@ def _resume(loop: ClosedLoop, out: Path, scenario_path, seed: int) -> None:
                          "with the same --seed into a new --out")
     if meta.get("seed") != seed or meta.get("scenario") != str(Path(scenario_path).resolve()):
         raise InputError(f"--resume: {out} holds a trial of {meta.get('scenario')} with seed {meta.get('seed')}")
+    if "sha256" in meta and meta["sha256"] != inputs_digest(load_scenario(scenario_path), scenario_path):
+        raise InputError(f"--resume: {scenario_path} (or the card or controller it names) changed since the trial "
+                         f"in {out} began; resume with the files as they were, or start it again in a new --out")
     if not ckpt.exists():
         raise InputError(f"--resume: {ckpt} not found")
     state = load_state(ckpt)
@@ -324,7 +353,8 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
         _resume(loop, out, scenario_path, seed)
     else:
         out.mkdir(parents=True, exist_ok=True)
-        io.write_text(out / "trial.json", json.dumps({"scenario": str(Path(scenario_path).resolve()), "seed": seed}))
+        io.write_text(out / "trial.json", json.dumps({"scenario": str(Path(scenario_path).resolve()), "seed": seed,
+                                                      "sha256": inputs_digest(sc, scenario_path)}))
         io.write_text(traj, ",".join(trajectory_header()) + "\n")
         save_state(ckpt, loop.get_state())
     K = loop.steps

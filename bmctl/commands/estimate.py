@@ -10,6 +10,7 @@ interval of every state and parameter at each sample time) and a figure next to 
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -104,7 +105,21 @@ def _read_sample(path: Path, um_per_px: float | None, accept_unusable: bool = Fa
     return check_table(res.table, str(path)), check_verdicts([res.report()], accept_unusable)
 
 
+def _check_write_card(path, taken) -> None:
+    """``--write-card``: a new ``.toml`` that is none of the run's inputs or outputs (the card it
+    starts from, its coefficients, the samples, the table and figure it writes)."""
+    card = output_path(path, "--write-card", folder=False)
+    if card.suffix.lower() != ".toml":
+        raise InputError(f"--write-card: expected a .toml file name (got {path})")
+    real = os.path.realpath(card)
+    for other in taken:
+        if os.path.realpath(other) == real:
+            raise InputError(f"--write-card: {path} is also {other}, an input or output of this run; choose another "
+                             "file name")
+
+
 def run(args) -> int:
+    from ..moments.coeffs import coeffs_path
     from ..schedule import Schedule
     from ..estimate.filter import FilterSettings
     from ..estimate.likelihood import LawSettings
@@ -155,10 +170,11 @@ def run(args) -> int:
 
     check_work(filter_work(t_end, args.particles if args.estimator == "pf" else 25), "--times/--particles")
     out = output_path(args.out, folder=False)
-    if args.write_card is not None:
-        output_path(args.write_card, "--write-card", folder=False)
     if out.suffix.lower() != ".csv":
         raise InputError(f"--out: expected a .csv file name (got {out})")
+    if args.write_card is not None:
+        _check_write_card(args.write_card, [out, out.with_suffix(".png"), Path(args.model),
+                                            coeffs_path(args.model), *files, *([args.schedule] if args.schedule else [])])
     law_kw = {"size_law": args.size_law}
     if args.sigma_r is not None:
         law_kw["sigma_r"] = args.sigma_r

@@ -51,6 +51,7 @@ def _check_trial_work(sc, path):
 
 
 def run(args) -> int:
+    from ..io import name_part
     from ..scenario import load_scenario
     from ..trial import run_trial
 
@@ -60,7 +61,7 @@ def run(args) -> int:
                          "campaign); run it again with the same --seed into a new --out: same trajectory")
     if args.resume and args.out and Path(args.resume) != Path(args.out):
         raise InputError("--resume: give the trial folder once (--resume DIR), not with a different --out")
-    out = output_path(args.resume or args.out or f"out/trial-{sc.scenario.name}-seed{args.seed}",
+    out = output_path(args.resume or args.out or f"out/trial-{name_part(sc.scenario.name)}-seed{args.seed}",
                       "--resume" if args.resume else "--out")
     card = _check_trial_work(sc, args.scenario)
     from ..scenario import resolve

@@ -33,6 +33,7 @@ from .base import (Plan, Reference, Status, batch_end_h, applied_input_guarded, 
                    check_x, interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
 from .config import DVALUE_KEYS, TARGET_KEYS, MPCConfig, target_bounds, target_centre
 from .compiled import CompiledSolvers
+from .interrupt import keep_interrupts
 from .mill import MillGuard
 from .outputs import ERR_FLOOR, output_values
 
@@ -537,7 +538,8 @@ class MPCController(CompiledSolvers):
                   lbg=data["lbg"], ubg=data["ubg"])
         if warm:
             kw.update(lam_x0=lam_x, lam_g0=lam_g)
-        sol = solver(**kw)
+        with keep_interrupts():  # CasADi swallows Ctrl-C into a failed solve
+            sol = solver(**kw)
         st = solver.stats()
         V = np.asarray(sol["x"], dtype=float).ravel()
         N = self.N

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import TARGET_KEYS, target_bounds, target_centre
+from .interrupt import keep_interrupts
 from .mill import count_switches
 from .outputs import ERR_FLOOR, output_dict, output_values, relative_error
 
@@ -254,7 +255,8 @@ class PatternDesigner:
                     "bonmin.print_level": 0, "bonmin.hessian_approximation": "limited-memory",
                     "bonmin.algorithm": "B-BB", "bonmin.time_limit": 600.0}
             s = ca.nlpsol("design_bonmin", "bonmin", self.nlp, opts)
-            r = s(x0=self._guess(), lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
+            with keep_interrupts():
+                r = s(x0=self._guess(), lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
             V = np.asarray(r["x"], float).ravel()
             status = str(s.stats().get("return_status", "?"))
             V[:P] = np.round(V[:P])
@@ -268,7 +270,8 @@ class PatternDesigner:
                 lb2, ub2 = lbx.copy(), ubx.copy()
                 for sl in (slice(0, P), slice(2 * P, 4 * P)):
                     lb2[sl] = ub2[sl] = Vr[sl]
-                r2 = s(x0=Vr, lbx=lb2, ubx=ub2, lbg=self.lbg, ubg=self.ubg)
+                with keep_interrupts():
+                    r2 = s(x0=Vr, lbx=lb2, ubx=ub2, lbg=self.lbg, ubg=self.ubg)
                 res = self._result(np.asarray(r2["x"], float).ravel(), 0.0, method,
                                    str(s.stats().get("return_status", "?")))
                 if best is None or res.error < best.error:

@@ -14,6 +14,8 @@ from bmctl.estimate.filter import FilterSettings, ParticleFilter
 from bmctl.estimate.resampling import SCHEMES, effective_sample_size, resample
 from bmctl.validation import study as S
 
+from ..conftest import ROOT
+
 from ..conftest import card_path
 
 LAB = str(card_path("alni-1to1-300rpm-lab"))
@@ -283,3 +285,22 @@ def test_cli_estimate_bad_input(tmp_path, capsys, case):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("bmctl: error: "), err
     assert not out.exists() and not out.with_suffix(".png").exists()
+
+
+@pytest.mark.parametrize("dest, why", [("w.csv", "expected a .toml"), ("card", "an input or output of this run")])
+def test_write_card_never_replaces_an_input_or_output(tmp_path, capsys, dest, why):
+    """--write-card onto the table, a sample or the card itself once replaced it without a word."""
+    import shutil
+
+    from bmctl.cli import main
+
+    card = tmp_path / "card.toml"
+    shutil.copy(ROOT / "models" / "alni-1to1-300rpm-lab.toml", card)
+    shutil.copy(ROOT / "models" / "alni-1to1-300rpm-lab.moments.toml", tmp_path / "card.moments.toml")
+    before = card.read_bytes()
+    target = card if dest == "card" else tmp_path / dest
+    rc = main(["estimate", str(card), "--samples", str(ROOT / "examples" / "samples"), "--times", "0.5,1,2,4,8",
+               "--particles", "200", "--out", str(tmp_path / "w.csv"), "--write-card", str(target), "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and why in err[0], err
+    assert card.read_bytes() == before and not (tmp_path / "w.csv").exists()

@@ -146,3 +146,66 @@ def test_shipped_scenarios_validate(name):
 
     sc = load_scenario(ROOT / "scenarios" / name)
     assert sc.scenario.description and "\n" not in sc.scenario.description
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("extra", ["", "feed = true\n"])
+def test_a_default_controller_trial_resumes_to_the_uninterrupted_trajectory(tmp_path, extra):
+    """mpc-default keeps its last plan's family (text) in its state, and a run's tallies grow (a
+    fallback's log, the feed sampled): a checkpoint holding them was once refused as damaged."""
+    text = SMALL.format(root=ROOT).replace("mpc-fast.toml", "mpc-default.toml").replace(
+        "particles = 200\n", "particles = 200\n" + extra)
+    assert "mpc-default.toml" in text and (not extra or extra in text)
+    sc = tmp_path / "s.toml"
+    sc.write_text(text)
+    whole = run_trial(sc, tmp_path / "whole", seed=3)
+    assert run_trial(sc, tmp_path / "cut", seed=3, max_steps=1) == {"interrupted_at_step": 1}
+    resumed = run_trial(sc, tmp_path / "cut", seed=3, resume=True)
+    assert resumed["final_true"] == whole["final_true"] and resumed["final_estimate"] == whole["final_estimate"]
+    rows = lambda p: [r.split(",")[:-4] for r in _rows(p / "trajectory.csv")]  # solve times aside
+    assert rows(tmp_path / "cut") == rows(tmp_path / "whole")
+
+
+def test_resume_refuses_a_scenario_edited_since_the_trial_began(small, tmp_path, capsys):
+    """A resumed trial once ran its remaining steps under the edited file (hours, plant factors),
+    splicing two trials into one trajectory."""
+    import shutil
+
+    sc = tmp_path / "s.toml"
+    shutil.copy(small, sc)
+    out = tmp_path / "o"
+    assert run_trial(sc, out, seed=1, max_steps=1) == {"interrupted_at_step": 1}
+    sc.write_text(sc.read_text().replace("gamma_factor = 1.3", "gamma_factor = 3.0"))
+    assert main(["trial", str(sc), "--resume", str(out), "--seed", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "changed since the trial" in err[0], err
+
+
+def test_a_scenario_runs_the_files_beside_it_from_any_working_directory(tmp_path, monkeypatch):
+    """A relative card path is looked up next to the scenario first: a same-named file under the
+    working directory once shadowed the project's card."""
+    from bmctl.scenario import resolve
+
+    proj = tmp_path / "proj"
+    (proj / "scenarios").mkdir(parents=True)
+    (proj / "models").mkdir()
+    (proj / "models" / "c.toml").write_text("x")
+    elsewhere = tmp_path / "elsewhere"
+    (elsewhere / "models").mkdir(parents=True)
+    (elsewhere / "models" / "c.toml").write_text("y")
+    monkeypatch.chdir(elsewhere)
+    assert resolve("models/c.toml", proj / "scenarios") == proj / "models" / "c.toml"
+
+
+def test_a_scenario_name_never_leads_the_default_output_out_of_out(tmp_path, monkeypatch, capsys):
+    text = (ROOT / "scenarios" / "trial-lab-recipe.toml").read_text()
+    text = text.replace('"models/', f'"{ROOT}/models/').replace('"controllers/', f'"{ROOT}/controllers/')
+    text = __import__("re").sub(r'(?m)^name = ".*"$', 'name = "../../../esc"', text, count=1)
+    assert 'name = "../../../esc"' in text
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "esc.toml").write_text(text)
+    monkeypatch.chdir(tmp_path / "sub")
+    assert main(["trial", str(tmp_path / "esc.toml"), "--no-progress"]) == 0, capsys.readouterr().err
+    made = [p.name for p in (tmp_path / "sub" / "out").iterdir()]
+    assert made == ["trial-esc-seed0"], made
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["esc.toml", "sub"]
