@@ -62,6 +62,8 @@ def int_arg(name: str, lo: int | None = None, hi: int | None = None):
 
     def parse(text: str) -> int:
         try:
+            if "_" in str(text):  # Python reads "1_0" as 10: a typo, not a number
+                raise ValueError
             v = int(text)
         except ValueError:
             raise InputError(f"{name}: not an integer: {text!r}") from None

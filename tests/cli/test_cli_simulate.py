@@ -97,6 +97,7 @@ def test_bad_card_one_line_exit2_nothing_written(tmp_path, capsys, case, expect)
 @pytest.mark.parametrize("flags,expect", [
     (["--hours", "-2"], "--hours"), (["--hours", "nan"], "--hours"), (["--hours", "0"], "--hours"),
     (["--hours", "1_0"], "--hours: not a number"),  # float() reads "1_0" as 10
+    (["--particles", "2_000"], "--particles: not an integer"),  # and int() "2_000" as 2000
     (["--particles", "3"], "--particles"), (["--seed", "x"], "--seed"), (["--rpm", "9000"], "rpm"),
     (["--bogus"], "unrecognized"),
 ])
