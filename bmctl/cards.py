@@ -117,6 +117,42 @@ def _fill_or_check(table: dict, key: str, derived: float, rtol: float, where: st
                          f"(more than {rtol:.0%} apart); correct it or leave it out to derive it")
 
 
+def check_unknown_keys(d: dict[str, Any], source: str) -> None:
+    """Refuse a table or field a card does not have, naming the known one it likely mistypes.
+
+    Checked before anything is reported missing: ``alpah = 2.1`` is one typo, not a missing
+    ``alpha``. Known tables and fields left out are the first candidates of the hint.
+
+    Parameters
+    ----------
+    d : dict
+        The card's parsed TOML (top-level keys and tables).
+    source : str
+        The file, named in error messages.
+
+    Raises
+    ------
+    InputError
+        ``card.toml: stochastic.alpah: unknown field (did you mean alpha?)`` or
+        ``card.toml: [stochastik]: unknown table (did you mean [stochastic]?)``.
+    """
+    from .config import ModelCard, _fmt_loc, fields_at, unknown_key_message
+
+    tables = set(ModelCard.model_fields)
+    for key, value in d.items():
+        if key not in tables:
+            is_table = isinstance(value, dict)
+            where = f"[{_fmt_loc((key,))}]" if is_table else _fmt_loc((key,))
+            msg = unknown_key_message(key, tables, table=is_table, likely=tables - set(d))
+            raise InputError(f"{source}: {where}: {msg}")
+    for name, table in d.items():
+        known = fields_at(ModelCard, (name,))
+        for key in table if isinstance(table, dict) else ():
+            if key not in known:
+                msg = unknown_key_message(key, known, likely=known - set(table))
+                raise InputError(f"{source}: {_fmt_loc((name, key))}: {msg}")
+
+
 def resolve_card_data(data: dict[str, Any], source: str) -> dict[str, Any]:
     """Complete a card's raw TOML tables: check they are all there, derive what is not stated,
     reject contradictions. Returns a new dict ready for :class:`bmctl.config.ModelCard`.
@@ -137,6 +173,7 @@ def resolve_card_data(data: dict[str, Any], source: str) -> dict[str, Any]:
 
     d = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
     tables = REQUIRED_TABLES + (() if "powder" in d else ("material",))
+    check_unknown_keys(d, source)
     for name in tables:
         if name not in d:
             raise InputError(f"{source}: [{name}]: required table is missing")

@@ -291,20 +291,148 @@ def _fmt_loc(loc: tuple) -> str:
     return out or "(top level)"
 
 
-def format_validation_error(source: str, err: ValidationError) -> str:
-    """One line: ``source: field: message (got value)`` for the first error."""
-    e = err.errors()[0]
+#: a key longer than this is not compared with the known ones (no typo is that long)
+SUGGEST_MAX_CHARS = 100
+
+
+def close_key(key: str, known) -> str | None:
+    """The known key ``key`` most likely mistypes, or None (:func:`difflib.get_close_matches`).
+
+    Parameters
+    ----------
+    key : str
+        The unknown key.
+    known : iterable of str
+        The keys that exist there.
+
+    Examples
+    --------
+    >>> close_key("alpah", ["alpha", "beta"]), close_key("colour", ["alpha", "beta"])
+    ('alpha', None)
+    """
+    import difflib
+
+    if not isinstance(key, str) or len(key) > SUGGEST_MAX_CHARS:
+        return None
+    found = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.6)
+    return found[0] if found else None
+
+
+def unknown_key_message(key: str, known, table: bool = False, likely=()) -> str:
+    """``unknown field`` (``unknown table``), with ``(did you mean X?)`` when a known key is close.
+
+    Parameters
+    ----------
+    key : str
+        The unknown key.
+    known : iterable of str
+        The keys that exist there.
+    table : bool, optional
+        The key names a table (``[name]``).
+    likely : iterable of str, optional
+        Keys searched first: the required ones left out beside it (a mistyped key is also missing).
+
+    Examples
+    --------
+    >>> unknown_key_message("rmp", ["hours", "rpm"])
+    'unknown field (did you mean rpm?)'
+    >>> unknown_key_message("stochastik", ["stochastic", "thermal"], table=True)
+    'unknown table (did you mean [stochastic]?)'
+    """
+    hint = close_key(key, likely) or close_key(key, known)
+    what = "unknown table" if table else "unknown field"
+    if hint is None:
+        return what
+    return f"{what} (did you mean {f'[{hint}]' if table else hint}?)"
+
+
+def _unwrap(ann):
+    """``ann`` without Annotated and an optional None; None for a union of several types."""
+    import types
+    import typing
+
+    origin = typing.get_origin(ann)
+    if origin is Annotated:
+        return _unwrap(typing.get_args(ann)[0])
+    if origin in (typing.Union, types.UnionType):
+        members = [a for a in typing.get_args(ann) if a is not type(None)]
+        return _unwrap(members[0]) if len(members) == 1 else None
+    return ann
+
+
+def fields_at(model, loc: tuple) -> set[str]:
+    """The field names of the model at ``loc`` inside ``model`` (empty when not a model there).
+
+    Parameters
+    ----------
+    model : type of BaseModel or None
+        The model validated.
+    loc : tuple
+        A location as pydantic reports it (field names and list indices).
+
+    Examples
+    --------
+    >>> sorted(fields_at(Schedule, ("segment", 0)))
+    ['hours', 'rpm']
+    """
+    import typing
+
+    ann = model
+    for part in loc:
+        ann = _unwrap(ann)
+        if isinstance(part, int) and typing.get_origin(ann) is list:
+            ann = typing.get_args(ann)[0]
+        elif isinstance(part, str) and isinstance(ann, type) and issubclass(ann, BaseModel) \
+                and part in ann.model_fields:
+            ann = ann.model_fields[part].annotation
+        else:
+            return set()
+    ann = _unwrap(ann)
+    return set(ann.model_fields) if isinstance(ann, type) and issubclass(ann, BaseModel) else set()
+
+
+def _first_error(errors: list[dict]) -> dict:
+    """The error to report: an unknown key before anything else (a mistyped key is also a missing one)."""
+    return next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
+
+
+def _unknown_field_msg(e: dict, errors: list[dict], model) -> tuple[str, int]:
+    """The message of an unknown key, with the missing sibling or known field it likely mistypes,
+    and how many other errors that explains (1 when the hint is a missing sibling: the same typo)."""
+    parent, key = tuple(e["loc"][:-1]), e["loc"][-1]
+    missing = [x["loc"][-1] for x in errors if x["type"] == "missing" and tuple(x["loc"][:-1]) == parent]
+    msg = unknown_key_message(key, fields_at(model, parent) if model is not None else (), likely=missing)
+    return msg, int(close_key(key, missing) is not None)
+
+
+def format_validation_error(source: str, err: ValidationError, model=None) -> str:
+    """One line: ``source: field: message (got value)`` for the first error.
+
+    An unknown key is reported before any other problem, with the known key it most likely
+    mistypes (``segment[0].rmp: unknown field (did you mean rpm?)``).
+
+    Parameters
+    ----------
+    source : str
+        The file (or flag) named first.
+    err : pydantic.ValidationError
+    model : type of BaseModel, optional
+        The model validated: its field names are the hints for an unknown key.
+    """
+    errors = err.errors()
+    e = _first_error(errors)
     loc = _fmt_loc(tuple(p for p in e["loc"] if not (isinstance(p, str) and p.startswith("function-"))))
     msg = e["msg"]
     if msg.startswith("Value error, "):
         msg = msg[len("Value error, "):]
+    explained = 0
     if e["type"] == "extra_forbidden":
-        msg = "unknown field"
+        msg, explained = _unknown_field_msg(e, errors, model)
     elif e["type"] == "missing":
         msg = "required field is missing"
     elif "input" in e and not isinstance(e["input"], (dict, list)) and "got" not in msg:
         msg += f" (got {quote(e['input'])})"
-    more = len(err.errors()) - 1
+    more = len(errors) - 1 - explained
     tail = f" (+{more} more problem{'s' if more > 1 else ''})" if more else ""
     if not e["loc"]:  # a whole-model check: its message starts with the field it names
         return f"{source}: {msg}{tail}"
@@ -331,7 +459,7 @@ def validate(model: type[T], data: dict[str, Any], source: str) -> T:
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise InputError(format_validation_error(source, exc)) from None
+        raise InputError(format_validation_error(source, exc, model)) from None
 
 
 def load(model: type[T], path: str | Path) -> T:

@@ -58,7 +58,7 @@ def test_feed_vial_mills_change_new_fields_or_earlier_ones_further():
     ("[[mill]]\n" + ROW.replace('"mill.ball_count"', '"mill.ball_cuont"'),
      "mill[0].field: not a field of the card"),
     ("[[mill]]\n" + ROW.replace("gamma_mult = 1.2", "gama_mult = 1.2"),
-     "mill[0].gamma_mult: required field is missing (+1 more problem)"),
+     "mill[0].gama_mult: unknown field (did you mean gamma_mult?)"),
     ("[[mill]]\n" + ROW.replace("rpm_ref = 300.0", "rpm_ref = 900.0"), "mill[0].rpm_ref:"),
     ("[[mill]]\n" + ROW + "[[mill]]\n" + ROW, "names must be unique (repeated: X)"),
     ("[[mill]]\n" + ROW.replace("value = 9", "value = 9.5"), "mill[0] (X): the hidden card: mill.ball_count:"),

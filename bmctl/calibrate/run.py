@@ -78,10 +78,13 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
     CalibrationRun
     """
     from . import outputs
+    from .params import check_calibratable
 
+    names = list(names)
+    for n in names:  # before any work
+        check_calibratable(card, n)
     t0 = time.perf_counter()
     s = settings or FitSettings()
-    names = list(names)
     start_u, info = None, {}
     if moment_stage:
         from .moment_start import moment_start

@@ -75,20 +75,48 @@ def run(args) -> int:
         close_client(client)
     cal = res.calibration
     engine = "serial" if client is None else ("scheduler " + args.scheduler if args.scheduler else "local Dask")
-    print(f"{card.card.name}: {len(histories)} histories, {sum(len(h.samples) for h in histories)} samples; "
-          f"{cal.plant_runs} plant runs ({engine}) in {res.wall_s:.0f} s, {time.perf_counter() - t0:.0f} s with the "
-          f"calibrated card's moment identification; chi2 {cal.chi2:.1f} on "
-          f"{cal.n_summaries} summaries{'' if cal.converged else ' (not converged)'}")
+    n_samples = sum(len(h.samples) for h in histories)
+    print(f"{card.card.name}: {count(len(histories), 'history', 'histories')}, {count(n_samples, 'sample')}; "
+          f"{count(cal.plant_runs, 'plant run')} ({engine}) in {res.wall_s:.0f} s, "
+          f"{time.perf_counter() - t0:.0f} s with the calibrated card's moment identification; chi2 {cal.chi2:.1f} on "
+          f"{count(cal.n_summaries, 'summary', 'summaries')}{'' if cal.converged else ' (not converged)'}")
     if not cal.converged:
         print(f"  {cal.stop_reason}")
         print(f"bmctl: note: calibration {cal.stop_reason}", file=sys.stderr)
-    for i, n in enumerate(cal.names):
-        flag = "" if cal.identified[i] else "  NOT IDENTIFIED"
-        print(f"  {n:28s} {cal.values[i]:.4g}  90 % [{cal.lo90[i]:.4g}, {cal.hi90[i]:.4g}]  "
-              f"x{cal.values[i] / cal.card_values[i]:.2f} of the card{flag}")
+    for i in range(len(cal.names)):
+        print(estimate_line(cal, i))
     for p in res.paths:
         print(f"  wrote {p}")
     return 0
+
+
+def count(n: int, one: str, many: str | None = None) -> str:
+    """``n`` and the noun, singular for 1 (``1 history``, ``2 histories``).
+
+    Examples
+    --------
+    >>> count(1, "history", "histories"), count(2, "history", "histories"), count(0, "sample")
+    ('1 history', '2 histories', '0 samples')
+    """
+    return f"{n} {one if n == 1 else (many or one + 's')}"
+
+
+def estimate_line(cal, i: int) -> str:
+    """One fitted parameter: estimate and 90 % interval in its unit, ratio to the card, identified or not.
+
+    Parameters
+    ----------
+    cal : bmctl.calibrate.fit.Calibration
+    i : int
+        The parameter's index in ``cal.names``.
+    """
+    from ..calibrate.params import param_unit
+
+    unit = param_unit(cal.names[i])
+    u = f" {unit}" if unit else ""
+    flag = "" if cal.identified[i] else "  NOT IDENTIFIED"
+    return (f"  {cal.names[i]:28s} {cal.values[i]:.4g}{u}  90 % [{cal.lo90[i]:.4g}, {cal.hi90[i]:.4g}]{u}  "
+            f"x{cal.values[i] / cal.card_values[i]:.2f} of the card{flag}")
 
 
 def raise_dup(h):

@@ -19,17 +19,38 @@ def configure(p):
                                       "the steady vial temperatures the model was calibrated for.")
     show.add_argument("model", metavar="CARD.toml", help="model card")
     show.add_argument("--rpm", type=_rpm_list, default=None, metavar="R1,R2,...",
-                      help="speeds of the table (default: the card's rpm x 0.5, 0.75, 1, 1.25 and rpm_max)")
+                      help="speeds of the table, each at least 1 rpm (default: the card's rpm x 0.5, 0.75, 1, 1.25 "
+                           "and rpm_max)")
+
+
+#: the slowest speed the report shows: below it a planetary mill does not mill (their slowest settings are tens of rpm)
+RPM_MIN = 1.0
 
 
 def _rpm_list(text: str) -> list[float]:
-    parse = float_arg("--rpm", lo=0.0, hi=2000.0, strict=True)
-    items = [t.strip() for t in text.split(",") if t.strip()]
-    if not items or len(items) > 20:
-        from ..errors import InputError
+    """``--rpm``: 1 to 20 comma-separated speeds in [:data:`RPM_MIN`, 2000] rpm, no empty entry.
 
-        raise InputError(f"--rpm: expected 1 to 20 comma-separated speeds (got {text!r})")
-    return [parse(t) for t in items]
+    Examples
+    --------
+    >>> _rpm_list("150, 300")
+    [150.0, 300.0]
+    """
+    from ..errors import InputError, quote
+    from ..limits import RPM_MAX
+
+    parse = float_arg("--rpm", hi=RPM_MAX)
+    items = [t.strip() for t in text.split(",")]
+    if not any(items) or len(items) > 20:
+        raise InputError(f"--rpm: expected 1 to 20 comma-separated speeds (got {quote(text)})")
+    if not all(items):
+        raise InputError(f"--rpm: an empty entry in {quote(text)} (expected speeds separated by commas, "
+                         "such as 150,300)")
+    rpms = [parse(t) for t in items]
+    slow = next((r for r in rpms if r < RPM_MIN), None)
+    if slow is not None:
+        raise InputError(f"--rpm: {slow:g} rpm is below {RPM_MIN:g} rpm, the slowest speed the report shows "
+                         f"(got {quote(text)})")
+    return rpms
 
 
 def format_report(rep: dict, coeffs=None) -> str:
@@ -59,7 +80,7 @@ def format_report(rep: dict, coeffs=None) -> str:
     lines += ["", "per rpm (Burgio kinematics; Hertz radius after Maurice & Courtney)",
               "  " + "".join(f"{h:>10}" for h in head)]
     for r in rep["rows"]:
-        cells = (f"{r['rpm']:.0f}", f"{r['v_ms']:.3g}", f"{r['collisions_per_s']:.4g}", f"{r['impact_energy_mJ']:.3g}",
+        cells = (f"{r['rpm']:.6g}", f"{r['v_ms']:.3g}", f"{r['collisions_per_s']:.4g}", f"{r['impact_energy_mJ']:.3g}",
                  f"{r['hertz_radius_um']:.3g}", f"{r['trapped_share']:.2e}", f"{r['hits_per_particle_per_h']:.3g}",
                  f"{r['power_W']:.3g}", f"{r['steady_temperature_C']:.0f}",
                  "outside" if not r["valid"] else ("" if r.get("in_window", True) else "uncalib."))
