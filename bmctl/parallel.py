@@ -17,7 +17,10 @@ numbers (several tasks sharing one seed sequence).
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
+import threading
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -35,6 +38,9 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: most local worker processes per CPU (:func:`cap_workers`): more only wait, each costs a process and its imports
+WORKERS_PER_CPU = 4
+
 #: below this many ensemble members a local cluster is not worth starting
 SMALL_MEMBERS = 4
 #: ... nor below this much estimated CPU work (s): starting worker processes and importing bmctl
@@ -42,8 +48,33 @@ SMALL_MEMBERS = 4
 SMALL_CPU_S = 10.0
 
 
+def cap_workers(workers: int, members: int) -> int:
+    """A worker count the user asked for, capped at one per ensemble member and at
+    :data:`WORKERS_PER_CPU` per CPU (a worker beyond either only costs a process and its start).
+
+    The results do not depend on the worker count (:func:`map_seeded`), so capping changes no number.
+
+    Parameters
+    ----------
+    workers : int
+        Asked for (``--workers``); a negative count is returned as given (:func:`client_for` refuses it).
+    members : int
+        Independent tasks that run side by side.
+
+    Examples
+    --------
+    >>> cap_workers(24, 2), cap_workers(2, 100), cap_workers(0, 5)
+    (2, 2, 0)
+    >>> cap_workers(10**6, 10**6) == WORKERS_PER_CPU * default_workers()
+    True
+    """
+    if workers < 0:
+        return workers
+    return min(int(workers), max(int(members), 0), WORKERS_PER_CPU * default_workers())
+
+
 def auto_workers(members: int, cpu_s: float, workers: int | None = None, scheduler: str | None = None) -> int | None:
-    """Worker count for :func:`client_for` when the user named none.
+    """Worker count for :func:`client_for`: the user's, capped (:func:`cap_workers`), else one that pays.
 
     Parameters
     ----------
@@ -57,17 +88,23 @@ def auto_workers(members: int, cpu_s: float, workers: int | None = None, schedul
     Returns
     -------
     int or None
-        ``workers`` when given (None with a scheduler); 0 (serial, in process) for a small ensemble
-        (fewer than :data:`SMALL_MEMBERS` members or under :data:`SMALL_CPU_S` estimated CPU
-        seconds); else the machine's CPUs, at most one per member.
+        ``workers`` when given, at most one per member and :data:`WORKERS_PER_CPU` per CPU
+        (:func:`cap_workers`; ``workers`` as given with a scheduler, whose workers are its own);
+        0 (serial, in process) for a small ensemble (fewer than :data:`SMALL_MEMBERS` members
+        or under :data:`SMALL_CPU_S` estimated CPU seconds); else the machine's CPUs, at most one
+        per member.
 
     Examples
     --------
     >>> auto_workers(3, 600.0), auto_workers(64, 2.0), auto_workers(64, 600.0, workers=1)
     (0, 0, 1)
+    >>> auto_workers(2, 1.0, workers=24)     # two plants: two workers, not 24
+    2
     """
-    if scheduler is not None or workers is not None:
+    if scheduler is not None:
         return workers
+    if workers is not None:
+        return cap_workers(workers, members)
     if members < SMALL_MEMBERS or cpu_s < SMALL_CPU_S:
         return 0
     return min(default_workers(), members)
@@ -101,15 +138,99 @@ def client_for(scheduler: str | None = None, workers: int | None = None, process
 
     if scheduler is not None:
         try:
-            return distributed.Client(scheduler, timeout="20s")
+            return _quiet_gather_stops(distributed.Client(scheduler, timeout="20s"))
         except (OSError, TimeoutError, ValueError) as exc:
             raise InputError(f"--scheduler: cannot connect to {scheduler}: {exc}") from None
     n = default_workers() if workers is None else int(workers)
     if n <= 1:
         return None
-    cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=processes,
-                                       dashboard_address=":0", silence_logs=40)
-    return distributed.Client(cluster)
+    return _local_client(n, processes)
+
+
+def _local_client(n: int, processes: bool):
+    """A client of a new local cluster of ``n`` workers, Ctrl-C held back while it starts (:func:`_sigint_held`).
+
+    A Ctrl-C in the middle of the start would leave a half-started cluster that Dask's own exit
+    handler then fails to close (a traceback after bmctl's one line, or a 10 s wait). The threads
+    and worker processes started meanwhile inherit the hold: a terminal's Ctrl-C reaches the whole
+    process group, and the workers leave it to this process, which closes them.
+    """
+    import distributed
+
+    if processes:  # multiprocessing's resource tracker lifts the hold when it starts: started first, it stays out
+        from multiprocessing import resource_tracker
+
+        resource_tracker.ensure_running()
+    cluster = client = None
+    try:
+        with _sigint_held():
+            cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=processes,
+                                               dashboard_address=":0", silence_logs=40)
+            client = _quiet_gather_stops(distributed.Client(cluster))
+    except BaseException:
+        _close_started(client, cluster)
+        raise
+    return client
+
+
+@contextlib.contextmanager
+def _sigint_held():
+    """Hold Ctrl-C back in the block and hand it to Python's handler (``KeyboardInterrupt``) when the block ends.
+
+    In the main thread: SIGINT is only noted while the block runs, and blocked in this thread, so
+    the threads and processes the block starts inherit the block (a terminal's Ctrl-C, which
+    reaches the whole process group, is left to this process). Elsewhere the block runs as it is.
+
+    Examples
+    --------
+    >>> with _sigint_held():
+    ...     pass
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    hit = []
+    if callable(previous):  # Python's to handle (not ignored, not the OS default): noted, raised after
+        signal.signal(signal.SIGINT, lambda signum, frame: hit.append(signum))
+    mask = hasattr(signal, "pthread_sigmask")
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if mask else None
+    try:
+        yield
+    finally:
+        if mask:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)  # a Ctrl-C held back is noted here
+        if callable(previous):
+            signal.signal(signal.SIGINT, previous)
+    if hit:
+        previous(signal.SIGINT, None)  # Python's default handler raises KeyboardInterrupt
+
+
+def _quiet_gather_stops(client):
+    """``client`` with its event loop silent about the gathers a Ctrl-C stopped.
+
+    A gather that Ctrl-C stops leaves Dask's watch tasks ending in ``AllExit`` (its own signal to
+    stop early); asyncio would print each as "Task exception was never retrieved" with a traceback
+    after bmctl's one line. Every other exception of the loop is reported as before.
+    """
+    from distributed.client import AllExit
+
+    loop = getattr(getattr(client, "loop", None), "asyncio_loop", None)
+    if loop is not None:
+        def handler(lp, context):
+            if not isinstance(context.get("exception"), AllExit):
+                lp.default_exception_handler(context)
+
+        loop.call_soon_threadsafe(loop.set_exception_handler, handler)
+    return client
+
+
+def _close_started(client, cluster) -> None:
+    """Close what :func:`_local_client` had started when it was stopped."""
+    if client is not None:
+        close_client(client)
+    elif cluster is not None:
+        cluster.close()
 
 
 def close_client(client) -> None:
@@ -117,9 +238,10 @@ def close_client(client) -> None:
     if client is None:
         return
     cluster = getattr(client, "cluster", None)
-    client.close()
-    if cluster is not None:
-        cluster.close()
+    with _sigint_held():  # a Ctrl-C in Dask's close waits 10 s for the close it stopped: it comes after
+        client.close()
+        if cluster is not None:
+            cluster.close()
 
 
 def seed_sequences(seed: int | np.random.SeedSequence, n: int) -> list[np.random.SeedSequence]:

@@ -134,18 +134,23 @@ def table_rows(results: Sequence[WhatIfResult]) -> tuple[list[str], list[list]]:
 
 
 def write_outputs(results: Sequence[WhatIfResult], out: Path) -> list[Path]:
-    """whatif.csv (table), whatif_moments.png (bands over time), whatif_final.png (final pdfs)."""
-    from .io import pyplot
+    """whatif.csv (table), whatif_moments.png (bands over time), whatif_final.png (final pdfs), as one
+    set (:func:`bmctl.io.output_set`: all three or none, also on Ctrl-C)."""
+    out = Path(out)
+    paths = [out / "whatif.csv", out / "whatif_moments.png", out / "whatif_final.png"]
+    with io.output_set():
+        header, rows = table_rows(results)
+        io.write_csv(paths[0], header, rows)
+        _moments_figure(results, paths[1])
+        _final_figure(results, paths[2])
+    return paths
 
+
+def _moments_figure(results: Sequence[WhatIfResult], path: Path) -> None:
+    """Bands over batch time: five quantities and the peak vial temperature, 2 x 3 panels."""
     from . import plots
 
-    plt = pyplot()
-
-    out = Path(out)
-    header, rows = table_rows(results)
-    paths = [out / "whatif.csv", out / "whatif_moments.png", out / "whatif_final.png"]
-    io.write_csv(paths[0], header, rows)
-    # bands over batch time: five quantities and the peak vial temperature, 2 x 3 panels
+    plt = io.pyplot()
     fig, axes = plt.subplots(2, 3, figsize=(13.5, 7.6))
     for i, res in enumerate(results):
         for ax, key in zip(axes.flat, KEYS):
@@ -169,8 +174,14 @@ def write_outputs(results: Sequence[WhatIfResult], out: Path) -> list[Path]:
     axes.flat[0].legend(fontsize=8)
     fig.suptitle("what-if schedules: ensemble mean and 90 % band")
     fig.tight_layout()
-    io.savefig(fig, paths[1], dpi=110)
-    # the particles at the end: size on a log axis (density per ln s), r up to where the data are
+    io.savefig(fig, path, dpi=110)
+
+
+def _final_figure(results: Sequence[WhatIfResult], path: Path) -> None:
+    """The particles at the end: size on a log axis (density per ln s), r up to where the data are."""
+    from . import plots
+
+    plt = io.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     s_all = np.concatenate([r.final_s_um for r in results])
     s_all = s_all[s_all > 0]
@@ -190,5 +201,4 @@ def write_outputs(results: Sequence[WhatIfResult], out: Path) -> list[Path]:
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    io.savefig(fig, paths[2], dpi=110)
-    return paths
+    io.savefig(fig, path, dpi=110)

@@ -31,7 +31,8 @@ def configure(p):
                    metavar="N", help="simulated particles per plant of the check (default 5000)")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the plant check (default 0)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 256), default=None,
-                   help="Dask workers of the plant check (default: serial for a small ensemble)")
+                   help="Dask workers of the plant check (default: serial for a small ensemble; at most one per "
+                        "plant and 4 per CPU)")
     add_identify_flag(p)
 
 
@@ -43,8 +44,8 @@ def _controller_path(arg) -> Path:
 
 
 def run(args) -> int:
-    from ..control.config import MPCConfig, load_controller, parse_target
-    from ..control.design import design_schedule, write_design
+    from ..control.config import MPCConfig, check_ceiling, load_controller, parse_target
+    from ..control.design import check_batch, design_schedule, done_text, write_design
 
     # all input checks first: nothing is written on bad input
     target = parse_target(args.target)
@@ -55,6 +56,9 @@ def run(args) -> int:
     out = output_path(args.out)
     model = model_for(args.model, args.identify)
     hours = args.hours if args.hours is not None else float(model.card.process.hours)
+    hours_source = "--hours" if args.hours is not None else f"{args.model}: process.hours (the default of --hours)"
+    check_batch(hours, cfg, args.objective, hours_source, str(path))
+    check_ceiling(cfg, model.card, str(path))
     from ..cards import check_work, design_work
 
     work = design_work(hours, cfg.interval_h)
@@ -90,10 +94,9 @@ def run(args) -> int:
     print(f"{d.card_name}: {d.hours:g} h ({d.objective}), {n} segment{'s' if n != 1 else ''}, {r.switches} switches, "
           f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} °C "
           f"(ceiling {d.ceiling_c:g} °C); {r.method} ({r.status}), {r.solve_s:.1f} s")
-    done_h = sum(h for h, _ in d.segments)
-    if d.objective == "min_time" and done_h < d.hours - 1e-9:  # the sweep's grid is coarser than the milling
-        print(f"  the schedule is done after {done_h:.2f} h (its last milling, then nothing to run); {d.hours:g} h "
-              "is the shortest batch length the sweep tried")
+    done = done_text(d)
+    if done:  # a trailing rest is not written; the sweep's grid is coarser than the milling
+        print(f"  {done}")
     if d.local is not None and d.local is not r:
         print(f"  local NLP (from the search's best schedules): error {100 * d.local.error:.2f} %, "
               f"{d.local.switches} switches, peak T {d.local.peak_c:.1f} °C: not better")

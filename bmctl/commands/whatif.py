@@ -20,7 +20,8 @@ def configure(p):
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,
                    help="local Dask worker processes (default: the machine's CPUs for a large ensemble, serial "
-                        "for a small one; 0 or 1: serial, no Dask); same seed, same numbers either way")
+                        "for a small one; 0 or 1: serial, no Dask; at most one per seed and 4 per CPU); same seed, "
+                        "same numbers either way")
 
 
 def run(args) -> int:

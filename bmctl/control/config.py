@@ -16,7 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from ..config import HOURS, MINUTES, RPM, Finite, Frac, NonNeg, Pos, Range, Strict, read_toml, validate
 from ..limits import HOURS_MAX, PHASE_MAX_MINUTES, RPM_MAX
@@ -173,8 +173,17 @@ class Objective(Strict):
     tolerance: Annotated[float, Field(gt=0, lt=1)] = 0.02  # relative error outside a window / off a point
     phases: Annotated[int, Field(ge=1, le=12)] = 4  # schedule phases (each one rpm and one mill/rest pattern)
     integer_method: Literal["relax-round", "bonmin"] = "relax-round"
-    #: batch lengths tried by min_time / min_energy and the trade-off table (fractions of --hours)
+    #: batch lengths tried by min_time / min_energy and the trade-off table (fractions of --hours; at
+    #: least one; each batch at least one control interval long, checked where --hours is known)
     sweep: list[Annotated[float, Field(gt=0, le=1)]] = [0.25, 0.5, 0.75, 1.0]
+
+    @field_validator("sweep", mode="after")
+    @classmethod
+    def _sweep_not_empty(cls, value):
+        if not value:
+            raise ValueError("needs at least one batch length (fractions of --hours in (0, 1], e.g. "
+                             "[0.25, 0.5, 0.75, 1.0])")
+        return value
 
 
 class PlanSearch(Strict):
@@ -404,6 +413,43 @@ class RecipeConfig(_Common):
 
 
 ControllerConfig = Union[MPCConfig, LQRConfig, RecipeConfig]
+
+
+def check_ceiling(cfg, card, source: str, field: str = "temperature.ceiling_c") -> None:
+    """Refuse a vial-temperature ceiling at or below the card's ambient temperature (where the
+    controller meets the card: a resting vial is already at the ambient, so no batch keeps under it).
+
+    Parameters
+    ----------
+    cfg : ControllerConfig
+        A controller without a ``[temperature]`` table (a recipe) passes.
+    card : ModelCard
+        The card the controller runs on (its ``thermal.ambient_C``).
+    source : str
+        The file that gave the ceiling (the controller's, or a scenario's), named in the message.
+    field : str, optional
+        The setting that gave the ceiling (e.g. a scenario's ``temperature_max_c`` that overrode the file's).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace as NS
+    >>> card = NS(thermal=NS(ambient_C=25.0))
+    >>> cfg = validate_controller({"kind": "mpc", "temperature": {"ceiling_c": 60}}, "c.toml")
+    >>> check_ceiling(cfg, card, "c.toml")
+    >>> cfg.temperature.ceiling_c = 20.0
+    >>> check_ceiling(cfg, card, "c.toml")
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: c.toml: temperature.ceiling_c: 20 °C is not above the card's ambient temperature (thermal.ambient_C = 25 °C): a resting vial is already at the ambient
+    """
+    temperature = getattr(cfg, "temperature", None)
+    if temperature is None:
+        return
+    ambient = float(card.thermal.ambient_C)
+    if temperature.ceiling_c <= ambient:
+        raise InputError(f"{source}: {field}: {temperature.ceiling_c:g} °C is not above the card's "
+                         f"ambient temperature (thermal.ambient_C = {ambient:g} °C): a resting vial is already at "
+                         "the ambient")
 KINDS: dict[str, type] = {"mpc": MPCConfig, "lqr": LQRConfig, "recipe": RecipeConfig}
 
 

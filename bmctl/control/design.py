@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..io import csv_text, write_text
+from ..io import csv_text, output_set, write_text
 from .config import TARGET_KEYS, MPCConfig, format_target
 
 
@@ -64,6 +64,11 @@ class Design:
     @property
     def times_h(self) -> np.ndarray:
         return np.concatenate([[0.0], np.cumsum([h for h, _ in self.segments])])
+
+    @property
+    def done_h(self) -> float:
+        """When the schedule is done: its last milling (a trailing rest is not written), at most ``hours``."""
+        return float(sum(h for h, _ in self.segments))
 
     @property
     def milling_h(self) -> float:
@@ -226,6 +231,49 @@ def design_one(model, target: dict, hours: float, cfg, p=None, method: str = "re
     return best, res_l, sr
 
 
+def check_batch(hours: float, cfg: MPCConfig, objective: str | None = None, hours_source: str = "hours",
+                cfg_source: str = "controller") -> None:
+    """Refuse a batch, or a batch length of the min_time / min_energy sweep, shorter than one control
+    interval: its schedule would be a fraction of the grid (segments of seconds, under the mill's
+    minimum milling period, that ``bmctl simulate --schedule`` refuses).
+
+    Parameters
+    ----------
+    hours : float
+        Batch length (h).
+    cfg : MPCConfig
+        Its ``interval_h`` and ``[objective]`` (kind and sweep).
+    objective : str, optional
+        "target", "min_time" or "min_energy" (default: ``cfg.objective.kind``).
+    hours_source, cfg_source : str, optional
+        The flag (or card field) that gave ``hours`` and the controller file, named in the messages.
+
+    Examples
+    --------
+    >>> from bmctl.control.config import validate_controller
+    >>> cfg = validate_controller({"kind": "mpc", "interval_h": 0.5}, "c.toml")
+    >>> check_batch(0.5, cfg)
+    >>> check_batch(0.02, cfg, hours_source="--hours", cfg_source="c.toml")
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: --hours: a batch of 0.02 h (1.2 min) is shorter than one control interval of c.toml (interval_h = 0.5 h)
+    >>> check_batch(1.0, cfg, "min_time", "--hours", "c.toml")
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: c.toml: objective.sweep: 0.25 of --hours 1 h is a batch of 15 min, shorter than one control interval (interval_h = 0.5 h)
+    """
+    step = float(cfg.interval_h)
+    if hours < step - 1e-9:
+        raise InputError(f"{hours_source}: a batch of {hours:g} h ({hours * 60:.3g} min) is shorter than one control "
+                         f"interval of {cfg_source} (interval_h = {step:g} h)")
+    if (objective or cfg.objective.kind) == "target":
+        return
+    frac = min(cfg.objective.sweep)
+    if hours * frac < step - 1e-9:
+        raise InputError(f"{cfg_source}: objective.sweep: {frac:g} of {hours_source} {hours:g} h is a batch of "
+                         f"{hours * frac * 60:.3g} min, shorter than one control interval (interval_h = {step:g} h)")
+
+
 def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, objective: str | None = None,
                     method: str | None = None, local: bool = True, progress=None) -> Design:
     """Design a schedule over ``hours`` from ``model.x0()`` under the mill's limits: a global search
@@ -238,7 +286,8 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
     target : dict
         {key: point or (lo, hi)}, keys from :data:`TARGET_KEYS`.
     hours : float
-        Batch length (> 0).
+        Batch length: at least one control interval, as each batch length of the min_time /
+        min_energy sweep (:func:`check_batch`).
     cfg : MPCConfig
         Bounds, ceiling, weights, ``[mill]``, ``[objective]`` and ``[plan]`` (the search).
     p : array_like, optional
@@ -258,8 +307,9 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
         raise InputError(f"hours: must be a finite number > 0 (got {hours})")
     if not target:
         raise InputError("target: names no moment")
-    say = progress or (lambda text: None)
     obj = objective or cfg.objective.kind
+    check_batch(hours, cfg, obj)
+    say = progress or (lambda text: None)
     meth = method or cfg.objective.integer_method
     tol = cfg.objective.tolerance
     pareto = []
@@ -280,10 +330,11 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
         else:
             i = min(ok, key=lambda j: (pareto[j].energy_kWh, pareto[j].hours))
         res, res_l, sr = runs[i]
+    families = written_families(sr.per_family, model, cfg, res.hours)
     if res.error <= tol:
-        reach = Reach(True, res.error, res.outputs, [], sr.per_family)
+        reach = Reach(True, res.error, res.outputs, [], families)
     else:
-        reach = Reach(False, res.error, res.outputs, list(res.active), sr.per_family)
+        reach = Reach(False, res.error, res.outputs, list(res.active), families)
     segs = res.segments
     X = np.array(res.seg_states)
     if not segs:  # the best plan mills nothing: a rest over the whole batch (a schedule of one segment)
@@ -296,6 +347,39 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
     d.local = res_l
     d.search = sr
     return d
+
+
+def written_families(per_family: dict, model, cfg, hours: float) -> dict:
+    """The search's best row per family with its on/off switches counted as on the written schedule.
+
+    The search counts the stop of a last milling period inside the batch; the written schedule
+    drops the trailing rest (:func:`interval_segments`), so the design's summary and schedule.toml
+    count one switch fewer. Here both count the schedule as written (:func:`~bmctl.control.mill.count_switches`).
+
+    Parameters
+    ----------
+    per_family : dict
+        ``SearchResult.per_family`` ({family: dict with ``params``, ``switches``, ...}).
+    model : MomentModel
+    cfg : MPCConfig
+    hours : float
+        The batch the search planned.
+
+    Returns
+    -------
+    dict
+        A copy of ``per_family``, ``switches`` recounted.
+    """
+    from .mill import count_switches
+    from .search import expand, limits_of, make_grid
+
+    grid, lim = make_grid(0.0, hours, cfg.interval_h), limits_of(cfg, model)
+    out = {}
+    for fam, row in per_family.items():
+        rpm, minutes = expand(np.asarray(row["params"], dtype=float)[None], grid, lim)
+        segs = interval_segments(rpm[0], minutes[0], grid.lengths_min)
+        out[fam] = {**row, "switches": count_switches(segs)}
+    return out
 
 
 def plant_check(card, segments, target: dict, seeds: int = 3, particles: int = 5000, seed: int = 0,
@@ -361,13 +445,38 @@ def pareto_table(d: Design) -> str:
     return "\n".join(rows)
 
 
+def done_text(d: Design) -> str:
+    """When the schedule is done, where that is before the end of the batch it was designed for
+    (its last milling; the trailing rest is not written); "" when it runs the whole batch.
+
+    Parameters
+    ----------
+    d : Design
+    """
+    done = d.done_h
+    if done >= d.hours - 1e-9:
+        return ""
+    text = f"the schedule is done after {done:.2f} h (its last milling, then nothing to run); "
+    if d.objective == "target" or not d.pareto:
+        return text + f"{d.hours:g} h is the batch length it was designed for"
+    if not d.reach.reachable:
+        return text + f"{d.hours:g} h is the batch length of the sweep that came closest to the target"
+    if d.objective == "min_time":
+        shortest = min(r.hours for r in d.pareto)
+        which = "tried" if d.hours <= shortest + 1e-9 else "within the tolerance"
+        return text + f"{d.hours:g} h is the shortest batch length the sweep {which}"
+    return text + f"{d.hours:g} h is the batch length of the sweep with the least energy within the tolerance"
+
+
 def schedule_toml(d: Design) -> str:
     """The schedule as TOML text (``bmctl simulate --schedule`` format)."""
     tgt = ", ".join(f"{k} = {format_target(v)}" for k, v in d.target.items())
     last = d.X[-1]
     r = d.result
+    done = done_text(d)
     lines = [
-        f"# Designed by `bmctl design` for {d.card_name}: target {tgt} at {d.hours:g} h (objective {d.objective})",
+        f"# Designed by `bmctl design` for {d.card_name}: target {tgt} at {d.hours:g} h (objective {d.objective})"
+        + (f"; {done}" if done else ""),
         f"# controller {d.controller_name or 'mpc'}; {r.method}: {r.status}, {r.solve_s:.1f} s; "
         f"{r.switches} on/off switches; predicted "
         + ", ".join(f"{k} {r.outputs[k]:.4g}" for k in d.target if k in r.outputs)
@@ -450,10 +559,12 @@ def design_figure(d: Design, path: Path) -> None:
 
 
 def write_design(d: Design, out: Path) -> list[Path]:
-    """Write schedule.toml, predicted.csv and design.png under ``out`` (atomically)."""
+    """Write schedule.toml, predicted.csv and design.png under ``out`` as one set (:func:`bmctl.io.output_set`:
+    all three or none, also on Ctrl-C)."""
     out = Path(out)
     paths = [out / "schedule.toml", out / "predicted.csv", out / "design.png"]
-    write_text(paths[0], schedule_toml(d))
-    write_text(paths[1], predicted_csv(d))
-    design_figure(d, paths[2])
+    with output_set():
+        write_text(paths[0], schedule_toml(d))
+        write_text(paths[1], predicted_csv(d))
+        design_figure(d, paths[2])
     return paths

@@ -96,3 +96,104 @@ def test_whatif_member_k_is_the_plant_seeded_base_seed_plus_k():
         assert np.array_equal(res.traj["r_std"][k], [m["r_std"] for m in recs])
         assert np.array_equal(res.final_s_um[k * 300:(k + 1) * 300], plant.s * 1e6)
     assert not np.array_equal(res.traj["s_mean_um"][0], res.traj["s_mean_um"][1])
+
+
+def _short_schedule(tmp_path):
+    sched = tmp_path / "s.toml"
+    sched.write_text('name = "s"\n[[segment]]\nhours = 0.5\nrpm = 300\n')
+    return str(sched)
+
+
+def test_whatif_writes_all_of_its_outputs_or_none(tmp_path, capsys, monkeypatch):
+    """Ctrl-C while the first figure is saved leaves no whatif.csv beside it: the three files are one set."""
+    from bmctl import io
+
+    def interrupted(fig, path, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(io, "savefig", interrupted)
+    out = tmp_path / "o"
+    rc = main(["whatif", LAB, _short_schedule(tmp_path), "--seeds", "2", "--particles", "200", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 130 and len(err.strip().splitlines()) == 1, err
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_whatif_starts_no_more_workers_than_members(tmp_path, capsys, monkeypatch):
+    """--workers 24 for 2 plants asked a 24-process cluster (24 s for a 1 s job); --workers 4096 hung the machine."""
+    from bmctl import parallel
+
+    asked = []
+
+    def record(scheduler=None, workers=None, processes=True):
+        asked.append(workers)
+        return None  # serial: the same numbers (tests above)
+
+    monkeypatch.setattr(parallel, "client_for", record)
+    for workers in ("24", "4096"):
+        rc = main(["whatif", LAB, _short_schedule(tmp_path), "--seeds", "2", "--particles", "200", "--workers",
+                   workers, "--out", str(tmp_path / "o")])
+        assert rc == 0, capsys.readouterr().err
+    assert asked == [2, 2]
+    cap = parallel.WORKERS_PER_CPU * parallel.default_workers()
+    assert parallel.auto_workers(10**6, 1e9, workers=10**6) == cap
+    assert parallel.auto_workers(100, 1e4, workers=3) == 3 and parallel.auto_workers(5, 1.0, workers=0) == 0
+
+
+def _deliver_sigint():
+    """SIGINT to this process, handled by Python's default handler (KeyboardInterrupt)."""
+    import os
+    import signal
+
+    os.kill(os.getpid(), signal.SIGINT)
+
+
+@pytest.fixture
+def python_sigint():
+    """Python's own SIGINT handler for the test (a test runner's worker may ignore SIGINT)."""
+    import signal
+
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)
+
+
+def test_ctrl_c_while_the_local_cluster_starts_closes_it(monkeypatch, python_sigint):
+    """A Ctrl-C in the middle of the start left a half-started cluster for Dask's exit handler (a
+    traceback after bmctl's one line, or a 10 s wait): it is held back until the start is done, and
+    the cluster is closed before the KeyboardInterrupt goes on."""
+    import distributed
+
+    from bmctl.parallel import client_for
+
+    clusters = []
+    real = distributed.Client
+
+    def client(cluster, *args, **kwargs):
+        clusters.append(cluster)
+        _deliver_sigint()
+        return real(cluster, *args, **kwargs)
+
+    monkeypatch.setattr(distributed, "Client", client)
+    with pytest.raises(KeyboardInterrupt):
+        client_for(None, 2, processes=False)
+    assert len(clusters) == 1 and clusters[0].status.name == "closed"
+
+
+def test_ctrl_c_while_the_client_closes_comes_after_the_close(python_sigint):
+    """A Ctrl-C in Dask's close waited 10 s for it and left the cluster open: it now comes when the close is done."""
+    from bmctl.parallel import client_for, close_client
+
+    client = client_for(None, 2, processes=False)
+    cluster = client.cluster
+    real_close = client.close
+
+    def close(*args, **kwargs):
+        client.close = real_close  # once: Client.__del__ closes again
+        _deliver_sigint()
+        return real_close(*args, **kwargs)
+
+    client.close = close
+    with pytest.raises(KeyboardInterrupt):
+        close_client(client)
+    assert cluster.status.name == "closed"

@@ -1,0 +1,124 @@
+"""`bmctl design`: inputs refused in one line before anything runs (the sweep, the batch length, the
+ceiling against the card), the outputs written as one set, and what the summary says of the schedule."""
+
+from __future__ import annotations
+
+import pytest
+
+from bmctl.cli import main
+
+from ..conftest import ROOT
+
+CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+DEFAULT = (ROOT / "controllers" / "mpc-default.toml").read_text()
+
+
+def _controller(tmp_path, extra: str = "", **replace) -> str:
+    """mpc-default.toml with ``replace`` ({old line start: new line}) and ``extra`` tables appended."""
+    lines = DEFAULT.splitlines()
+    for start, new in replace.items():
+        lines = [new if ln.startswith(start) else ln for ln in lines]
+    path = tmp_path / "c.toml"
+    path.write_text("\n".join(lines) + "\n" + extra)
+    return str(path)
+
+
+def _refused(capsys, args, out) -> str:
+    """Run ``bmctl design`` expecting exit 2 with one line and nothing written; returns the line."""
+    rc = main(["design", str(CARD), *args, "--plant-seeds", "0", "--out", str(out)])
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert rc == 2, err
+    assert len(lines) == 1 and lines[0].startswith("bmctl: error: "), err
+    assert "Traceback" not in err
+    assert not out.exists()
+    return lines[0]
+
+
+@pytest.mark.parametrize("objective", [[], ["--objective", "min_energy"]])
+def test_an_empty_sweep_is_refused_naming_the_field(tmp_path, capsys, objective):
+    ctrl = _controller(tmp_path, '\n[objective]\nkind = "min_time"\nsweep = []\n')
+    line = _refused(capsys, ["--target", "d50_um=50", "--controller", ctrl, "--hours", "2", *objective],
+                    tmp_path / "o")
+    assert "objective.sweep" in line and "at least one" in line
+
+
+def test_a_swept_batch_shorter_than_a_control_interval_is_refused(tmp_path, capsys):
+    ctrl = _controller(tmp_path, '\n[objective]\nkind = "min_time"\nsweep = [1e-9]\n')
+    line = _refused(capsys, ["--target", "d50_um=50", "--controller", ctrl, "--hours", "2"], tmp_path / "o")
+    assert "objective.sweep" in line and "interval_h = 0.5 h" in line
+
+
+@pytest.mark.parametrize("hours", ["0.001", "0.02", "0.49"])
+def test_hours_shorter_than_the_control_interval_are_refused(tmp_path, capsys, hours):
+    """A batch under one 0.5 h interval wrote segments of seconds (`simulate` refused them) and under
+    the mill's 5 min minimum milling period."""
+    line = _refused(capsys, ["--target", "d50_um=50", "--hours", hours], tmp_path / "o")
+    assert line.startswith("bmctl: error: --hours: ") and "control interval" in line
+
+
+def test_a_ceiling_at_or_below_the_card_ambient_is_refused(tmp_path, capsys):
+    for ceiling in ("20.0", "25.0"):
+        ctrl = _controller(tmp_path, **{"ceiling_c": f"ceiling_c = {ceiling}"})
+        line = _refused(capsys, ["--target", "d50_um=50", "--controller", ctrl, "--hours", "1"], tmp_path / "o")
+        assert "temperature.ceiling_c" in line and "ambient" in line and "25 °C" in line
+
+
+def test_check_ceiling_passes_a_controller_without_a_ceiling():
+    from types import SimpleNamespace as NS
+
+    from bmctl.control.config import check_ceiling, load_controller
+
+    card = NS(thermal=NS(ambient_C=25.0))
+    check_ceiling(load_controller(ROOT / "controllers" / "recipe-400rpm-30-10.toml"), card, "r.toml")
+    check_ceiling(load_controller(ROOT / "controllers" / "mpc-default.toml"), card, "m.toml")
+
+
+def test_design_writes_all_of_its_outputs_or_none(tmp_path, capsys, monkeypatch):
+    """Ctrl-C while the figure is drawn (the last of the three) leaves no schedule.toml or predicted.csv."""
+    import bmctl.control.design as design
+
+    def interrupted(d, path):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(design, "design_figure", interrupted)
+    out = tmp_path / "o"
+    rc = main(["design", str(CARD), "--target", "d50_um=42", "--hours", "1", "--plant-seeds", "0",
+               "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 130, err
+    assert not (out / "schedule.toml").exists() and not (out / "predicted.csv").exists()
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_target_design_says_when_the_schedule_is_done(tmp_path, capsys):
+    """d50 42 µm is reached after minutes of milling: the schedule (its trailing rest not written) is
+    done long before the 1 h batch, and both the summary and schedule.toml say so."""
+    out = tmp_path / "o"
+    assert main(["design", str(CARD), "--target", "d50_um=42", "--hours", "1", "--plant-seeds", "0",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    done = float(text.split("the schedule is done after ")[1].split(" h")[0])
+    header = (out / "schedule.toml").read_text().splitlines()[0]
+    written = sum(float(ln.split("=")[1].split("#")[0]) for ln in (out / "schedule.toml").read_text().splitlines()
+                  if ln.startswith("hours ="))
+    assert done == pytest.approx(written, abs=0.005) and done < 1.0
+    assert "1 h is the batch length it was designed for" in text
+    assert f"the schedule is done after {done:.2f} h" in header
+
+
+def test_family_switches_are_counted_as_in_the_written_schedule():
+    """The search's best cycled schedule (8 bursts over 4 h) is written without its trailing rest:
+    its family line and the design's summary count the same 14 on/off switches."""
+    from bmctl.control import load_controller
+    from bmctl.control.design import design_schedule
+    from bmctl.control.mill import count_switches
+    from bmctl.moments.model import make_moment_model
+
+    model = make_moment_model(CARD)
+    cfg = load_controller(ROOT / "controllers" / "mpc-default.toml")
+    d = design_schedule(model, {"s_mean_um": 35.0}, 4.0, cfg, local=False)
+    fam = d.reach.per_family[d.search.family]
+    assert fam["switches"] == d.result.switches == count_switches(d.segments)
+    line = next(ln for ln in d.reach.family_lines() if ln.strip().startswith(d.search.family))
+    assert f"{d.result.switches:2d} switches" in line
