@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
 
 # bmctl's matrices are small: BLAS worker threads only spin (a 12 h MPC trial: 8.3 s CPU for 6.7 s
@@ -124,6 +125,7 @@ def _chosen(argv: list[str]) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status (0 ok, 2 bad input, 130 interrupted, 141 output pipe closed)."""
     try:
+        own_process = argv is None
         if argv is None:  # the bmctl command's own process: the numpy field's heap setting
             from .moments.npfield import keep_heap
 
@@ -136,6 +138,8 @@ def main(argv: list[str] | None = None) -> int:
         set_budget(getattr(args, "budget_cpu_h", None), getattr(args, "budget_memory_gb", None))
         rc = int(args._run(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        if own_process:  # the work is done: a Ctrl-C while Python tears down would end it as 130, silently
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
         return rc
     except InputError as exc:
         print(f"bmctl: error: {one_line(str(exc))}", file=sys.stderr)

@@ -80,7 +80,7 @@ def _plant_card(sc: Scenario, base: Path) -> ModelCard:
 def _model_and_controller(sc: Scenario, base: Path):
     """The moment model and the controller of a scenario (no random state: rebuilt on resume)."""
     from .control import make_controller
-    from .control.config import load_controller, validate_controller
+    from .control.config import check_ceiling, load_controller, validate_controller
     from .moments.forcard import for_card
 
     model = for_card(resolve(sc.model, base))  # this card's coefficients; constants cached on disk (modelcache)
@@ -90,6 +90,9 @@ def _model_and_controller(sc: Scenario, base: Path):
         d = cfg.model_dump()
         d["temperature"]["ceiling_c"] = sc.temperature_max_c
         cfg = validate_controller(d, str(cfg_path))
+        check_ceiling(cfg, model.card, "the scenario", field="temperature_max_c")
+    else:
+        check_ceiling(cfg, model.card, str(cfg_path))
     controller = make_controller(cfg, model)
     if sc.target:
         controller.set_target(dict(sc.target), t_end_h=sc.hours)

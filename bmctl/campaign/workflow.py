@@ -409,7 +409,7 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         The campaign's meta data.
     """
     from ..config import load_card
-    from ..control.config import load_controller
+    from ..control.config import check_ceiling, load_controller
     from ..moments.coeffs import coeffs_path
 
     card_p, ctrl_p = Path(model), Path(controller)
@@ -425,6 +425,11 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         raise InputError(f"--target: a feedback controller ({cfg.kind}) needs a target")
     H = float(card.process.hours) if hours is None else _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)
     Tmax = None if temperature_max_c is None else _finite(temperature_max_c, "--temperature-max-c", -50, 400)
+    if Tmax is not None and Tmax <= card.thermal.ambient_C:
+        raise InputError(f"--temperature-max-c: {Tmax:g} °C is not above the card's ambient temperature "
+                         f"(thermal.ambient_C = {card.thermal.ambient_C:g} °C): a resting vial is already at the ambient")
+    if Tmax is None:
+        check_ceiling(cfg, card, str(ctrl_p))
     if int(particles) < 50:
         raise InputError(f"--particles: must be >= 50 (got {particles})")
     if estimator is not None:

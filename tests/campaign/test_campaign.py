@@ -588,3 +588,9 @@ def test_the_readme_walkthrough_says_why_it_rests_not_that_the_target_is_out_of_
     out = capsys.readouterr().out
     assert "binding: vial-temperature ceiling (60 °C) now:" in out
     assert "why: target d50_um = 45: not judged at this advice" in out and "NOT reachable" not in out
+
+
+def test_a_ceiling_below_the_ambient_is_refused_at_init(tmp_path):
+    with pytest.raises(InputError, match="--temperature-max-c: 20 °C is not above the card's ambient"):
+        _init(tmp_path / "c", temperature_max_c=20.0)
+    assert not (tmp_path / "c").exists()

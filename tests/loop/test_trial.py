@@ -209,3 +209,13 @@ def test_a_scenario_name_never_leads_the_default_output_out_of_out(tmp_path, mon
     made = [p.name for p in (tmp_path / "sub" / "out").iterdir()]
     assert made == ["trial-esc-seed0"], made
     assert sorted(p.name for p in tmp_path.iterdir()) == ["esc.toml", "sub"]
+
+
+def test_a_scenario_ceiling_below_the_ambient_is_refused(small, tmp_path, capsys):
+    sc = tmp_path / "s.toml"
+    sc.write_text(small.read_text().replace('hours = 2\n', 'hours = 2\ntemperature_max_c = 20.0\n'))
+    assert "temperature_max_c = 20.0" in sc.read_text()
+    assert main(["trial", str(sc), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "temperature_max_c: 20 °C is not above the card's ambient" in err[0], err
+    assert not (tmp_path / "o").exists()
