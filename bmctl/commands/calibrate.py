@@ -44,7 +44,7 @@ def run(args) -> int:
     from ..calibrate.run import run_calibration
     from ..config import load_card
     from ..io import name_part
-    from ..parallel import client_for, close_client
+    from ..parallel import cap_workers, client_for, close_client
 
     out = output_path(args.out)
     card = load_card(args.model)
@@ -61,7 +61,9 @@ def run(args) -> int:
     check_work(add(calibrate_work(card, histories, len(names), args.particles, args.replicates, settings.max_iter),
                    identify_work(card, args.seed)), "--particles/--replicates/HISTORY.toml (and the calibrated "
                "card's identification)")
-    client = client_for(args.scheduler, args.workers)
+    runs_at_once = (2 * len(names) + 1) * args.replicates * len(histories)  # a central-difference Jacobian's runs
+    workers = args.workers if args.workers is None or args.scheduler else cap_workers(args.workers, runs_at_once)
+    client = client_for(args.scheduler, workers)
     bar = tqdm(desc="plant runs", unit="run", total=None, leave=False)
     t0 = time.perf_counter()
     try:
