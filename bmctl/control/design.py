@@ -499,15 +499,23 @@ def schedule_toml(d: Design) -> str:
 
 
 def predicted_csv(d: Design) -> str:
+    """The design's ``predicted.csv``: a row per segment start (and the batch end), the action over
+    it, the moment-model state, and the target (``target_K``, or ``target_K_lo``/``_hi`` for a window)."""
+    from .config import target_bounds
+
+    tcols, tvals = [], []
+    for key, value in d.target.items():
+        lo, hi = target_bounds(value)
+        tcols += [f"target_{key}"] if lo == hi else [f"target_{key}_lo", f"target_{key}_hi"]
+        tvals += [lo] if lo == hi else [lo, hi]
     header = ["t_h", "rpm", "milling", "t_peak_c", "s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c",
-              "hardening"] + [f"target_{k}" for k in d.target]
-    from .config import target_centre
+              "hardening"] + tcols
     rows = []
     t = d.times_h
     for k in range(d.X.shape[0]):
         # each row: a segment's start state and the action over it; the last row, the batch end, has none (empty)
         act = [float(d.U[k, 0]), float(d.U[k, 1]), float(d.t_peak_c[k])] if k < d.U.shape[0] else ["", "", ""]
-        rows.append([float(t[k]), *act, *map(float, d.X[k])] + [target_centre(v) for v in d.target.values()])
+        rows.append([float(t[k]), *act, *map(float, d.X[k])] + tvals)
     return csv_text(header, rows)
 
 

@@ -122,3 +122,21 @@ def test_family_switches_are_counted_as_in_the_written_schedule():
     assert fam["switches"] == d.result.switches == count_switches(d.segments)
     line = next(ln for ln in d.reach.family_lines() if ln.strip().startswith(d.search.family))
     assert f"{d.result.switches:2d} switches" in line
+
+
+def test_predicted_csv_gives_a_window_target_as_its_bounds():
+    """A window target was written as its middle (60 for 55:65), a value the design never aimed at."""
+    import numpy as np
+
+    from bmctl.control.design import predicted_csv
+
+    class D:
+        target = {"d50_um": (55.0, 65.0), "r_mean": 0.05}
+        times_h = np.array([0.0, 1.0])
+        X = np.zeros((2, 6))
+        U = np.array([[300.0, 1.0]])
+        t_peak_c = np.array([40.0])
+
+    head, first = predicted_csv(D).splitlines()[:2]
+    assert head.endswith("target_d50_um_lo,target_d50_um_hi,target_r_mean")
+    assert first.split(",")[-3:] == ["55", "65", "0.05"]
