@@ -269,8 +269,8 @@ def _misfit(template, value, path: str = "") -> str | None:
             return f"{where}: expected a list"
         for i, v in enumerate(value):
             t = template[i] if i < len(template) else (template[0] if template else None)
-            why = _misfit(t, v, f"{path}/{i}") if (template or not isinstance(v, (dict, list, np.ndarray))) else \
-                f"{where}/{i}: unexpected item"
+            why = _misfit(t, v, f"{path}/{i}") if template else \
+                (None if _finite_numbers(v) else f"{where}/{i}: unexpected item")  # a list a fresh loop holds empty
             if why:
                 return why
         return None

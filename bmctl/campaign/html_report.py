@@ -415,5 +415,6 @@ def html_page(c) -> str:
 
 def write_report(c, path: Path) -> Path:
     """Write the report atomically; returns ``path``."""
-    io.write_text(path, html_page(c))
+    page = html_page(c)  # a path stored before names were kept printable may hold bytes that are not UTF-8
+    io.write_text(path, page.encode("utf-8", "backslashreplace").decode("utf-8"))
     return path

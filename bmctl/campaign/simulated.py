@@ -45,10 +45,15 @@ class _NoEstimator:
 def check_scenario(sc, path) -> None:
     """Refuse (one line) a scenario whose trial a campaign cannot reproduce: a campaign's
     estimator is the particle filter (its settings, the scenario's ``[estimator.pf]``, are recorded
-    in the campaign)."""
+    in the campaign), and its targets are single values."""
     if sc.estimator.kind != "pf":
         raise InputError(f"{path}: estimator.kind: a campaign runs the particle filter, not {sc.estimator.kind!r} "
                          "(drop --campaign to run this trial)")
+    for key, value in dict(sc.target).items():
+        if isinstance(value, (list, tuple)):
+            lo, hi = (float(v) for v in value)
+            raise InputError(f"{path}: target.{key}: a campaign steers to one value, not a window (e.g. {key} = "
+                             f"{(lo + hi) / 2:g}); drop --campaign to run the window")
 
 
 def trial_steps(scenario_path, folder, seed: int = 0):

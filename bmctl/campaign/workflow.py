@@ -572,7 +572,7 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
             raise InputError(f"--at-h {at_h:g}: after the batch end ({c.meta['hours']:g} h)")
         with db.transaction(c.con, where=str(folder)):
             summ = table.summary()
-            srcs = [str(i) if not hasattr(i, "s_um") else "(table)" for i in inputs]
+            srcs = [path_text(i) if not hasattr(i, "s_um") else "(table)" for i in inputs]
             cur = c.con.execute("INSERT INTO samples (t_h, sources, um_per_px, n, s_median_um, r_median, report, "
                                 "logged_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                                 (at_h, json.dumps(srcs), um_per_px, len(table), summ["s_median_um"],

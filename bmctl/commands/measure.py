@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import output_path
+from ._args import float_arg, output_path
 
 #: default --min-area-px; equals bmctl.measure.segment.MIN_AREA_PX (a test checks), kept here so that
 #: building the parser does not import the image stack
@@ -32,6 +32,8 @@ def _min_area(text: str):
     if text == "auto":
         return "auto"
     try:
+        if "_" in text:  # int() reads "4_0" as 40
+            raise ValueError
         v = int(text)
     except ValueError:
         raise InputError(f"--min-area-px: expected a number of px or 'auto' (got {text!r})") from None
@@ -43,8 +45,8 @@ def _min_area(text: str):
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``measure`` arguments."""
     parser.add_argument("inputs", nargs="+", metavar="IMAGE", help="micrograph(s) (png/tif/...) or particle table(s) (.csv)")
-    parser.add_argument("--um-per-px", type=float, default=None, metavar="X", help="pixel size in micrometres (overrides the image metadata)")
-    parser.add_argument("--scale-bar-um", type=float, default=None, metavar="L",
+    parser.add_argument("--um-per-px", type=float_arg("--um-per-px"), default=None, metavar="X", help="pixel size in micrometres (overrides the image metadata)")
+    parser.add_argument("--scale-bar-um", type=float_arg("--scale-bar-um"), default=None, metavar="L",
                         help="length of the scale bar on the image, in µm (used when the metadata has no pixel size)")
     parser.add_argument("--out", default=None, metavar="CSV", help="write the pooled particle table here (overlays and measure.json beside it)")
     parser.add_argument("--min-area-px", type=_min_area, default="auto", metavar="N",

@@ -34,7 +34,7 @@ TARGET_RANGE = {"s_mean_um": (1e-3, 1e5), "s_std_um": (0.0, 1e5), "r_mean": (0.0
 
 
 def check_dvalue_order(target: dict, source: str) -> None:
-    """D90 above D50 where a target names both (a window: its lowest D90 above the highest D50).
+    """D90 above D50 where a target names both (windows: some D90 of its window above some D50 of its).
 
     >>> check_dvalue_order({"d50_um": 45.0, "d90_um": 40.0}, "--target")
     Traceback (most recent call last):
@@ -42,9 +42,9 @@ def check_dvalue_order(target: dict, source: str) -> None:
     bmctl.errors.InputError: --target: d90_um (40) must be above d50_um (45): no size law has D90 <= D50
     """
     if "d50_um" in target and "d90_um" in target:
-        d50_hi = target_bounds(target["d50_um"])[1]
-        d90_lo = target_bounds(target["d90_um"])[0]
-        if d90_lo <= d50_hi:
+        d50_lo = target_bounds(target["d50_um"])[0]
+        d90_hi = target_bounds(target["d90_um"])[1]
+        if d90_hi <= d50_lo:  # no D90 of the window above any D50 of its window
             raise InputError(f"{source}: d90_um ({format_target(target['d90_um'])}) must be above d50_um "
                              f"({format_target(target['d50_um'])}): no size law has D90 <= D50")
 

@@ -231,11 +231,15 @@ def design_one(model, target: dict, hours: float, cfg, p=None, method: str = "re
     return best, res_l, sr
 
 
+#: the shortest batch design plans (min): its schedule is written in whole minutes
+BATCH_MIN_MIN = 5.0
+
+
 def check_batch(hours: float, cfg: MPCConfig, objective: str | None = None, hours_source: str = "hours",
                 cfg_source: str = "controller") -> None:
-    """Refuse a batch, or a batch length of the min_time / min_energy sweep, shorter than one control
-    interval: its schedule would be a fraction of the grid (segments of seconds, under the mill's
-    minimum milling period, that ``bmctl simulate --schedule`` refuses).
+    """Refuse a batch, or a batch length of the min_time / min_energy sweep, shorter than the mill's
+    minimum milling period (and :data:`BATCH_MIN_MIN`): its schedule would be segments of seconds,
+    under that period, that ``bmctl simulate --schedule`` refuses.
 
     Parameters
     ----------
@@ -252,26 +256,28 @@ def check_batch(hours: float, cfg: MPCConfig, objective: str | None = None, hour
     --------
     >>> from bmctl.control.config import validate_controller
     >>> cfg = validate_controller({"kind": "mpc", "interval_h": 0.5}, "c.toml")
-    >>> check_batch(0.5, cfg)
-    >>> check_batch(0.02, cfg, hours_source="--hours", cfg_source="c.toml")
+    >>> check_batch(0.25, cfg), check_batch(1.0, cfg, "min_time")
+    (None, None)
+    >>> check_batch(0.02, cfg, hours_source="--hours", cfg_source="c.toml")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    bmctl.errors.InputError: --hours: a batch of 0.02 h (1.2 min) is shorter than one control interval of c.toml (interval_h = 0.5 h)
-    >>> check_batch(1.0, cfg, "min_time", "--hours", "c.toml")
+    bmctl.errors.InputError: --hours: a batch of 0.02 h (1.2 min) is shorter than the 5 min a schedule of whole minutes needs ...
+    >>> check_batch(0.1, cfg, "min_time", "--hours", "c.toml")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    bmctl.errors.InputError: c.toml: objective.sweep: 0.25 of --hours 1 h is a batch of 15 min, shorter than one control interval (interval_h = 0.5 h)
+    bmctl.errors.InputError: c.toml: objective.sweep: 0.25 of --hours 0.1 h is a batch of 1.5 min, shorter than ...
     """
-    step = float(cfg.interval_h)
-    if hours < step - 1e-9:
-        raise InputError(f"{hours_source}: a batch of {hours:g} h ({hours * 60:.3g} min) is shorter than one control "
-                         f"interval of {cfg_source} (interval_h = {step:g} h)")
+    shortest = max(BATCH_MIN_MIN, float(cfg.mill.min_mill_min)) / 60.0  # h
+    why = (f"shorter than the {shortest * 60:g} min a schedule of whole minutes needs (the mill's minimum milling "
+           f"period in {cfg_source}, at least {BATCH_MIN_MIN:g} min)")
+    if hours < shortest - 1e-9:
+        raise InputError(f"{hours_source}: a batch of {hours:g} h ({hours * 60:.3g} min) is {why}")
     if (objective or cfg.objective.kind) == "target":
         return
     frac = min(cfg.objective.sweep)
-    if hours * frac < step - 1e-9:
+    if hours * frac < shortest - 1e-9:
         raise InputError(f"{cfg_source}: objective.sweep: {frac:g} of {hours_source} {hours:g} h is a batch of "
-                         f"{hours * frac * 60:.3g} min, shorter than one control interval (interval_h = {step:g} h)")
+                         f"{hours * frac * 60:.3g} min, {why}")
 
 
 def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, objective: str | None = None,

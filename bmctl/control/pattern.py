@@ -298,7 +298,8 @@ class PatternDesigner:
                    for w in range(STARTS if threads > 1 else 1)]
 
         def start(which):
-            r = solvers[which % len(solvers)](x0=self._guess(which), lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
+            with keep_interrupts():  # in the main thread (a serial start); elsewhere the main thread sees Ctrl-C
+                r = solvers[which % len(solvers)](x0=self._guess(which), lbx=lbx, ubx=ubx, lbg=self.lbg, ubg=self.ubg)
             return float(r["f"]), np.asarray(r["x"], float).ravel()
 
         if threads == 1:

@@ -61,6 +61,9 @@ def test_target_parse_errors():
         tg.parse("s_mean_um=1e-320")
     with pytest.raises(InputError, match="D90 <= D50"):
         tg.parse("d50_um=45,d90_um=40")
+    from bmctl.control.config import parse_target
+
+    assert parse_target("d50_um=45,d90_um=40:60") == {"d50_um": 45.0, "d90_um": (40.0, 60.0)}  # D90 in (45, 60] meets it
 
 
 # --- the log -----------------------------------------------------------------------------------
@@ -512,7 +515,9 @@ def test_a_micrograph_under_a_path_that_is_not_utf8_is_sampled(fresh_campaign, t
     odd = tmp_path / os.fsdecode(b"bad\xff\xfename")
     odd.mkdir()
     shutil.copy(ROOT / "examples" / "micrograph-2h.tif", odd / "m.tif")
+    shutil.copy(ROOT / "examples" / "samples" / "lab-300rpm-0p5h.csv", odd / "t.csv")
     assert main(["campaign", "sample", str(d), "--at-h", "0", str(odd / "m.tif")]) == 0, capsys.readouterr().err
+    assert main(["campaign", "sample", str(d), "--at-h", "0", str(odd / "t.csv")]) == 0, capsys.readouterr().err
     assert main(["campaign", "report", str(d), "--out", str(tmp_path / "r.html")]) == 0
 
 

@@ -68,3 +68,20 @@ def test_trial_campaign_refusals_are_one_line(tmp_path, capsys):
     assert not (tmp_path / "u" / "campaign").exists()
     assert main(["trial", str(sc), "--campaign", "--seed", "x", "--no-progress"]) == 2
     assert capsys.readouterr().err.count("\n") == 1
+
+
+def test_a_window_target_is_refused_before_anything_is_written(tmp_path, capsys):
+    """A campaign steers to one value: `trial --campaign` of a window once failed inside the campaign
+    with "target: d50_um: not a number ((40.0, 50.0))" after writing trial.json."""
+    from bmctl.cli import main
+
+    from .scenarios import lqr_scenario
+
+    sc = lqr_scenario(tmp_path / "s.toml")
+    sc.write_text(sc.read_text().replace("target = { s_mean_um = 40.0 }", "target = { d50_um = [40.0, 50.0] }"))
+    assert "[40.0, 50.0]" in sc.read_text()
+    out = tmp_path / "o"
+    assert main(["trial", str(sc), "--campaign", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "target.d50_um: a campaign steers to one value, not a window (e.g. d50_um = 45)" in err[0]
+    assert not out.exists()

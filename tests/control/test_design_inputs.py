@@ -46,15 +46,16 @@ def test_an_empty_sweep_is_refused_naming_the_field(tmp_path, capsys, objective)
 def test_a_swept_batch_shorter_than_a_control_interval_is_refused(tmp_path, capsys):
     ctrl = _controller(tmp_path, '\n[objective]\nkind = "min_time"\nsweep = [1e-9]\n')
     line = _refused(capsys, ["--target", "d50_um=50", "--controller", ctrl, "--hours", "2"], tmp_path / "o")
-    assert "objective.sweep" in line and "interval_h = 0.5 h" in line
+    assert "objective.sweep" in line and "shorter than the 5 min" in line
 
 
-@pytest.mark.parametrize("hours", ["0.001", "0.02", "0.49"])
-def test_hours_shorter_than_the_control_interval_are_refused(tmp_path, capsys, hours):
-    """A batch under one 0.5 h interval wrote segments of seconds (`simulate` refused them) and under
-    the mill's 5 min minimum milling period."""
+@pytest.mark.parametrize("hours", ["0.001", "0.02", "0.08"])
+def test_hours_shorter_than_the_minimum_milling_period_are_refused(tmp_path, capsys, hours):
+    """A batch of a minute or so wrote segments of seconds (`simulate` refused them), under the
+    mill's 5 min minimum milling period; a batch shorter than one interval but longer than that
+    (0.25 h of a min_time sweep of 1 h) is designed."""
     line = _refused(capsys, ["--target", "d50_um=50", "--hours", hours], tmp_path / "o")
-    assert line.startswith("bmctl: error: --hours: ") and "control interval" in line
+    assert line.startswith("bmctl: error: --hours: ") and "shorter than the 5 min" in line
 
 
 def test_a_ceiling_at_or_below_the_card_ambient_is_refused(tmp_path, capsys):

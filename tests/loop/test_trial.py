@@ -159,7 +159,8 @@ def test_a_default_controller_trial_resumes_to_the_uninterrupted_trajectory(tmp_
     sc = tmp_path / "s.toml"
     sc.write_text(text)
     whole = run_trial(sc, tmp_path / "whole", seed=3)
-    assert run_trial(sc, tmp_path / "cut", seed=3, max_steps=1) == {"interrupted_at_step": 1}
+    # three steps in: the planner's history holds entries a fresh loop holds none of
+    assert run_trial(sc, tmp_path / "cut", seed=3, max_steps=3) == {"interrupted_at_step": 3}
     resumed = run_trial(sc, tmp_path / "cut", seed=3, resume=True)
     assert resumed["final_true"] == whole["final_true"] and resumed["final_estimate"] == whole["final_estimate"]
     rows = lambda p: [r.split(",")[:-4] for r in _rows(p / "trajectory.csv")]  # solve times aside

@@ -389,3 +389,13 @@ def test_trailing_empty_fields_of_a_spreadsheet_export_are_read(tmp_path):
     p = tmp_path / "t.csv"
     p.write_text("s_um,r\n40,0.1,,\n50,0.2,\n")
     assert read_table(p).s_um.tolist() == [40.0, 50.0]
+
+
+@pytest.mark.parametrize("flag, value", [("--um-per-px", "1_0"), ("--scale-bar-um", "1_00"), ("--min-area-px", "4_0")])
+def test_measure_flags_refuse_underscored_numbers(tmp_path, capsys, flag, value):
+    """Python reads "1_0" as 10: `measure` took it as 10 µm/px while every other command refused it."""
+    root = Path(__file__).resolve().parents[2]
+    rc = main(["measure", str(root / "examples" / "micrograph-2h.tif"), flag, value, "--out", str(tmp_path / "t.csv")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and flag in err[0], err
+    assert not (tmp_path / "t.csv").exists()
