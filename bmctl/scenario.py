@@ -129,6 +129,13 @@ def load_scenario(path: str | Path) -> Scenario:
     from .control.config import load_controller
 
     cfg = load_controller(resolve(sc.controller.config, base))
+    if sc.temperature_max_c is not None:  # named here, with the file (the trial checks the controller's own)
+        from .config import load_card
+
+        ambient = load_card(resolve(sc.model, base)).thermal.ambient_C
+        if sc.temperature_max_c <= ambient:
+            raise InputError(f"{path}: temperature_max_c: {sc.temperature_max_c:g} °C is not above the card's ambient "
+                             f"temperature (thermal.ambient_C = {ambient:g} °C): a resting vial is already at the ambient")
     if cfg.kind != "recipe" and not sc.target:
         raise InputError(f"{path}: target: a feedback controller ({cfg.kind}) needs at least one target")
     return sc

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -99,6 +100,12 @@ def run(args: argparse.Namespace) -> int:
         output_path(args.out, folder=False)
     tables, locs, lines, results, reports, warned = [], [], [], [], [], []
     next_id = 1
+    seen = set()
+    for path in args.inputs:  # one image twice would be counted twice (campaign sample refuses it too)
+        key = os.path.realpath(path)
+        if key in seen:
+            raise InputError(f"{path_text(path)}: given twice (each image or table is one part of the sample)")
+        seen.add(key)
     for path in args.inputs:
         name = path_text(path)  # printed and in the table: bytes that are not UTF-8 as escapes
         if _is_table(path):

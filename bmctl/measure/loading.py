@@ -187,6 +187,8 @@ def as_gray_float(img, name: str = "image") -> np.ndarray:
         raise InputError(f"{name}: pixel type {img.dtype} is not supported (expected integer or real gray or colour values)")
     if img.ndim == 4 and img.shape[0] == 1:  # one frame of an animation format
         img = img[0]
+    elif img.ndim == 3 and img.shape[0] == 1 and img.shape[-1] > 4:  # one gray frame (a GIF, a one-page stack)
+        img = img[0]
     if img.ndim == 3 and img.shape[-1] in (2, 3, 4):
         img = _opaque(img, name)
         img = img.astype(float).mean(axis=-1) if img.dtype.kind == "f" else _scale_int(img).mean(axis=-1)

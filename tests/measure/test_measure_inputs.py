@@ -214,3 +214,24 @@ def test_tifffile_log_lines_are_silenced(capsys, caplog, tmp_path):
     assert rc == 2
     _one_error_line(err, str(tmp_path / "h.tif"))
     assert not [r for r in caplog.records if r.name.startswith("tifffile")]  # tifffile would print them to stderr
+
+
+def test_a_gray_frame_stored_with_a_leading_axis_is_one_image(tmp_path):
+    """A one-page TIFF written as 1 x H x W (and some gray GIFs, read that way) was refused as
+    "not a 2-D gray or colour image (shape (1, H, W))"."""
+    import tifffile
+
+    gray = (_discs() * (255 // max(int(_discs().max()), 1))).astype(np.uint8)
+    tifffile.imwrite(tmp_path / "page.tif", gray[None])
+    Image.fromarray(gray, mode="L").save(tmp_path / "gray.gif")
+    for name in ("page.tif", "gray.gif"):
+        assert load_image(tmp_path / name).shape == gray.shape, name
+
+
+def test_one_image_given_twice_is_not_measured_twice(tmp_path, capsys):
+    Image.fromarray(_discs()).convert("L").save(tmp_path / "m.png")
+    rc = main(["measure", str(tmp_path / "m.png"), str(tmp_path / "m.png"), "--um-per-px", "0.5",
+               "--out", str(tmp_path / "t.csv")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "given twice" in err[0], err
+    assert not (tmp_path / "t.csv").exists()
