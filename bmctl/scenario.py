@@ -54,12 +54,25 @@ class EstimatorSpec(Strict):
     def _settings_valid(self):
         from pydantic import ValidationError
 
+        from .config import unknown_key_message
+
+        other = "ukf" if self.kind == "pf" else "pf"
+        if getattr(self, other):  # settings of the estimator not chosen would be ignored without a word
+            raise ValueError(f"{other}: settings of the {other} estimator, but estimator.kind is {self.kind!r}")
         try:
-            self.filter_settings()
+            settings = self.filter_settings()
         except ValidationError as exc:
-            err = exc.errors()[0]
+            errs = exc.errors()
+            err = next((e for e in errs if e["type"] == "extra_forbidden"), errs[0])
             where = ".".join(str(x) for x in err["loc"])
+            if err["type"] == "extra_forbidden":  # a typo: name the close setting
+                from .estimate import FilterSettings
+                from .estimate.ukf import UKFSettings
+
+                known = (UKFSettings if self.kind == "ukf" else FilterSettings).model_fields
+                raise ValueError(f"{self.kind}.{where}: {unknown_key_message(str(err['loc'][-1]), known)}") from None
             raise ValueError(f"{self.kind}.{where}: {err['msg']}") from None
+        del settings
         return self
 
     def filter_settings(self):

@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from bmctl.cli import main
+from bmctl.errors import InputError
 from bmctl.trial import run_trial, trajectory_header
 
 from ..conftest import ROOT
@@ -220,3 +221,22 @@ def test_a_scenario_ceiling_below_the_ambient_is_refused(small, tmp_path, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "temperature_max_c: 20 °C is not above the card's ambient" in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("table, said", [
+    ('[estimator.pf]\nadapt_rat = 0.5\n', "pf.adapt_rat: unknown field (did you mean adapt_rate?)"),
+    ('[estimator.pf]\nadapt_rate = 0.5\n', None),
+])
+def test_estimator_settings_name_typos_and_refuse_the_unused_table(small, tmp_path, capsys, table, said):
+    from bmctl.scenario import load_scenario
+
+    sc = tmp_path / "s.toml"
+    sc.write_text(small.read_text().replace("[controller]", table + "[controller]"))
+    if said:
+        with pytest.raises(InputError, match=__import__("re").escape(said)):
+            load_scenario(sc)
+    else:
+        load_scenario(sc)
+        sc.write_text(sc.read_text().replace("[estimator]\n", '[estimator]\nkind = "ukf"\n'))
+        with pytest.raises(InputError, match="settings of the pf estimator, but estimator.kind is 'ukf'"):
+            load_scenario(sc)
