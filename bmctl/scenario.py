@@ -109,7 +109,11 @@ class Scenario(Strict):
     def _check(self):
         for k in self.target:
             if k not in TARGET_KEYS:
-                raise ValueError(f"target.{k}: unknown target; choose from {', '.join(TARGET_KEYS)}")
+                from .config import close_key
+
+                hint = close_key(str(k), TARGET_KEYS)
+                raise ValueError(f"target.{k}: unknown target{f' (did you mean {hint}?)' if hint else ''}; choose from "
+                                 f"{', '.join(TARGET_KEYS)}")
             v = self.target[k]
             if isinstance(v, list):
                 if len(v) != 2 or v[0] > v[1]:

@@ -31,6 +31,14 @@ def known_keys() -> tuple[str, ...]:
     return tuple(dict.fromkeys(tuple(TARGET_KEYS) + tuple(TARGETS)))
 
 
+def _did_you_mean(key: str, known) -> str:
+    """`` (did you mean X?)`` for a key close to a known one, else empty."""
+    from ..config import close_key
+
+    hint = close_key(key, known)
+    return f" (did you mean {hint}?)" if hint else ""
+
+
 def parse(text: str, where: str = "--target") -> dict[str, float]:
     """``"d50_um=45,r_mean=0.05"`` -> dict; unknown keys and non-positive values are InputErrors."""
     out: dict[str, float] = {}
@@ -42,7 +50,7 @@ def parse(text: str, where: str = "--target") -> dict[str, float]:
             raise InputError(f"{where}: expected key=value, got {item!r}")
         k, v = (s.strip() for s in item.split("=", 1))
         if k not in known_keys():
-            raise InputError(f"{where}: unknown target {k!r} (one of {', '.join(known_keys())})")
+            raise InputError(f"{where}: unknown target {k!r}{_did_you_mean(k, known_keys())} (one of {', '.join(known_keys())})")
         if k in out:
             raise InputError(f"{where}: {k} given twice")
         if ":" in v:  # design and trial scenarios take windows; a campaign steers to one value

@@ -61,6 +61,8 @@ def test_target_parse_errors():
         tg.parse("s_mean_um=1e-320")
     with pytest.raises(InputError, match="D90 <= D50"):
         tg.parse("d50_um=45,d90_um=40")
+    with pytest.raises(InputError, match=r"unknown target 's_maen_um' \(did you mean s_mean_um\?\)"):
+        tg.parse("s_maen_um=40")
     from bmctl.control.config import parse_target
 
     assert parse_target("d50_um=45,d90_um=40:60") == {"d50_um": 45.0, "d90_um": (40.0, 60.0)}  # D90 in (45, 60] meets it
