@@ -175,8 +175,11 @@ def test_cli_overlay_columns_and_ids(capsys, tmp_path):
     m = render_micrograph(np.random.default_rng(21), n=20, shape=(200, 200), s_px=(16, 28))
     p = tmp_path / "syn.png"
     io.imsave(p, (m.image * 255).astype(np.uint8), check_contrast=False)
+    (tmp_path / "b").mkdir()
+    q = tmp_path / "b" / "syn.png"  # another file of the same name (one file twice is refused: counted twice)
+    q.write_bytes(p.read_bytes())
     out = tmp_path / "o" / "p.csv"
-    rc, _, err = _cli(capsys, ["measure", str(p), str(p), "--um-per-px", "0.5", "--out", str(out)])
+    rc, _, err = _cli(capsys, ["measure", str(p), str(q), "--um-per-px", "0.5", "--out", str(out)])
     assert rc == 0, err
     rows = [ln.split(",") for ln in out.read_text().splitlines()]
     assert rows[0][:4] == ["particle_id", "image", "x_um", "y_um"]
