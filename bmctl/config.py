@@ -318,6 +318,16 @@ def close_key(key: str, known) -> str | None:
     return found[0] if found else None
 
 
+def did_you_mean(key, known) -> str:
+    """`` (did you mean X?)`` for a key close to a known one (:func:`close_key`), else empty.
+
+    >>> did_you_mean("s_maen_um", ["s_mean_um", "r_mean"]), did_you_mean("colour", ["r_mean"])
+    (' (did you mean s_mean_um?)', '')
+    """
+    hint = close_key(str(key), known)
+    return f" (did you mean {hint}?)" if hint else ""
+
+
 def unknown_key_message(key: str, known, table: bool = False, likely=()) -> str:
     """``unknown field`` (``unknown table``), with ``(did you mean X?)`` when a known key is close.
 

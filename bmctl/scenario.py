@@ -109,10 +109,9 @@ class Scenario(Strict):
     def _check(self):
         for k in self.target:
             if k not in TARGET_KEYS:
-                from .config import close_key
+                from .config import did_you_mean
 
-                hint = close_key(str(k), TARGET_KEYS)
-                raise ValueError(f"target.{k}: unknown target{f' (did you mean {hint}?)' if hint else ''}; choose from "
+                raise ValueError(f"target.{k}: unknown target{did_you_mean(k, TARGET_KEYS)}; choose from "
                                  f"{', '.join(TARGET_KEYS)}")
             v = self.target[k]
             if isinstance(v, list):

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from typing import Callable
 
+from ..config import did_you_mean
 from ..control.config import TARGET_KEYS, check_dvalue_order, target_value
 from ..errors import InputError, finite_float
 
@@ -29,14 +30,6 @@ TARGETS: dict[str, tuple[Callable[[float, dict], dict[str, float]], str]] = {}
 def known_keys() -> tuple[str, ...]:
     """Every key a campaign target may name."""
     return tuple(dict.fromkeys(tuple(TARGET_KEYS) + tuple(TARGETS)))
-
-
-def _did_you_mean(key: str, known) -> str:
-    """`` (did you mean X?)`` for a key close to a known one, else empty."""
-    from ..config import close_key
-
-    hint = close_key(key, known)
-    return f" (did you mean {hint}?)" if hint else ""
 
 
 def parse(text: str, where: str = "--target") -> dict[str, float]:
@@ -50,7 +43,7 @@ def parse(text: str, where: str = "--target") -> dict[str, float]:
             raise InputError(f"{where}: expected key=value, got {item!r}")
         k, v = (s.strip() for s in item.split("=", 1))
         if k not in known_keys():
-            raise InputError(f"{where}: unknown target {k!r}{_did_you_mean(k, known_keys())} (one of {', '.join(known_keys())})")
+            raise InputError(f"{where}: unknown target {k!r}{did_you_mean(k, known_keys())} (one of {', '.join(known_keys())})")
         if k in out:
             raise InputError(f"{where}: {k} given twice")
         if ":" in v:  # design and trial scenarios take windows; a campaign steers to one value

@@ -18,7 +18,7 @@ from typing import Annotated, Any, Literal, Union
 
 from pydantic import Field, field_validator, model_validator
 
-from ..config import HOURS, MINUTES, RPM, Finite, Frac, NonNeg, Pos, Range, Strict, read_toml, validate
+from ..config import HOURS, MINUTES, RPM, Finite, Frac, NonNeg, Pos, Range, Strict, did_you_mean, read_toml, validate
 from ..limits import HOURS_MAX, PHASE_MAX_MINUTES, RPM_MAX
 from ..errors import InputError, finite_float
 
@@ -86,14 +86,6 @@ def format_target(value) -> str:
     return f"{lo:g}" if lo == hi else f"[{lo:g}, {hi:g}]"
 
 
-def _did_you_mean(key) -> str:
-    """`` (did you mean X?)`` for a target key close to a known one, else empty."""
-    from ..config import close_key
-
-    hint = close_key(str(key), TARGET_KEYS)
-    return f" (did you mean {hint}?)" if hint else ""
-
-
 def check_target_dict(d, source: str) -> dict:
     """Validate {key: value or [lo, hi]}; returns {key: float or (lo, hi)}."""
     if not isinstance(d, dict):
@@ -101,7 +93,7 @@ def check_target_dict(d, source: str) -> dict:
     out = {}
     for k, v in d.items():
         if k not in TARGET_KEYS:
-            raise InputError(f"{source}: unknown target {k!r}{_did_you_mean(k)} (one of {', '.join(TARGET_KEYS)})")
+            raise InputError(f"{source}: unknown target {k!r}{did_you_mean(k, TARGET_KEYS)} (one of {', '.join(TARGET_KEYS)})")
         out[k] = target_value(k, v, source)
     check_dvalue_order(out, source)
     return out
@@ -523,7 +515,7 @@ def parse_target(text: str, source: str = "--target") -> dict:
             raise InputError(f"{source}: expected key=value, got {item!r}")
         k, v = (s.strip() for s in item.split("=", 1))
         if k not in TARGET_KEYS:
-            raise InputError(f"{source}: unknown target {k!r}{_did_you_mean(k)} (one of {', '.join(TARGET_KEYS)})")
+            raise InputError(f"{source}: unknown target {k!r}{did_you_mean(k, TARGET_KEYS)} (one of {', '.join(TARGET_KEYS)})")
         if k in out:
             raise InputError(f"{source}: {k} given twice")
         parts = [p.strip() for p in v.split(":")]
