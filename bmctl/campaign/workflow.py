@@ -44,7 +44,7 @@ from . import db
 from . import targets as tg
 from .advice import _end_band, _measure, _schedule, _why, sample_first, sampling
 from .readings import estimate_warning, reading_warnings
-from ..measure.names import path_text
+from ..measure.names import path_text, refuse_repeats
 from ..moments.forcard import for_card
 
 # The campaign's particle filter (changes from FilterSettings' defaults; ``init`` records them in the
@@ -557,14 +557,7 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
     at_h = _finite(at_h, "--at-h", 0)
     if not inputs:
         raise InputError("sample: give at least one image or particle table")
-    seen = set()
-    for i in inputs:  # one micrograph counted twice would read as a sample twice its size
-        if hasattr(i, "s_um"):
-            continue
-        key = os.path.realpath(i)
-        if key in seen:
-            raise InputError(f"sample: {i} given twice (each image or table is one part of the sample)")
-        seen.add(key)
+    refuse_repeats(inputs, "sample: ")
     table, images, x, y, reports = _measure(list(inputs), um_per_px, accept_unusable)  # before the lock: may take seconds
     c = campaign or Campaign(folder)
     try:

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -90,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..io import output_set
     from ..measure.micrograph import measure_micrograph
-    from ..measure.names import path_text
+    from ..measure.names import path_text, refuse_repeats
     from ..measure.scale import check_scale
     from ..measure.tables import ParticleLocations, ParticleTable, check_table, read_table
 
@@ -100,12 +99,7 @@ def run(args: argparse.Namespace) -> int:
         output_path(args.out, folder=False)
     tables, locs, lines, results, reports, warned = [], [], [], [], [], []
     next_id = 1
-    seen = set()
-    for path in args.inputs:  # one image twice would be counted twice (campaign sample refuses it too)
-        key = os.path.realpath(path)
-        if key in seen:
-            raise InputError(f"{path_text(path)}: given twice (each image or table is one part of the sample)")
-        seen.add(key)
+    refuse_repeats(args.inputs)  # one image twice would be counted twice
     for path in args.inputs:
         name = path_text(path)  # printed and in the table: bytes that are not UTF-8 as escapes
         if _is_table(path):

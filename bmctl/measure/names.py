@@ -38,3 +38,28 @@ def path_text(path: str | os.PathLike) -> str:
         return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
     except UnicodeEncodeError:  # a surrogate that stands for no byte (not from a file name)
         return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+def refuse_repeats(paths, prefix: str = "") -> None:
+    """Refuse a file named twice among ``paths`` (the same file by any path): one image or table
+    counted twice would read as a sample twice its size. Items that are not paths (tables in
+    memory) are skipped.
+
+    Examples
+    --------
+    >>> refuse_repeats(["a.csv", "b.csv"])
+    >>> refuse_repeats(["a.csv", "./a.csv"], "sample: ")
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: sample: ./a.csv: given twice (each image or table is one part of the sample)
+    """
+    from ..errors import InputError
+
+    seen = set()
+    for p in paths:
+        if hasattr(p, "s_um"):
+            continue
+        key = os.path.realpath(p)
+        if key in seen:
+            raise InputError(f"{prefix}{path_text(p)}: given twice (each image or table is one part of the sample)")
+        seen.add(key)
