@@ -328,7 +328,7 @@ def did_you_mean(key, known) -> str:
     return f" (did you mean {hint}?)" if hint else ""
 
 
-def unknown_key_message(key: str, known, table: bool = False, likely=()) -> str:
+def unknown_key_message(key: str, known, table: bool = False, likely=(), parent: str = "") -> str:
     """``unknown field`` (``unknown table``), with ``(did you mean X?)`` when a known key is close.
 
     Parameters
@@ -341,6 +341,8 @@ def unknown_key_message(key: str, known, table: bool = False, likely=()) -> str:
         The key names a table (``[name]``).
     likely : iterable of str, optional
         Keys searched first: the required ones left out beside it (a mistyped key is also missing).
+    parent : str, optional
+        The dotted name of the table holding a mistyped table, shown in the hint (``[estimator.pf]``).
 
     Examples
     --------
@@ -348,12 +350,16 @@ def unknown_key_message(key: str, known, table: bool = False, likely=()) -> str:
     'unknown field (did you mean rpm?)'
     >>> unknown_key_message("stochastik", ["stochastic", "thermal"], table=True)
     'unknown table (did you mean [stochastic]?)'
+    >>> unknown_key_message("pff", ["pf", "kind"], table=True, parent="estimator")
+    'unknown table (did you mean [estimator.pf]?)'
     """
     hint = close_key(key, likely) or close_key(key, known)
     what = "unknown table" if table else "unknown field"
     if hint is None:
         return what
-    return f"{what} (did you mean {f'[{hint}]' if table else hint}?)"
+    if table:
+        hint = f"[{parent}.{hint}]" if parent else f"[{hint}]"
+    return f"{what} (did you mean {hint}?)"
 
 
 def _unwrap(ann):
@@ -411,7 +417,9 @@ def _unknown_field_msg(e: dict, errors: list[dict], model) -> tuple[str, int]:
     and how many other errors that explains (1 when the hint is a missing sibling: the same typo)."""
     parent, key = tuple(e["loc"][:-1]), e["loc"][-1]
     missing = [x["loc"][-1] for x in errors if x["type"] == "missing" and tuple(x["loc"][:-1]) == parent]
-    msg = unknown_key_message(key, fields_at(model, parent) if model is not None else (), likely=missing)
+    table = isinstance(e.get("input"), dict)  # a mistyped [table], not a field
+    msg = unknown_key_message(key, fields_at(model, parent) if model is not None else (), likely=missing,
+                              table=table, parent=".".join(p for p in parent if isinstance(p, str)))
     return msg, int(close_key(key, missing) is not None)
 
 

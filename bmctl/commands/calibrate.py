@@ -23,7 +23,7 @@ def configure(p):
                    help="schedule (file or [[segment]]) and [[sample]] t_h with table= or image= (+ um_per_px)")
     p.add_argument("--params", default="alpha,beta,gamma,delta", metavar="P1,P2,...",
                    help="card parameters to fit: alpha, beta, gamma, delta or section.field (default the four factors)")
-    p.add_argument("--seed", type=int_arg("--seed", 0, 2**31), default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
     p.add_argument("--out", default="out/calibrate", metavar="DIR", help="output folder (default out/calibrate)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,

@@ -15,7 +15,7 @@ def configure(p):
     p.add_argument("--seeds", type=int_arg("--seeds", 1, 1000), default=5, help="ensemble size (default 5)")
     p.add_argument("--particles", type=int_arg("--particles", 100, 10**7), default=5000,
                    help="simulated particles per plant (default 5000)")
-    p.add_argument("--seed", type=int_arg("--seed", 0, 2**31), default=0, help="first seed (default 0)")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="first seed (default 0)")
     p.add_argument("--out", default="out/whatif", metavar="DIR", help="output folder (default out/whatif)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,

@@ -49,3 +49,23 @@ def test_card_show_prints_the_speed_it_computed(capsys):
     rows = [ln.split()[0] for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith("299.")
             or ln.strip().startswith("300 ")]
     assert rows == ["299.6", "300"]
+
+
+@pytest.mark.parametrize("old, new, needle", [
+    ("[temperature]", "[temperatur]", "temperatur: unknown table (did you mean [temperature]?)"),
+    ("ceiling_c = 80.0", "ceilin_c = 80.0", "temperature.ceilin_c: unknown field (did you mean ceiling_c?)"),
+])
+def test_a_mistyped_controller_table_is_called_a_table(tmp_path, capsys, old, new, needle):
+    from pathlib import Path
+
+    ctl = mutated(tmp_path, Path(__file__).parents[2] / "controllers" / "mpc-default.toml", old, new)
+    line = one_line_error(capsys, ["design", LAB, "--controller", ctl, "--target", "s_mean_um=30",
+                                   "--out", tmp_path / "o"], needle)
+    assert line.endswith(needle) and not (tmp_path / "o").exists()
+
+
+def test_a_mistyped_nested_table_hint_names_its_parent():
+    from bmctl.config import unknown_key_message
+
+    assert unknown_key_message("pff", ["pf", "kind"], table=True, parent="estimator") == \
+        "unknown table (did you mean [estimator.pf]?)"
