@@ -23,7 +23,7 @@ from pydantic import Field
 from ..config import ModelCard, Strict
 from ..parallel import map_seeded
 from .history import History
-from .params import get_params
+from .params import get_params, param_bounds
 from .simulate import SimTask, bootstrap_cov, simulate_task, summaries
 
 Z90 = 1.6448536269514722  # two-sided 90 %: Phi^-1(0.95)
@@ -114,6 +114,8 @@ class _Evaluator:
         if settings.samplers != "card":
             self.card_dict["simulation"]["samplers"] = settings.samplers
         self.card_values = np.array(get_params(card, names))
+        # the card's range of each constant: a trial value beyond it is run at the bound, never refused
+        self.lo, self.hi = np.array([param_bounds(card, n) for n in names]).T
         self.names = list(names)
         self.histories = histories
         self.s = settings
@@ -123,8 +125,12 @@ class _Evaluator:
         self.runs = 0
 
     def task(self, u: np.ndarray, hist: History, keep: int = 0) -> SimTask:
-        vals = tuple((n, float(v)) for n, v in zip(self.names, self.card_values * np.exp(u)))
+        vals = tuple((n, float(v)) for n, v in zip(self.names, self.values(u)))
         return SimTask(self.card_dict, vals, tuple(hist.segments), tuple(hist.times_h), self.s.particles, keep)
+
+    def values(self, u: np.ndarray) -> np.ndarray:
+        """Card values at u = ln(value / card value), kept within the card's range of each."""
+        return np.clip(self.card_values * np.exp(u), self.lo, self.hi)
 
     def run(self, points: np.ndarray) -> np.ndarray:
         """Summaries (points, replicates, n_summaries)."""
@@ -245,7 +251,7 @@ def calibrate(card: ModelCard, histories: Sequence[History], names: Sequence[str
         res = y - mu[0]
         chi2 = float(res @ W @ res)
         Q = chi2 + float(u @ P @ u)
-        entry = {"iteration": it, "values": (ev.card_values * np.exp(u)).tolist(), "chi2": chi2, "objective": Q}
+        entry = {"iteration": it, "values": ev.values(u).tolist(), "chi2": chi2, "objective": Q}
         if prev is not None:
             Q_prev = float(prev[1] @ W @ prev[1] + prev[0] @ P @ prev[0])
             entry["objective_previous"] = Q_prev
@@ -290,8 +296,8 @@ def calibrate(card: ModelCard, histories: Sequence[History], names: Sequence[str
     identified, why = _identifiability(names, F, ratio, s)
     cv = ev.card_values
     return Calibration(
-        names=names, card_values=cv, start_values=cv * np.exp(u_start), values=cv * np.exp(u_hat),
-        lo90=cv * np.exp(lo), hi90=cv * np.exp(hi), u=u_hat, cov_u=cov,
+        names=names, card_values=cv, start_values=ev.values(u_start), values=ev.values(u_hat),
+        lo90=ev.values(lo), hi90=ev.values(hi), u=u_hat, cov_u=cov,
         prior_sd=s.prior_sd, chi2=chi2, n_summaries=y.size, fisher=F, identified=identified, why=why,
         converged=converged, plant_runs=ev.runs, iterations=log, sim_var=sim_var, obs_cov=obs_cov,
         start_choice=start_choice, ridge=ridge, stop_reason=stop_reason,

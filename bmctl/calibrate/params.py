@@ -171,6 +171,35 @@ def get_param(card: ModelCard, name: str) -> float:
     return float(v)
 
 
+def param_bounds(card: ModelCard, name: str) -> tuple[float, float]:
+    """The closed range the card accepts for a named parameter (its field's bounds; a strict bound
+    moved inside by a relative 1e-9), so a fit can keep every trial value valid.
+
+    Examples
+    --------
+    >>> from bmctl.config import load_card
+    >>> lo, hi = param_bounds(load_card("models/alni-1to1-300rpm-lab.toml"), "thermal.softening_max")
+    >>> lo, hi < 1.0, round(hi, 6)
+    (0.0, True, 1.0)
+    >>> param_bounds(load_card("models/alni-1to1-300rpm-lab.toml"), "alpha")
+    (0.1, 20.0)
+    """
+    import math
+
+    sec, fld = field_of(name)
+    lo, hi = -math.inf, math.inf
+    for m in type(getattr(card, sec)).model_fields[fld].metadata:
+        if getattr(m, "ge", None) is not None:
+            lo = max(lo, float(m.ge))
+        if getattr(m, "gt", None) is not None:
+            lo = max(lo, float(m.gt) + 1e-9 * max(abs(float(m.gt)), 1e-300))
+        if getattr(m, "le", None) is not None:
+            hi = min(hi, float(m.le))
+        if getattr(m, "lt", None) is not None:
+            hi = min(hi, float(m.lt) - 1e-9 * max(abs(float(m.lt)), 1e-300))
+    return lo, hi
+
+
 def get_params(card: ModelCard, names: Sequence[str]) -> list[float]:
     """Values of several named parameters."""
     return [get_param(card, n) for n in names]

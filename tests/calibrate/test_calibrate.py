@@ -360,3 +360,23 @@ def test_unconverged_fit_says_why_and_what_would_help(log, chi2, expect):
     assert text.startswith(f"not converged: iteration cap {len(log)} reached") and expect in text
     assert "\n" not in text
     assert _stop_reason([{"step_in_sd": 0.3}], True, s, 10.0, 16).startswith("converged")
+
+
+def test_a_trial_value_beyond_a_constants_range_is_run_at_its_bound():
+    """The fit moves u = ln(value / card value) freely; a bounded constant (softening_max < 1, alpha <= 20)
+    must be run at its bound, not refused mid-fit by the card's validation."""
+    from bmctl.calibrate.fit import _Evaluator
+    from types import SimpleNamespace
+
+    from bmctl.calibrate.simulate import simulate_task
+
+    card = load_card(LAB)
+    names = ["thermal.softening_max", "alpha", "gamma"]
+    ev = _Evaluator(card, names, [], FitSettings(), [], None, None)
+    u = np.array([2.0, 3.0, -1.0])  # 0.45 e^2 = 3.3 > 1; 2.1 e^3 = 42 > 20; gamma well inside
+    vals = ev.values(u)
+    assert vals[0] < 1.0 and vals[0] == pytest.approx(1.0) and vals[1] == 20.0
+    assert vals[2] == pytest.approx(card.stochastic.gamma_per_um2 * np.exp(-1.0))
+    hist = SimpleNamespace(segments=[(0.2, 300.0, 1.0)], times_h=[0.2])  # what a task reads of a history
+    summ, _ = simulate_task(ev.task(u, hist), np.random.default_rng(0))
+    assert np.all(np.isfinite(summ))
