@@ -9,6 +9,22 @@ from pathlib import Path
 from ..errors import InputError, finite_float
 
 
+def progress_bar(**kw):
+    """A tqdm progress bar on stderr, shown only when stderr is a terminal (``disable=None``) and
+    cleared when closed: a log or a pipe gets no bar fragments before the result or an error line.
+
+    Parameters
+    ----------
+    **kw
+        tqdm's arguments (``desc``, ``unit``, ``total``, ``bar_format``, ...).
+    """
+    import sys
+
+    from tqdm import tqdm
+
+    return tqdm(**{"file": sys.stderr, "leave": False, "disable": None, **kw})
+
+
 def output_path(path, name: str = "--out", folder: bool = True) -> Path:
     """Check an output folder (``folder``) or file before any work is done; returns it as a Path.
 

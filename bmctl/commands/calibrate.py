@@ -14,7 +14,7 @@ from __future__ import annotations
 import sys
 import time
 
-from ._args import int_arg, output_path
+from ._args import int_arg, output_path, progress_bar
 
 
 def configure(p):
@@ -64,7 +64,7 @@ def run(args) -> int:
     runs_at_once = (2 * len(names) + 1) * args.replicates * len(histories)  # a central-difference Jacobian's runs
     workers = args.workers if args.workers is None or args.scheduler else cap_workers(args.workers, runs_at_once)
     client = client_for(args.scheduler, workers)
-    bar = tqdm(desc="plant runs", unit="run", total=None, leave=False)
+    bar = progress_bar(desc="plant runs", unit="run", total=None)
     t0 = time.perf_counter()
     try:
         res = run_calibration(card, args.model, histories, names, out, seed=args.seed, settings=settings,

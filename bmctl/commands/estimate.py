@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError, finite_float
-from ._args import float_arg, int_arg, output_path, rpm_arg
+from ._args import float_arg, int_arg, output_path, progress_bar, rpm_arg
 from ._model import add_identify_flag, model_for, warn_window
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
@@ -197,9 +197,7 @@ def run(args) -> int:
     warn_window(model, [rpm for _, rpm in segments])
     bar = progress = None
     if not args.no_progress and t_end * (args.particles if args.estimator == "pf" else 25) > 2000:  # runs > ~2 s
-        from tqdm import tqdm
-
-        bar = tqdm(total=round(t_end, 3), unit="h", desc="filtering", leave=False,
+        bar = progress_bar(total=round(t_end, 3), unit="h", desc="filtering",
                    bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} h [{elapsed}<{remaining}]", mininterval=0.5)
         progress = bar.update
     try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import InputError
-from ._args import hours_arg, int_arg, output_path, rpm_arg
+from ._args import hours_arg, int_arg, output_path, progress_bar, rpm_arg
 
 
 
@@ -57,9 +57,7 @@ def run(args) -> int:
     bar = None
     progress = None
     if not args.no_progress and total_h * (args.particles or card.simulation.particles) > 2e5:  # runs > ~1 s
-        from tqdm import tqdm
-
-        bar = tqdm(total=round(total_h, 3), unit="h", desc="milling", leave=False,
+        bar = progress_bar(total=round(total_h, 3), unit="h", desc="milling",
                    bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} h [{elapsed}<{remaining}]", mininterval=0.5)
         progress = bar.update
     try:

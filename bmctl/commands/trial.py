@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import int_arg, output_path
+from ._args import int_arg, output_path, progress_bar
 from ._model import add_identify_flag, model_for, warn_window
 
 
@@ -69,9 +69,7 @@ def run(args) -> int:
     model = model_for(resolve(sc.model, Path(args.scenario).resolve().parent), args.identify)
     bar = None
     if not args.no_progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=None, unit="step", desc=sc.scenario.name, leave=False, file=sys.stderr)
+        bar = progress_bar(total=None, unit="step", desc=sc.scenario.name)
 
     def progress(k, K):
         if bar is not None:

@@ -111,6 +111,9 @@ def test_resume_refuses_damaged_files_one_line(small, one_step, tmp_path, capsys
     err = capsys.readouterr().err
     assert rc == 2
     assert len(err.strip().splitlines()) == 1 and target in err, err
+    # with the progress bar on, a log (stderr not a terminal) gets the same one line, no bar fragment
+    assert main(["trial", str(small), "--resume", str(out), "--seed", "1"]) == 2
+    assert capsys.readouterr().err == err
 
 
 @pytest.mark.slow
