@@ -309,12 +309,22 @@ def close_key(key: str, known) -> str | None:
     --------
     >>> close_key("alpah", ["alpha", "beta"]), close_key("colour", ["alpha", "beta"])
     ('alpha', None)
+
+    A key without its unit suffix names the one known key it starts (``s_mean`` is ``s_mean_um``,
+    not the closer-spelled ``r_mean``):
+
+    >>> close_key("s_mean", ["r_mean", "s_mean_um", "s_std_um"])
+    's_mean_um'
     """
     import difflib
 
     if not isinstance(key, str) or len(key) > SUGGEST_MAX_CHARS:
         return None
-    found = difflib.get_close_matches(key, sorted(known), n=1, cutoff=0.6)
+    known = sorted(known)
+    suffixed = [k for k in known if key and k.startswith(key + "_")]
+    if len(suffixed) == 1:
+        return suffixed[0]
+    found = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
     return found[0] if found else None
 
 

@@ -20,6 +20,7 @@ in :meth:`ClosedLoop.step`), so that a mill which is a person at a real mill, an
 from __future__ import annotations
 
 import math
+import numbers
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Protocol, Sequence, runtime_checkable
@@ -27,7 +28,8 @@ from typing import Callable, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from .checkpoint import rng_state, set_rng_state
-from .physics.constants import TIME_EPS_H
+from .errors import InputError
+from .physics.constants import INPUT_ROUNDING, TIME_EPS_H
 
 #: finest plant step within a control interval: the vial temperature is watched at this spacing (h)
 SUBSTEP_H = 0.05
@@ -100,6 +102,94 @@ class Controller(Protocol):
         """Restore a state from :meth:`get_state`."""
 
 
+#: the members each protocol needs, checked when a :class:`ClosedLoop` is built
+PROTOCOL_MEMBERS = {
+    "mill": ("advance", "moments", "temperature_c", "get_state", "set_state"),
+    "sensor": ("sample",),
+    "estimator": ("predict", "update", "estimate", "get_state", "set_state"),
+    "controller": ("interval_h", "plan", "get_state", "set_state"),
+}
+
+
+def check_protocol(obj, role: str) -> None:
+    """Refuse an object that lacks a member of its protocol (:data:`PROTOCOL_MEMBERS`), naming
+    the argument and what is missing.
+
+    Parameters
+    ----------
+    obj : object
+        The mill, sensor, estimator or controller given to :class:`ClosedLoop`.
+    role : {"mill", "sensor", "estimator", "controller"}
+        Which protocol it must follow.
+    """
+    missing = [m for m in PROTOCOL_MEMBERS[role] if not hasattr(obj, m)]
+    if missing:
+        raise TypeError(f"{role}: {type(obj).__name__} lacks {', '.join(missing)} of the {role.capitalize()} "
+                        f"protocol (bmctl.loop.{role.capitalize()}: {', '.join(PROTOCOL_MEMBERS[role])})")
+
+
+def positive_hours(value, name: str) -> None:
+    """Refuse a duration that is not a finite number > 0 (h), naming it.
+
+    Parameters
+    ----------
+    value : float
+        The duration (h).
+    name : str
+        What to name in the message.
+    """
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not (math.isfinite(value) and value > 0):
+        raise InputError(f"{name}: must be a finite number of hours > 0 (got {value!r})")
+
+
+def checked_sample(out) -> tuple:
+    """The ``(s_um, r)`` a sensor returned, unchanged, or a clear error: a pair of equal-length
+    1-D arrays is expected.
+
+    Parameters
+    ----------
+    out : object
+        What ``sensor.sample(mill, rng)`` returned.
+    """
+    try:
+        pair = not isinstance(out, (str, bytes, dict)) and len(out) == 2
+    except TypeError:
+        pair = False
+    if not pair:
+        raise TypeError(f"sensor.sample: must return a pair (s_um, r) of equal-length 1-D arrays "
+                        f"(got {type(out).__name__})")
+    s_um, r = out
+    shapes = np.shape(s_um), np.shape(r)
+    if len(shapes[0]) != 1 or shapes[0] != shapes[1]:
+        raise ValueError(f"sensor.sample: s_um and r must be 1-D arrays of one length (got shapes {shapes[0]} "
+                         f"and {shapes[1]})")
+    return s_um, r
+
+
+def checked_plan(plan):
+    """A controller's plan, unchanged, or a clear error: it needs ``u_apply`` = (rpm, milling),
+    finite, rpm >= 0 and milling in [0, 1], and a ``status``.
+
+    Parameters
+    ----------
+    plan : Plan
+        What ``controller.plan(...)`` returned (:class:`bmctl.control.base.Plan`).
+    """
+    missing = [a for a in ("u_apply", "status") if not hasattr(plan, a)]
+    if missing:
+        raise TypeError(f"controller.plan: must return a Plan (bmctl.control.Plan) with u_apply and status; "
+                        f"{type(plan).__name__} lacks {', '.join(missing)}")
+    try:
+        u = np.asarray(plan.u_apply, dtype=float)
+    except (TypeError, ValueError):
+        u = np.array([math.nan])
+    tol = INPUT_ROUNDING  # a solver's bound violation passes as it always has
+    if u.shape != (2,) or not np.all(np.isfinite(u)) or u[0] < -tol or not -tol <= u[1] <= 1 + tol:
+        raise ValueError(f"controller.plan: u_apply must be (rpm, milling), finite, rpm >= 0 and milling in [0, 1] "
+                         f"(got {plan.u_apply!r})")
+    return plan
+
+
 def estimate_vectors(est: dict) -> tuple[np.ndarray, np.ndarray]:
     """Moment-model state x (6,) and parameter multipliers p (2,) of an estimate dict; (3,) with the
     filter's ``energy_mult`` when it carries one."""
@@ -138,6 +228,10 @@ class LoopConfig:
     power_w: Callable[[float], float] | None = None
     sample_feed: bool = False
 
+    def __post_init__(self):
+        positive_hours(self.hours, "hours")
+        positive_hours(self.sample_every_h, "sample_every_h")
+
 
 @dataclass
 class StepRecord:
@@ -159,7 +253,37 @@ class ClosedLoop:
     """Mill, sensor, estimator and controller composed one control interval at a time.
 
     The loop's own state (step, last input, last estimate, next sample time, tallies) and its
-    objects' states travel together through :meth:`get_state` / :meth:`set_state`.
+    objects' states travel together through :meth:`get_state` / :meth:`set_state`. An object
+    that lacks a member of its protocol, a ``sample_rng`` that is not a generator or a
+    controller ``interval_h`` that is not a positive number of hours is refused when the loop
+    is built; a sensor's or controller's answer of the wrong form when it is given.
+
+    Attributes
+    ----------
+    mill : Mill
+        The plant or a person at a real mill.
+    sensor : Sensor
+        ``sample(mill, rng) -> (s_um, r)``: sizes (um) and aspect ratios of one sample.
+    estimator : Estimator
+        The belief (:class:`bmctl.estimate.ParticleFilter` or the UKF).
+    controller : Controller
+        Plans ``(rpm, milling)`` for each ``controller.interval_h`` hours.
+    sample_rng : numpy.random.Generator
+        The generator passed to ``sensor.sample``.
+    cfg : LoopConfig
+        Batch length, sampling interval and tallies.
+    k : int
+        Control intervals done (0 for a fresh loop).
+    u_prev : tuple of 2 floats or None
+        ``(rpm, milling)`` applied over the last interval.
+    est : dict
+        The last estimate (``Estimate.as_dict()``); empty: read from the estimator.
+    next_sample_h : float
+        Batch time of the next sample (h); 0: ``cfg.sample_every_h``.
+    stats : dict
+        Tallies (solver failures, fallbacks, energy in J, peak temperature, ceiling crossings).
+    peak_c : float
+        The highest vial temperature of the last applied interval (degC).
     """
 
     mill: Mill
@@ -176,6 +300,14 @@ class ClosedLoop:
     peak_c: float = math.nan  # the highest vial temperature of the last applied interval (degC)
 
     def __post_init__(self):
+        for role in PROTOCOL_MEMBERS:
+            check_protocol(getattr(self, role), role)
+        positive_hours(self.controller.interval_h, "controller.interval_h")
+        if not isinstance(self.sample_rng, np.random.Generator):
+            raise TypeError(f"sample_rng: must be a numpy.random.Generator (np.random.default_rng(seed)), "
+                            f"got {type(self.sample_rng).__name__}")
+        if not isinstance(self.cfg, LoopConfig):
+            raise TypeError(f"cfg: must be a bmctl.loop.LoopConfig (got {type(self.cfg).__name__})")
         if not self.est:
             self.est = self.estimator.estimate().as_dict()
         if not self.next_sample_h:
@@ -212,7 +344,7 @@ class ClosedLoop:
                                         scenarios=filter_scenarios(self.est, self.controller.n_scen - 1))
         else:
             plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev)
-        st = plan.status
+        st = checked_plan(plan).status
         solve_ms = st.solve_ms if st.solve_ms else (time.perf_counter() - t0) * 1e3
         fallback = st.fallback != "none"
         self.stats["solve_ms"].append(solve_ms)
@@ -248,7 +380,7 @@ class ClosedLoop:
         returns 1 if a sample was taken."""
         sampled = 0
         if t_h >= self.next_sample_h - TIME_EPS_H or t_h >= self.cfg.hours - TIME_EPS_H:
-            s_um, r = self.sensor.sample(self.mill, self.sample_rng)
+            s_um, r = checked_sample(self.sensor.sample(self.mill, self.sample_rng))
             T_read = self.mill.temperature_c if self.cfg.temperature_reading else None
             est = self.estimator.update(s_um, r, temperature_c=T_read)
             self.next_sample_h += self.cfg.sample_every_h
@@ -263,7 +395,7 @@ class ClosedLoop:
         ``cfg.sample_feed``); the estimate is updated, no interval is recorded. No vial reading
         goes with it (the vial is at the card's room temperature, as in a campaign's
         ``sample --at-h 0``)."""
-        s_um, r = self.sensor.sample(self.mill, self.sample_rng)
+        s_um, r = checked_sample(self.sensor.sample(self.mill, self.sample_rng))
         self.est = self.estimator.update(s_um, r, temperature_c=None).as_dict()
         self.stats["feed_sampled"] = True
 
@@ -316,7 +448,19 @@ def run_interval(mill: Mill | None, estimators: Sequence[Estimator], schedule, t
                  t1_h: float) -> list[tuple[float, float, float]]:
     """Open loop over [t0_h, t1_h] of ``schedule``: the mill and every estimator are advanced
     through the same (rpm, milling, hours) pieces (:meth:`bmctl.schedule.Schedule.inputs_between`),
-    which are returned."""
+    which are returned.
+
+    Parameters
+    ----------
+    mill : Mill or None
+        Advanced through the pieces (None: only the estimators).
+    estimators : sequence of Estimator
+        Each is predicted through the same pieces.
+    schedule : Schedule or sequence of (hours, rpm[, milling])
+        The inputs (:func:`bmctl.schedule.as_schedule`).
+    t0_h, t1_h : float
+        The window of the schedule (h from its start).
+    """
     from .schedule import as_schedule
 
     pieces = as_schedule(schedule).inputs_between(t0_h, t1_h)
@@ -344,6 +488,17 @@ def run_open_loop(mill: Mill, segments: Sequence[tuple[float, float]], record_ev
 
     Each recording interval is cut at the segment boundaries and every piece is one
     ``advance`` call (the same calls as :meth:`bmctl.plant.Plant.run_schedule`).
+
+    Parameters
+    ----------
+    mill : Mill
+        Advanced through the segments.
+    segments : sequence of (hours, rpm)
+        The schedule; rpm 0 is a rest.
+    record_every_h : float
+        Time between recordings (h); the end is recorded too.
+    on_record : callable
+        ``on_record(t_h, mill)`` at each recording time.
     """
     total = sum(h for h, _ in segments)
     times = record_times(total, record_every_h)

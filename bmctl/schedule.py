@@ -71,6 +71,13 @@ class Segment:
 class Schedule:
     """Segments of (hours, rpm, milling share); see the module.
 
+    Attributes
+    ----------
+    segments : tuple of Segment
+        ``Segment(hours, rpm, milling=1.0)`` in order; rpm 0 is a rest.
+    name : str
+        A label for reports.
+
     Examples
     --------
     >>> s = Schedule.from_pairs([(2.0, 300.0), (1.0, 0.0)], name="mill, then rest")

@@ -19,7 +19,8 @@ EXTRA = ["bmctl.simulate:simulate", "bmctl.trial:run_trial", "bmctl.whatif:run_s
          "bmctl.physics.samplers:energy_density", "bmctl.physics.impacts:sample_impact_cos2psi",
          "bmctl.plant.kernels:PaperKernels", "bmctl.plant.kernels:PaperKernels.sample_cos2psi",
          "bmctl.plant.kernels:PaperKernels.sample_energies", "bmctl.plant.kernels:PaperKernels.sample_zeta_xi",
-         "bmctl.stats:gaussian_smooth"]
+         "bmctl.stats:gaussian_smooth", "bmctl.loop:ClosedLoop", "bmctl.loop:LoopConfig", "bmctl.loop:run_interval",
+         "bmctl.loop:run_open_loop", "bmctl.schedule:Schedule"]
 
 
 def _targets():

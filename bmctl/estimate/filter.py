@@ -61,7 +61,9 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from ..config import Strict
+from ..errors import InputError
 from ..moments.model import ENERGY_NAME
+from ..physics.constants import INPUT_ROUNDING
 from .likelihood import LawSettings, Raster, fit_sample, loglik_raster
 from .resampling import SCHEMES, effective_sample_size, resample
 
@@ -291,6 +293,34 @@ def _logsumexp(a: np.ndarray) -> float:
     return m + math.log(float(np.sum(np.exp(a - m))))
 
 
+def check_predict(u, dt_h) -> float:
+    """Refuse an estimator's ``predict`` input that is not (rpm >= 0, milling in [0, 1]) for a
+    finite ``dt_h`` >= 0 hours, naming the argument; returns ``dt_h`` as a float (0 for a ``dt_h``
+    within :data:`INPUT_ROUNDING` below 0).
+
+    Parameters
+    ----------
+    u : array_like, (2,)
+        (rpm, milling).
+    dt_h : float
+        Interval (h).
+    """
+    try:
+        dt = float(dt_h)
+    except (TypeError, ValueError):
+        raise InputError(f"dt_h: must be a number of hours (got {dt_h!r})") from None
+    if not (math.isfinite(dt) and dt >= -INPUT_ROUNDING):
+        raise InputError(f"dt_h: must be a finite number of hours >= 0 (got {dt_h!r})")
+    try:
+        uu = np.asarray(u, dtype=float)
+    except (TypeError, ValueError):
+        uu = np.array([math.nan])
+    tol = INPUT_ROUNDING
+    if uu.shape != (2,) or not np.all(np.isfinite(uu)) or uu[0] < -tol or not -tol <= uu[1] <= 1 + tol:
+        raise InputError(f"u: must be (rpm, milling), finite, rpm >= 0 and milling in [0, 1] (got {u!r})")
+    return max(dt, 0.0)
+
+
 class ParticleFilter:
     """Particle filter on a moment model with guided, tempered updates.
 
@@ -320,6 +350,9 @@ class ParticleFilter:
     """
 
     def __init__(self, model, rng: np.random.Generator, settings: FilterSettings | None = None, x0=None):
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng: must be a numpy.random.Generator (np.random.default_rng(seed)), "
+                            f"got {type(rng).__name__}")
         self.model = model
         self.rng = rng
         self.settings = settings or FilterSettings()
@@ -414,9 +447,9 @@ class ParticleFilter:
         u : array_like, (2,)
             (rpm, milling): sun-disc speed and the share of the interval spent milling.
         dt_h : float
-            Interval (h); <= 0 does nothing.
+            Interval (h); 0 does nothing, a negative or non-finite one is refused.
         """
-        if dt_h <= 0:
+        if check_predict(u, dt_h) <= 0:
             return
         st, rng = self.settings, self.rng
         X_law = self.X.copy()

@@ -55,7 +55,7 @@ from pydantic import Field, model_validator
 from typing import Annotated
 
 from ..config import NonNeg, Pos, Strict
-from .filter import N_MOMENTS, Estimate, ParticleFilter, learning_rates
+from .filter import N_MOMENTS, Estimate, ParticleFilter, check_predict, learning_rates
 from .likelihood import LawSettings, Raster, fit_sample
 
 Z90 = 1.6448536269514722  # standard-normal 95 % quantile: the 90 % interval is m -+ Z90 sd
@@ -306,9 +306,9 @@ class UKFEstimator:
         u : array_like, (2,)
             (rpm, milling).
         dt_h : float
-            Interval (h); <= 0 does nothing.
+            Interval (h); 0 does nothing, a negative or non-finite one is refused.
         """
-        if dt_h <= 0:
+        if check_predict(u, dt_h) <= 0:
             return
         st = self.settings
         q = np.zeros(NZ)

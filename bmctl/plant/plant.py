@@ -20,6 +20,7 @@ their drawn order, and a new particle takes over its slot's later impacts
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -121,8 +122,13 @@ class Plant:
         self.card = card
         self.kernels: Kernels = PaperKernels(card.simulation.samplers) if kernels is None else kernels
         self.engine = engine
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng: must be a numpy.random.Generator (np.random.default_rng(seed)), "
+                            f"got {type(rng).__name__}")
         self.rng = rng
-        M = int(particles or card.simulation.particles)
+        if particles is not None and (isinstance(particles, bool) or not isinstance(particles, numbers.Integral)):
+            raise InputError(f"particles: must be a whole number >= 2 (got {particles!r})")
+        M = int(card.simulation.particles if particles is None else particles)
         if M < 2:
             raise InputError(f"particles: must be >= 2 (got {M})")
         init = card.initial
@@ -440,8 +446,10 @@ class Plant:
             Sizes (um) and aspect ratios. For segmentation noise and resolution limits use
             :func:`bmctl.measure.sampler.micrograph_sample` on the population.
         """
-        if n < 1:
-            raise InputError(f"sample: n must be >= 1 (got {n})")
+        if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
+            raise InputError(f"sample: n must be a whole number >= 1 (got {n!r})")
+        if rng is not None and not isinstance(rng, np.random.Generator):
+            raise TypeError(f"sample: rng must be a numpy.random.Generator or None (got {type(rng).__name__})")
         g = self.rng if rng is None else rng
         k = g.choice(self.M, size=min(n, self.M), replace=n > self.M)
         return self.s[k] / UM, self.r[k].copy()
@@ -574,6 +582,10 @@ def make_plant(card: ModelCard | str | Path, seed: int | None = None, particles:
     >>> p.M  # doctest: +SKIP
     500
     """
+    if rng is None and seed is not None and not isinstance(seed, (np.random.SeedSequence, np.random.BitGenerator,
+                                                                  np.random.Generator)) \
+            and (isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0):
+        raise InputError(f"seed: must be a non-negative integer (got {seed!r})")
     if not isinstance(card, ModelCard):
         card = load_card(card)
     return Plant(card, rng if rng is not None else np.random.default_rng(seed), particles, engine=engine)
