@@ -500,6 +500,10 @@ def run_open_loop(mill: Mill, segments: Sequence[tuple[float, float]], record_ev
     on_record : callable
         ``on_record(t_h, mill)`` at each recording time.
     """
+    positive_hours(record_every_h, "record_every_h")
+    for i, seg in enumerate(segments):
+        if len(seg) != 2 or not (isinstance(seg[0], numbers.Real) and math.isfinite(seg[0]) and seg[0] >= 0):
+            raise InputError(f"segments[{i}]: must be (hours, rpm) with hours a finite number >= 0 (got {seg!r})")
     total = sum(h for h, _ in segments)
     times = record_times(total, record_every_h)
     bounds = np.cumsum([0.0] + [h for h, _ in segments])

@@ -468,15 +468,19 @@ class Plant:
         }
 
     def restore(self, snap: dict) -> None:
-        """Restore a state produced by :meth:`snapshot` (the generator state included)."""
-        self.s = np.array(snap["s"], dtype=float)
-        self.r = np.array(snap["r"], dtype=float)
-        self.t_s = float(snap["t_s"])
-        self.temperature_C = float(snap["temperature_C"])
-        self.hardening = float(snap["hardening"])
-        self.total_area = float(snap["total_area"])
-        self.counts = EventCounts(*snap["counts"])
-        self.rng.bit_generator.state = snap["rng"]
+        """Restore a state produced by :meth:`snapshot` (the generator state included); a state
+        that lacks an entry or does not convert is refused before anything is changed."""
+        missing = [k for k in _SNAPSHOT_KEYS if not isinstance(snap, dict) or k not in snap]
+        if missing:
+            raise ValueError(f"state: lacks {', '.join(missing)} (expected a dict from Plant.snapshot or get_state)")
+        s, r = np.array(snap["s"], dtype=float), np.array(snap["r"], dtype=float)
+        if s.ndim != 1 or s.shape != r.shape:
+            raise ValueError(f"state: s and r must be 1-D arrays of one length (got shapes {s.shape} and {r.shape})")
+        values = (float(snap["t_s"]), float(snap["temperature_C"]), float(snap["hardening"]),
+                  float(snap["total_area"]), EventCounts(*snap["counts"]))
+        self.rng.bit_generator.state = snap["rng"]  # refuses a foreign state before anything else is set
+        self.s, self.r = s, r
+        self.t_s, self.temperature_C, self.hardening, self.total_area, self.counts = values
 
     @property
     def temperature_c(self) -> float:
@@ -491,10 +495,16 @@ class Plant:
         return state
 
     def set_state(self, state: dict) -> None:
-        """Restore a state from :meth:`get_state`."""
+        """Restore a state from :meth:`get_state` (refused whole, as :meth:`restore`)."""
+        if not isinstance(state, dict) or "queue" not in state:
+            raise ValueError("state: lacks queue (expected a dict from Plant.get_state)")
+        queue = tuple(np.asarray(q, dtype=np.int64) for q in state["queue"])
         self.restore(state)
-        self._queue = tuple(np.asarray(q, dtype=np.int64) for q in state["queue"])
+        self._queue = queue
 
+
+#: the entries of :meth:`Plant.snapshot`
+_SNAPSHOT_KEYS = ("s", "r", "t_s", "temperature_C", "hardening", "total_area", "counts", "rng")
 
 _READY = {"warm": False, "checked": -math.inf}
 _RECHECK_S = 30.0

@@ -145,3 +145,18 @@ def test_a_plan_input_out_of_range_is_refused_before_the_mill_runs(u):
     lp = _loop(ctrl=FakeController(FakePlan(u)))
     with pytest.raises(ValueError, match="controller.plan: u_apply must be"):
         lp.step()
+
+
+@pytest.mark.parametrize("segments, every, needle", [
+    ([(-1.0, 300.0)], 0.5, r"segments\[0\]: must be \(hours, rpm\)"),
+    ([(1.0, 300.0), (float("nan"), 0.0)], 0.5, r"segments\[1\]"),
+    ([(1.0, 300.0)], 0.0, "record_every_h: must be a finite number of hours > 0"),
+])
+def test_run_open_loop_refuses_negative_hours_and_a_zero_recording_interval(segments, every, needle):
+    from bmctl.errors import InputError
+    from bmctl.loop import run_open_loop
+    from bmctl.plant import make_plant
+
+    plant = make_plant("models/alni-1to1-300rpm-lab.toml", seed=0, particles=100)
+    with pytest.raises(InputError, match=needle):
+        run_open_loop(plant, segments, every, lambda t, m: None)

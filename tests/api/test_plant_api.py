@@ -48,3 +48,19 @@ def test_sample_rng_must_be_a_generator(card):
     plant = make_plant(card, seed=0, particles=50)
     with pytest.raises(TypeError, match="sample: rng must be a numpy.random.Generator"):
         plant.sample(10, rng=1)
+
+
+@pytest.mark.parametrize("drop", ["s", "rng", "counts", "queue"])
+def test_set_state_of_an_incomplete_state_is_refused_and_changes_nothing(drop):
+    from bmctl.plant import make_plant
+
+    plant = make_plant("models/alni-1to1-300rpm-lab.toml", seed=1, particles=300)
+    fresh = plant.get_state()
+    plant.advance(300.0, 0.2)
+    before = plant.get_state()
+    bad = {k: v for k, v in fresh.items() if k != drop}
+    with pytest.raises(ValueError, match=f"state: lacks {drop}"):
+        plant.set_state(bad)
+    after = plant.get_state()
+    assert np.array_equal(after["s"], before["s"]) and after["t_s"] == before["t_s"]
+    assert after["rng"] == before["rng"]
