@@ -30,6 +30,7 @@ import hashlib
 import io
 import json
 import math
+import os
 import sqlite3
 from pathlib import Path
 from typing import Annotated
@@ -104,17 +105,25 @@ def create(folder: str | Path) -> sqlite3.Connection:
     """Create a new campaign database (refused when ``folder`` already holds one)."""
     folder = Path(folder)
     path = db_path(folder)
+    taken = InputError(f"{folder}: already holds a campaign ({path.name}); choose another folder")
     if path.exists():
-        raise InputError(f"{folder}: already holds a campaign ({path.name}); choose another folder")
+        raise taken
     folder.mkdir(parents=True, exist_ok=True)
-    con = _connect(path)
-    return con
+    # The file is made here, not by SQLite (which makes it 0644 whatever the umask; its -wal and
+    # -shm files take the database's mode): the user's umask decides, as for every output. O_EXCL:
+    # of two `init`s on one folder at once, one starts the campaign, the other is refused.
+    try:
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+    except FileExistsError:
+        raise taken from None
+    return _connect(path)
 
 
 def _connect_read_only(path: Path) -> sqlite3.Connection:
     """A read-only connection (``mode=ro``), for a campaign the user may not write (an archive, a
     share mounted read-only); ``immutable`` where SQLite cannot even keep its shared-memory file
-    beside it (nobody can write it then either)."""
+    beside it (nobody can write it then either). ``immutable`` reads the database file alone: a
+    write-ahead log beside it (commits not yet copied into the file) is refused, not left out."""
     from urllib.parse import quote
 
     uri = f"file:{quote(str(path.resolve()))}?mode=ro"
@@ -123,6 +132,10 @@ def _connect_read_only(path: Path) -> sqlite3.Connection:
         con.execute("SELECT version FROM schema_version").fetchone()
         return con
     except sqlite3.OperationalError:
+        wal = path.with_name(path.name + "-wal")
+        if wal.is_file() and wal.stat().st_size > 0:
+            raise InputError(f"{path}: its write-ahead log {wal.name} holds commits SQLite cannot read in a folder "
+                             "this user may not write; read a copy of the campaign folder in one you may write") from None
         return sqlite3.connect(uri + "&immutable=1", uri=True, timeout=LOCK_TIMEOUT_S, isolation_level=None)
 
 
@@ -133,11 +146,19 @@ def open_db(folder: str | Path, read_only: bool = False) -> sqlite3.Connection:
     path = db_path(folder)
     if not path.exists():
         raise InputError(f"{folder}: no campaign here ({path.name} not found; start one with `bmctl campaign init`)")
+    wal = path.with_name(path.name + "-wal")
+    if path.is_file() and path.stat().st_size == 0 and not (wal.is_file() and wal.stat().st_size):
+        # refused before SQLite opens it: opening would write a header into the user's file
+        raise InputError(f"{path}: empty (0 bytes), not a campaign database (a `campaign init` that did not "
+                         "finish, or a damaged copy)")
     try:
         try:
             con = _connect(path)
             row = con.execute("SELECT version FROM schema_version").fetchone()
         except sqlite3.OperationalError as exc:
+            if "locked" in str(exc) or "busy" in str(exc):  # another process holds it past the busy timeout
+                raise InputError(f"{path}: busy: locked by another process (waited {LOCK_TIMEOUT_S:g} s); "
+                                 "try again when it has finished") from None
             locked_out = "readonly" in str(exc) or "unable to open" in str(exc)
             if locked_out and not read_only:
                 raise InputError(f"{path}: read-only for this user: this command records to the campaign "

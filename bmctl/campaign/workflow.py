@@ -27,6 +27,7 @@ The estimator's timeline
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -435,28 +436,46 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
     if estimator is not None:
         _filter_settings(estimator, int(particles), "estimator")
     folder = Path(folder)
-    con = db.create(folder)
     inp = folder / INPUTS
+    made = [p for p in (folder, inp) if not p.exists()]
+    con = db.create(folder)
+    copied: list[Path] = []
     try:
-        inp.mkdir(exist_ok=True)
-        files = {"card": (card_p, inp / card_p.name), "controller": (ctrl_p, inp / f"controller-{ctrl_p.name}")}
-        if coeffs_path(card_p).exists():
-            files["moments"] = (coeffs_path(card_p), coeffs_path(inp / card_p.name))
-        for src, dst in files.values():
-            shutil.copyfile(src, dst)
-        meta = {"inputs": {k: {"source": str(src.resolve()), "file": str(dst.relative_to(folder)),
-                               "sha256": _sha(dst)} for k, (src, dst) in files.items()},
-                "target": tgt, "hours": H, "temperature_max_c": Tmax, "seed": int(seed),
-                "particles": int(particles), "estimator": dict(CAMPAIGN_FILTER if estimator is None else estimator),
-                "controller_kind": cfg.kind, "created_at": db.now()}
-        with db.transaction(con, where=str(folder)):
-            db.init_schema(con)
-            db.set_meta(con, **meta)
-    finally:
-        con.close()
-    with Campaign(folder, _new=True) as c, db.transaction(c.con, where=str(folder)):
-        c._write_node(-1.0)  # the prior
+        try:
+            inp.mkdir(exist_ok=True)
+            files = {"card": (card_p, inp / card_p.name), "controller": (ctrl_p, inp / f"controller-{ctrl_p.name}")}
+            if coeffs_path(card_p).exists():
+                files["moments"] = (coeffs_path(card_p), coeffs_path(inp / card_p.name))
+            for src, dst in files.values():
+                copied.append(dst)
+                shutil.copyfile(src, dst)
+            meta = {"inputs": {k: {"source": str(src.resolve()), "file": str(dst.relative_to(folder)),
+                                   "sha256": _sha(dst)} for k, (src, dst) in files.items()},
+                    "target": tgt, "hours": H, "temperature_max_c": Tmax, "seed": int(seed),
+                    "particles": int(particles), "estimator": dict(CAMPAIGN_FILTER if estimator is None else estimator),
+                    "controller_kind": cfg.kind, "created_at": db.now()}
+            with db.transaction(con, where=str(folder)):
+                db.init_schema(con)
+                db.set_meta(con, **meta)
+        finally:
+            con.close()
+        with Campaign(folder, _new=True) as c, db.transaction(c.con, where=str(folder)):
+            c._write_node(-1.0)  # the prior
+    except BaseException:  # Ctrl-C, a full disk: no campaign without its prior is left behind
+        _undo_init(folder, made, copied)
+        raise
     return meta
+
+
+def _undo_init(folder: Path, made: list[Path], copied: list[Path]) -> None:
+    """Remove what a failed :func:`init` wrote: its database, the input copies and the folders it made."""
+    path = db.db_path(folder)
+    for p in [path.with_name(path.name + x) for x in ("", "-wal", "-shm", "-journal")] + copied:
+        with contextlib.suppress(OSError):
+            p.unlink()
+    for d in reversed(made):  # inputs/ first, then the campaign folder; only when empty
+        with contextlib.suppress(OSError):
+            d.rmdir()
 
 
 def _deviation(c: Campaign, t0: float, rpm: float, milling: float, hours: float) -> tuple[int | None, str]:
