@@ -7,8 +7,8 @@ Prints, for each model card and particle number M, the CPU time of a full run of
 recipe (one core; numpy runs single-threaded here; CPU seconds, so that a loaded machine
 does not inflate the figures), the simulated particle-events per second (each impact
 touches two particles), the real-time factor (milling time / CPU time) and the ratio of each engine's events/s to the first engine's. Both engines run the same seed and must
-end in the same state (checked: "same" column: "bits" to the last bit, "1e-12" where numpy's
-SIMD exp differs from the C library's in the last bit, docs/performance.md). The compiled code
+end in the same state (checked: "same" column: "bits" to the last bit, as docs/performance.md
+promises on every CPU; "1e-12" or "no" would be a defect). The compiled code
 is loaded (or compiled and cached) before the clock starts.
 
 ``--compare DIR`` also runs another checkout's plant (its default engine, in a subprocess,

@@ -29,6 +29,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from . import libm
 from .constants import MEAN_LOSS_RATIO
 
 N_CELLS = 8192  # cells of every main table
@@ -143,11 +144,11 @@ def tabulated_energies(rng: np.random.Generator, theta: float, n: int) -> np.nda
     y = main[k] + (z - k) * (main[k + 1] - main[k])
     first = k == 0
     if first.any():  # Q ~ u^(1/3) at 0
-        y[first] = main[1] * np.cbrt(z[first])
+        y[first] = main[1] * libm.cbrt(z[first])  # the C library's, as the compiled engine
     up = u >= ENERGY_MAIN_U
     if up.any():
         t0, t1 = ENERGY_TAIL_T
-        zt = (-np.log1p(-u[up]) - t0) * (N_TAIL_CELLS / (t1 - t0))
+        zt = (-libm.log1p(-u[up]) - t0) * (N_TAIL_CELLS / (t1 - t0))
         kt = np.minimum(zt.astype(np.int64), N_TAIL_CELLS - 1)
         y[up] = tail[kt] + (zt - kt) * (tail[kt + 1] - tail[kt])
     return y * theta
@@ -171,7 +172,7 @@ def tabulated_beta_a2(rng: np.random.Generator, a: float, n: int) -> np.ndarray:
     x = q[k] + (z - k) * (q[k + 1] - q[k])
     first = k == 0
     if first.any():
-        x[first] = q[1] * z[first] ** (1.0 / a)
+        x[first] = q[1] * libm.power(z[first], 1.0 / a)
     last = k == N_CELLS - 1
     if last.any():
         x[last] = 1.0 - (1.0 - q[N_CELLS - 1]) * np.sqrt(N_CELLS - z[last])

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..physics import libm
 from ..physics.impacts import sample_impact_energies, sample_xi, sample_zeta  # eqns (5), (9): one definition  # noqa: F401
 
 R_MAX = 0.99  # r is kept in [0, R_MAX] (r -> 1 is a fractal boundary, eqn 3)
@@ -116,7 +117,7 @@ def equiaxing(r, dU_p, s, sigma, efficiency, hardening=0.0, hardening_decay=0.0)
     """
     area = np.pi / 4 * s**2
     eta = efficiency * max(0.0, 1.0 - hardening_decay * hardening)
-    return r * np.exp(-eta * 1.5 * dU_p / (area * s * sigma))
+    return r * libm.exp(-eta * 1.5 * dU_p / (area * s * sigma))  # the C library's exp, as the compiled engine
 
 
 # --- bonding and fracture ---------------------------------------------------------------------
@@ -139,7 +140,7 @@ def hertz_contact_length(s_i, s_j, energy, modulus):
 def threshold_probability(du, u, sharpness):
     """p_u = 1 / (1 + exp(-k (du - u))) with k u = ``sharpness``.  (17)"""
     x = np.clip(sharpness * (du / u - 1.0), -60, 60)
-    return 1.0 / (1.0 + np.exp(-x))
+    return 1.0 / (1.0 + libm.exp(-x))  # the C library's exp, as the compiled engine
 
 
 def bonded(s_i, r_i, s_j, r_j, d):
