@@ -107,12 +107,26 @@ HELD_OUT = (
 )
 
 
+#: card fields a hidden mill may not change, and why: the hidden plant does not read them, or the
+#: mill's own multipliers set them
+NOT_THE_PLANT = {
+    "process": "the card's recipe does not change the hidden plant (the batch is the mill's hours, the speeds "
+               "are the sweep's and the advice's)",
+    "validity": "where the card holds does not change the hidden plant",
+    "simulation.particles": "the hidden plant's particles are --particles",
+    "simulation.record_every_h": "the recording interval does not change the hidden plant",
+    "stochastic.gamma_per_um2": "set through gamma_mult (the card's gamma times it)",
+    "stochastic.delta_per_um2": "set through delta_mult (the card's delta times it)",
+}
+
+
 def load_mills(path: Path, card_path: Path = CARD) -> tuple[Case, ...]:
     """Hidden mills from a TOML file (``--mills``): ``[[mill]]`` tables with ``name``, ``gamma_mult``,
     ``delta_mult``, ``field`` (a numeric card field as ``section.key``), ``value``, ``hours`` and
     ``rpm_ref`` (the reference constant rpm that defines the target, in the sweep's 100-460 rpm).
     Every hidden card (``card_path`` changed) is built and validated here; a problem is one
     :class:`~bmctl.errors.InputError` line naming the file and the field."""
+    import math
     from typing import Annotated
 
     from pydantic import Field, ValidationError, field_validator, model_validator
@@ -132,6 +146,22 @@ def load_mills(path: Path, card_path: Path = CARD) -> tuple[Case, ...]:
         hours: Annotated[float, Field(ge=max(HOURS_MIN, INTERVAL_H), le=48)]
         rpm_ref: Annotated[float, Field(ge=100, le=460)]
 
+        @field_validator("value", mode="before")
+        @classmethod
+        def _a_number(cls, v):  # one message for a text, a bool, nan or inf (not the int branch's)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"must be a finite number (got {v!r})")
+            return v
+
+        @field_validator("hours")
+        @classmethod
+        def _last_interval(cls, v: float) -> float:  # the campaign logs no interval under 1 s
+            rest = v % INTERVAL_H
+            if 1e-9 < rest < HOURS_MIN:
+                raise ValueError(f"leaves a last interval of {rest * 3600:.2g} s after the {INTERVAL_H:g} h advice "
+                                 f"intervals, under the 1 s the campaign can log (got {v!r})")
+            return v
+
         @field_validator("field")
         @classmethod
         def _numeric_card_field(cls, v: str) -> str:
@@ -139,8 +169,14 @@ def load_mills(path: Path, card_path: Path = CARD) -> tuple[Case, ...]:
             cur = base.get(sec)
             if not isinstance(cur, dict) or key not in cur:
                 raise ValueError(f"not a field of the card {Path(card_path).name} (got {v!r})")
+            if cur[key] is None:
+                raise ValueError(f"not set on the card {Path(card_path).name}: a hidden mill changes a number the "
+                                 f"card gives (got {v!r})")
             if isinstance(cur[key], bool) or not isinstance(cur[key], (int, float)):
                 raise ValueError(f"not a numeric card field (got {v!r})")
+            why = NOT_THE_PLANT.get(v, NOT_THE_PLANT.get(sec))
+            if why:
+                raise ValueError(f"{why} (got {v!r})")
             return v
 
     class MillSet(Strict):
@@ -272,6 +308,8 @@ def hidden_card(case: Case, card_path: Path = CARD):
     d[sec][key] = case.value
     if key == "ball_diameter_m":  # one ball's mass follows its size
         d["material"]["impactor_mass_kg"] *= (case.value / card.mill.ball_diameter_m) ** 3
+    elif key == "ball_density_kg_m3":  # and its density
+        d["material"]["impactor_mass_kg"] *= case.value / card.mill.ball_density_kg_m3
     return type(card).model_validate(d)
 
 
@@ -369,7 +407,7 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
     g_plant, g_sample = (np.random.default_rng(s) for s in ss.spawn(2))
     plant = Plant(card, g_plant, particles)
     cli(["campaign", "init", str(folder), "--model", str(card_path), "--controller", str(controller), "--target",
-         f"s_mean_um={target_um:.4f}", "--hours", f"{case.hours:g}", "--seed", "0",
+         f"s_mean_um={target_um:.4f}", "--hours", repr(float(case.hours)), "--seed", "0",
          *([] if energy_mult else ["--no-energy-mult"])], env)
     t, peak = 0.0, plant.temperature_c
     advise_wall, advise_cpu, steps = [], [], []
@@ -482,12 +520,13 @@ def figure(rec: dict, path: Path) -> Path:
     return path
 
 
-def table(rows: list[dict], summary: dict) -> str:
-    """The Markdown table of docs/control.md, its measured numbers in results markers."""
+def table(rows: list[dict], summary: dict, name: str = "hidden_mills") -> str:
+    """The Markdown table of docs/control.md, its measured numbers in markers pointing at
+    ``results/<name>.json`` (the file the run writes)."""
     from bmctl.results import marked
 
     def m(i, key, fmt):
-        return marked("hidden_mills.json", f"cases.{i}.{key}", rows[i][key], fmt)
+        return marked(name, f"cases.{i}.{key}", rows[i][key], fmt)
 
     out = ["| mill | γ, δ | also changed | batch h | target s_mean µm | campaign error % | peak °C | "
            "idle while needed h (longest) | plain schedule chosen on the card | its error % |",
@@ -502,7 +541,7 @@ def table(rows: list[dict], summary: dict) -> str:
                    f"{m(i, 'error_pct', '{:+.2f}')} | {m(i, 'peak_c', '{:.1f}')} | {m(i, 'idle_needed_h', '{:.2f}')} "
                    f"({m(i, 'longest_idle_needed_h', '{:.2f}')}) | {r['plain_schedule']} | "
                    f"{m(i, 'plain_error_pct', '{:+.1f}')} |")
-    sm = {k: marked("hidden_mills.json", f"summary.{k}", summary[k], f) for k, f in (
+    sm = {k: marked(name, f"summary.{k}", summary[k], f) for k, f in (
         ("median_error_pct", "{:.2f}"), ("worst_error_pct", "{:.2f}"), ("max_over_ceiling_c", "{:+.1f}"),
         ("longest_idle_needed_h", "{:.2f}"), ("plain_median_error_pct", "{:.1f}"), ("plain_worst_error_pct", "{:.1f}"),
         ("campaign_beats_plain", "{:d}"))}
@@ -641,6 +680,10 @@ def _main() -> None:
     card_path = Path(a.card).resolve() if a.card else CARD
     # a bad card, mills or controller file: one line, exit 2, before anything is written
     card = load_card(card_path)
+    if card.mill.rpm_max < SWEEP_RPM_MAX:  # the sweep's fastest schedule would be refused by the plant
+        raise InputError(f"--card {a.card or _shown(card_path)}: mill.rpm_max: the sweep runs up to {SWEEP_RPM_MAX:g} "
+                         f"rpm (the paper's 30/10 min schedule), above this mill's {card.mill.rpm_max:g} rpm: the "
+                         f"benchmark needs a mill that reaches {SWEEP_RPM_MAX:g} rpm")
     if a.card:  # the campaign refuses a card without its own moment coefficients: say so before any sweep
         from bmctl.moments.forcard import for_card
 
@@ -694,6 +737,12 @@ def _main() -> None:
             raise InputError(f"{where}mill {case.name}: no constant speed of the sweep stays 3 °C under the "
                              f"{CEILING_C:g} °C ceiling on the hidden plant, so no target can be chosen")
         refs[case.name] = (hs, min(ok, key=lambda r: abs(float(r["name"].split()[0]) - case.rpm_ref)))
+        if case.hours not in card_sweeps:  # the plain schedules the card offers, under the ceiling
+            card_sweeps[case.hours] = sweep(card, case.hours, a.particles, a.seed)
+            if not any(r["peak_c"] <= CEILING_C for r in card_sweeps[case.hours]):
+                raise InputError(f"--card {a.card or _shown(card_path)}: no schedule of the sweep stays under the "
+                                 f"{CEILING_C:g} °C ceiling on the card's plant ({case.hours:g} h), so no plain "
+                                 "schedule can be chosen on it")
     claim_out(out)
     cache = Path(tempfile.mkdtemp(prefix="bmctl-hidden-cache-"))  # a fresh compile cache: first advise is cold
     env = {**os.environ, "PYTHONPATH": str(ROOT), "XDG_CACHE_HOME": str(cache), "MPLBACKEND": "Agg"}
@@ -702,8 +751,6 @@ def _main() -> None:
     for case in cases:  # the target and the plain schedule chosen on the card, per mill
         hs, ref = refs[case.name]
         target = round(ref["s_mean_um"], 2)
-        if case.hours not in card_sweeps:
-            card_sweeps[case.hours] = sweep(card, case.hours, a.particles, a.seed)
         cs = [r for r in card_sweeps[case.hours] if r["peak_c"] <= CEILING_C]
         pick = min(cs, key=lambda r: abs(r["s_mean_um"] - target))
         plain_hidden = next(r for r in hs if r["name"] == pick["name"])
@@ -758,7 +805,7 @@ def _main() -> None:
         "load_before": list(load0), "load_after": list(os.getloadavg()),
         "wall_s": time.perf_counter() - t_start,
     }
-    print("\n" + table(rows, summary))
+    print("\n" + table(rows, summary, a.results_name))
     print(f"\nmedian |error| {summary['median_error_pct']:.2f} %, worst {summary['worst_error_pct']:.2f} %; "
           f"largest excess over the ceiling {summary['max_over_ceiling_c']:+.1f} °C; longest idle stretch while "
           f"needed {summary['longest_idle_needed_h']:.2f} h; plain schedules: median {summary['plain_median_error_pct']:.2f}"
