@@ -43,7 +43,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 #: subcommands that estimate their work before starting and take the budget flags (bmctl.work)
-BUDGETED = ("simulate", "identify", "linearize", "estimate", "trial", "whatif", "design", "compare", "calibrate")
+BUDGETED = ("simulate", "identify", "linearize", "estimate", "trial", "whatif", "design", "compare", "calibrate",
+            "measure")
 
 
 def _budget_flags(p: argparse.ArgumentParser) -> None:

@@ -83,6 +83,22 @@ def _overlay_names(results, folder: Path) -> list[Path]:
     return names
 
 
+def _check_work(images) -> None:
+    """Refuse images whose segmentation would need more memory or CPU than the work budget
+    (:func:`bmctl.work.measure_work` on the headers' pixel counts), before any is decoded."""
+    from ..measure.loading import image_pixels
+    from ..measure.names import path_text
+    from ..work import check_work, measure_work
+
+    px = [(image_pixels(p) or 0, p) for p in images]
+    if not px:
+        return
+    most, name = max(px, key=lambda q: q[0])
+    check_work(measure_work([n for n, _ in px]),
+               f"{path_text(name)} ({most:,} px{f' of {sum(n for n, _ in px):,} in {len(px)} images' if len(px) > 1 else ''}; "
+               "downsample or crop the file first)")
+
+
 def run(args: argparse.Namespace) -> int:
     """Measure all inputs, print a summary and warnings, write ``--out`` and what goes beside it."""
     import numpy as np
@@ -100,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
     tables, locs, lines, results, reports, warned = [], [], [], [], [], []
     next_id = 1
     refuse_repeats(args.inputs)  # one image twice would be counted twice
+    _check_work([p for p in args.inputs if not _is_table(p)])
     for path in args.inputs:
         name = path_text(path)  # printed and in the table: bytes that are not UTF-8 as escapes
         if _is_table(path):
@@ -127,7 +144,13 @@ def run(args: argparse.Namespace) -> int:
         locs.append(ParticleLocations(ids, (name,) * len(t), np.asarray(x, float), np.asarray(y, float)))
     table = ParticleTable.concat(tables)
     if len(table) == 0:
-        raise InputError(f"{args.inputs[0]}: no particles found (check the scale, --min-area-px, --crop)")
+        if not results:  # tables only
+            raise InputError(f"{args.inputs[0]}: no particles found (check the scale, --min-area-px, --crop)")
+        # the pixel size plays no part in finding particles: name what does, and how the image was read
+        first = results[0]
+        more = {1: "", 2: " (nor in the other image)"}.get(len(results), f" (nor in the other {len(results) - 1} images)")
+        raise InputError(f"{path_text(first.name)}: no particles found{more}: read as {_polarity_text(first)}; "
+                         "check --min-area-px, --crop, or the polarity (--dark-particles / --bright-particles)")
     loc = ParticleLocations(np.concatenate([q.particle_id for q in locs]), sum((q.image for q in locs), ()),
                             np.concatenate([q.x_um for q in locs]), np.concatenate([q.y_um for q in locs]))
     written = []

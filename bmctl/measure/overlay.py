@@ -12,6 +12,17 @@ from skimage import segmentation
 from ..io import pyplot, savefig
 
 
+def display_levels(image: np.ndarray) -> np.ndarray:
+    """The image stretched from its darkest to its brightest pixel to [0, 1], for display: a
+    16-bit frame that uses a few hundred of its 65,536 levels, or a float image in counts, would
+    otherwise show as one flat gray (or white) and hide the particles the overlay outlines."""
+    img = np.asarray(image, dtype=float)
+    lo, hi = float(img.min()), float(img.max())
+    if not hi > lo:
+        return np.clip(img, 0.0, 1.0)
+    return (img - lo) / (hi - lo)
+
+
 def write_overlay(path: str | os.PathLike, image: np.ndarray, labels: np.ndarray, offset=(0, 0), ids=None,
                   *, excluded_from_row: int | None = None, scale_bar=None, title: str = "") -> None:
     """Write the image with particle outlines (yellow) and ids (cyan) as a PNG, atomically.
@@ -20,7 +31,7 @@ def write_overlay(path: str | os.PathLike, image: np.ndarray, labels: np.ndarray
     ----------
     path : path-like
     image : ndarray of float, shape (H, W)
-        The full input image (gray, [0, 1]).
+        The full input image (gray; shown stretched to its own range, :func:`display_levels`).
     labels : ndarray of int
         Particles 1..n in the segmented frame (cropped), placed at ``offset``.
     offset : (int, int), optional
@@ -35,7 +46,7 @@ def write_overlay(path: str | os.PathLike, image: np.ndarray, labels: np.ndarray
     """
     plt = pyplot()
     h, w = image.shape
-    rgb = np.repeat(np.clip(image, 0, 1)[..., None], 3, axis=2)
+    rgb = np.repeat(display_levels(image)[..., None], 3, axis=2)
     full = np.zeros((h, w), dtype=labels.dtype)
     oy, ox = offset
     full[oy:oy + labels.shape[0], ox:ox + labels.shape[1]] = labels
