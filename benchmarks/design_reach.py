@@ -52,7 +52,7 @@ def main() -> None:
         row = {"target": {k: list(v) if isinstance(v, tuple) else v for k, v in target.items()},
                "objective": objective, "hours": d.hours, "reachable": d.reach.reachable,
                "error_pct": 100 * r.error, "predicted": r.outputs[key], "method": r.method,
-               "search_error_pct": 100 * d.search.error, "search_family": d.search.family,
+               "search_error_pct": 100 * d.searched.error, "search_family": d.searched.family,
                "search_schedules": d.search.evaluated,
                "local_error_pct": None if d.local is None else 100 * d.local.error,
                "peak_c": r.peak_c, "switches": r.switches, "milling_h": r.milling_h, "energy_kWh": r.energy_kWh,
@@ -67,7 +67,7 @@ def main() -> None:
                               "error_pct": 100 * p.error, "switches": p.switches, "peak_c": p.peak_c} for p in d.pareto]
         out[name] = row
         print(f"{name}: {target} -> {key} {r.outputs[key]:.4g} (error {100 * r.error:.2f} %, {r.method}); search "
-              f"{100 * d.search.error:.2f} % ({d.search.family}), local NLP "
+              f"{100 * d.searched.error:.2f} % ({d.searched.family}), local NLP "
               f"{'-' if d.local is None else f'{100 * d.local.error:.2f} %'}; plant {pc[key]['mean']:.4g} "
               f"[{pc[key]['min']:.4g}, {pc[key]['max']:.4g}]; peak {r.peak_c:.1f} °C; {cpu:.1f} s CPU", flush=True)
         if not d.reach.reachable:

@@ -100,8 +100,8 @@ def run(args) -> int:
     if d.local is not None and d.local is not r:
         print(f"  local NLP (from the search's best schedules): error {100 * d.local.error:.2f} %, "
               f"{d.local.switches} switches, peak T {d.local.peak_c:.1f} °C: not better")
-    elif d.local is not None:
-        print(f"  global search's best: error {100 * d.search.error:.2f} %; the local NLP improved on it")
+    elif d.local is not None:  # the search's schedule as written, integrated as the summary's
+        print(f"  global search's best: error {100 * d.searched.error:.2f} %; the local NLP improved on it")
     if args.plant_seeds:
         pc = d.plant
         tol = cfg.objective.tolerance
@@ -114,7 +114,8 @@ def run(args) -> int:
             dev = abs(m - r.outputs[k]) / max(abs(r.outputs[k]), 1e-12)
             if dev > tol:
                 off.append(f"{k} {100 * dev:.1f} %")
-        print(f"plant check ({pc['seeds']} plants, seed {args.seed}): " + "; ".join(parts)
+        print(f"plant check ({pc['seeds']} plant{'s' if pc['seeds'] != 1 else ''}, seed {args.seed}): "
+              + "; ".join(parts)
               + f"; peak T {pc['temperature_peak_c']:.1f} °C")
         if off:
             print(f"warning: the plant and the moment model disagree by more than the tolerance "

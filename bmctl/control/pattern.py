@@ -64,6 +64,7 @@ class PatternResult:
     seg_states: list = field(default_factory=list)
 
     active: list = field(default_factory=list)  # limits active at the solution (see PatternDesigner.active)
+    family: str = ""  # the search's schedule family, for a search result (bmctl.control.search)
 
     @property
     def switches(self) -> int:

@@ -74,7 +74,7 @@ def reachability(model, target: dict, hours: float, cfg, p=None, result=None) ->
     tol = cfg.objective.tolerance
     if result is not None and result.error <= tol:
         return Reach(True, result.error, result.outputs, [])
-    best, local, sr = design_one(model, target, hours, cfg, p)
+    best, local, sr, _ = design_one(model, target, hours, cfg, p)
     if result is not None and result.error < best.error:
         best = result
     if best.error <= tol:
