@@ -12,17 +12,10 @@ import pytest
 
 from bmctl.errors import InputError
 from tests.conftest import load_benchmark
+from tests.test_hidden_mills_mills import ROW, _file  # one mill row and the file writer
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "hidden_mills.py"
-ROW = ('name = "X"\ngamma_mult = 1.2\ndelta_mult = 0.8\nfield = "mill.ball_count"\nvalue = 9\nhours = 6.0\n'
-       'rpm_ref = 300.0\n')
-
-
-def _file(tmp_path, text: str) -> Path:
-    p = tmp_path / "mills.toml"
-    p.write_text(text)
-    return p
 
 
 def test_the_campaign_is_given_the_mills_batch_length_unrounded(tmp_path, monkeypatch):
