@@ -9,6 +9,7 @@ from pydantic import Field, model_validator
 
 from .config import HOURS, Range, Strict, load
 from .errors import InputError
+from .physics.constants import TIME_EPS_H
 
 TARGET_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "d90_um", "span")  # = control.config.TARGET_KEYS
 
@@ -142,9 +143,19 @@ def load_scenario(path: str | Path) -> Scenario:
                 resolve(ref, base)
             except InputError as exc:
                 raise InputError(f"{path}: {exc}") from None
-    from .control.config import load_controller
+    from .control.config import check_dwell_interval, load_controller
 
-    cfg = load_controller(resolve(sc.controller.config, base))
+    cfg_path = resolve(sc.controller.config, base)
+    cfg = load_controller(cfg_path)
+    check_dwell_interval(cfg, str(cfg_path))
+    interval_h = cfg.interval_h if cfg.interval_h is not None else (
+        (cfg.mill_min + cfg.rest_min) / 60.0 if getattr(cfg, "mill_min", None) is not None else 0.5)
+    interval_h = min(interval_h, sc.hours)  # a batch shorter than one interval is one interval
+    if sc.sampling.every_h < interval_h - TIME_EPS_H:  # the loop samples at interval ends, at most once each
+        given = "sampling.every_h" if "every_h" in sc.sampling.model_fields_set else "sampling.every_h (default)"
+        raise InputError(f"{path}: {given}: {sc.sampling.every_h:g} h is shorter than the control interval "
+                         f"({interval_h:g} h, {cfg_path}): a trial samples at the end of each interval, at most "
+                         f"once; give every_h >= {interval_h:g}")
     if sc.temperature_max_c is not None:  # named here, with the file (the trial checks the controller's own)
         from .config import load_card
 

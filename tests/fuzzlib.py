@@ -350,7 +350,7 @@ config = "{controller}"
 [plant]
 particles = 200
 [sampling]
-every_h = 0.25
+every_h = 0.5
 particles = 40
 [estimator]
 particles = 60

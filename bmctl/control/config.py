@@ -477,7 +477,38 @@ def validate_controller(data: dict[str, Any], source: str) -> ControllerConfig:
     times = [r.from_h for r in cfg.reference]
     if times != sorted(times):
         raise InputError(f"{source}: reference: from_h must be increasing")
+    bounds = getattr(cfg, "bounds", None)
+    if bounds is not None and cfg.mill.rpm_min_milling > bounds.rpm_max:  # the mill could never mill
+        raise InputError(f"{source}: mill.rpm_min_milling: {cfg.mill.rpm_min_milling:g} rpm is above "
+                         f"bounds.rpm_max ({bounds.rpm_max:g} rpm): no rpm is allowed while milling")
+    if cfg.kind == "lqr" and not bounds.milling_min <= cfg.lqr.milling <= bounds.milling_max:
+        raise InputError(f"{source}: lqr.milling: {cfg.lqr.milling:g} is outside [bounds.milling_min, "
+                         f"bounds.milling_max] = [{bounds.milling_min:g}, {bounds.milling_max:g}]")
     return cfg
+
+
+def check_dwell_interval(cfg, source: str) -> None:
+    """Refuse a minimum milling period or rest longer than the control interval where the applied
+    intervals go one by one through :class:`bmctl.control.mill.MillGuard` (the LQR, the NLP MPC):
+    it keeps the limits within an interval, so a merged period of whole intervals could end short.
+
+    Parameters
+    ----------
+    cfg : ControllerConfig
+        A recipe, or an MPC that plans on operable schedules (``[plan] method = "search"``), passes.
+    source : str
+        The controller's file, named in the message.
+    """
+    if cfg.kind == "recipe" or (cfg.kind == "mpc" and cfg.plan.method == "search"):
+        return
+    dt_min = float(cfg.interval_h) * 60.0
+    for name in ("min_mill_min", "min_rest_min"):
+        v = getattr(cfg.mill, name)
+        if v > dt_min + 1e-9:
+            raise InputError(f"{source}: mill.{name}: {v:g} min is longer than the control interval "
+                             f"(interval_h = {cfg.interval_h:g} h = {dt_min:g} min): the {cfg.kind} applies one "
+                             f"interval at a time and cannot keep it; lengthen interval_h"
+                             + (' or plan with [plan] method = "search"' if cfg.kind == "mpc" else ""))
 
 
 def load_controller(path: str | Path) -> ControllerConfig:

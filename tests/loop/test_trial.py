@@ -243,3 +243,46 @@ def test_estimator_settings_name_typos_and_refuse_the_unused_table(small, tmp_pa
         sc.write_text(sc.read_text().replace("[estimator]\n", '[estimator]\nkind = "ukf"\n'))
         with pytest.raises(InputError, match="settings of the pf estimator, but estimator.kind is 'ukf'"):
             load_scenario(sc)
+
+
+def _lqr_with(tmp_path, *edits) -> Path:
+    """lqr-baseline.toml with ``edits`` ((old, new) line replacements) in ``tmp_path``."""
+    text = (ROOT / "controllers" / "lqr-baseline.toml").read_text()
+    for old, new in edits:
+        assert old in text, old
+        text = text.replace(old, new, 1)
+    path = tmp_path / "c.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("edits, said", [
+    # the guard rounds each interval alone: a 30-min milling interval then a rest made a 30-min period
+    ((("min_mill_min = 5.0", "min_mill_min = 45.0"),), "mill.min_mill_min: 45 min is longer than the control interval"),
+    ((("min_rest_min = 5.0", "min_rest_min = 45.0"),), "mill.min_rest_min: 45 min is longer than the control interval"),
+    # no rpm could be milled at: the trial rested the whole batch without a word
+    ((("rpm_min_milling = 100.0", "rpm_min_milling = 400.0"), ("rpm_max = 500.0", "rpm_max = 300.0")),
+     "mill.rpm_min_milling: 400 rpm is above bounds.rpm_max (300 rpm)"),
+    # the LQR milled its nominal 1.0 through a milling_max of 0.1
+    ((("milling_max = 1.0", "milling_max = 0.1"),), "lqr.milling: 1 is outside [bounds.milling_min, bounds.milling_max]"),
+])
+def test_a_controller_the_mill_limits_make_infeasible_is_refused_naming_the_field(small, tmp_path, edits, said):
+    from bmctl.scenario import load_scenario
+
+    ctrl = _lqr_with(tmp_path, *edits)
+    sc = tmp_path / "s.toml"
+    sc.write_text(small.read_text().replace(f"{ROOT}/controllers/mpc-fast.toml", str(ctrl)))
+    with pytest.raises(InputError, match=__import__("re").escape(said)):
+        load_scenario(sc)
+
+
+def test_sampling_faster_than_the_control_interval_is_refused(small, tmp_path):
+    """every_h = 0.25 with 0.5 h intervals took one sample per interval: half those asked for, unsaid."""
+    from bmctl.scenario import load_scenario
+
+    sc = tmp_path / "s.toml"
+    sc.write_text(small.read_text().replace("every_h = 1.0", "every_h = 0.25"))
+    with pytest.raises(InputError, match=r"sampling\.every_h: 0\.25 h is shorter than the control interval \(0\.5 h"):
+        load_scenario(sc)
+    sc.write_text(small.read_text().replace("every_h = 1.0", "every_h = 0.5"))
+    load_scenario(sc)
