@@ -410,13 +410,14 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         The campaign's meta data.
     """
     from ..config import load_card
-    from ..control.config import check_ceiling, load_controller
+    from ..control.config import check_ceiling, check_dwell_interval, load_controller
     from ..moments.coeffs import coeffs_path
 
     card_p, ctrl_p = Path(model), Path(controller)
     card = load_card(card_p)
     for_card(card_p, identify=identify, progress=progress)  # the card's own coefficients, or refuse
     cfg = load_controller(ctrl_p)
+    check_dwell_interval(cfg, str(ctrl_p))  # as a trial: a minimum the interval-by-interval guard cannot keep
     tgt = tg.parse(target) if isinstance(target, str) else {k: _finite(v, f"target: {k}", 0, strict=True)
                                                             for k, v in dict(target).items()}
     for k in tgt:

@@ -286,3 +286,15 @@ def test_sampling_faster_than_the_control_interval_is_refused(small, tmp_path):
         load_scenario(sc)
     sc.write_text(small.read_text().replace("every_h = 1.0", "every_h = 0.5"))
     load_scenario(sc)
+
+
+def test_campaign_init_refuses_a_minimum_the_interval_guard_cannot_keep(tmp_path, capsys):
+    """As a trial: an LQR campaign with 45-min minimum milling on 0.5 h intervals would advise periods of 30 min."""
+    from bmctl.cli import main
+
+    ctl = _lqr_with(tmp_path, ("min_mill_min = 5.0", "min_mill_min = 45.0"))
+    rc = main(["campaign", "init", str(tmp_path / "camp"), "--model", str(ROOT / "models" / "alni-1to1-300rpm-lab.toml"),
+               "--controller", str(ctl), "--target", "s_mean_um=35"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "mill.min_mill_min: 45 min is longer than the control interval" in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "camp").exists()
