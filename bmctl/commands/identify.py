@@ -105,7 +105,7 @@ def run(args) -> int:
                              args.particles or ident.default_particles(args.quick), ident.DT_H),
                "--particles/--random-schedules/--seeds/--heldout")
     res = identification(card, args.model, seed=args.seed, log=log, workers=args.workers, scheduler=args.scheduler,
-                         command=command, start=args.start, quick=args.quick, particles=args.particles,
+                         command=command, start=args.start, replaces=out, quick=args.quick, particles=args.particles,
                          random_schedules=args.random_schedules, seeds=args.seeds, heldout=args.heldout,
                          evaluations=args.evaluations, jacobians=args.jacobians)
     names = ident.MOMENTS[:5]

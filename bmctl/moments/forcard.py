@@ -56,13 +56,15 @@ class Status:
     ----------
     state : str
         ``"match"``, ``"mismatch"`` (identified for other card values), ``"unrecorded"`` (the file
-        records no card fingerprint) or ``"missing"``.
+        records no card fingerprint), ``"incomplete"`` (it records one but lacks coefficients, which
+        the model would silently replace by its defaults: the file was edited or cut) or ``"missing"``.
     path : Path or None
         The coefficient file looked at.
     file : CoeffFile or None
         Its content (None when missing).
     diff : list of str
-        The differing fields, ``"table.field <card> (coefficients: <file>)"``.
+        The differing fields, ``"table.field <card> (coefficients: <file>)"``; for ``"incomplete"``, the
+        missing coefficients.
     """
 
     state: str
@@ -80,6 +82,8 @@ class Status:
             return f"none ({self.path} does not exist)"
         if self.state == "unrecorded":
             return f"{self.path}: records no card fingerprint (identified before fingerprints; re-identify)"
+        if self.state == "incomplete":
+            return f"{self.path}: lacks {len(self.diff)} coefficient(s) ({_names(self.diff)}); re-identify"
         if self.state == "mismatch":
             return (f"{self.path}: identified for other values of {len(self.diff)} field(s): "
                     + "; ".join(self.diff[:4]) + (" ..." if len(self.diff) > 4 else ""))
@@ -109,6 +113,9 @@ def status(card, card_path: str | Path | None = None, coeffs: str | Path | None 
     f = cf.read_file(path)
     if f.values is None:
         return Status("unrecorded", path, f)
+    lacking = tuple(k for k in cf.NAMES if k not in f.coeffs)  # identify writes them all (since fingerprints)
+    if lacking:
+        return Status("incomplete", path, f, lacking)
     diff = fingerprint_diff(fingerprint_values(card), f.values)
     return Status("mismatch" if diff else "match", path, f, tuple(diff))
 
@@ -129,11 +136,18 @@ def refusal(where: str, st: Status, fix: str) -> InputError:
         what = f"none identified for this card ({st.path} does not exist)" if st.path else "none given"
     elif st.state == "unrecorded":
         what = f"{st.path} records no card fingerprint, so it may belong to another card"
+    elif st.state == "incomplete":
+        what = (f"{st.path} lacks {len(st.diff)} of the {len(cf.NAMES)} coefficients ({_names(st.diff)}), "
+                "so the model would run on defaults there: the file was edited or cut")
     else:
         other = f" {st.file.card_name!r}" if st.file and st.file.card_name else ""
         what = (f"{st.path} was identified for card{other} with other values of {len(st.diff)} field(s): "
                 + "; ".join(st.diff[:3]) + (f"; and {len(st.diff) - 3} more" if len(st.diff) > 3 else ""))
     return InputError(f"{where}: moment coefficients: {what}; fix: {fix}")
+
+
+def _names(names, n: int = 3) -> str:
+    return ", ".join(names[:n]) + (f" and {len(names) - n} more" if len(names) > n else "")
 
 
 def for_card(card, *, identify: bool = False, progress: Callable[[str], None] | None = None,
@@ -230,7 +244,7 @@ def identify_card(card, card_path: str | Path | None, out: str | Path, **kw):
     """
     from ..io import write_text
 
-    res = identification(card, card_path, **kw)
+    res = identification(card, card_path, replaces=out, **kw)
     write_text(out, res.toml)
     return res
 
@@ -251,7 +265,7 @@ def identification_text(card, card_path: str | Path | None, **kw) -> str:
 
 def identification(card, card_path: str | Path | None, *, seed: int = 0, log=None, client=None,
                    workers: int | None = None, scheduler: str | None = None, command: str | None = None,
-                   start: str | Path = "nearest", **kw):
+                   start: str | Path = "nearest", replaces: str | Path | None = None, **kw):
     """:func:`bmctl.moments.identify.identify` of ``card``, on a Dask engine of its own unless given one.
 
     Parameters
@@ -277,6 +291,10 @@ def identification(card, card_path: str | Path | None, *, seed: int = 0, log=Non
         the shipped ``models/``, :func:`bmctl.moments.identify.warm_start`, and from the built-in
         defaults, keeping the lower cost), ``"defaults"`` (the built-in defaults only) or a coefficient
         file (only it).
+    replaces : path-like, optional
+        The coefficient file this identification will write (default: ``<card>.moments.toml`` next to
+        ``card_path``): never a ``"nearest"`` start, so a repeated identification with the same seed starts
+        where the first did and gives the same coefficients.
     **kw
         Passed to :func:`bmctl.moments.identify.identify` (``quick``, ``particles``, ``seeds``, ...).
 
@@ -292,7 +310,11 @@ def identification(card, card_path: str | Path | None, *, seed: int = 0, log=Non
         first, label = None, ""
     elif str(start) == "nearest":
         where = [Path(card_path).parent] if card_path is not None else []
-        first, label = ident.warm_start(card, ident.identified_candidates(*where))
+        if replaces is None and card_path is not None:
+            replaces = cf.coeffs_path(card_path)
+        mine = Path(replaces).resolve() if replaces is not None else None
+        first, label = ident.warm_start(card, [c for c in ident.identified_candidates(*where)
+                                               if mine is None or Path(c.path).resolve() != mine])
     else:
         first, label = ident.warm_start(card, [cf.read_file(start)])
         if not cf.read_file(start).values:

@@ -195,12 +195,24 @@ class Plant:
         _check_input(rpm, hours, milling, self.card.mill.rpm_max)
         mill_s = hours * 3600.0 * milling
         rest_s = hours * 3600.0 - mill_s
-        if mill_s > 0 and rpm > 0:
-            self._run(kinematics(self.card, rpm), mill_s, progress)
-        else:
-            rest_s += mill_s
-        if rest_s > 0:
-            self._run(kinematics(self.card, 0.0), rest_s, progress)
+        try:
+            if mill_s > 0 and rpm > 0:
+                self._run(kinematics(self.card, rpm), mill_s, progress)
+            else:
+                rest_s += mill_s
+            if rest_s > 0:
+                self._run(kinematics(self.card, 0.0), rest_s, progress)
+        except (ZeroDivisionError, OverflowError, FloatingPointError):
+            self._diverged(rpm)  # sizes overflowed inside a step
+        if not float(self.s.max()) <= 2 * self.card.mill.vial_radius_m:  # larger than the vial (m), or NaN
+            self._diverged(rpm)
+
+    def _diverged(self, rpm: float):
+        """One-line error for a population whose bonding ran away (particles larger than the vial)."""
+        raise InputError(f"{self.card.card.name}: the plant's particles grew larger than the vial at {rpm:g} rpm "
+                         f"(largest {float(np.nanmax(self.s)) / UM:.3g} µm after {self.t_s / 3600:.3g} h): the card lies outside "
+                         "where the plant's laws hold (bonding outruns fracture); lower mill.rpm_max or "
+                         "change the loading")
 
     def run_schedule(
         self,

@@ -64,6 +64,22 @@ def test_missing_and_unrecorded_coefficients_are_refused(tmp_path):
         for_card(p)
 
 
+def test_a_fingerprinted_file_lacking_coefficients_is_refused(tmp_path, capsys):
+    """A coefficient file with the card's fingerprint but coefficients deleted (hand edit, bad merge) would run
+    the model on defaults for them (held-out error ~20 % instead of ~4 %): refused in one line naming them."""
+    p = _copy(tmp_path)
+    text = cf.coeffs_path(p).read_text()
+    cf.coeffs_path(p).write_text(text.replace(next(ln for ln in text.splitlines() if ln.startswith("bond_slope"))
+                                              + "\n", ""))
+    with pytest.raises(InputError, match=r"lacks 1 of the \d+ coefficients \(bond_slope\)") as e:
+        for_card(p)
+    assert "\n" not in str(e.value) and f"bmctl identify {p}" in str(e.value)
+    start, end = text.index("[coefficients]\n") + len("[coefficients]\n"), text.index("[card]")
+    cf.coeffs_path(p).write_text(text[:start] + "\n" + text[end:])  # an empty [coefficients]
+    assert status(load_card(p), p).state == "incomplete"
+    assert main(["card", "show", str(p)]) == 0 and "lacks" in capsys.readouterr().out
+
+
 def test_matching_copy_is_accepted(tmp_path):
     """A card elsewhere with the same fingerprint fields (other name, recipe, plant settings) is accepted."""
     p = _copy(tmp_path, 'name = "alni-1to1-300rpm-lab"', 'name = "my-copy"')
@@ -174,7 +190,7 @@ def test_calibrated_card_is_written_with_its_coefficients(tmp_path, monkeypatch)
 
     def fake_text(card, card_path, **kw):
         seen.append(card)
-        return cf.toml_text({}, {"card": ident.card_table(card)})
+        return cf.toml_text(cf.load_coeffs(cf.coeffs_path(LAB)), {"card": ident.card_table(card)})
 
     card = load_card(LAB)
     values = [card.stochastic.gamma_per_um2 * 1.5, card.stochastic.delta_per_um2 * 0.6]
@@ -321,6 +337,24 @@ def test_warm_start_carries_the_nearest_cards_corrections():
     assert ident.warm_start(card, [])[1].startswith("the built-in defaults")
 
 
+def test_identify_never_starts_from_the_file_it_replaces(tmp_path, monkeypatch):
+    """A second `bmctl identify` of a card must not warm-start from the first one's output (the card's own
+    file, the nearest of all): the same seed then gives the same coefficients. --out: that file is left out."""
+    from bmctl.moments import forcard
+    from bmctl.moments import identify as ident
+
+    p = _copy(tmp_path, "alpha = 2.1", "alpha = 2.2", coeffs=False)
+    card = load_card(p)
+    own = cf.toml_text(cf.read_file(cf.coeffs_path(LAB)).coeffs, {"card": ident.card_table(card)})
+    cf.coeffs_path(p).write_text(own)  # an earlier identification of this very card
+    (tmp_path / "other.moments.toml").write_text(own)
+    seen = []
+    monkeypatch.setattr(ident, "identify", lambda card, seed, **kw: seen.append(kw["start_label"]))
+    forcard.identification(card, p, workers=0, quick=True)
+    forcard.identification(card, p, workers=0, quick=True, replaces=tmp_path / "other.moments.toml")
+    assert "other.moments.toml" in seen[0] and str(cf.coeffs_path(p)) not in seen[0]
+    assert str(cf.coeffs_path(p)) in seen[1] and "other.moments.toml" not in seen[1]
+
 @pytest.mark.slow
 def test_identify_reports_every_phase_and_writes_next_to_the_card(tmp_path, capsys):
     """`bmctl identify --quick` on a new card (15 mm balls, derived mass): progress lines for the plant
@@ -353,7 +387,8 @@ def test_identify_flag_identifies_on_the_spot_and_writes_next_to_the_card(tmp_pa
 
     def fake(card, card_path, **kw):
         kw["log"]("plant experiments: 1/1 runs")
-        return SimpleNamespace(toml=cf.toml_text({"bond_log_scale": 0.1}, {"card": ident.card_table(card)}))
+        coeffs = {**cf.load_coeffs(cf.coeffs_path(LAB)), "bond_log_scale": 0.1}
+        return SimpleNamespace(toml=cf.toml_text(coeffs, {"card": ident.card_table(card)}))
 
     monkeypatch.setattr(forcard, "identification", fake)
     model = for_card(p, identify=True, progress=lines.append)

@@ -60,3 +60,25 @@ def test_small_ensembles_run_serially():
     assert auto_workers(3, 1e4) == 0 and auto_workers(100, 1.0) == 0
     assert auto_workers(100, 1e4) >= 1 and auto_workers(100, 1e4, workers=2) == 2
     assert auto_workers(100, 1e4, scheduler="tcp://h:8786") is None
+
+
+def _refuse(task, rng):
+    from bmctl.errors import InputError
+
+    raise InputError(f"card x: task {task} refused")
+
+
+def test_a_task_refused_on_a_worker_is_one_line_not_worker_tracebacks(capfd):
+    """A card refused inside a plant run on Dask (e.g. runaway bonding in `bmctl identify --workers 2`) printed a
+    "Compute Failed" log with a traceback per task from the workers before bmctl's one line."""
+    from bmctl.errors import InputError
+    from bmctl.parallel import client_for, map_seeded
+
+    client = client_for(None, 2)  # worker processes: their logs reach stderr
+    try:
+        with pytest.raises(InputError, match="refused"):
+            map_seeded(_refuse, [1, 2], [np.random.SeedSequence(1), np.random.SeedSequence(2)], client)
+    finally:
+        close_client(client)
+    err = capfd.readouterr().err
+    assert "Compute Failed" not in err and "Traceback" not in err
