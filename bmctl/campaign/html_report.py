@@ -390,7 +390,7 @@ def html_page(c) -> str:
               if warns else hs.Markup("<p>No temperature warnings.</p>"))
     last = d.nodes[-1][1] if d.nodes else None
     est_rows = [(k, _band(last, k)) for k in ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "temperature_c",
-                                              "thermal_gain", "gamma_mult", "delta_mult") if last and k in last]
+                                              "thermal_gain", "gamma_mult", "delta_mult", "energy_mult") if last and k in last]
 
     def img(k: str, alt: str) -> hs.Markup:
         return hs.png_figure(base64.b64decode(figs[k]), alt) if k in figs else hs.Markup("")

@@ -584,6 +584,7 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
         if at_h > c.meta["hours"] + 1e-6:
             raise InputError(f"--at-h {at_h:g}: after the batch end ({c.meta['hours']:g} h)")
         with db.transaction(c.con, where=str(folder)):
+            _refuse_stored_table(c, table)
             summ = table.summary()
             srcs = [path_text(i) if not hasattr(i, "s_um") else "(table)" for i in inputs]
             cur = c.con.execute("INSERT INTO samples (t_h, sources, um_per_px, n, s_median_um, r_median, report, "
@@ -605,6 +606,23 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
     return {"sample_id": sid, "t_h": at_h, "n": len(table), "s_median_um": summ["s_median_um"],
             "r_median": summ["r_median"], "applied": applied, "replayed": n, "estimate": est, "clock_h": clock,
             "warnings": [w for rep in reports for w in rep.get("verdict_warnings", [])]}
+
+
+def _refuse_stored_table(c: Campaign, table) -> None:
+    """Refuse a particle table whose particles are a stored sample's (the same file or image entered
+    by a second ``sample``): it would read as a sample twice its size, as a file named twice in one
+    command would (:func:`bmctl.measure.names.refuse_repeats`)."""
+    if not len(table):
+        return
+    s_new, r_new = np.asarray(table.s_um, dtype=float), np.asarray(table.r, dtype=float)
+    for sid, t_h in c.con.execute(
+            "SELECT s.id, s.t_h FROM samples s JOIN particles p ON p.sample_id = s.id AND p.particle_id = 1 "
+            "WHERE s.n = ? AND p.s_um = ? AND p.r = ? ORDER BY s.id",
+            (len(table), float(s_new[0]), float(r_new[0]))).fetchall():
+        s_old, r_old = c.particles(int(sid))
+        if np.array_equal(s_old, s_new) and np.array_equal(r_old, r_new):
+            raise InputError(f"sample: the same particles as sample {sid} at {t_h:g} h (one table entered twice "
+                             "would read as a sample twice its size); take another sample")
 
 
 def _insert_particles(con, rows) -> None:
