@@ -6,12 +6,15 @@ taken (``[[sample]]`` with ``t_h`` and either ``table`` = a particle table CSV o
 = a micrograph measured as ``bmctl measure`` does, with ``um_per_px``). Paths are relative
 to the history file and stay inside its folder (:func:`bmctl.io.inside`: an absolute path or
 one leading out of the folder is refused, and nothing outside it is read). Every problem is
-one line naming the file and the field.
+one line naming the file and the field. An image is measured as ``bmctl measure`` measures it
+(:func:`bmctl.measure.micrograph.measure_micrograph`: data bar excluded, automatic speck limit)
+and its verdict checked as ``bmctl estimate`` checks it: an ``unusable`` image is refused, a
+``doubtful`` one noted in :attr:`History.warnings`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated
 
@@ -67,13 +70,17 @@ class History:
     path: str
     segments: list[tuple[float, float, float]]
     samples: list[MeasuredSample]
+    warnings: list[str] = field(default_factory=list)  # doubtful (or accepted unusable) images
 
     @property
     def times_h(self) -> list[float]:
         return [s.t_h for s in self.samples]
 
 
-def _read_sample(src: str, spec: SampleSpec, base: Path, k: int) -> MeasuredSample:
+def _read_sample(src: str, spec: SampleSpec, base: Path, k: int,
+                 accept_unusable: bool = False) -> tuple[MeasuredSample, list[str]]:
+    from ..measure.micrograph import check_verdicts
+
     where = f"{src}: sample[{k}]"
     if (spec.table is None) == (spec.image is None):
         raise InputError(f"{where}: give exactly one of table or image")
@@ -87,8 +94,12 @@ def _read_sample(src: str, spec: SampleSpec, base: Path, k: int) -> MeasuredSamp
             raise InputError(f"{where}.table: {spec.table[:80]!r} is not a regular file in {base}")
         tab = read_table(path)
         name = spec.table
+        from ..measure.micrograph import table_reports
+
+        reports = table_reports(path)  # the verdicts bmctl measure wrote beside the table, if any
+        field_name = "table"
     else:
-        from ..measure.segment import measure_image
+        from ..measure.micrograph import measure_micrograph
 
         path = io.inside(base, spec.image, f"{where}.image")
         if path.suffix.lower() not in IMAGE_SUFFIXES:
@@ -97,14 +108,23 @@ def _read_sample(src: str, spec: SampleSpec, base: Path, k: int) -> MeasuredSamp
             raise InputError(f"{where}.image: {spec.image[:80]!r} is not a regular file in {base}")
         if spec.um_per_px is None:
             raise InputError(f"{where}.um_per_px: required for an image (its pixel size in µm)")
-        tab = measure_image(str(path), spec.um_per_px)
-        name = spec.image
+        try:
+            res = measure_micrograph(str(path), um_per_px=spec.um_per_px)
+        except InputError as exc:  # unreadable, uniform, ...: name the history and the field too
+            raise InputError(f"{where}.image: {exc}") from None
+        tab, reports = res.table, [res.report()]
+        name, field_name = spec.image, "image"
+    try:
+        warns = check_verdicts(reports, accept_unusable, "--accept-unusable")
+    except InputError as exc:
+        raise InputError(f"{where}.{field_name}: {exc}") from None
     if len(tab) < MIN_PARTICLES:
         raise InputError(f"{where}: {name}: {len(tab)} particles, need at least {MIN_PARTICLES}")
-    return MeasuredSample(spec.t_h, np.asarray(tab.s_um, float), np.asarray(tab.r, float), str(base / name))
+    smp = MeasuredSample(spec.t_h, np.asarray(tab.s_um, float), np.asarray(tab.r, float), str(base / name))
+    return smp, [f"{where}.{field_name}: {w}" for w in warns]
 
 
-def load_history(path: str | Path, card: ModelCard | None = None) -> History:
+def load_history(path: str | Path, card: ModelCard | None = None, accept_unusable: bool = False) -> History:
     """Load and check a history file.
 
     Parameters
@@ -113,6 +133,8 @@ def load_history(path: str | Path, card: ModelCard | None = None) -> History:
         The history TOML.
     card : ModelCard, optional
         If given, every rpm must be within the card's ``mill.rpm_max``.
+    accept_unusable : bool, optional
+        Keep an image whose measurement verdict is ``unusable`` (noted in ``warnings``).
 
     Returns
     -------
@@ -148,5 +170,5 @@ def load_history(path: str | Path, card: ModelCard | None = None) -> History:
             raise InputError(f"{src}: sample[{k + 1}].t_h: sample times must increase (got {a:g} then {b:g})")
     if times[-1] > total + 1e-9:
         raise InputError(f"{src}: sample[{len(times) - 1}].t_h: {times[-1]:g} h is after the schedule's end ({total:g} h)")
-    samples = [_read_sample(src, spec, base, k) for k, spec in enumerate(h.sample)]
-    return History(h.name or Path(path).stem, src, segments, samples)
+    read = [_read_sample(src, spec, base, k, accept_unusable) for k, spec in enumerate(h.sample)]
+    return History(h.name or Path(path).stem, src, segments, [r[0] for r in read], [w for r in read for w in r[1]])

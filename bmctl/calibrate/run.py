@@ -112,16 +112,16 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
         card_out = out / f"{stem}-calibrated.toml"
         text = identification_text(new, card_out, seed=seed, log=log, client=client,
                                    workers=0 if client is None else None)  # serial when the fit was
-        with output_set():
+        meta = {"card": str(card_path), "seed": seed, "settings": s.model_dump(), "moment_stage": info,
+                "wall_s": wall}
+        with output_set():  # card, coefficients, calibration.json and figures: all of them or none
             write_text(card_out, outputs.card_toml(new, f"{new.card.name}: {note}\nSee calibration.json next to this "
                                                         "file; its moment coefficients are in the .moments.toml beside it."))
             write_text(coeffs_path(card_out), text)
+            paths += [card_out, coeffs_path(card_out)]
+            paths.append(outputs.write_json(out / "calibration.json", outputs.calibration_dict(cal, histories, dist, meta)))
+            for h, k in zip(histories, kept):
+                paths.append(outputs.plot_history(out / f"histograms-{name_part(h.name)}.png", h, k,
+                                                  f"{h.name}: measured vs calibrated {stem}"))
         load_card(card_out)  # the written card loads (as outputs.write_card checks)
-        paths += [card_out, coeffs_path(card_out)]
-        meta = {"card": str(card_path), "seed": seed, "settings": s.model_dump(), "moment_stage": info,
-                "wall_s": wall}
-        paths.append(outputs.write_json(out / "calibration.json", outputs.calibration_dict(cal, histories, dist, meta)))
-        for h, k in zip(histories, kept):
-            paths.append(outputs.plot_history(out / f"histograms-{name_part(h.name)}.png", h, k,
-                                              f"{h.name}: measured vs calibrated {stem}"))
     return CalibrationRun(cal, info, kept, dist, paths, wall)

@@ -33,6 +33,8 @@ def configure(p):
     p.add_argument("--replicates", type=int_arg("--replicates", 2, 64), default=2,
                    help="common-random-number plant runs per design point (default 2)")
     p.add_argument("--no-moment-start", action="store_true", help="start from the card, not the moment model's fit")
+    p.add_argument("--accept-unusable", action="store_true",
+                   help="use an image whose measurement verdict is unusable (refused by default, as bmctl estimate does)")
 
 
 def run(args) -> int:
@@ -49,12 +51,16 @@ def run(args) -> int:
     out = output_path(args.out)
     card = load_card(args.model)
     names = parse_params(args.params, card)
-    histories = [load_history(h, card) for h in args.histories]
+    refuse_same_file(args.histories)  # before any image is measured
+    histories = [load_history(h, card, args.accept_unusable) for h in args.histories]
     seen = set()
     for h in histories:  # each history's figure is named by its name as a file name part (bmctl.io.name_part)
         if name_part(h.name) in seen:
             raise_dup(h)
         seen.add(name_part(h.name))
+    for h in histories:  # doubtful images: once every history is read (a bad one still prints one line)
+        for w in h.warnings:
+            print(f"bmctl: warning: {w}", file=sys.stderr)
     settings = FitSettings(particles=args.particles, replicates=args.replicates)
     from ..work import add, calibrate_work, check_work, identify_work
 
@@ -119,6 +125,23 @@ def estimate_line(cal, i: int) -> str:
     flag = "" if cal.identified[i] else "  NOT IDENTIFIED"
     return (f"  {cal.names[i]:28s} {cal.values[i]:.4g}{u}  90 % [{cal.lo90[i]:.4g}, {cal.hi90[i]:.4g}]{u}  "
             f"x{cal.values[i] / cal.card_values[i]:.2f} of the card{flag}")
+
+
+def refuse_same_file(paths) -> None:
+    """One line when a history file is given twice (it would be fitted twice, its figure named twice)."""
+    import os
+
+    from ..errors import InputError
+
+    seen = {}
+    for p in paths:
+        try:
+            key = os.path.realpath(p)
+        except (OSError, ValueError):
+            continue
+        if key in seen:
+            raise InputError(f"{p}: this history file is given twice (also as {seen[key]}); give each once")
+        seen[key] = p
 
 
 def raise_dup(h):
