@@ -128,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         own_process = argv is None
         if argv is None:  # the bmctl command's own process: the numpy field's heap setting
-            from .moments.npfield import keep_heap
+            from .heap import keep_heap  # not via bmctl.moments: that imports numpy
 
             keep_heap()
         argv = sys.argv[1:] if argv is None else list(argv)

@@ -24,33 +24,7 @@ import numpy as np
 from . import equations as eq
 from .numerics import GH_T, GH_W, GL_WH, GL_XH, N_S
 from .physics import EXP_RATE, UM
-
-
-def keep_heap() -> None:
-    """Let glibc's malloc keep freed memory at the top of the heap (M_TOP_PAD) and serve blocks below 32 MiB
-    from it (M_MMAP_THRESHOLD): the field's temporaries (up to a few hundred kB each for a batch of a
-    thousand states) are otherwise handed back to the kernel and faulted in again on every call, which
-    costs as much as the arithmetic. A process-wide setting, so the library never makes it on import:
-    the ``bmctl`` command makes it at start, and a program that calls the field in a loop may. Results
-    do not change; off Linux or without glibc nothing happens.
-
-    Examples
-    --------
-    >>> from bmctl.moments.npfield import keep_heap
-    >>> keep_heap()
-    """
-    import sys
-
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-
-        mallopt = ctypes.CDLL(None).mallopt
-        mallopt(-2, 64 << 20)  # M_TOP_PAD
-        mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD
-    except (OSError, AttributeError):  # not glibc
-        pass
+from ..heap import keep_heap  # noqa: F401  (the bmctl command's heap setting, re-exported)
 
 
 _PAIRS = [(i, j) for i in range(N_S) for j in range(i, N_S)]

@@ -47,3 +47,15 @@ def test_measure_default_min_area_matches_the_segmenter():
     from bmctl.measure.segment import MIN_AREA_PX
 
     assert cmd.MIN_AREA_PX == MIN_AREA_PX
+
+
+def test_the_bmctl_process_help_imports_no_numerical_library():
+    # main() of the command's own process (argv None) also makes the heap setting: it must stay light
+    code = ("import sys\n"
+            "sys.argv = ['bmctl', '--help']\n"
+            "import bmctl.cli as c\n"
+            "try:\n"
+            "    c.main()\n"
+            "except SystemExit:\n"
+            "    pass")
+    assert _imported_after(code) == []
