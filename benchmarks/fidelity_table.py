@@ -51,9 +51,13 @@ def mixture2_bic_gain(x: np.ndarray, iters: int = 300) -> tuple[float, float, fl
             float(m.max()))
 
 
+#: particles of the subsample the shape tests draw
+SUBSAMPLE = 3000
+
+
 def shape_tests(s_um: np.ndarray, rng: np.random.Generator) -> dict[str, float]:
     """KS p-values (normal, log-normal), log-likelihood gain of log-normal over normal, mixture BIC gain."""
-    x = rng.choice(s_um, 3000, replace=False)
+    x = rng.choice(s_um, SUBSAMPLE, replace=False)
     lx = np.log(x)
     ll_n = stats.norm.logpdf(x, x.mean(), x.std()).sum()
     ll_ln = stats.norm.logpdf(lx, lx.mean(), lx.std()).sum() - lx.sum()
@@ -158,6 +162,8 @@ def main(argv=None) -> None:
     ap.add_argument("--no-equiaxing", action="store_true", help="switch the equiaxing law off on every card")
     ap.add_argument("--no-results", action="store_true", help="print only")
     a = ap.parse_args(argv)
+    if a.particles < SUBSAMPLE:
+        ap.error(f"--particles: at least {SUBSAMPLE} (the shape tests draw a {SUBSAMPLE}-particle subsample; got {a.particles})")
     print(f"M = {a.particles}, seed {a.seed}; hourly values t = 0..12 h" + (", no equiaxing" if a.no_equiaxing else ""))
     record = {}
     for name in CARDS:
