@@ -25,6 +25,16 @@ def configure(p):
     p.add_argument("--out", default="out/compare", metavar="DIR", help="output folder (default out/compare)")
 
 
+def _ad_p_text(p: float) -> str:
+    """scipy floors the Anderson-Darling p-value at 0.001 and caps it at 0.25: at either end the
+    true value is beyond it, which the printed line says."""
+    if p <= 0.001 * (1 + 1e-9):
+        return "p ≤ 0.001, scipy's floor"
+    if p >= 0.25 * (1 - 1e-9):
+        return "p ≥ 0.25, scipy's cap"
+    return f"p = {p:.3g}"
+
+
 def run(args) -> int:
     """Simulate to ``--at-h``, compare, print the statistics, write the figure and JSON."""
     import numpy as np
@@ -36,6 +46,14 @@ def run(args) -> int:
     from ..schedule import Schedule
     from ..measure.tables import read_table
 
+    from pathlib import Path
+
+    from ..errors import InputError
+    from .estimate import IMAGE_SUFFIXES
+
+    if Path(args.sample).suffix.lower() in IMAGE_SUFFIXES:
+        raise InputError(f"{args.sample}: a micrograph, not a particle table (.csv); measure it first "
+                         "(bmctl measure IMAGE --out TABLE.csv) and compare the table")
     table = read_table(args.sample)
     card = load_card(args.model)
     if args.schedule is not None:
@@ -62,6 +80,6 @@ def run(args) -> int:
         write_text(out / "compare.json", json.dumps(doc, indent=2) + "\n")
     for name, st, unit in (("s", s_stat, " µm"), ("r", r_stat, "")):
         print(f"{name}: median measured {st.median_measured:.4g}{unit}, predicted {st.median_predicted:.4g}{unit}; "
-              f"KS D = {st.ks:.3f} (p = {st.ks_p:.3g}), Anderson-Darling A = {st.ad:.2f} (p = {st.ad_p:.3g})")
+              f"KS D = {st.ks:.3f} (p = {st.ks_p:.3g}), Anderson-Darling A = {st.ad:.2f} ({_ad_p_text(st.ad_p)})")
     print(f"compare: wrote {path_text(out / 'compare.png')}, {path_text(out / 'compare.json')}")
     return 0

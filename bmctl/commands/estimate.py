@@ -11,6 +11,7 @@ interval of every state and parameter at each sample time) and a figure next to 
 from __future__ import annotations
 
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -69,7 +70,15 @@ def _parse_list(flag: str, text: str, allow_empty: bool = False) -> list[float |
     return out
 
 
-def _sample_files(paths: list[str], images: bool) -> list[Path]:
+def _number_key(path: Path) -> list:
+    """Sort key that reads the digit runs of a file name as numbers (run-2h before run-10h)."""
+    return [(0, int(part), "") if part.isdigit() else (1, 0, part.lower())
+            for part in re.split(r"(\d+)", path.name) if part]
+
+
+def _sample_files(paths: list[str], images: bool, folders: list | None = None) -> list[Path]:
+    """The sample files; ``folders`` collects (folder, its files in name order) for
+    :func:`_folder_order_doubts`."""
     files: list[Path] = []
     suffixes = IMAGE_SUFFIXES if images else (".csv",)
     for p in map(Path, paths):
@@ -78,12 +87,28 @@ def _sample_files(paths: list[str], images: bool) -> list[Path]:
             if not found:
                 kind = "micrographs (" + ", ".join(IMAGE_SUFFIXES) + ")" if images else "particle tables (.csv)"
                 raise InputError(f"{p}: no {kind} in this folder")
+            if folders is not None:
+                folders.append((p, len(files), found))
             files.extend(found)
         elif not p.exists():
             raise InputError(f"{p}: no such file or folder")
         else:
             files.append(p)
     return files
+
+
+def _folder_order_doubts(folders, times) -> list[str]:
+    """Warning lines for folders whose name order (the order read) is not the order of the numbers
+    in the names (run-10h.csv read before run-2h.csv): the times would go to the wrong files."""
+    out = []
+    for folder, start, found in folders:
+        if sorted(found, key=_number_key) == found:
+            continue
+        pairs = ", ".join(f"{f.name} at {t:g} h" for f, t in zip(found, times[start:start + len(found)]))
+        out.append(f"{folder}: files are read in name order, so the times go to {pairs}; the numbers in the "
+                   "names run in another order: if that is not meant, give --samples the files one by one "
+                   "in time order")
+    return out
 
 
 def _read_sample(path: Path, um_per_px: float | None, accept_unusable: bool = False):
@@ -137,7 +162,8 @@ def run(args) -> int:
         raise InputError(f"--times: must be in increasing order (got {args.times})")
     if max(times) > 1000.0:  # the longest batch a card allows (bmctl.config.HOURS)
         raise InputError(f"--times: {max(times):g} h exceeds the longest batch, 1000 h")
-    files = _sample_files(args.samples, images=args.um_per_px is not None)
+    folders: list = []
+    files = _sample_files(args.samples, images=args.um_per_px is not None, folders=folders)
     if len(files) != len(times):
         raise InputError(f"--times: {len(times)} time(s) for {len(files)} sample(s)")
     temps: list[float | None] = [None] * len(times)
@@ -185,7 +211,7 @@ def run(args) -> int:
     else:
         settings = FilterSettings(n_particles=args.particles, law=LawSettings(**law_kw))
 
-    samples, warned = [], []
+    samples, warned = [], _folder_order_doubts(folders, times)
     for f, t, temp in zip(files, times, temps):  # every input is read before the model is built
         tab, doubts = _read_sample(f, args.um_per_px, args.accept_unusable)
         warned += doubts
