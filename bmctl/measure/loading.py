@@ -66,7 +66,8 @@ def _tiff_header(path: str) -> ImageHeader:
     import tifffile
 
     with tifffile.TiffFile(path) as tif:
-        pixels = sum(int(np.prod(pg.shape)) for pg in tif.pages)
+        pages = tif.pages  # by index: iterating runs forever on a file whose last page links back to a page
+        pixels = sum(int(np.prod(pages[i].shape)) for i in range(len(pages)))
         if not tif.series:
             return ImageHeader(pixels, 0)
         first = tif.series[0]

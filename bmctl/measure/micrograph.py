@@ -207,7 +207,10 @@ def table_reports(csv_path) -> list[dict]:
         return []
     if not isinstance(doc, dict) or Path(str(doc.get("table", ""))).name != p.name:
         return []
-    return [r for r in doc.get("inputs", []) if isinstance(r, dict) and isinstance(r.get("verdict"), dict)]
+    inputs = doc.get("inputs")
+    if not isinstance(inputs, list):  # a hand-edited file: no entries to check (as for one that is not JSON)
+        return []
+    return [r for r in inputs if isinstance(r, dict) and isinstance(r.get("verdict"), dict)]
 
 
 def check_verdicts(reports, accept_unusable: bool = False, flag: str = "--accept-unusable") -> list[str]:
@@ -244,7 +247,9 @@ def check_verdicts(reports, accept_unusable: bool = False, flag: str = "--accept
         v = rep.get("verdict") if isinstance(rep, dict) else None
         if not isinstance(v, dict):
             continue
-        value, why = v.get("value"), "; ".join(str(r) for r in v.get("reasons", []))
+        reasons = v.get("reasons")
+        reasons = reasons if isinstance(reasons, list) else [] if reasons is None else [reasons]  # a hand-edited file
+        value, why = v.get("value"), "; ".join(str(r) for r in reasons)
         name = path_text(str(rep.get("image", "image")))  # printable: bytes of a path that are not UTF-8 as escapes
         if value == "unusable" and not accept_unusable:
             raise InputError(f"{name}: verdict unusable ({why}); the measurement does not hold, "

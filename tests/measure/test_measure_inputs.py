@@ -235,3 +235,27 @@ def test_one_image_given_twice_is_not_measured_twice(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "given twice" in err[0], err
     assert not (tmp_path / "t.csv").exists()
+
+
+def test_tiff_whose_last_page_links_back_is_read_not_looped_over(tmp_path):
+    """A TIFF whose page chain points back to its first page: counting its pixels for the work
+    budget iterated tifffile's pages forever (``bmctl measure`` hung before reading it)."""
+    import struct
+    import threading
+
+    import tifffile
+
+    from bmctl.measure.loading import image_header
+
+    path = tmp_path / "loop.tif"
+    tifffile.imwrite(path, _discs())
+    data = bytearray(path.read_bytes())
+    first = struct.unpack("<I", data[4:8])[0]
+    n = struct.unpack("<H", data[first:first + 2])[0]
+    data[first + 2 + 12 * n:first + 6 + 12 * n] = struct.pack("<I", first)  # next page: the first again
+    path.write_bytes(bytes(data))
+    got = []
+    worker = threading.Thread(target=lambda: got.append(image_header(str(path))), daemon=True)
+    worker.start()
+    worker.join(20)
+    assert got and got[0].pixels == 128 * 128 and got[0].images == 1, got

@@ -177,6 +177,20 @@ def test_check_verdicts_refuses_unusable_unless_accepted():
         "b.png: verdict unusable (91% of the foreground in no measured particle): check its overlay before trusting its particles"]
 
 
+
+def test_hand_edited_measure_json_is_no_traceback(tmp_path):
+    """A measure.json beside a table with ``inputs`` or ``reasons`` of another type was a TypeError
+    traceback in estimate, campaign sample and calibrate."""
+    (tmp_path / "t.csv").write_text("x")
+    for inputs in (5, None, "abc", {"a": 1}):
+        (tmp_path / "measure.json").write_text(json.dumps({"table": "t.csv", "inputs": inputs}))
+        assert table_reports(tmp_path / "t.csv") == []
+    for reasons, why in ((5, "5"), (None, ""), ("dark", "dark")):
+        with pytest.raises(InputError, match=rf"a.png: verdict unusable \({why}\)"):
+            check_verdicts([{"image": "a.png", "verdict": {"value": "unusable", "reasons": reasons}}])
+    assert check_verdicts([{"image": "a.png", "verdict": {"value": "doubtful", "reasons": None}}]) == [
+        "a.png: verdict doubtful (): check its overlay before trusting its particles"]
+
 # --- command line, campaign, estimate ---------------------------------------------------------------
 
 def _save(path: Path, img: np.ndarray) -> Path:
