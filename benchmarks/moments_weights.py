@@ -2,12 +2,11 @@
 moment and score them the way ``bmctl identify`` does.
 
 Run:  python benchmarks/moments_weights.py MODEL.toml [--weights 1,1,2,1.5 ...] [--balanced]
-                                            [--cache FILE]
 
 Runs the experiments of ``bmctl identify MODEL.toml --seed 0`` (training, held-out, off-card;
 the same seeds and M) and the confirmation set of ``benchmarks/moments_confirm.py`` once, about
-5 min of plant runs per card on one core (``--cache FILE`` keeps them in FILE, a pickle, and
-reads them from it the next time). Then, for each ``--weights`` (s_mean, s_std, r_mean, r_std;
+5 min of plant runs per card on one core (run every time: no file the user names is unpickled).
+Then, for each ``--weights`` (s_mean, s_std, r_mean, r_std;
 default 1,1,1,1, which reproduces the shipped fit), it fits the identified coefficients from the
 built-in defaults like ``identify.fit`` does, and with ``--balanced`` adds a warm-started second
 stage whose weights are each moment's in-sample NRMSE over the training runs, divided by their
@@ -19,8 +18,6 @@ reports it.
 from __future__ import annotations
 
 import argparse
-import os
-import pickle
 import sys
 import time
 from pathlib import Path
@@ -78,7 +75,6 @@ def main(argv=None) -> int:
     ap.add_argument("--weights", type=parse_weights, action="append",
                     help="weights of s_mean, s_std, r_mean, r_std (repeatable; default 1,1,1,1)")
     ap.add_argument("--balanced", action="store_true", help="add the balanced second stage to each fit")
-    ap.add_argument("--cache", type=Path, help="pickle file that keeps the plant runs between calls")
     ap.add_argument("--train-seeds", type=int, nargs="+", default=list(ident.TRAIN_SEEDS),
                     help=f"training plant seeds (default {' '.join(map(str, ident.TRAIN_SEEDS))}; "
                          "the two-seed table: 1 2)")
@@ -87,16 +83,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     card = load_card(args.model)
     t0 = time.time()
-    if args.cache is not None and args.cache.exists():
-        with open(args.cache, "rb") as fh:
-            runs = pickle.load(fh)
-    else:
-        runs = experiments(card, args.train_seeds, args.valid_schedules)
-        if args.cache is not None:
-            tmp = args.cache.with_name(args.cache.name + ".part")
-            with open(tmp, "wb") as fh:
-                pickle.dump(runs, fh)
-            os.replace(tmp, args.cache)
+    runs = experiments(card, args.train_seeds, args.valid_schedules)
     print(f"{card.card.name}: plant runs ready ({time.time() - t0:.0f} s); mean NRMSE %, s_mean, s_std, "
           "r_mean, r_std: held-out / confirmation / off-card mean of 8")
     model0 = MomentModel(card, default_coeffs(card), "defaults")
