@@ -26,6 +26,24 @@ class InputError(Exception):
     """
 
 
+def require_generator(rng, name: str) -> None:
+    """Refuse anything but a ``numpy.random.Generator`` for the argument ``name`` (every random draw
+    flows from one the user seeded), naming it.
+
+    >>> import numpy as np
+    >>> require_generator(np.random.default_rng(0), "rng")
+    >>> require_generator(5, "rng")
+    Traceback (most recent call last):
+    ...
+    TypeError: rng: must be a numpy.random.Generator (np.random.default_rng(seed)), got int
+    """
+    import numpy as np
+
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"{name}: must be a numpy.random.Generator (np.random.default_rng(seed)), "
+                        f"got {type(rng).__name__}")
+
+
 def finite_float(text: str, where: str) -> float:
     """Parse one finite number given by the user, or raise a one-line :class:`InputError`.
 

@@ -19,3 +19,24 @@ PHASE_MIN_MINUTES, PHASE_MAX_MINUTES = 0.1, 1440.0
 
 #: ball-to-powder mass ratios a card may hold (mechanical alloying uses 1:1 to 100:1)
 BALL_TO_POWDER_RANGE = (1.0, 100.0)
+
+#: rounding allowed on a control input or interval handed to an estimator or the loop (a solver's bound
+#: violation, a difference of times): within it a value is taken as it was, beyond it refused
+INPUT_ROUNDING = 1e-6
+
+
+def is_rpm_milling(u) -> bool:
+    """Whether ``u`` is one control input (rpm, milling): finite, rpm >= 0 and milling in [0, 1], each
+    within :data:`INPUT_ROUNDING`.
+
+    >>> is_rpm_milling((300.0, 1.0 + 1e-9)), is_rpm_milling((300.0, 2.0)), is_rpm_milling(300.0)
+    (True, False, False)
+    """
+    import numpy as np
+
+    try:
+        uu = np.asarray(u, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    tol = INPUT_ROUNDING
+    return bool(uu.shape == (2,) and np.all(np.isfinite(uu)) and uu[0] >= -tol and -tol <= uu[1] <= 1 + tol)

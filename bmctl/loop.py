@@ -28,8 +28,9 @@ from typing import Callable, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from .checkpoint import rng_state, set_rng_state
-from .errors import InputError
-from .physics.constants import INPUT_ROUNDING, TIME_EPS_H
+from .errors import InputError, require_generator
+from .limits import is_rpm_milling
+from .physics.constants import TIME_EPS_H
 
 #: finest plant step within a control interval: the vial temperature is watched at this spacing (h)
 SUBSTEP_H = 0.05
@@ -179,12 +180,7 @@ def checked_plan(plan):
     if missing:
         raise TypeError(f"controller.plan: must return a Plan (bmctl.control.Plan) with u_apply and status; "
                         f"{type(plan).__name__} lacks {', '.join(missing)}")
-    try:
-        u = np.asarray(plan.u_apply, dtype=float)
-    except (TypeError, ValueError):
-        u = np.array([math.nan])
-    tol = INPUT_ROUNDING  # a solver's bound violation passes as it always has
-    if u.shape != (2,) or not np.all(np.isfinite(u)) or u[0] < -tol or not -tol <= u[1] <= 1 + tol:
+    if not is_rpm_milling(plan.u_apply):  # a solver's bound violation (INPUT_ROUNDING) passes as it always has
         raise ValueError(f"controller.plan: u_apply must be (rpm, milling), finite, rpm >= 0 and milling in [0, 1] "
                          f"(got {plan.u_apply!r})")
     return plan
@@ -303,9 +299,7 @@ class ClosedLoop:
         for role in PROTOCOL_MEMBERS:
             check_protocol(getattr(self, role), role)
         positive_hours(self.controller.interval_h, "controller.interval_h")
-        if not isinstance(self.sample_rng, np.random.Generator):
-            raise TypeError(f"sample_rng: must be a numpy.random.Generator (np.random.default_rng(seed)), "
-                            f"got {type(self.sample_rng).__name__}")
+        require_generator(self.sample_rng, "sample_rng")
         if not isinstance(self.cfg, LoopConfig):
             raise TypeError(f"cfg: must be a bmctl.loop.LoopConfig (got {type(self.cfg).__name__})")
         if not self.est:

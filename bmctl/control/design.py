@@ -137,9 +137,18 @@ def interval_segments(rpm, minutes, lengths_min) -> list:
     return [(mnt / 60.0, r) for mnt, r in out]
 
 
+@dataclass
+class Searched:
+    """The global search's answer as written: its best schedule and each family's best row, each a
+    :class:`~bmctl.control.pattern.PatternResult` of the moment model's integration of the written schedule."""
+
+    best: object
+    by_family: dict
+
+
 def searched_pattern(model, cfg, target: dict, hours: float, p=None):
     """The global search's best operable schedule for a batch of ``hours`` from the card's state, as a
-    :class:`~bmctl.control.pattern.PatternResult` (exact moment-model numbers), with the search result.
+    :class:`Searched` (exact moment-model numbers), with the search result and the grid.
 
     Parameters
     ----------
@@ -178,17 +187,19 @@ def searched_pattern(model, cfg, target: dict, hours: float, p=None):
     # The search ranks its rows by a cheaper integration that drifts over long batches (a 48 h row at
     # 0.04 % is 3.3 % off as written); each family's best row is integrated as written and the best of
     # those is the search's answer (the rule design_one applies between the search and the local NLP).
-    res = written(sr.rpm, sr.minutes, sr.family, sr.rms)
-    tol, band = cfg.objective.tolerance, cfg.plan.error_band
+    by_family, same = {}, False
     for fam, row in sr.per_family.items():
-        if fam == sr.family or "params" not in row:
-            continue
-        rpm, minutes = expand(np.asarray(row["params"], dtype=float)[None], grid, lim)
-        cand = written(rpm[0], minutes[0], fam, row.get("rms", sr.rms))
-        if _better(cand, res, tol, band, cfg.temperature.ceiling_c, cfg.weights):
+        if "params" in row:
+            rpm, minutes = expand(np.asarray(row["params"], dtype=float)[None], grid, lim)
+            by_family[fam] = written(rpm[0], minutes[0], fam, row.get("rms", sr.rms))
+            same |= fam == sr.family and np.array_equal(rpm[0], sr.rpm) and np.array_equal(minutes[0], sr.minutes)
+    res = by_family[sr.family] if same else written(sr.rpm, sr.minutes, sr.family, sr.rms)
+    tol, band = cfg.objective.tolerance, cfg.plan.error_band
+    for fam, cand in by_family.items():
+        if fam != sr.family and _better(cand, res, tol, band, cfg.temperature.ceiling_c, cfg.weights):
             res = cand
     res.solve_s = time.perf_counter() - t0
-    return res, sr, grid
+    return Searched(res, by_family), sr, grid
 
 
 def _better(a, b, tol: float, band: float, ceiling_c: float, weights) -> bool:
@@ -224,13 +235,14 @@ def design_one(model, target: dict, hours: float, cfg, p=None, method: str = "re
 
     Returns
     -------
-    (PatternResult, PatternResult or None, SearchResult, PatternResult)
+    (PatternResult, PatternResult or None, SearchResult, Searched)
         The chosen result, the local NLP's (None when not run), the search's, and the search's
-        best schedule as written (:func:`searched_pattern`).
+        schedules as written (:func:`searched_pattern`).
     """
     from .pattern import PatternDesigner
 
-    res_s, sr, grid = searched_pattern(model, cfg, target, hours, p)
+    searched, sr, grid = searched_pattern(model, cfg, target, hours, p)
+    res_s = searched.best
     res_l = None
     if local:
         d = PatternDesigner(model, hours, cfg, target, p)
@@ -248,7 +260,7 @@ def design_one(model, target: dict, hours: float, cfg, p=None, method: str = "re
     best = res_s
     if res_l is not None and _better(res_l, res_s, tol, band, cfg.temperature.ceiling_c, cfg.weights):
         best = res_l
-    return best, res_l, sr, res_s
+    return best, res_l, sr, searched
 
 
 #: the shortest batch design plans (min): its schedule is written in whole minutes
@@ -341,7 +353,7 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
     pareto = []
     if obj == "target":
         say(f"searching operable schedules over {hours:g} h, then the local NLP")
-        res, res_l, sr, res_s = design_one(model, target, hours, cfg, p, meth, local)
+        res, res_l, sr, searched = design_one(model, target, hours, cfg, p, meth, local)
     else:
         runs = []
         for frac in sorted(cfg.objective.sweep):
@@ -355,8 +367,8 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
             i = min(ok, key=lambda j: (pareto[j].hours, pareto[j].energy_kWh))
         else:
             i = min(ok, key=lambda j: (pareto[j].energy_kWh, pareto[j].hours))
-        res, res_l, sr, res_s = runs[i]
-    families = written_families(sr.per_family, model, cfg, res.hours, target, p)
+        res, res_l, sr, searched = runs[i]
+    families = written_families(sr.per_family, searched.by_family)
     if res.error <= tol:
         reach = Reach(True, res.error, res.outputs, [], families)
     else:
@@ -372,54 +384,37 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
                U, X, Tpk, segs, res, reach, obj, pareto)
     d.local = res_l
     d.search = sr
-    d.searched = res_s
+    d.searched = searched.best
     return d
 
 
-def written_families(per_family: dict, model, cfg, hours: float, target: dict | None = None, p=None) -> dict:
-    """The search's best row per family with its on/off switches counted as on the written schedule.
+def written_families(per_family: dict, by_family: dict) -> dict:
+    """The search's best row per family with the numbers of its schedule as written.
 
     The search counts the stop of a last milling period inside the batch; the written schedule
     drops the trailing rest (:func:`interval_segments`), so the design's summary and schedule.toml
-    count one switch fewer. Here both count the schedule as written (:func:`~bmctl.control.mill.count_switches`).
-    With ``target``, ``error`` and ``peak_c`` are those of the moment model's own integration of the
-    written schedule (:func:`simulate_segments`), as the design's summary reports its schedule; the
-    search's cheaper prediction, which ranked the rows, can be a few per cent off (kept as
-    ``search_error``).
+    count one switch fewer. Here both count the schedule as written (:func:`~bmctl.control.mill.count_switches`),
+    and ``error`` and ``peak_c`` are those of the moment model's own integration of the written
+    schedule (:func:`simulate_segments`), as the design's summary reports its schedule; the search's
+    cheaper prediction, which ranked the rows, can be a few per cent off (kept as ``search_error``).
 
     Parameters
     ----------
     per_family : dict
         ``SearchResult.per_family`` ({family: dict with ``params``, ``switches``, ...}).
-    model : MomentModel
-    cfg : MPCConfig
-    hours : float
-        The batch the search planned.
-    target : dict, optional
-        The design's target (recompute ``error`` and ``peak_c``).
-    p : array_like, optional
-        (gamma_mult, delta_mult).
+    by_family : dict
+        {family: PatternResult} of each row's written schedule (:attr:`Searched.by_family`).
 
     Returns
     -------
     dict
-        A copy of ``per_family``, ``switches`` recounted (and with ``target`` the error and peak).
+        A copy of ``per_family`` with ``switches``, ``error`` and ``peak_c`` as written.
     """
-    from .mill import count_switches
-    from .outputs import output_dict, relative_error
-    from .search import expand, limits_of, make_grid
-
-    grid, lim = make_grid(0.0, hours, cfg.interval_h), limits_of(cfg, model)
     out = {}
     for fam, row in per_family.items():
-        rpm, minutes = expand(np.asarray(row["params"], dtype=float)[None], grid, lim)
-        segs = interval_segments(rpm[0], minutes[0], grid.lengths_min)
-        out[fam] = {**row, "switches": count_switches(segs)}
-        if target:
-            x, peak, *_ = simulate_segments(model, segs, p)
-            outs = output_dict(x)
-            out[fam].update(search_error=row.get("error"), peak_c=float(peak),
-                            error=max((relative_error(outs[k], v) for k, v in target.items()), default=0.0))
+        w = by_family[fam]
+        out[fam] = {**row, "switches": w.switches, "search_error": row.get("error"), "peak_c": float(w.peak_c),
+                    "error": w.error}
     return out
 
 

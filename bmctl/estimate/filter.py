@@ -61,9 +61,9 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from ..config import Strict
-from ..errors import InputError
+from ..errors import InputError, require_generator
 from ..moments.model import ENERGY_NAME
-from ..physics.constants import INPUT_ROUNDING
+from ..limits import INPUT_ROUNDING, is_rpm_milling
 from .likelihood import LawSettings, Raster, fit_sample, loglik_raster
 from .resampling import SCHEMES, effective_sample_size, resample
 
@@ -311,12 +311,7 @@ def check_predict(u, dt_h) -> float:
         raise InputError(f"dt_h: must be a number of hours (got {dt_h!r})") from None
     if not (math.isfinite(dt) and dt >= -INPUT_ROUNDING):
         raise InputError(f"dt_h: must be a finite number of hours >= 0 (got {dt_h!r})")
-    try:
-        uu = np.asarray(u, dtype=float)
-    except (TypeError, ValueError):
-        uu = np.array([math.nan])
-    tol = INPUT_ROUNDING
-    if uu.shape != (2,) or not np.all(np.isfinite(uu)) or uu[0] < -tol or not -tol <= uu[1] <= 1 + tol:
+    if not is_rpm_milling(u):
         raise InputError(f"u: must be (rpm, milling), finite, rpm >= 0 and milling in [0, 1] (got {u!r})")
     return max(dt, 0.0)
 
@@ -350,9 +345,7 @@ class ParticleFilter:
     """
 
     def __init__(self, model, rng: np.random.Generator, settings: FilterSettings | None = None, x0=None):
-        if not isinstance(rng, np.random.Generator):
-            raise TypeError(f"rng: must be a numpy.random.Generator (np.random.default_rng(seed)), "
-                            f"got {type(rng).__name__}")
+        require_generator(rng, "rng")
         self.model = model
         self.rng = rng
         self.settings = settings or FilterSettings()

@@ -106,7 +106,8 @@ def image_pixels(path: str) -> int | None:
     return image_header(path).pixels
 
 
-def _check_header(head: ImageHeader, name: str) -> None:
+def check_header(head: ImageHeader, name: str) -> None:
+    """Refuse an image whose header alone rules it out (too many pixels, no image, several pages), naming it."""
     if head.pixels is not None and head.pixels > MAX_PIXELS:
         raise InputError(f"{name}: image too large ({head.pixels:,} pixels, limit {MAX_PIXELS:,}); crop or downsample it first")
     if head.images == 0:
@@ -156,7 +157,7 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     name = path_text(p)
     check_input_file(p)  # a regular file of a sane size (no FIFO, no device)
     head = image_header(p)
-    _check_header(head, name)
+    check_header(head, name)
     try:
         img = _decode(p, head)
     except Exception as exc:  # imageio/PIL/tifffile raise many types

@@ -19,7 +19,3 @@ MEAN_ABS_DIFF_GAMMA15 = 1.2732395447351692
 #: E[(max - min) / max] of two iid Gamma(3/2) draws (scale-free): the share of particles one
 #: collision processes (eqn 5, docs/model.md Sec. 3.2); :func:`bmctl.physics.kinematics.loss_ratio_mean`.
 MEAN_LOSS_RATIO = 0.5464790894702789
-
-#: rounding allowed on a control input or interval handed to an estimator or the loop (a solver's bound
-#: violation, a difference of times): within it a value is taken as it was, beyond it refused
-INPUT_ROUNDING = 1e-6

@@ -21,6 +21,7 @@ True
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -37,17 +38,13 @@ def _complex_exp(x: np.ndarray) -> np.ndarray:
     return np.exp(z).real  # the C library's cexp, which is its exp on the real axis (no SIMD version)
 
 
-_COMPLEX_EXACT: list[bool] = []
-
-
+@functools.cache
 def _complex_is_exact() -> bool:
     """Whether numpy's complex exp on the real axis gives the C library's exp here (checked once,
     on values across the range the plant uses and beyond)."""
-    if not _COMPLEX_EXACT:
-        x = np.concatenate([np.linspace(-745.0, 709.0, 4001), np.random.default_rng(0).uniform(-60.0, 60.0, 4000),
-                            [0.0, -0.0, 1e-300, -1e-300]])
-        _COMPLEX_EXACT.append(bool(np.array_equal(_complex_exp(x), _map(math.exp, x))))
-    return _COMPLEX_EXACT[0]
+    x = np.concatenate([np.linspace(-745.0, 709.0, 4001), np.random.default_rng(0).uniform(-60.0, 60.0, 4000),
+                        [0.0, -0.0, 1e-300, -1e-300]])
+    return bool(np.array_equal(_complex_exp(x), _map(math.exp, x)))
 
 
 def exp(x) -> np.ndarray:

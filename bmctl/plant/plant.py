@@ -28,7 +28,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..config import ModelCard, card_schedule, load_card
-from ..errors import InputError
+from ..errors import InputError, require_generator
 from . import events as ev
 from . import thermal
 from .kernels import Kernels, PaperKernels
@@ -122,9 +122,7 @@ class Plant:
         self.card = card
         self.kernels: Kernels = PaperKernels(card.simulation.samplers) if kernels is None else kernels
         self.engine = engine
-        if not isinstance(rng, np.random.Generator):
-            raise TypeError(f"rng: must be a numpy.random.Generator (np.random.default_rng(seed)), "
-                            f"got {type(rng).__name__}")
+        require_generator(rng, "rng")
         self.rng = rng
         if particles is not None and (isinstance(particles, bool) or not isinstance(particles, numbers.Integral)):
             raise InputError(f"particles: must be a whole number >= 2 (got {particles!r})")
