@@ -29,7 +29,8 @@ def _band_indices(w: np.ndarray, n: int) -> np.ndarray:
 
 
 def _measure(inputs, um_per_px, accept_unusable: bool = False):
-    """Pooled particle table and per-input reports of images and tables (as ``bmctl measure``).
+    """Pooled particle table, each particle's image, its position, per-input reports of images and
+    tables (as ``bmctl measure``) and each input's particle count (in the order of ``inputs``).
 
     An image (or a table's image, by its ``measure.json``) with the verdict ``unusable`` is
     refused unless ``accept_unusable``; doubtful ones are listed in the reports' ``verdict_warnings``.
@@ -39,7 +40,7 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False):
     from ..measure.tables import ParticleTable, read_table
 
     scale = check_scale(um_per_px) if um_per_px is not None else None
-    tables, images, xs, ys, reports = [], [], [], [], []
+    tables, images, xs, ys, reports, counts = [], [], [], [], [], []
     for item in inputs:
         if isinstance(item, ParticleTable):
             t, name = item, "(table)"
@@ -58,13 +59,14 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False):
             rep["verdict_warnings"] = check_verdicts([rep], accept_unusable, "--accept-unusable")
             reports.append(rep)
         tables.append(t)
+        counts.append(len(t))
         images += [name] * len(t)
         xs.append(np.asarray(x, float))
         ys.append(np.asarray(y, float))
     table = ParticleTable.concat(tables)
     if len(table) == 0:
         raise InputError(f"{inputs[0]}: no particles found (check the scale or the table)")
-    return table, images, np.concatenate(xs), np.concatenate(ys), reports
+    return table, images, np.concatenate(xs), np.concatenate(ys), reports, counts
 
 
 def _schedule(c, plan, t_h: float) -> list[dict]:
@@ -279,6 +281,61 @@ def sampling(s_um, tolerance: float) -> dict | None:
     se = cv / math.sqrt(s.size)
     return {"particles": int(s.size), "cv": cv, "mean_se_pct": 100.0 * se, "mean_95_pct": 100.0 * Z95 * se,
             "tolerance_pct": 100.0 * tolerance, "particles_for_tolerance": int(math.ceil((Z95 * cv / tolerance) ** 2))}
+
+
+def sampling_note(t_h: float, particles: int) -> str:
+    """Why :func:`sampling` gives nothing for the latest sample: fewer than two particles.
+
+    Examples
+    --------
+    >>> print(sampling_note(0.5, 1))  # doctest: +NORMALIZE_WHITESPACE
+    the latest sample (at 0.5 h) holds 1 particle: too few to estimate the spread of sizes, so how closely
+    it reads the mean size, and the particle count for the tolerance, are not given (`sampling` is null)
+    """
+    return (f"the latest sample (at {t_h:g} h) holds {particles} particle{'s' if particles != 1 else ''}: too few "
+            "to estimate the spread of sizes, so how closely it reads the mean size, and the particle count for the "
+            "tolerance, are not given (`sampling` is null)")
+
+
+#: a sample update that leaves the filter fewer effective particles than this (its effective sample
+#: size, ``ess``, before resampling) is warned of: the 90 % intervals then rest on a handful of
+#: particles (each 5 % tail on less than one)
+ESS_MIN = 10.0
+
+
+def band_warning(est: dict, samples: int, particles: int, filter_particles: int) -> list[str]:
+    """A warning when the filter's update at a sample node left its weight on fewer than
+    :data:`ESS_MIN` effective particles (a near-degenerate filter: its 90 % intervals rest on a
+    handful of particles and may be narrower than the samples support). The filter's numbers are
+    not changed; the warning says how far to trust them.
+
+    Parameters
+    ----------
+    est : dict
+        The estimate of the node (``t_h``, ``ess``).
+    samples, particles : int
+        The samples pooled at the node's time and their particles.
+    filter_particles : int
+        The filter's particle count.
+
+    Examples
+    --------
+    >>> for w in band_warning({"t_h": 1.0, "ess": 3.04}, 2, 6, 100):
+    ...     print(w)  # doctest: +NORMALIZE_WHITESPACE
+    filter nearly degenerate at 1 h: the update by 2 samples (6 particles, read as one) left its weight on
+    about 3.0 of its 100 particles (effective sample size; warned below 10): the 90 % intervals from 1 h on
+    rest on a handful of particles and may be narrower than the samples support
+    >>> band_warning({"t_h": 1.0, "ess": 40.0}, 1, 300, 100)
+    []
+    """
+    ess, t = est.get("ess"), est.get("t_h", math.nan)
+    if not isinstance(ess, (int, float)) or not math.isfinite(ess) or ess >= ESS_MIN:
+        return []
+    what = (f"a sample of {particles} particle{'s' if particles != 1 else ''}" if samples == 1 else
+            f"{samples} samples ({particles} particles, read as one)")
+    return [f"filter nearly degenerate at {t:g} h: the update by {what} left its weight on about {ess:.1f} of its "
+            f"{filter_particles} particles (effective sample size; warned below {ESS_MIN:g}): the 90 % intervals "
+            f"from {t:g} h on rest on a handful of particles and may be narrower than the samples support"]
 
 
 def sample_first(estimate: dict, target: dict, tolerance: float, mill_min: int, milled_last: bool,

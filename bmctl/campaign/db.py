@@ -1,6 +1,7 @@
 """The campaign database: one SQLite file (``DIR/campaign.sqlite``), WAL mode, one transaction per verb.
 
-Tables (schema version :data:`SCHEMA_VERSION`)::
+Tables (schema version :data:`SCHEMA_VERSION`; a version-1 campaign, written before ``sample_inputs``,
+is read as it is and upgraded by its next ``sample``, :func:`upgrade`)::
 
     schema_version(version)
     meta(key, value)                  JSON values: inputs, target, batch hours, seed, ...
@@ -8,6 +9,7 @@ Tables (schema version :data:`SCHEMA_VERSION`)::
     temperatures(id, t_h, temperature_c, action_id, logged_at)
     samples(id, t_h, sources, um_per_px, n, s_median_um, r_median, report, logged_at)
     particles(sample_id, particle_id, image, x_um, y_um, area_um2, perimeter_um, s_um, r)
+    sample_inputs(sample_id, position, source, sha256)   each image or table of a sample, by its bytes
     estimator_states(id, t_h, state, estimate, created_at)   t_h = -1: the prior, before anything
     plans(id, t_h, rpm, milling, interval_h, advice, controller_state, advise_ms, created_at)
     decisions(id, plan_id, accepted, rpm, milling, note, created_at)
@@ -46,7 +48,9 @@ from ..errors import InputError
 DB_NAME = "campaign.sqlite"
 #: the folder of a campaign that holds the copies of its inputs
 INPUTS = "inputs"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: the schema versions this bmctl reads: version 1 lacks ``sample_inputs`` (:data:`SCHEMA_V2`)
+READ_VERSIONS = (1, 2)
 #: seconds a command waits for another command on the same campaign before it is refused
 LOCK_TIMEOUT_S = 30.0
 
@@ -80,6 +84,17 @@ CREATE TABLE decisions (
 CREATE INDEX particles_by_sample ON particles(sample_id);
 CREATE INDEX states_by_time ON estimator_states(t_h);
 """
+#: what version 2 adds to version 1: the SHA-256 of each input of a sample (the file's bytes, or a
+#: table's columns given in memory), so that an input entered again is refused (``sample``)
+SCHEMA_V2 = """
+CREATE TABLE sample_inputs (
+    sample_id INTEGER NOT NULL REFERENCES samples(id), position INTEGER NOT NULL, source TEXT NOT NULL,
+    sha256 TEXT NOT NULL, PRIMARY KEY (sample_id, position));
+CREATE INDEX sample_inputs_by_sha256 ON sample_inputs(sha256);
+"""
+SCHEMA = SCHEMA + SCHEMA_V2
+#: the tables a version-1 campaign does not have
+V2_TABLES = ("sample_inputs",)
 
 
 def now() -> str:
@@ -169,10 +184,34 @@ def open_db(folder: str | Path, read_only: bool = False) -> sqlite3.Connection:
             row = con.execute("SELECT version FROM schema_version").fetchone()
     except sqlite3.DatabaseError as exc:
         raise InputError(f"{path}: cannot be read as a bmctl campaign database ({exc})") from None
-    if row is None or row[0] != SCHEMA_VERSION:
+    if row is None or not _known_version(row[0]):
         con.close()
-        raise InputError(f"{path}: campaign schema version {row and row[0]}, this bmctl reads {SCHEMA_VERSION}")
+        raise InputError(f"{path}: campaign schema version {row and row[0]}, this bmctl reads "
+                         f"{' and '.join(map(str, READ_VERSIONS))}")
     return con
+
+
+def _known_version(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v in READ_VERSIONS
+
+
+def version(con: sqlite3.Connection) -> int:
+    """The campaign's schema version (one of :data:`READ_VERSIONS`, as :func:`open_db` checked)."""
+    return int(con.execute("SELECT version FROM schema_version").fetchone()[0])
+
+
+def upgrade(con: sqlite3.Connection) -> bool:
+    """Bring a version-1 campaign to :data:`SCHEMA_VERSION` inside the caller's write transaction
+    (a command refused later rolls it back with everything else): add ``sample_inputs``. The
+    samples stored before it have no input hashes; ``sample`` matches them by their particles.
+    Returns whether it upgraded."""
+    if version(con) >= SCHEMA_VERSION:
+        return False
+    for stmt in SCHEMA_V2.strip().split(";"):
+        if stmt.strip():
+            con.execute(stmt)
+    con.execute("UPDATE schema_version SET version = ?", (SCHEMA_VERSION,))
+    return True
 
 
 @contextlib.contextmanager
@@ -242,10 +281,12 @@ NUMERIC = (
     ("plans", "interval_h", 1e-12, 1000.0, False), ("plans", "advise_ms", 0.0, 1e12, False),
     ("decisions", "plan_id", 1, 2**62, False), ("decisions", "accepted", 0, 1, False),
     ("decisions", "rpm", 0.0, 1e5, True), ("decisions", "milling", 0.0, 1.0, True),
+    ("sample_inputs", "sample_id", 1, 2**62, False), ("sample_inputs", "position", 1, 2**62, False),
 )
 #: columns of plain-data state BLOBs
 BLOBS = (("estimator_states", "state"), ("plans", "controller_state"))
-TEXT = (("actions", "deviation"), ("decisions", "note"), ("particles", "image"))
+TEXT = (("actions", "deviation"), ("decisions", "note"), ("particles", "image"), ("sample_inputs", "source"),
+        ("sample_inputs", "sha256"))
 
 
 #: what every stored estimate holds (``init`` writes the prior with all of them): a finite
@@ -377,11 +418,14 @@ def check(con: sqlite3.Connection, path, prior: bool = True) -> None:
     """
     try:
         have = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        old = version(con) < 2
         for stmt in SCHEMA.split(";"):
             words = stmt.split()
-            if words[:2] == ["CREATE", "TABLE"] and words[2] not in have:
+            if words[:2] == ["CREATE", "TABLE"] and words[2] not in have and not (old and words[2] in V2_TABLES):
                 raise InputError(f"{path}: table {words[2]} missing (damaged, or not a bmctl campaign database)")
         for table, col, lo, hi, nullable in NUMERIC:
+            if table not in have:  # a version-1 campaign's missing sample_inputs
+                continue
             null = f"{col} IS NOT NULL AND " if nullable else ""
             row = con.execute(f"SELECT rowid, {col} FROM {table} WHERE {null}(typeof({col}) NOT IN ('real', 'integer') "
                               f"OR NOT ({col} BETWEEN ? AND ?)) LIMIT 1", (lo, hi)).fetchone()
@@ -394,6 +438,8 @@ def check(con: sqlite3.Connection, path, prior: bool = True) -> None:
             if row is not None:
                 raise InputError(f"{path}: {table} row {row[0]}: {col}: not a stored state (damaged or edited)")
         for table, col in TEXT:
+            if table not in have:
+                continue
             row = con.execute(f"SELECT rowid FROM {table} WHERE typeof({col}) != 'text' OR length({col}) > 100000 "
                               "LIMIT 1").fetchone()
             if row is not None:
@@ -405,14 +451,15 @@ def check(con: sqlite3.Connection, path, prior: bool = True) -> None:
                 if not isinstance(text, str):
                     raise InputError(f"{where}: not a JSON document (damaged or edited)")
                 check_doc(bio.loads_json(text, where), where)
-        _check_links(con, path, prior)
+        _check_links(con, path, prior, "sample_inputs" in have)
     except sqlite3.DatabaseError as exc:
         raise InputError(f"{path}: damaged campaign database ({exc})") from None
 
 
-def _check_links(con: sqlite3.Connection, path, prior: bool = True) -> None:
+def _check_links(con: sqlite3.Connection, path, prior: bool = True, inputs: bool = True) -> None:
     """What the rows say of each other: the filter's prior is there (``prior``: ``init`` writes
-    it, every estimate starts from it), every sample has particles and every particle a sample."""
+    it, every estimate starts from it), every sample has particles and every particle a sample, and
+    every input hash (``inputs``: a campaign with ``sample_inputs``) a sample."""
     if prior and con.execute("SELECT COUNT(*) FROM estimator_states WHERE t_h < 0").fetchone()[0] == 0:
         raise InputError(f"{path}: estimator_states: the prior (written by `campaign init`) is missing "
                          "(damaged or edited)")
@@ -423,6 +470,11 @@ def _check_links(con: sqlite3.Connection, path, prior: bool = True) -> None:
                       "LIMIT 1").fetchone()
     if row is not None:
         raise InputError(f"{path}: particles row {row[0]}: sample_id {row[1]} is no sample (damaged or edited)")
+    if inputs:
+        row = con.execute("SELECT rowid, sample_id FROM sample_inputs WHERE sample_id NOT IN (SELECT id FROM samples) "
+                          "LIMIT 1").fetchone()
+        if row is not None:
+            raise InputError(f"{path}: sample_inputs row {row[0]}: sample_id {row[1]} is no sample (damaged or edited)")
 
 
 def check_inputs(folder: str | Path, inputs: dict, where: str) -> None:
@@ -470,5 +522,6 @@ def unpack(blob: bytes, where: str = "state") -> dict:
         raise InputError(f"{where}: damaged state (an array reference without its array)") from None
 
 
-__all__ = ["ARRAY_TAG", "DB_NAME", "SCHEMA_VERSION", "LOCK_TIMEOUT_S", "create", "open_db", "transaction",
-           "init_schema", "set_meta", "get_meta", "check", "check_inputs", "pack", "unpack", "now", "db_path"]
+__all__ = ["ARRAY_TAG", "DB_NAME", "SCHEMA_VERSION", "READ_VERSIONS", "LOCK_TIMEOUT_S", "create", "open_db",
+           "transaction", "version", "upgrade", "init_schema", "set_meta", "get_meta", "check", "check_inputs",
+           "pack", "unpack", "now", "db_path"]

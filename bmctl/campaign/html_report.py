@@ -2,10 +2,12 @@
 
 What it holds, in order:
 
-1. the batch (card, controller, target, ceiling, logged time) and every temperature warning;
+1. the batch (card, controller, target, ceiling, logged time), every temperature warning and
+   every sample update that left the filter nearly degenerate;
 2. per sample, the estimate at its time with the 90 % interval next to the sample's own
-   statistic of the *same* quantity (number mean and std of s, mean of r, volume-weighted D50
-   by :func:`bmctl.stats.dvalues`), and the target; as a figure over time and as a table;
+   statistic of the *same* quantity (number mean and std of s, the std with n - 1, mean of r,
+   volume-weighted D50 by :func:`bmctl.stats.dvalues`), and the target; as a figure over time and
+   as a table;
 3. the measured size histograms against the filter's size law at the estimate;
 4. every advice: the estimate it saw, the recommended interval, reachability, binding
    constraints, the sample asked for first, warnings, the decision (accepted / rejected, what instead,
@@ -39,6 +41,8 @@ QUANTITIES = {
     "r_mean": ("mean irregularity r", "sample mean"),
     "d50_um": ("D50 (µm), volume-weighted", "sample D50"),
 }
+#: delta degrees of freedom of a sample's standard deviation (n - 1: the unbiased variance)
+SAMPLE_DDOF = 1
 
 
 def sample_statistics(s_um: np.ndarray, r: np.ndarray) -> dict[str, float]:
@@ -53,19 +57,27 @@ def sample_statistics(s_um: np.ndarray, r: np.ndarray) -> dict[str, float]:
     -------
     dict
         ``s_mean_um, s_std_um`` (number-weighted), ``r_mean``, ``r_std`` and ``d50_um``
-        (volume-weighted, :func:`bmctl.stats.dvalues`).
+        (volume-weighted, :func:`bmctl.stats.dvalues`). The standard deviations are the sample's,
+        with n - 1 (``ddof=1``, as :func:`bmctl.campaign.advice.sampling` reads the spread); NaN
+        for a sample of one particle, which shows no spread.
 
     Examples
     --------
     >>> st = sample_statistics(np.array([10.0, 20.0, 30.0]), np.array([0.1, 0.2, 0.3]))
-    >>> round(st["s_mean_um"], 6), round(st["r_mean"], 6)
-    (20.0, 0.2)
+    >>> round(st["s_mean_um"], 6), round(st["s_std_um"], 6), round(st["r_mean"], 6)
+    (20.0, 10.0, 0.2)
+    >>> sample_statistics(np.array([10.0]), np.array([0.1]))["s_std_um"]
+    nan
     """
     from ..stats import dvalues
 
     s_um, r = np.asarray(s_um, dtype=float), np.asarray(r, dtype=float)
-    return {"s_mean_um": float(s_um.mean()), "s_std_um": float(s_um.std()), "r_mean": float(r.mean()),
-            "r_std": float(r.std()), "d50_um": float(dvalues(s_um)["d50_um"])}
+
+    def std(v: np.ndarray) -> float:
+        return float(v.std(ddof=SAMPLE_DDOF)) if v.size > SAMPLE_DDOF else math.nan
+
+    return {"s_mean_um": float(s_um.mean()), "s_std_um": std(s_um), "r_mean": float(r.mean()),
+            "r_std": std(r), "d50_um": float(dvalues(s_um)["d50_um"])}
 
 
 def _legend(ax) -> None:
@@ -102,6 +114,7 @@ class ReportData:
         self.ceiling_c = c.ceiling_c()
         self.sigma_reading_c = c.filter_settings().sigma_temperature_c
         self.nodes = c.estimates()
+        self.filter_warnings = c.band_warnings()  # sample updates that left the filter nearly degenerate
         self.actions = c.actions()
         self.deviations = {r[0]: r[1] for r in c.con.execute("SELECT id, deviation FROM actions")}
         self.temps = c.con.execute("SELECT t_h, temperature_c FROM temperatures ORDER BY t_h, id").fetchall()
@@ -130,7 +143,7 @@ class ReportData:
             out += reading_warnings(est, self.ceiling_c, self.sigma_reading_c)
         if self.nodes:
             out += estimate_warning(self.nodes[-1][1], self.ceiling_c)
-        return out
+        return out + self.filter_warnings
 
 
 # --- figures ----------------------------------------------------------------------------------------
@@ -249,7 +262,9 @@ def _samples_table(d: ReportData) -> hs.Markup:
     for s in d.samples:
         row = [s["id"], f"{s['t_h']:g}", s["n"]]
         for k in QUANTITIES:
-            row += [_band(s["estimate"], k) if s["estimate"] else "waits for the log", f"{s['stats'][k]:.4g}"]
+            v = s["stats"][k]
+            row += [_band(s["estimate"], k) if s["estimate"] else "waits for the log",
+                    f"{v:.4g}" if math.isfinite(v) else f"n/a ({s['n']} particle)"]
         rows.append(row + [", ".join(s["sources"])])
     return hs.table(header, rows)
 
@@ -356,6 +371,7 @@ logged to {clock:g} h; {n_act} intervals, {n_smp} samples, {n_tmp} temperature r
 <h2>Estimate now</h2>
 {estimate}
 <h2>Samples: the estimate against each sample's statistic of the same quantity</h2>
+<p>A sample's std is its standard deviation with n &minus; 1 (n its particles); a sample of one particle has none.</p>
 {fig_estimate}
 {samples}
 {fig_hist}
@@ -387,7 +403,7 @@ def html_page(c) -> str:
     warns = d.warnings()
     wblock = (hs.render('<ul class="warnings">{items}</ul>', items=hs.join(hs.render("<li>{w}</li>", w=w)
                                                                            for w in warns))
-              if warns else hs.Markup("<p>No temperature warnings.</p>"))
+              if warns else hs.Markup("<p>No warnings.</p>"))
     last = d.nodes[-1][1] if d.nodes else None
     est_rows = [(k, _band(last, k)) for k in ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "temperature_c",
                                               "thermal_gain", "gamma_mult", "delta_mult", "energy_mult") if last and k in last]

@@ -33,6 +33,7 @@ import json
 import math
 import os
 import shutil
+import stat
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,7 +44,7 @@ from ..errors import InputError
 from ..limits import HOURS_MIN
 from . import db
 from . import targets as tg
-from .advice import _end_band, _measure, _schedule, _why, sample_first, sampling
+from .advice import _end_band, _measure, _schedule, _why, band_warning, sample_first, sampling, sampling_note
 from .readings import estimate_warning, reading_warnings
 from ..measure.names import path_text, refuse_repeats
 from ..moments.forcard import for_card
@@ -241,6 +242,17 @@ class Campaign:
         _, t_node, est = self.last_node()
         if t_node >= 0:
             out += estimate_warning(est, ceiling)
+        return out
+
+    def band_warnings(self, since_h: float | None = None) -> list[str]:
+        """Warnings of the sample nodes after ``since_h`` (all when None) whose update left the filter
+        nearly degenerate (:func:`bmctl.campaign.advice.band_warning`)."""
+        pooled = {float(t): (int(k), int(n)) for t, k, n in self.con.execute(
+            "SELECT t_h, COUNT(*), SUM(n) FROM samples GROUP BY t_h")}
+        out = []
+        for t, est in self.estimates():
+            if t in pooled and (since_h is None or t > since_h + EPS_H):
+                out += band_warning(est, *pooled[t], self.meta["particles"])
         return out
 
     def rpm_max(self) -> float:
@@ -572,21 +584,33 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
     -------
     dict
         ``sample_id, n, s_median_um, r_median, applied`` (False: waits for the log), ``replayed``
-        (estimator nodes recomputed), ``estimate`` and ``warnings`` (doubtful images).
+        (estimator nodes recomputed), ``estimate`` and ``warnings`` (doubtful images; a filter the
+        sample left nearly degenerate, :func:`bmctl.campaign.advice.band_warning`).
+
+    An input whose bytes are another input's of the same command, or an input stored before (its
+    SHA-256, ``sample_inputs``), or whose particles are a stored sample's or part of one, is
+    refused: it would read as a sample larger than it is.
     """
     at_h = _finite(at_h, "--at-h", 0)
     if not inputs:
         raise InputError("sample: give at least one image or particle table")
+    inputs = list(inputs)
     refuse_repeats(inputs, "sample: ")
-    table, images, x, y, reports = _measure(list(inputs), um_per_px, accept_unusable)  # before the lock: may take seconds
+    digests = [_digest(i) for i in inputs]
+    _refuse_same_bytes(inputs, digests)
+    # before the lock: may take seconds
+    table, images, x, y, reports, counts = _measure(inputs, um_per_px, accept_unusable)
     c = campaign or Campaign(folder)
     try:
         if at_h > c.meta["hours"] + 1e-6:
             raise InputError(f"--at-h {at_h:g}: after the batch end ({c.meta['hours']:g} h)")
         with db.transaction(c.con, where=str(folder)):
-            _refuse_stored_table(c, table)
+            db.upgrade(c.con)  # a version-1 campaign gets sample_inputs (rolled back if refused below)
+            _refuse_stored_table(c, table, inputs)
+            _refuse_stored_inputs(c, inputs, digests)
+            _refuse_parts_of_unhashed(c, table, inputs, counts)
             summ = table.summary()
-            srcs = [path_text(i) if not hasattr(i, "s_um") else "(table)" for i in inputs]
+            srcs = [_source(i) for i in inputs]
             cur = c.con.execute("INSERT INTO samples (t_h, sources, um_per_px, n, s_median_um, r_median, report, "
                                 "logged_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                                 (at_h, json.dumps(srcs), um_per_px, len(table), summ["s_median_um"],
@@ -596,33 +620,138 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
                      None if not np.isfinite(y[i]) else float(y[i]), float(table.area_um2[i]),
                      float(table.perimeter_um[i]), float(table.s_um[i]), float(table.r[i])) for i in range(len(table))]
             _insert_particles(c.con, rows)
+            c.con.executemany("INSERT INTO sample_inputs (sample_id, position, source, sha256) VALUES (?, ?, ?, ?)",
+                              [(sid, k + 1, src, h) for k, (src, h) in enumerate(zip(srcs, digests)) if h is not None])
             clock = c.clock_h()
             applied = at_h <= clock + EPS_H
             n = c._replay(invalidate_from_h=at_h) if applied else 0
             est = c.last_node()[2]
+            warnings = [w for rep in reports for w in rep.get("verdict_warnings", [])]
+            if applied:
+                warnings += c.band_warnings(since_h=at_h - 2 * EPS_H)  # the nodes it recomputed, from at_h on
     finally:
         if campaign is None:
             c.close()
     return {"sample_id": sid, "t_h": at_h, "n": len(table), "s_median_um": summ["s_median_um"],
             "r_median": summ["r_median"], "applied": applied, "replayed": n, "estimate": est, "clock_h": clock,
-            "warnings": [w for rep in reports for w in rep.get("verdict_warnings", [])]}
+            "warnings": warnings}
 
 
-def _refuse_stored_table(c: Campaign, table) -> None:
+def _source(item) -> str:
+    """How a sample's input is recorded (``samples.sources``, ``sample_inputs.source``)."""
+    return "(table)" if hasattr(item, "s_um") else path_text(item)
+
+
+def _name(item, k: int) -> str:
+    """An input as a message names it (``k``: its place in the command, for a table given in memory)."""
+    return f"table {k + 1} (in memory)" if hasattr(item, "s_um") else path_text(item)
+
+
+def _same(item) -> str:
+    """What :func:`_digest` hashed of an input, as a refusal names it."""
+    return "the same columns" if hasattr(item, "s_um") else "the same bytes"
+
+
+#: what a particle table given in memory is hashed with before its columns (never a file's bytes alone)
+_TABLE_TAG = b"bmctl particle table in memory\0"
+
+
+def _digest(item) -> str | None:
+    """SHA-256 (hex) of an input's bytes: a file as stored (read in blocks), a particle table given in
+    memory by its four columns as little-endian float64 after :data:`_TABLE_TAG`. None for a file that
+    cannot be read (the measurement then says why, in its own words)."""
+    from ..io import check_input_file
+
+    h = hashlib.sha256()
+    if hasattr(item, "s_um"):
+        h.update(_TABLE_TAG)
+        for col in ("area_um2", "perimeter_um", "s_um", "r"):
+            h.update(np.ascontiguousarray(getattr(item, col), dtype="<f8").tobytes())
+        return h.hexdigest()
+    try:
+        p = check_input_file(item)  # a regular file of a sane size (no FIFO, no device)
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # swapped for a FIFO after the check
+                return None
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    except (InputError, OSError):
+        return None
+    return h.hexdigest()
+
+
+def _refuse_same_bytes(inputs: list, digests: list) -> None:
+    """Refuse two inputs of one command with the same bytes (one file under two names, or a copy):
+    one line naming both. The same path twice is :func:`bmctl.measure.names.refuse_repeats`'s."""
+    seen: dict[str, int] = {}
+    for k, h in enumerate(digests):
+        if h is None:
+            continue
+        if h in seen:
+            j = seen[h]
+            raise InputError(f"sample: {_name(inputs[k], k)}: {_same(inputs[k])} as {_name(inputs[j], j)} (one "
+                             "image or table given twice would read as a sample twice its size)")
+        seen[h] = k
+
+
+def _refuse_stored_table(c: Campaign, table, inputs: list) -> None:
     """Refuse a particle table whose particles are a stored sample's (the same file or image entered
     by a second ``sample``): it would read as a sample twice its size, as a file named twice in one
     command would (:func:`bmctl.measure.names.refuse_repeats`)."""
     if not len(table):
         return
     s_new, r_new = np.asarray(table.s_um, dtype=float), np.asarray(table.r, dtype=float)
-    for sid, t_h in c.con.execute(
-            "SELECT s.id, s.t_h FROM samples s JOIN particles p ON p.sample_id = s.id AND p.particle_id = 1 "
+    for sid, t_h, srcs in c.con.execute(
+            "SELECT s.id, s.t_h, s.sources FROM samples s JOIN particles p ON p.sample_id = s.id AND p.particle_id = 1 "
             "WHERE s.n = ? AND p.s_um = ? AND p.r = ? ORDER BY s.id",
             (len(table), float(s_new[0]), float(r_new[0]))).fetchall():
         s_old, r_old = c.particles(int(sid))
         if np.array_equal(s_old, s_new) and np.array_equal(r_old, r_new):
-            raise InputError(f"sample: the same particles as sample {sid} at {t_h:g} h (one table entered twice "
-                             "would read as a sample twice its size); take another sample")
+            new = ", ".join(_name(i, k) for k, i in enumerate(inputs))
+            raise InputError(f"sample: {new}: the same particles as sample {sid} at {t_h:g} h, from "
+                             f"{', '.join(json.loads(srcs))} (one table entered twice would read as a sample twice "
+                             "its size); take another sample")
+
+
+def _refuse_stored_inputs(c: Campaign, inputs: list, digests: list) -> None:
+    """Refuse an input whose bytes are those of an input stored before (``sample_inputs``), alone or
+    as part of a larger sample: one line naming both."""
+    for k, h in enumerate(digests):
+        if h is None:
+            continue
+        row = c.con.execute("SELECT i.source, s.id, s.t_h FROM sample_inputs i JOIN samples s ON s.id = i.sample_id "
+                            "WHERE i.sha256 = ? ORDER BY s.id, i.position LIMIT 1", (h,)).fetchone()
+        if row is not None:
+            raise InputError(f"sample: {_name(inputs[k], k)}: {_same(inputs[k])} as {row[0]}, entered in sample "
+                             f"{row[1]} at {row[2]:g} h (one image or table entered twice would read as a sample twice "
+                             "its size); take another sample")
+
+
+def _refuse_parts_of_unhashed(c: Campaign, table, inputs: list, counts: list) -> None:
+    """Refuse an input whose particles are, in order, a run of the particles of a sample stored
+    without input hashes (a campaign written before ``sample_inputs``): the particles of each input
+    of a sample are stored one after another, so an input entered again is such a run."""
+    if c.con.execute("SELECT 1 FROM samples WHERE id NOT IN (SELECT sample_id FROM sample_inputs) LIMIT 1"
+                     ).fetchone() is None:
+        return
+    s_all, r_all = np.asarray(table.s_um, dtype=float), np.asarray(table.r, dtype=float)
+    ends = np.cumsum(counts)
+    for k, (a, b) in enumerate(zip(ends - counts, ends)):
+        s_new, r_new = s_all[a:b], r_all[a:b]
+        if not s_new.size:
+            continue
+        for sid, t_h in c.con.execute(
+                "SELECT DISTINCT s.id, s.t_h FROM samples s JOIN particles p ON p.sample_id = s.id "
+                "WHERE p.s_um = ? AND p.r = ? AND s.id NOT IN (SELECT sample_id FROM sample_inputs) ORDER BY s.id",
+                (float(s_new[0]), float(r_new[0]))).fetchall():
+            s_old, r_old = c.particles(int(sid))
+            for i in np.flatnonzero((s_old == s_new[0]) & (r_old == r_new[0])):
+                if (np.array_equal(s_old[i:i + s_new.size], s_new)
+                        and np.array_equal(r_old[i:i + s_new.size], r_new)):
+                    raise InputError(f"sample: {_name(inputs[k], k)}: the same particles as part of sample {sid} at "
+                                     f"{t_h:g} h (one image or table entered twice would read as a sample twice its "
+                                     "size); take another sample")
 
 
 def _insert_particles(con, rows) -> None:
@@ -685,7 +814,8 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
             else:
                 lp.controller.reset()
             earlier = c.con.execute("SELECT MAX(t_h) FROM plans WHERE t_h < ?", (clock - 1e-6,)).fetchone()[0]
-            warnings = c.temperature_warnings(since_h=None if earlier is None else float(earlier))
+            since = None if earlier is None else float(earlier)
+            warnings = c.temperature_warnings(since_h=since) + c.band_warnings(since_h=since)
             ctrl_target = tg.controller_target(c.meta["target"], est)
             lp.controller.set_target(ctrl_target, t_end_h=c.meta["hours"])
             acts = c.actions()
@@ -703,6 +833,7 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
             dt = plan.interval_h
             h_next = min(dt, c.meta["hours"] - clock) if clock < c.meta["hours"] - EPS_H else 0.0
             mill_min = round(plan.milling * dt * 60.0)
+            sampled, sampled_note = _last_sampling(c, clock)
             advice = {
                 "t_h": clock, "warnings": warnings, "estimate": est, "target": c.meta["target"],
                 "controller_target": ctrl_target,
@@ -717,10 +848,10 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
                 "solver_ok": bool(plan.status.success), "solve_ms": float(solve_ms),
                 "pending_samples": c.con.execute("SELECT COUNT(*) FROM samples WHERE t_h > ?",
                                                  (clock + EPS_H,)).fetchone()[0],
-                "sampling": _last_sampling(c, clock),
+                "sampling": sampled,
             }
             advice["sample_first"] = _sample_first(c, advice, clock, history)
-            advice["notes"] = _notes(c, est)
+            advice["notes"] = _notes(c, est) + ([sampled_note] if sampled_note else [])
             advise_ms = (time.perf_counter() - t_start) * 1e3
             advice["advise_ms"] = advise_ms
             cur = c.con.execute("INSERT INTO plans (t_h, rpm, milling, interval_h, advice, controller_state, "
@@ -795,16 +926,21 @@ def _sample_first(c: Campaign, advice: dict, clock: float, history: list) -> str
                         milled(history[-1:]), int(here or 0), int(before))
 
 
-def _last_sampling(c: Campaign, clock: float) -> dict | None:
+def _last_sampling(c: Campaign, clock: float) -> tuple[dict | None, str | None]:
     """:func:`bmctl.campaign.advice.sampling` of the latest sample at or before ``clock`` against the
-    controller's ``[objective] tolerance`` (None: no sample yet, or a controller without one)."""
+    controller's ``[objective] tolerance`` (None: no sample yet, or a controller without one), and
+    the note that says why it is None for a sample too small to show the spread of sizes
+    (:func:`bmctl.campaign.advice.sampling_note`; else None)."""
     tol = _tolerance(c)
     row = c.con.execute("SELECT id, t_h FROM samples WHERE t_h <= ? ORDER BY t_h DESC, id DESC LIMIT 1",
                         (clock + EPS_H,)).fetchone()
     if tol is None or row is None:
-        return None
-    out = sampling(c.particles(int(row[0]))[0], tol)
-    return None if out is None else {"t_h": float(row[1]), **out}
+        return None, None
+    s = c.particles(int(row[0]))[0]
+    out = sampling(s, tol)
+    if out is None:
+        return None, sampling_note(float(row[1]), s.size) if s.size < 2 else None
+    return {"t_h": float(row[1]), **out}, None
 
 
 def decide(folder, accept: bool, rpm: float | None = None, milling: float | None = None, note: str = "",
@@ -861,7 +997,8 @@ def status(folder, campaign: Campaign | None = None) -> dict:
             devs = [f"at {r[0]:g} h: {r[1]}" for r in c.con.execute("SELECT t0_h, deviation FROM actions "
                                                                      "WHERE deviation != '' ORDER BY t0_h")]
             replaced = n["decisions"] - c.con.execute("SELECT COUNT(DISTINCT plan_id) FROM decisions").fetchone()[0]
-            warnings = c.temperature_warnings(since_h=None if plan is None else float(plan[1]))
+            since = None if plan is None else float(plan[1])
+            warnings = c.temperature_warnings(since_h=since) + c.band_warnings(since_h=since)
     finally:
         if campaign is None:
             c.close()
