@@ -12,6 +12,9 @@ import math
 #: a reading this many standard deviations (reading noise and estimate spread together) from the
 #: estimate just before it is "far from the estimate"
 FAR_Z = 3.0
+#: an estimate this certain (std, degC) of the vial's temperature is the card's room temperature: the
+#: vial has rested (or barely milled), so its heating, which the filter learns, does not enter it
+AT_AMBIENT_SD_C = 0.2
 
 
 def reading_warnings(est: dict, ceiling_c: float | None, sigma_reading_c: float) -> list[str]:
@@ -38,6 +41,9 @@ def reading_warnings(est: dict, ceiling_c: float | None, sigma_reading_c: float)
     ...     print(w)
     reading 75 °C at 1 h is above the ceiling (60 °C)
     reading 75 °C at 1 h is far from the estimate just before it (58.0 ± 1.0 °C; 7.6 σ with the reading's 2 °C)
+    >>> rested = {"t_h": 0.5, "reading_c": 15.0, "reading_predicted_c": 25.0, "reading_predicted_sd_c": 0.0}
+    >>> print(reading_warnings(rested, 80.0, 2.0)[0])  # doctest: +ELLIPSIS
+    reading 15 °C at 0.5 h is far from ... (25.0 ± 0.0 °C; 5.0 σ ...); the estimate is the card's room temperature: ...
     """
     y = est.get("reading_c")
     if y is None:
@@ -50,8 +56,13 @@ def reading_warnings(est: dict, ceiling_c: float | None, sigma_reading_c: float)
     if math.isfinite(m) and math.isfinite(sd):
         z = abs(y - m) / math.hypot(sd, sigma_reading_c)
         if z > FAR_Z:
-            out.append(f"reading {y:g} °C at {t:g} h is far from the estimate just before it ({m:.1f} ± {sd:.1f} °C; "
-                       f"{z:.1f} σ with the reading's {sigma_reading_c:g} °C)")
+            line = (f"reading {y:g} °C at {t:g} h is far from the estimate just before it ({m:.1f} ± {sd:.1f} °C; "
+                    f"{z:.1f} σ with the reading's {sigma_reading_c:g} °C)")
+            if sd < AT_AMBIENT_SD_C:  # a rested vial: the room, not the heating, is off
+                line += (f"; the estimate is the card's room temperature: if the mill's room is at another, set "
+                         "thermal.ambient_C in the card (the filter learns how strongly the mill heats, not the room's "
+                         "temperature)")
+            out.append(line)
     return out
 
 

@@ -174,3 +174,18 @@ def test_report_holds_estimates_against_samples_decisions_notes_plans_and_readin
     assert "reading 75 °C at 1 h is above the ceiling (60 °C)" in page
     assert "<td>75</td><td>ABOVE</td>" in page
     assert page.count("data:image/png;base64,") == 4
+
+
+def test_a_far_reading_of_a_rested_vial_names_the_cards_room_temperature(tmp_path, capsys):
+    d = str(tmp_path / "c")
+    assert main(["campaign", "init", d, "--model", str(CARD), "--controller", str(LQR), "--target", "d50_um=45",
+                 "--hours", "2", "--particles", "100"]) == 0
+    capsys.readouterr()
+    # a rested vial is at the card's ambient (25 degC) for sure: a 15 degC reading is the room, not the heating
+    assert main(["campaign", "log", d, "--rpm", "0", "--hours", "0.5", "--temperature-c", "15"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"reading 15 °C at 0\.5 h is far from the estimate .*set thermal\.ambient_C in the card", out)
+    # a milling vial's far reading is the heating, which the filter learns: no such hint
+    assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--temperature-c", "120"]) == 0
+    out = capsys.readouterr().out
+    assert "reading 120 °C at 1 h is far from the estimate" in out and "ambient_C" not in out
