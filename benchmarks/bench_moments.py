@@ -40,13 +40,17 @@ def timeit(fn, repeat: int = 20, warmup: int = 2) -> float:
 
 
 def main(argv=None) -> int:
+    import argparse
+
     import casadi as ca
 
-    argv = sys.argv[1:] if argv is None else list(argv)
-    no_results = "--no-results" in argv
-    argv = [a for a in argv if a != "--no-results"]
     default = str(ROOT / "models" / "alni-1to1-300rpm-lab.toml")
-    card = argv[0] if argv else default
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("card", nargs="?", default=default, metavar="MODEL.toml",
+                    help="the card whose moment model is timed (default models/alni-1to1-300rpm-lab.toml)")
+    ap.add_argument("--no-results", action="store_true", help="print only, do not write results/bench_moments.json")
+    a = ap.parse_args(argv)
+    no_results, card = a.no_results, a.card
     load_before = os.getloadavg()
     t0 = time.perf_counter()
     model = make_moment_model(card)

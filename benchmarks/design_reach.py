@@ -33,7 +33,10 @@ CASES = (("reachable", {"s_mean_um": 30.0}, "target", 3),
          ("min_time", {"d50_um": (55.0, 65.0)}, "min_time", 1))
 
 
-def main() -> None:
+def main(argv=None) -> None:
+    import argparse
+
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args(argv)  # no options: --help, or refused
     from bmctl.control.config import load_controller
     from bmctl.control.design import design_schedule, plant_check
     from bmctl.moments import for_card

@@ -32,7 +32,10 @@ def off_card(table: dict) -> dict:
     return out
 
 
-def main() -> None:
+def main(argv=None) -> None:
+    import argparse
+
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # no options: --help, or refused
     from bmctl.config import read_toml
     from bmctl.results import marked, write_results
 

@@ -6,7 +6,8 @@ hours on two cores; it is not part of the test suite.
 
     python benchmarks/regenerate.py --list              # registered files, their commands and costs
     python benchmarks/regenerate.py --only NAME [NAME]  # re-run some studies
-    python benchmarks/regenerate.py                     # re-run every study (timings last)
+    python benchmarks/regenerate.py                     # re-run every study (timings last; not the
+                                                        # manual ones, which need an older checkout)
     python benchmarks/regenerate.py --docs              # rewrite the numbers inside the docs' markers
                                                         # from the results files (same displayed decimals)
 
@@ -38,9 +39,11 @@ class Study:
     command: str  # run from the repository root; writes results/<name>.json
     minutes: float  # rough cost on one idle core
     timing: bool = False  # wall-clock numbers: run last, on a quiet machine
+    manual: bool = False  # run only when named with --only (it needs an older checkout at /tmp/base)
 
 
-#: one entry per results file; each script's own ``command`` field is this string
+#: one entry per results file; each file's ``command`` field is this string (tests/test_results_commands.py
+#: checks both, and that the command still parses with its script's current arguments)
 REGISTRY: tuple[Study, ...] = (
     Study("model_facts", "python benchmarks/model_facts.py", 3),
     Study("fidelity_table", "python benchmarks/fidelity_table.py --particles 20000 --seed 2024", 2),
@@ -220,6 +223,17 @@ REGISTRY: tuple[Study, ...] = (
     Study("measure_synthetic", "python benchmarks/measure_accuracy.py synthetic", 2),
     Study("measure_real", "python benchmarks/measure_accuracy.py real", 3),
     Study("measure_sensitivity", "python benchmarks/measure_accuracy.py sensitivity", 5),
+    Study("fuzz", "nice -n 5 python benchmarks/fuzz.py --cases 2250", 6),
+    # this script on the segmentation of 41dff7f (before automatic polarity), in a git worktree at /tmp/base that
+    # must not exist yet: one at a time with --only, `git worktree remove --force /tmp/base` after each
+    Study("measure_emps_baseline_bright",
+          "git worktree add --detach /tmp/base 41dff7f && cp benchmarks/measure_emps.py /tmp/base/benchmarks/ && "
+          "cd /tmp/base && BMCTL_RESULTS_DIR=$OLDPWD/results python benchmarks/measure_emps.py --polarity bright "
+          "--name measure_emps_baseline_bright", 1, manual=True),
+    Study("measure_emps_baseline_best",
+          "git worktree add --detach /tmp/base 41dff7f && cp benchmarks/measure_emps.py /tmp/base/benchmarks/ && "
+          "cd /tmp/base && BMCTL_RESULTS_DIR=$OLDPWD/results python benchmarks/measure_emps.py --polarity best "
+          "--name measure_emps_baseline_best", 2, manual=True),
     # timings: re-measured at the end on a quiet machine (each file records the load)
     Study("bench_identify", "python benchmarks/bench_identify.py", 4, timing=True),
     Study("bench_moments", "python benchmarks/bench_moments.py", 0.5, timing=True),
@@ -233,6 +247,9 @@ REGISTRY: tuple[Study, ...] = (
     Study("bench_control_nlp", "python benchmarks/bench_control.py --nlp", 1, timing=True),
     Study("bench_fresh", "python benchmarks/bench_fresh.py", 5, timing=True),
     Study("test_suite", "python benchmarks/test_suite.py", 20, timing=True),
+    # timed beside 41dff7f in a git worktree at /tmp/base that must not exist yet (as the baselines above)
+    Study("bench_measure", "git worktree add --detach /tmp/base 41dff7f && python benchmarks/bench_measure.py "
+          "--against /tmp/base", 2, timing=True, manual=True),
 )
 
 MARKER = re.compile(r"(<!--r:([^:>\s]+):([^>\n]+?)-->)(.*?)(<!--/r-->)", re.S)
@@ -340,7 +357,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.list:
         for s in REGISTRY:
-            print(f"{s.name:30s} ~{s.minutes:5.0f} min{'  timing' if s.timing else '        '}  {s.command}")
+            tags = ("timing " if s.timing else "") + ("manual" if s.manual else "")
+            print(f"{s.name:30s} ~{s.minutes:5.0f} min  {tags:13s}  {s.command}")
         return 0
     if a.docs:
         n = refresh_docs(a.dry_run)
@@ -354,7 +372,8 @@ def main(argv=None) -> int:
             return 2
         todo = [known[n] for n in a.only]
     else:
-        todo = [s for s in REGISTRY if not s.timing] + ([] if a.no_timings else [s for s in REGISTRY if s.timing])
+        auto = [s for s in REGISTRY if not s.manual]
+        todo = [s for s in auto if not s.timing] + ([] if a.no_timings else [s for s in auto if s.timing])
     failed = [s.name for s in todo if not run(s)]
     if failed:
         print(f"regenerate: failed: {', '.join(failed)}", file=sys.stderr)
