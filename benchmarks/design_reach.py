@@ -38,7 +38,7 @@ def main(argv=None) -> None:
 
     argparse.ArgumentParser(description=__doc__.split("\n\n")[0]).parse_args(argv)  # no options: --help, or refused
     from bmctl.control.config import load_controller
-    from bmctl.control.design import design_schedule, plant_check
+    from bmctl.control.design import design_schedule, plant_check, switches_of
     from bmctl.moments import for_card
     from bmctl.results import write_results
 
@@ -58,7 +58,7 @@ def main(argv=None) -> None:
                "search_error_pct": 100 * d.searched.error, "search_family": d.searched.family,
                "search_schedules": d.search.evaluated,
                "local_error_pct": None if d.local is None else 100 * d.local.error,
-               "peak_c": r.peak_c, "switches": r.switches, "milling_h": r.milling_h, "energy_kWh": r.energy_kWh,
+               "peak_c": r.peak_c, "switches": d.switches, "milling_h": r.milling_h, "energy_kWh": r.energy_kWh,
                "segments": [[h, rpm] for h, rpm in d.segments], "binding": d.reach.binding,
                "per_family": {f: {k: v for k, v in fam.items() if k != "params"}
                               for f, fam in d.reach.per_family.items()},
@@ -67,7 +67,7 @@ def main(argv=None) -> None:
             row["plant_error_pct"] = 100 * (pc[key]["mean"] - target[key]) / target[key]
         if d.pareto:
             row["pareto"] = [{"hours": p.hours, "milling_h": p.milling_h, "energy_kWh": p.energy_kWh,
-                              "error_pct": 100 * p.error, "switches": p.switches, "peak_c": p.peak_c} for p in d.pareto]
+                              "error_pct": 100 * p.error, "switches": switches_of(p), "peak_c": p.peak_c} for p in d.pareto]
         out[name] = row
         print(f"{name}: {target} -> {key} {r.outputs[key]:.4g} (error {100 * r.error:.2f} %, {r.method}); search "
               f"{100 * d.searched.error:.2f} % ({d.searched.family}), local NLP "

@@ -45,7 +45,7 @@ def _controller_path(arg) -> Path:
 
 def run(args) -> int:
     from ..control.config import MPCConfig, check_ceiling, load_controller, parse_target
-    from ..control.design import check_batch, design_schedule, done_text, write_design
+    from ..control.design import check_batch, design_schedule, done_text, switches_of, switches_text, write_design
 
     # all input checks first: nothing is written on bad input
     target = parse_target(args.target)
@@ -91,7 +91,8 @@ def run(args) -> int:
     r = d.result
     got = ", ".join(f"{k} {r.outputs[k]:.4g} (target {format_target(v)})" for k, v in target.items())
     n = len(d.segments)
-    print(f"{d.card_name}: {d.hours:g} h ({d.objective}), {n} segment{'s' if n != 1 else ''}, {r.switches} switches, "
+    print(f"{d.card_name}: {d.hours:g} h ({d.objective}), {n} segment{'s' if n != 1 else ''}, "
+          f"{switches_text(d.switches)}, "
           f"{d.milling_h:.2f} h milling, {d.energy_kWh:.3f} kWh; predicted {got}; peak T {r.peak_c:.1f} °C "
           f"(ceiling {d.ceiling_c:g} °C); {r.method} ({r.status}), {r.solve_s:.1f} s")
     done = done_text(d)
@@ -99,7 +100,7 @@ def run(args) -> int:
         print(f"  {done}")
     if d.local is not None and d.local is not r:
         print(f"  local NLP (from the search's best schedules): error {100 * d.local.error:.2f} %, "
-              f"{d.local.switches} switches, peak T {d.local.peak_c:.1f} °C: not better")
+              f"{switches_text(switches_of(d.local))}, peak T {d.local.peak_c:.1f} °C: not better")
     elif d.local is not None:  # the search's schedule as written, integrated as the summary's
         print(f"  global search's best: error {100 * d.searched.error:.2f} %; the local NLP improved on it")
     if args.plant_seeds:

@@ -5,7 +5,9 @@ table (CSV ``area_um2,perimeter_um`` or ``s_um,r``; or a micrograph with ``--um-
 sample time, runs the moment model between samples under the card's recipe (or
 ``--schedule``/``--rpm``), and writes ``estimate.csv`` (t_h, ESS and the mean and 90 %
 interval of every state and parameter at each sample time) and a figure next to it
-(``<name>.png``). Bad input: one line, exit 2, nothing written. See docs/estimation.md.
+(``<name>.png``); ``--write-card OUT.toml`` also writes the card with the estimated gamma, delta
+(an existing OUT.toml only with ``--force``). Bad input: one line, exit 2, nothing written. See
+docs/estimation.md.
 """
 
 from __future__ import annotations
@@ -52,7 +54,9 @@ def configure(p):
     p.add_argument("--sigma-log-s", type=float_arg("--sigma-log-s", lo=0.0, hi=5.0), default=None,
                    help="ln s measurement noise (default 0.015)")
     p.add_argument("--write-card", default=None, metavar="OUT.toml",
-                   help="also write the card with gamma, delta set to the last estimate (the next batch's start)")
+                   help="also write the card with gamma, delta set to the last estimate (the next batch's start); "
+                        "an existing OUT.toml is refused unless --force")
+    p.add_argument("--force", action="store_true", help="let --write-card replace an existing OUT.toml")
     add_identify_flag(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -130,9 +134,10 @@ def _read_sample(path: Path, um_per_px: float | None, accept_unusable: bool = Fa
     return check_table(res.table, str(path)), check_verdicts([res.report()], accept_unusable)
 
 
-def _check_write_card(path, taken) -> None:
-    """``--write-card``: a new ``.toml`` that is none of the run's inputs or outputs (the card it
-    starts from, its coefficients, the samples, the table and figure it writes)."""
+def _check_write_card(path, taken, force: bool = False) -> None:
+    """``--write-card``: a ``.toml`` that is none of the run's inputs or outputs (the card it starts
+    from, its coefficients, the samples, the table and figure it writes) and, unless ``force``, no
+    existing file (any .toml may be a card or a schedule of the user's, so none is replaced unasked)."""
     card = output_path(path, "--write-card", folder=False)
     if card.suffix.lower() != ".toml":
         raise InputError(f"--write-card: expected a .toml file name (got {path})")
@@ -141,6 +146,8 @@ def _check_write_card(path, taken) -> None:
         if os.path.realpath(other) == real:
             raise InputError(f"--write-card: {path} is also {other}, an input or output of this run; choose another "
                              "file name")
+    if os.path.lexists(card) and not force:
+        raise InputError(f"--write-card: {path} exists; give --force to replace it, or choose another file name")
 
 
 def run(args) -> int:
@@ -199,8 +206,11 @@ def run(args) -> int:
     if out.suffix.lower() != ".csv":
         raise InputError(f"--out: expected a .csv file name (got {out})")
     if args.write_card is not None:
-        _check_write_card(args.write_card, [out, out.with_suffix(".png"), Path(args.model),
-                                            coeffs_path(args.model), *files, *([args.schedule] if args.schedule else [])])
+        taken = [out, out.with_suffix(".png"), Path(args.model), coeffs_path(args.model), *files,
+                 *([args.schedule] if args.schedule else [])]
+        _check_write_card(args.write_card, taken, args.force)
+    elif args.force:
+        raise InputError("--force: only with --write-card (it lets --write-card replace an existing file)")
     law_kw = {"size_law": args.size_law}
     if args.sigma_r is not None:
         law_kw["sigma_r"] = args.sigma_r

@@ -5,6 +5,8 @@ steps, rests, branches from other states, random schedules) on a seeded ensemble
 the free coefficients by least squares, validates on held-out random schedules and writes
 ``<card>.moments.toml`` next to the card (or ``--out``), with the fingerprint of the card fields
 the coefficients belong to. A shipped file (``models/``) is not overwritten without ``--overwrite``.
+Where the steady vial at the mill's rpm_max would pass the card's melting limit, the experiments stop
+at the fastest speed under it and a one-line warning says so (:func:`bmctl.moments.identify.speed_limit`).
 """
 
 from __future__ import annotations
@@ -107,7 +109,8 @@ def run(args) -> int:
     res = identification(card, args.model, seed=args.seed, log=log, workers=args.workers, scheduler=args.scheduler,
                          command=command, start=args.start, replaces=out, quick=args.quick, particles=args.particles,
                          random_schedules=args.random_schedules, seeds=args.seeds, heldout=args.heldout,
-                         evaluations=args.evaluations, jacobians=args.jacobians)
+                         evaluations=args.evaluations, jacobians=args.jacobians,
+                         warn=lambda msg: print(f"bmctl: warning: {msg}", file=sys.stderr, flush=True))
     names = ident.MOMENTS[:5]
     report = (_report(card.card.name, names, res.table_defaults, res.table, res.table_train) + "\n"
               + _report_off_card(names, res.off_card_p1, res.off_card))

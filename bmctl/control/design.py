@@ -74,6 +74,11 @@ class Design:
         return float(sum(h for h, _ in self.segments))
 
     @property
+    def switches(self) -> int:
+        """On/off switches over the batch, a stop before the batch end included (:func:`batch_switches`)."""
+        return batch_switches(self.segments, self.hours)
+
+    @property
     def milling_h(self) -> float:
         return self.result.milling_h
 
@@ -135,6 +140,49 @@ def interval_segments(rpm, minutes, lengths_min) -> list:
     if out and out[-1][1] == 0.0:
         out = []
     return [(mnt / 60.0, r) for mnt, r in out]
+
+
+def batch_switches(segments, hours: float) -> int:
+    """On/off switches of a written schedule over the batch of ``hours`` it was designed for.
+
+    The transitions between its segments (:func:`~bmctl.control.mill.count_switches`) and, where its
+    last milling ends before the batch end, that stop: the trailing rest is not written
+    (:func:`interval_segments`) but the mill still switches off inside the batch. This is how the
+    switch budget (``[mill] max_switches``) is kept: the search's operability test, the phase-pattern
+    NLP's constraint and the mill guard of a closed loop all count that stop. A schedule that mills to
+    the batch end stops with the batch, which no count includes.
+
+    Parameters
+    ----------
+    segments : list of (hours, rpm)
+        The written schedule (rpm 0 = rest).
+    hours : float
+        The batch length it was designed for.
+
+    Examples
+    --------
+    >>> batch_switches([(1.0, 300.0), (0.5, 0.0), (1.0, 300.0)], 3.0)  # on, off, on, and off at 2.5 h
+    3
+    >>> batch_switches([(1.0, 300.0), (0.5, 0.0), (1.5, 300.0)], 3.0)  # milling to the end
+    2
+    """
+    from .mill import count_switches
+
+    segs = [(h, r) for h, r in segments if h > 1e-12]
+    n = count_switches(segs)
+    if segs and segs[-1][1] > 0 and sum(h for h, _ in segs) < hours - 1e-9:
+        n += 1
+    return n
+
+
+def switches_of(r) -> int:
+    """:func:`batch_switches` of a design result (a :class:`~bmctl.control.pattern.PatternResult`)."""
+    return batch_switches(r.segments, r.hours)
+
+
+def switches_text(n: int) -> str:
+    """"1 on/off switch", "14 on/off switches"."""
+    return f"{n} on/off switch{'' if n == 1 else 'es'}"
 
 
 @dataclass
@@ -207,7 +255,7 @@ def _better(a, b, tol: float, band: float, ceiling_c: float, weights) -> bool:
     both are within ``band`` of each other (then the lower energy, milling-time and switch cost)."""
     def key(r):
         return (weights.energy_per_kWh * r.energy_kWh + weights.time_per_h * r.milling_h
-                + getattr(weights, "switch", 0.0) * r.switches)
+                + getattr(weights, "switch", 0.0) * switches_of(r))
 
     oa, ob = a.peak_c <= ceiling_c + 0.05, b.peak_c <= ceiling_c + 0.05
     if oa != ob:
@@ -391,12 +439,13 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
 def written_families(per_family: dict, by_family: dict) -> dict:
     """The search's best row per family with the numbers of its schedule as written.
 
-    The search counts the stop of a last milling period inside the batch; the written schedule
-    drops the trailing rest (:func:`interval_segments`), so the design's summary and schedule.toml
-    count one switch fewer. Here both count the schedule as written (:func:`~bmctl.control.mill.count_switches`),
-    and ``error`` and ``peak_c`` are those of the moment model's own integration of the written
-    schedule (:func:`simulate_segments`), as the design's summary reports its schedule; the search's
-    cheaper prediction, which ranked the rows, can be a few per cent off (kept as ``search_error``).
+    ``switches`` are those of the written schedule over the batch (:func:`batch_switches`): a stop of
+    the last milling period before the batch end counts, as the search's budget counts it, although
+    the written schedule drops the trailing rest (:func:`interval_segments`); the design's summary,
+    schedule.toml and figure count the same way. ``error`` and ``peak_c`` are those of the moment
+    model's own integration of the written schedule (:func:`simulate_segments`), as the design's
+    summary reports its schedule; the search's cheaper prediction, which ranked the rows, can be a
+    few per cent off (kept as ``search_error``).
 
     Parameters
     ----------
@@ -413,7 +462,7 @@ def written_families(per_family: dict, by_family: dict) -> dict:
     out = {}
     for fam, row in per_family.items():
         w = by_family[fam]
-        out[fam] = {**row, "switches": w.switches, "search_error": row.get("error"), "peak_c": float(w.peak_c),
+        out[fam] = {**row, "switches": switches_of(w), "search_error": row.get("error"), "peak_c": float(w.peak_c),
                     "error": w.error}
     return out
 
@@ -477,7 +526,7 @@ def pareto_table(d: Design) -> str:
     rows = ["| batch h | milling h | energy kWh | final error % | switches | peak T °C |", "|---|---|---|---|---|---|"]
     for r in d.pareto:
         rows.append(f"| {r.hours:.2f} | {r.milling_h:.2f} | {r.energy_kWh:.3f} | {100 * r.error:.2f} | "
-                    f"{r.switches} | {r.peak_c:.1f} |")
+                    f"{switches_of(r)} | {r.peak_c:.1f} |")
     return "\n".join(rows)
 
 
@@ -492,7 +541,8 @@ def done_text(d: Design) -> str:
     done = d.done_h
     if done >= d.hours - 1e-9:
         return ""
-    text = f"the schedule is done after {done:.2f} h (its last milling, then nothing to run); "
+    text = (f"the schedule is done after {done:.2f} h (its last milling, then nothing to run; that stop counts as "
+            "an on/off switch); ")
     if d.objective == "target" or not d.pareto:
         return text + f"{d.hours:g} h is the batch length it was designed for"
     if not d.reach.reachable:
@@ -514,7 +564,7 @@ def schedule_toml(d: Design) -> str:
         f"# Designed by `bmctl design` for {d.card_name}: target {tgt} at {d.hours:g} h (objective {d.objective})"
         + (f"; {done}" if done else ""),
         f"# controller {d.controller_name or 'mpc'}; {r.method}: {r.status}, {r.solve_s:.1f} s; "
-        f"{r.switches} on/off switches; predicted "
+        f"{switches_text(d.switches)}; predicted "
         + ", ".join(f"{k} {r.outputs[k]:.4g}" for k in d.target if k in r.outputs)
         + f" (error {100 * r.error:.2f} %)",
         f"# predicted (moment model): s mean {last[0]:.2f} µm, s std {last[1]:.2f} µm, r mean {last[2]:.4f}, "
@@ -569,7 +619,7 @@ def design_figure(d: Design, path: Path) -> None:
     ax = axes[0, 0]
     ax.step(t, np.append(d.U[:, 0], d.U[-1:, 0]), where="post", color="tab:blue", label="rpm (0 = rest)")
     ax.set_ylabel("rpm")
-    ax.set_title(f"schedule: {d.result.switches} on/off switches")
+    ax.set_title(f"schedule: {switches_text(d.switches)}")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     X = d.X

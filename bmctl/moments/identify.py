@@ -19,6 +19,7 @@ NRMSE of a moment on one schedule = RMSE(model - plant mean over the recorded ti
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
@@ -101,14 +102,73 @@ def random_schedule(rng: np.random.Generator, rpm_max: float, hours: float = HOU
     return _grid(segs)
 
 
+#: the lowest top speed of an identification (rpm): its six constant speeds, 1/6 ... 1 of it on the
+#: 10-rpm grid, must be six distinct milling speeds
+SPEED_LIMIT_MIN_RPM = 60.0
+
+
+def speed_limit(card: ModelCard) -> tuple[float, str]:
+    """The top speed of the identification's experiments, and a warning line when it is below rpm_max.
+
+    The experiments (training, held-out and off-card) span the speeds up to the mill's rpm_max, unless
+    the steady vial temperature there (:func:`bmctl.cards.steady_temperature_c`, the closed form
+    T_amb + P(rpm) tau / C) would pass the card's melting limit (:func:`bmctl.cards.melting_limit`),
+    which no schedule of any command may cross (:func:`bmctl.cards.check_melting`): then they stop at
+    the fastest multiple of 10 rpm whose steady vial stays at or under it. A model trained on a vial
+    above the melting point would fit physics nobody runs; its ``[window]`` records the speeds it saw.
+
+    Parameters
+    ----------
+    card : ModelCard
+
+    Returns
+    -------
+    (float, str)
+        The top speed (rpm) and a one-line warning ("" when it is the mill's rpm_max).
+
+    Raises
+    ------
+    InputError
+        When even :data:`SPEED_LIMIT_MIN_RPM` would pass the melting limit.
+
+    Examples
+    --------
+    >>> from bmctl.config import load_card
+    >>> speed_limit(load_card("models/alni-1to1-300rpm-lab.toml"))  # 349 °C at 600 rpm: under Al's 660 °C
+    (600.0, '')
+    """
+    from ..cards import melting_limit, steady_temperature_c
+    from ..errors import InputError
+
+    top = float(card.mill.rpm_max)
+    limit, reason = melting_limit(card)
+    hot = steady_temperature_c(card, top)
+    if hot <= limit:
+        return top, ""
+    lo, hi = 0.0, top  # the steady temperature rises with the speed (P ~ rpm^3)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if steady_temperature_c(card, mid) <= limit else (lo, mid)
+    R = float(math.floor(lo / 10.0 + 1e-9) * 10)
+    name = card.card.name
+    if R < SPEED_LIMIT_MIN_RPM:
+        raise InputError(f"{name}: the steady vial temperature passes {limit:g} °C ({reason}) above {lo:.0f} rpm: "
+                         f"too slow a range to identify the moment model on (at least {SPEED_LIMIT_MIN_RPM:g} rpm)")
+    return R, (f"{name}: at rpm_max {top:g} rpm the steady vial would reach {hot:.0f} °C, above {limit:g} °C "
+               f"({reason}); the identification's experiments mill at {R:g} rpm at most (steady vial "
+               f"{card.thermal.ambient_C:g}–{steady_temperature_c(card, R):.0f} °C), and the model warns above "
+               "that range")
+
+
 def design(card: ModelCard, seed: int = 0, quick: bool = False, n_random: int | None = None) -> list[Spec]:
-    """Training experiments for ``card`` (speeds as fractions of the mill's rpm_max).
+    """Training experiments for ``card`` (speeds as fractions of its top speed: the mill's rpm_max, or
+    lower where the steady vial there would pass the melting limit, :func:`speed_limit`).
 
     ``n_random`` random schedules close the design (default :data:`N_RANDOM_TRAIN`, 2 with
     ``quick``). They come from one stream, so a larger ``n_random`` keeps the first schedules
     of a smaller one and adds more.
     """
-    R = card.mill.rpm_max
+    R = speed_limit(card)[0]
     r = lambda f: round(f * R / 10) * 10  # noqa: E731
     specs = [Spec(f"const-{r(f):g}", _grid([(HOURS, r(f), 1.0)])) for f in ((1 / 6, 1 / 3, 1 / 2, 2 / 3, 5 / 6, 1.0)
                                                                             if not quick else (1 / 4, 1 / 2, 3 / 4, 1.0))]
@@ -136,8 +196,9 @@ def design(card: ModelCard, seed: int = 0, quick: bool = False, n_random: int | 
     # plant answers gamma and delta, which the particle filter estimates through the model
     # (docs/moments.md, Sec. 6); their schedules come from their own stream [seed, 4]
     grng = np.random.default_rng([seed, 4])
+    recipe = min(float(card.process.rpm), R)
     for g, d in TRAIN_FACTORS:
-        specs.append(Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, card.process.rpm, 1.0)]), factors=(g, d)))
+        specs.append(Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, recipe, 1.0)]), factors=(g, d)))
         for k in range(1 if quick else N_RANDOM_OFF_CARD):
             specs.append(Spec(f"random-g{g:g}-d{d:g}-{k}", random_schedule(grng, R), factors=(g, d)))
     return specs
@@ -163,10 +224,14 @@ def design_window(card: ModelCard, specs: Sequence[Spec]) -> dict:
 
     rpms = [rpm for s in specs for rpm, duty in list(s.prefix) + list(s.inputs) if rpm > 0 and duty > 0]
     lo, hi = min(rpms), max(rpms)
-    return {"rpm": [float(lo), float(hi)],
-            "temperature_c": [round(card.thermal.ambient_C, 2), round(steady_temperature_c(card, hi), 2)],
-            "source": "milling speeds of the training experiments; vial temperatures from the ambient to the "
-                      "steady temperature of the fastest (docs/moments.md, Sec. 9)"}
+    out = {"rpm": [float(lo), float(hi)],
+           "temperature_c": [round(card.thermal.ambient_C, 2), round(steady_temperature_c(card, hi), 2)],
+           "source": "milling speeds of the training experiments; vial temperatures from the ambient to the "
+                     "steady temperature of the fastest (docs/moments.md, Sec. 9)"}
+    capped = speed_limit(card)[1]
+    if capped:
+        out["speed_limit"] = capped
+    return out
 
 
 def card_table(card: ModelCard) -> dict:
@@ -182,7 +247,8 @@ def validation_design(card: ModelCard, seed: int = 0, n: int = N_VALID, stream: 
     training design's ``[seed, 1]`` (``benchmarks/moments_confirm.py`` draws its confirmation set
     from stream 3)."""
     rng = np.random.default_rng([seed, stream])
-    return [Spec(f"random-valid-{k}", random_schedule(rng, card.mill.rpm_max)) for k in range(n)]
+    top = speed_limit(card)[0]
+    return [Spec(f"random-valid-{k}", random_schedule(rng, top)) for k in range(n)]
 
 
 #: plant (gamma, delta) factors of the off-card check: the two +-30 % plants of the estimation study
@@ -192,8 +258,9 @@ FACTORS = ((1.3, 0.7), (0.7, 1.3))
 def off_card_design(card: ModelCard) -> list[Spec]:
     """The off-card check: the card's own recipe (process rpm, 12 h) on plants whose gamma and
     delta are off the card (:data:`FACTORS`). Nothing is fitted on them: they test the derived
-    response of the rates to the parameters p = (gamma, delta) factors."""
-    rpm = card.process.rpm
+    response of the rates to the parameters p = (gamma, delta) factors (at most the top speed,
+    :func:`speed_limit`)."""
+    rpm = min(float(card.process.rpm), speed_limit(card)[0])
     return [Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, rpm, 1.0)]), factors=(g, d)) for g, d in FACTORS]
 
 
@@ -781,7 +848,7 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
              log: Callable[[str], None] | None = None, client=None, seeds: int | None = None,
              heldout: int | None = None, start: dict | None = None, start_label: str = "",
              evaluations: int | None = None, threads: int | None = None, jacobians: int | None = None,
-             both_starts: bool = True) -> Identification:
+             both_starts: bool = True, warn: Callable[[str], None] | None = None) -> Identification:
     """Fit the moment model of ``card`` to a design of plant experiments and validate it.
 
     Three phases, each reporting through ``log``: the plant experiments (training, held-out and
@@ -826,12 +893,18 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
         Also fit from the built-in defaults when ``start`` is given (default True).
     threads : int, optional
         Threads of the fit (default: the usable CPUs; same result for any number).
+    warn : callable, optional
+        Called with the one-line warning of :func:`speed_limit` when the experiments stop below the
+        mill's rpm_max (default: ``log``).
     """
     from datetime import datetime, timezone
 
     from .model import default_coeffs
 
     log = log or (lambda msg: None)
+    capped = speed_limit(card)[1]
+    if capped:
+        (warn or log)(capped)
     particles = particles or default_particles(quick)
     n_seeds = seeds if seeds is not None else (1 if quick else DEFAULT_SEEDS)
     n_held = heldout if heldout is not None else (4 if quick else DEFAULT_HELDOUT)

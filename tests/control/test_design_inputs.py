@@ -108,21 +108,41 @@ def test_target_design_says_when_the_schedule_is_done(tmp_path, capsys):
     assert f"the schedule is done after {done:.2f} h" in header
 
 
-def test_family_switches_are_counted_as_in_the_written_schedule():
-    """The search's best cycled schedule (8 bursts over 4 h) is written without its trailing rest:
-    its family line and the design's summary count the same 14 on/off switches."""
+def test_switches_count_the_stop_before_the_batch_end_as_the_budget_does():
+    """The search's best cycled schedule (8 bursts over 4 h) ends with a rest, which is not written: the
+    schedule has 14 transitions, and the mill switches off once more, at 3.58 h, inside the batch. The
+    search kept the budget counting that stop (15), the summary and the family lines said 14. Now every
+    count is the budget's: the design, its family line, the search's row, schedule.toml and the figure."""
     from bmctl.control import load_controller
-    from bmctl.control.design import design_schedule
+    from bmctl.control.design import batch_switches, design_schedule, schedule_toml, switches_of
     from bmctl.control.mill import count_switches
     from bmctl.moments.model import make_moment_model
 
     model = make_moment_model(CARD)
     cfg = load_controller(ROOT / "controllers" / "mpc-default.toml")
     d = design_schedule(model, {"s_mean_um": 35.0}, 4.0, cfg, local=False)
+    assert d.done_h < d.hours - 0.1 and d.segments[-1][1] > 0  # the last milling stops before the batch end
     fam = d.reach.per_family[d.searched.family]
-    assert fam["switches"] == d.result.switches == count_switches(d.segments)
+    assert count_switches(d.segments) == 14
+    searched = d.search.per_family[d.searched.family]["switches"]  # the search's own count, its budget's
+    assert fam["switches"] == d.switches == switches_of(d.result) == searched == 15
+    for name, row in d.reach.per_family.items():  # every family's row as the search's budget counted it
+        assert row["switches"] == d.search.per_family[name]["switches"], name
     line = next(ln for ln in d.reach.family_lines() if ln.strip().startswith(d.searched.family))
-    assert f"{d.result.switches:2d} switches" in line
+    assert "15 switches" in line
+    head = schedule_toml(d).splitlines()
+    assert "that stop counts as an on/off switch" in head[0] and "; 15 on/off switches;" in head[1]
+    assert batch_switches(d.segments, d.done_h) == 14  # a batch ending with its last milling: no stop inside it
+
+
+def test_design_summary_counts_the_early_stop(tmp_path, capsys):
+    """d50 42 µm takes one short period of milling in a 1 h batch: one on/off switch, the stop."""
+    out = tmp_path / "o"
+    assert main(["design", str(CARD), "--target", "d50_um=42", "--hours", "1", "--plant-seeds", "0",
+                 "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "1 segment, 1 on/off switch, " in text.splitlines()[0], text
+    assert "; 1 on/off switch;" in (out / "schedule.toml").read_text().splitlines()[1]
 
 
 def test_family_errors_are_those_of_the_written_schedule(tmp_path):

@@ -287,6 +287,36 @@ def test_cli_estimate_bad_input(tmp_path, capsys, case):
     assert not out.exists() and not out.with_suffix(".png").exists()
 
 
+def test_write_card_refuses_an_existing_file_unless_forced(tmp_path, capsys):
+    """--write-card onto an existing, unrelated .toml (a schedule here) replaced it without a word: now it
+    is refused in one line before any work, nothing written; --force replaces it with the card."""
+    from bmctl.config import load_card
+
+    sample = str(ROOT / "examples" / "samples" / "lab-300rpm-0p5h.csv")
+    other = tmp_path / "mine.toml"
+    other.write_text('name = "my schedule"\n\n[[segment]]\nhours = 2\nrpm = 300\n')
+    before = other.read_bytes()
+    args = ["estimate", LAB, "--samples", sample, "--times", "0.5", "--particles", "100",
+            "--out", str(tmp_path / "w.csv"), "--write-card", str(other), "--no-progress"]
+    rc = main(args)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1, err
+    assert err[0] == (f"bmctl: error: --write-card: {other} exists; give --force to replace it, or choose another "
+                      "file name")
+    assert other.read_bytes() == before and not (tmp_path / "w.csv").exists()
+    assert main(args + ["--force"]) == 0
+    assert "wrote " + str(other) in capsys.readouterr().out
+    assert load_card(other).card.name == "alni-1to1-300rpm-lab-calibrated"
+
+
+def test_force_without_write_card_is_refused(tmp_path, capsys):
+    rc = main(["estimate", LAB, "--samples", str(ROOT / "examples" / "samples" / "lab-300rpm-0p5h.csv"),
+               "--times", "0.5", "--out", str(tmp_path / "w.csv"), "--force"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "--force: only with --write-card" in err[0], err
+    assert not (tmp_path / "w.csv").exists()
+
+
 @pytest.mark.parametrize("dest, why", [("w.csv", "expected a .toml"), ("card", "an input or output of this run")])
 def test_write_card_never_replaces_an_input_or_output(tmp_path, capsys, dest, why):
     """--write-card onto the table, a sample or the card itself once replaced it without a word."""

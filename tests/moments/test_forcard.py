@@ -218,6 +218,64 @@ def test_identify_will_not_overwrite_a_shipped_file(capsys):
     assert rc == 2 and len(err) == 1 and "shipped" in err[0] and "--overwrite" in err[0]
 
 
+def _fast_mill(tmp_path):
+    """The lab card on a mill whose rpm_max is 1000 rpm: 1527 °C steady vial there, above Al's 660 °C."""
+    return _copy(tmp_path, "rpm_max = 600", "rpm_max = 1000", name="fast.toml", coeffs=False)
+
+
+def test_identify_experiments_keep_the_steady_vial_under_the_melting_limit(tmp_path):
+    """At rpm_max 1000 rpm the training, held-out and off-card experiments milled at up to 1000 rpm, a
+    steady vial of about 1525 °C, far above the melting point: they now stop at the fastest 10-rpm step
+    whose steady vial stays under it, and the [window] says so."""
+    from bmctl.cards import melting_limit
+    from bmctl.moments import identify as ident
+
+    card = load_card(_fast_mill(tmp_path))
+    limit = melting_limit(card)[0]
+    assert steady_temperature_c(card, 1000.0) > 1500.0 > limit
+    for specs in (ident.design(card, 0), ident.design(card, 0, quick=True), ident.validation_design(card, 0, 24),
+                  ident.off_card_design(card)):
+        rpms = {rpm for s in specs for rpm, duty in list(s.prefix) + list(s.inputs) if rpm > 0 and duty > 0}
+        assert max(steady_temperature_c(card, r) for r in rpms) <= limit, sorted(rpms)[-3:]
+    top = max(rpm for s in ident.design(card, 0) for rpm, _ in s.inputs)
+    assert steady_temperature_c(card, top + 10.0) > limit  # the fastest step under the limit, not lower
+    win = ident.design_window(card, ident.design(card, 0))
+    assert win["rpm"][1] == top and win["temperature_c"][1] <= limit
+    assert "1000 rpm" in win["speed_limit"] and f"{top:g} rpm at most" in win["speed_limit"]
+
+
+def test_identify_warns_in_one_line_when_it_stops_below_rpm_max(tmp_path, capsys, monkeypatch):
+    """The warning comes before any plant run (here the first one is cut short), also with --quiet."""
+    from bmctl.moments import identify as ident
+
+    def stop(*a, **k):
+        raise InputError("stopped before the plant runs")
+
+    monkeypatch.setattr(ident, "run_experiments", stop)
+    card = _fast_mill(tmp_path)
+    rc = main(["identify", str(card), "--quick", "--quiet", "--workers", "0",
+               "--out", str(tmp_path / "c.moments.toml")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 2, err
+    assert err[0].startswith("bmctl: warning: alni-1to1-300rpm-lab: at rpm_max 1000 rpm the steady vial would "
+                             "reach 1527 °C, above 660.3 °C (the melting point of Al)"), err
+    assert "750 rpm at most" in err[0] and err[1] == "bmctl: error: stopped before the plant runs"
+
+
+@pytest.mark.parametrize("name", CARDS)
+def test_shipped_cards_identify_over_their_whole_speed_range(name):
+    """The melting-limit stop leaves the shipped cards' experiments as they were: their design spans
+    the window their coefficient files record (up to rpm_max, 349 °C), so re-identification is unchanged."""
+    from bmctl.moments import identify as ident
+
+    card = load_card(card_path(name))
+    win = ident.design_window(card, ident.design(card, 0))
+    rec = cf.read_file(cf.coeffs_path(card_path(name))).window
+    assert win["rpm"] == list(rec["rpm"]) and win["rpm"][1] == card.mill.rpm_max
+    assert win["temperature_c"] == list(rec["temperature_c"]) and "speed_limit" not in win
+    assert ident.speed_limit(card) == (card.mill.rpm_max, "")
+
+
 def test_steady_temperature_is_the_first_order_vial_balance():
     """T_ss = T_amb + P tau / C (docs/model.md Sec. 4) with P the mean dissipated power of the kinematics."""
     from bmctl.physics.kinematics import kinematics
