@@ -25,7 +25,8 @@ halves of the 40 images (``A``: even positions in name order, used to choose par
 ``B``: odd positions, held out) and over all 40: precision, recall, F1; median size ratio
 (found / mask equivalent diameter) and median r of matched pairs (both measured the same
 way, Crofton perimeter on the pixel mask); the verdict per image and how it separates good
-(F1 >= 0.8) from bad (F1 < 0.5) images. The SEM powder images are measured in the same run:
+(F1 >= 0.8) from bad (F1 < 0.5) images (and how many good ones are flagged only for having few
+particles). The SEM powder images are measured in the same run:
 AMPIS against its 238 hand outlines (same matching; reference: outlines not cut by the
 border and at least the speck limit), SiO2 (no ground truth) count and median size.
 The share of images whose automatic polarity agrees with the masks' (particle median level
@@ -171,11 +172,14 @@ def verdict_separation(rows: list[dict]) -> dict:
     bad = [r for r in scored if r["f1"] < BAD_F1]
     good = [r for r in scored if r["f1"] >= GOOD_F1]
     flag = (lambda r: r["verdict"] in ("doubtful", "unusable"))
+    few_only = (lambda r: flag(r) and bool(r.get("verdict_reasons"))
+                and all(str(x).startswith("few particles") for x in r["verdict_reasons"]))
     ok_rows = [r for r in rows if r.get("verdict") == "ok"]
     return {
         "bad_images": len(bad), "bad_flagged": sum(map(flag, bad)),
         "bad_flagged_share": (sum(map(flag, bad)) / len(bad)) if bad else None,
         "good_images": len(good), "good_flagged": sum(map(flag, good)),
+        "good_flagged_few_particles_only": sum(map(few_only, good)),
         "good_flagged_share": (sum(map(flag, good)) / len(good)) if good else None,
         "verdict_counts": {v: sum(r.get("verdict") == v for r in rows) for v in ("ok", "doubtful", "unusable")},
         "pooled_ok_only": pool(ok_rows) if ok_rows else None,
@@ -212,6 +216,7 @@ def emps_rows(folder: Path, polarity: str, progress=True) -> list[dict]:
                "polarity_source": rep.get("polarity", {}).get("source") if isinstance(rep.get("polarity"), dict) else "user",
                "n_instances": int(ref.max()),
                "verdict": (rep.get("verdict") or {}).get("value") if isinstance(rep.get("verdict"), dict) else rep.get("verdict"),
+               "verdict_reasons": list((rep.get("verdict") or {}).get("reasons") or []) if isinstance(rep.get("verdict"), dict) else [],
                "warnings": [w["code"] for w in rep["warnings"]], "min_area_px": res.min_area_px,
                "true_polarity": true_polarity(load_image(folder / f"{name}.png"), ref), "evidence": rep.get("evidence"),
                "all_instances": {k2: sc_all[k2] for k2 in ("n_ref", "tp", "fp", "fn", "precision", "recall", "f1")}}
@@ -389,7 +394,8 @@ def main(argv=None) -> int:
             f"{k}: {q['correct']}/{q['images']}" for k, q in values["polarity"].items() if k != "all"))
     if sum(v["verdict_counts"].values()):
         print(f"verdict: {v['verdict_counts']}; bad images (F1 < {BAD_F1}) flagged {v['bad_flagged']}/{v['bad_images']}, "
-              f"good images (F1 >= {GOOD_F1}) flagged {v['good_flagged']}/{v['good_images']}")
+              f"good images (F1 >= {GOOD_F1}) flagged {v['good_flagged']}/{v['good_images']}"
+              f" ({v.get('good_flagged_few_particles_only', 0)} only for few particles)")
     if am:
         print(f"AMPIS: precision {_f(am['precision'])} recall {_f(am['recall'])} F1 {_f(am['f1'])} matched size ratio "
               f"{_f(am['size_ratio_median'], 3)}; median s {am['s_median_px']:.1f} px vs {am['hand_ref_s_median_px']:.1f} px "

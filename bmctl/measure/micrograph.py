@@ -16,12 +16,13 @@ from scipy import ndimage as ndi
 
 from ..errors import InputError
 from .loading import as_gray_float, load_image, parse_crop
-from .quality import QualityWarning, auto_min_area, check_segmentation, evidence, verdict
+from .quality import MIN_PARTICLES, QualityWarning, auto_min_area, check_segmentation, evidence, verdict
 from .scale import Scale, ScaleBar, check_scale, find_info_bar, nearest_125, resolve_scale
 from .segment import MIN_AREA_PX, Segmentation, measure_labels, remove_edge_and_specks, segment
 from .tables import ParticleTable
 
 SCALE_BAR_MISMATCH = 0.05  # metadata scale vs the 1-2-5 length nearest to the implied bar length
+BAR_MARGIN_PX = 2  # the scale bar found is excluded with this margin (as the drawn annotations)
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,7 @@ class MicrographResult:
         bar = None
         if self.scale_bar is not None:
             bar = {"row": self.scale_bar.row, "x0": self.scale_bar.x0, "x1": self.scale_bar.x1,
+                   "rows": [self.scale_bar.y0, self.scale_bar.y1],
                    "length_px": self.scale_bar.length_px,
                    "length_um_at_this_scale": round(self.scale_bar.length_px * self.scale.um_per_px, 4)}
         return {
@@ -104,8 +106,18 @@ def _scale_bar_check(scale: Scale, bar: ScaleBar | None) -> QualityWarning | Non
                           f"not a round length: check the scale ({scale.source})")
 
 
+def _bar_pixels(shape, bar: ScaleBar) -> np.ndarray:
+    """The scale bar's rectangle widened by ``BAR_MARGIN_PX`` (its anti-aliased edge)."""
+    y0 = bar.row if bar.y0 is None else bar.y0
+    y1 = bar.row if bar.y1 is None else bar.y1
+    out = np.zeros(shape, dtype=bool)
+    out[max(y0 - BAR_MARGIN_PX, 0):y1 + BAR_MARGIN_PX + 1, max(bar.x0 - BAR_MARGIN_PX, 0):bar.x1 + BAR_MARGIN_PX + 1] = True
+    return out
+
+
 def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_bar: bool = False,
-                       min_area_px="auto", crop=None, **segment_kw) -> MicrographResult:
+                       min_area_px="auto", crop=None, min_particles: int = MIN_PARTICLES,
+                       **segment_kw) -> MicrographResult:
     """Measure one micrograph with the scale found from metadata or its scale bar.
 
     Parameters
@@ -123,6 +135,9 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
         Speck limit; ``"auto"`` = :func:`bmctl.measure.quality.auto_min_area`.
     crop : str or tuple, optional
         Window to keep (``"Y0:Y1,X0:X1"``).
+    min_particles : int, optional
+        An image with fewer particles is at least ``doubtful``
+        (:data:`bmctl.measure.quality.MIN_PARTICLES`; 0 switches the limit off).
     **segment_kw
         Passed to :func:`bmctl.measure.segment.segment`.
 
@@ -133,7 +148,7 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
     Raises
     ------
     bmctl.errors.InputError
-        Unreadable image, no scale, bad crop.
+        Unreadable image, no scale, bad crop, ``min_particles`` not a whole number >= 0.
     """
     if isinstance(source, np.ndarray):
         name, path, img = "image", None, as_gray_float(source)
@@ -144,6 +159,8 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
         um_per_px = check_scale(um_per_px)
     if scale_bar_um is not None:
         scale_bar_um = check_scale(scale_bar_um, "--scale-bar-um")
+    if isinstance(min_particles, bool) or not isinstance(min_particles, (int, np.integer)) or min_particles < 0:
+        raise InputError(f"--min-particles: expected a whole number >= 0 (got {min_particles!r})")
     info_row = None if keep_info_bar else find_info_bar(img)
     scale, bar = resolve_scale(path, img, um_per_px=um_per_px, scale_bar_um=scale_bar_um, info_top=info_row)
     mask = None
@@ -153,6 +170,8 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
             mask = np.arange(img.shape[0])[:, None] < info_row * np.ones((1, img.shape[1]), dtype=bool)
     elif info_row is not None:
         crop = (0, info_row, 0, -1)
+    if bar is not None and "drawn" not in segment_kw:
+        segment_kw["drawn"] = _bar_pixels(img.shape, bar)  # masked with the annotations (unless switched off)
     auto = isinstance(min_area_px, str)
     if auto and min_area_px != "auto":
         raise InputError(f"--min-area-px: expected a number of px or 'auto' (got {min_area_px!r})")
@@ -175,7 +194,7 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
     if extra is not None:
         warns.insert(0, extra)
     ev = evidence(seg, used)
-    value, reasons = verdict(ev)
+    value, reasons = verdict(ev, min_particles)
     return MicrographResult(name, img, seg, scale, bar, info_row, used, table, x_um, y_um, warns, ev, value, reasons)
 
 

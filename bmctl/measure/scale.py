@@ -42,6 +42,13 @@ INFO_BAR_SEARCH = 0.35  # share of the image height (from the bottom) searched f
 INFO_BAR_FLAT_SHARE = 0.5  # a data-bar row: at least this share of its pixels has the modal value
 INFO_BAR_MIN_ROWS = 4
 SCALE_BAR_MIN_PX = 20
+SCALE_BAR_ASPECT = 3.0  # a bar is at least this many times longer than thick
+SCALE_BAR_FULL = 0.95  # a row of the bar is ink over at least this share of the run (a noisy or compressed bar)
+SCALE_BAR_THIN_PX = 10  # a thicker bar must also be uniform (drawn, not image content)
+SCALE_BAR_AROUND = 0.3  # at most this share of the 3 rows above and below a bar is ink
+SCALE_BAR_SET_OFF = 0.3  # a bar differs from the rows above and below it by this share of the image range
+SCALE_BAR_SATURATION = 0.03  # marks drawn in an extreme value: within this share of the range of it
+SCALE_BAR_BOX_EXTENT = 0.88  # a box drawn in an extreme value: its hole-filled area / its bounding box
 
 
 @dataclass(frozen=True)
@@ -75,12 +82,16 @@ class ScaleBar:
         Image row of the bar.
     x0, x1 : int
         First and last column of the bar's run.
+    y0, y1 : int or None
+        First and last image row of the bar (its thickness); ``None``: not recorded.
     """
 
     length_px: float
     row: int
     x0: int
     x1: int
+    y0: int | None = None
+    y1: int | None = None
 
 
 def _unit_to_um(unit: str) -> float | None:
@@ -248,26 +259,18 @@ def find_info_bar(img: np.ndarray) -> int | None:
     return None
 
 
-def find_scale_bar(img: np.ndarray, top: int | None = None) -> ScaleBar | None:
-    """The longest thin horizontal bar of strongly contrasting pixels below row ``top``.
+def _bar_in(img: np.ndarray, y0: int, ink: np.ndarray, span: float) -> ScaleBar | None:
+    """The longest run of ``ink`` (rows ``y0`` on of ``img``) if it is a scale bar, else ``None``.
 
-    Searched in the data bar when there is one (``top`` = its first row), else in the bottom
-    quarter of the image. The bar's pixels differ from the region's modal (fill) value by more
-    than half the image range; its length is the run length, less half the width of each end
-    tick (vertical strokes at the ends taller than the bar), i.e. the distance between tick centres.
-
-    Returns
-    -------
-    ScaleBar or None
-        ``None`` when no run of at least ``SCALE_BAR_MIN_PX`` px exists.
+    A bar: at least ``SCALE_BAR_MIN_PX`` long; its thickness (the contiguous rows inked over at
+    least ``SCALE_BAR_FULL`` of the run) at most ``SCALE_BAR_THIN_PX`` or 1/``SCALE_BAR_ASPECT`` of its length; less than ``SCALE_BAR_AROUND`` of
+    the 3 rows above and below it inked; and set off from both: the median of each differs from
+    the bar's by at least ``SCALE_BAR_SET_OFF`` of the image range (not the edge of a brighter
+    or darker object). A bar thicker than ``SCALE_BAR_THIN_PX`` is also uniform (drawn): the
+    spread of its inner pixels is at most ``SCALE_BAR_SET_OFF`` of the range.
     """
-    h, w = img.shape
-    y0 = top if top is not None else int(0.75 * h)
-    region = img[y0:]
-    fill = _modal_share(region.ravel())[1]
-    ink = np.abs(region - fill) > 0.5 * float(np.ptp(img) or 1.0)
     best = None
-    for y in range(region.shape[0]):
+    for y in range(ink.shape[0]):
         lab, n = ndi.label(ink[y])
         if n == 0:
             continue
@@ -279,12 +282,28 @@ def find_scale_bar(img: np.ndarray, top: int | None = None) -> ScaleBar | None:
     if best is None:
         return None
     n, y, x0, x1 = best
-    rows = np.nonzero(ink[:, x0:x1 + 1].all(axis=1))[0]
-    thick = rows[(rows >= y - 10) & (rows <= y + 10)]
-    t0, t1 = int(thick.min()), int(thick.max())
+    full = ink[:, x0:x1 + 1].mean(axis=1) >= SCALE_BAR_FULL
+    t0, t1 = y, y
+    while t0 > 0 and full[t0 - 1]:
+        t0 -= 1
+    while t1 + 1 < full.size and full[t1 + 1]:
+        t1 += 1
+    if t1 - t0 + 1 > SCALE_BAR_THIN_PX and SCALE_BAR_ASPECT * (t1 - t0 + 1) > n:
+        return None  # thick and short: a block, not a bar
     around = np.r_[ink[max(t0 - 3, 0):t0, x0:x1 + 1].ravel(), ink[t1 + 1:t1 + 4, x0:x1 + 1].ravel()]
-    if t1 - t0 + 1 > 10 or (around.size and around.mean() > 0.3):
-        return None  # thick, or ink all around it: a bright object, not a bar
+    if around.size and around.mean() > SCALE_BAR_AROUND:
+        return None  # ink all around it: a bright object, not a bar
+    a0, a1 = y0 + t0, y0 + t1  # image rows
+    body = img[a0:a1 + 1, x0:x1 + 1]
+    level = float(np.median(body))
+    for side in (img[max(a0 - 3, 0):a0, x0:x1 + 1], img[a1 + 1:a1 + 4, x0:x1 + 1]):
+        if side.size and abs(float(np.median(side)) - level) < SCALE_BAR_SET_OFF * span:
+            return None  # the edge of an object as bright or dark as the bar
+    if t1 - t0 + 1 > SCALE_BAR_THIN_PX:
+        inner = body[1:-1, 1:-1]
+        q25, q75 = np.quantile(inner, [0.25, 0.75])
+        if q75 - q25 > SCALE_BAR_SET_OFF * span:
+            return None  # textured: image content, not a drawn bar
 
     def tick_width(cols):
         wdt = 0
@@ -299,7 +318,62 @@ def find_scale_bar(img: np.ndarray, top: int | None = None) -> ScaleBar | None:
     wl, wr = tick_width(range(x0, x1 + 1)), tick_width(range(x1, x0 - 1, -1))
     if wl >= n // 2 or wr >= n // 2:
         wl = wr = 0
-    return ScaleBar(float(n - 0.5 * (wl + wr)), y0 + y, x0, x1)
+    return ScaleBar(float(n - 0.5 * (wl + wr)), y0 + y, x0, x1, a0, a1)
+
+
+def _drawn_inks(region: np.ndarray, lo: float, hi: float, span: float):
+    """Ink masks of marks drawn in the image's extreme values: the pixels at each extreme (a bar
+    drawn in it), and inside each box drawn in it (a filled rectangle holding marks) the pixels
+    far from the box's value (a bar drawn on the box)."""
+    tol = max(SCALE_BAR_SATURATION * span, 1.5 / 255)
+    for extreme in (hi, lo):
+        sat = np.abs(region - extreme) <= tol
+        yield sat
+        lab, n = ndi.label(sat)
+        for i, sl in enumerate(ndi.find_objects(lab), start=1):
+            if sl is None or sl[1].stop - sl[1].start < SCALE_BAR_MIN_PX:
+                continue
+            h, w = sl[0].stop - sl[0].start, sl[1].stop - sl[1].start
+            own = lab[sl] == i
+            box = ndi.binary_fill_holes(own)
+            if box.sum() < SCALE_BAR_BOX_EXTENT * h * w or box.sum() <= own.sum():
+                continue  # not a filled rectangle holding something
+            ink = np.zeros(region.shape, bool)
+            ink[sl] = box & ~own & (np.abs(region[sl] - extreme) > 0.5 * span)
+            yield ink
+
+
+def find_scale_bar(img: np.ndarray, top: int | None = None) -> ScaleBar | None:
+    """The longest straight horizontal bar of strongly contrasting pixels below row ``top``.
+
+    Searched in the data bar when there is one (``top`` = its first row), else in the bottom
+    quarter of the image. First among the pixels that differ from the region's modal (fill)
+    value by more than half the image range; when that gives no bar, among the marks drawn in
+    the image's extreme values (within ``SCALE_BAR_SATURATION`` of the range), and inside each
+    box drawn in one of them (a white label box holding a black bar), the longest bar there.
+    A bar may be thick (its length at least ``SCALE_BAR_ASPECT`` times its thickness) and must be
+    set off from the rows above and below it (:func:`_bar_in`). Its length is the run length,
+    less half the width of each end tick (vertical strokes at the ends taller than the bar),
+    i.e. the distance between tick centres.
+
+    Returns
+    -------
+    ScaleBar or None
+        ``None`` when no run of at least ``SCALE_BAR_MIN_PX`` px is a bar.
+    """
+    h, w = img.shape
+    y0 = top if top is not None else int(0.75 * h)
+    region = img[y0:]
+    if region.size == 0:
+        return None
+    span = float(np.ptp(img) or 1.0)
+    fill = _modal_share(region.ravel())[1]
+    bar = _bar_in(img, y0, np.abs(region - fill) > 0.5 * span, span)
+    if bar is not None:
+        return bar
+    found = [b for ink in _drawn_inks(region, float(img.min()), float(img.max()), span)
+             if (b := _bar_in(img, y0, ink, span)) is not None]
+    return max(found, key=lambda b: (b.x1 - b.x0, -b.row)) if found else None
 
 
 def nearest_125(value: float) -> float:

@@ -615,7 +615,8 @@ def _near_tie(img, valid, offset, min_area_px, kw):
     """Both readings of an image whose edge vote is a near-tie; the one with the better evidence.
 
     Ranked by the reliability verdict each reading earns on its own evidence
-    (:func:`bmctl.measure.quality.verdict`), then by fewer particles (under an unclear
+    (:func:`bmctl.measure.quality.verdict`, without its limit on few particles: that one
+    judges the sample, not the reading), then by fewer particles (under an unclear
     polarity, the reading that claims less).
     """
     from .quality import VERDICTS, auto_min_area, evidence, verdict
@@ -627,7 +628,7 @@ def _near_tie(img, valid, offset, min_area_px, kw):
         used = auto_min_area(lab, valid, min_area_px)
         kept = remove_edge_and_specks(lab, valid, used)
         seg = Segmentation(kept, fg, thr, offset, lab, valid, p, "evidence", None, how, 0, sm, dropped)
-        value, _ = verdict(evidence(seg, used))
+        value, _ = verdict(evidence(seg, used), min_particles=0)
         ranked.append((VERDICTS.index(value), int(kept.max()), p, run))
     ranked.sort(key=lambda r: r[:2])
     return ranked[0][2], ranked[0][3]
@@ -652,6 +653,7 @@ def segment(
     annotations: bool = True,
     contrast_z: float = CONTRAST_Z,
     name: str = "image",
+    drawn=None,
 ) -> Segmentation:
     """Segment the particles of a grayscale micrograph.
 
@@ -694,6 +696,11 @@ def segment(
         Significance of a particle against its background (:func:`drop_faint`); 0 keeps all.
     name : str, optional
         Name used in error messages.
+    drawn : ndarray of bool, optional
+        Pixels known to be drawn marks (same shape as the image before cropping; ``bmctl
+        measure`` passes the scale bar it found): masked with the annotations when
+        ``annotations`` is true, after the search for the others (which sees them, so the text
+        beside a bar is found as such).
 
     Returns
     -------
@@ -721,16 +728,19 @@ def segment(
     valid = np.ones(img.shape, dtype=bool) if mask is None else np.asarray(mask, dtype=bool)
     if valid.shape != img.shape:
         raise InputError(f"{name}: mask shape {valid.shape} differs from image shape {img.shape}")
+    drawn = np.zeros(img.shape, dtype=bool) if drawn is None else np.asarray(drawn, dtype=bool)
+    if drawn.shape != img.shape:
+        raise InputError(f"{name}: drawn-mark mask shape {drawn.shape} differs from image shape {img.shape}")
     offset = (0, 0)
     if crop is not None:
         crop = parse_crop(crop) if isinstance(crop, str) else crop
         sy, sx = crop_slices(crop, img.shape, name)
-        img, valid, offset = img[sy, sx], valid[sy, sx], (sy.start, sx.start)
+        img, valid, drawn, offset = img[sy, sx], valid[sy, sx], drawn[sy, sx], (sy.start, sx.start)
     if valid.sum() < 64:
         raise InputError(f"{name}: fewer than 64 valid pixels after crop/mask")
     n_ann = 0
     if annotations:
-        ann = find_annotations(img, valid)
+        ann = find_annotations(img, valid) | (drawn & valid)
         n_ann = int(ann.sum())
         if n_ann and (valid & ~ann).sum() >= 64:
             valid = valid & ~ann

@@ -119,6 +119,77 @@ def test_data_bar_excluded_and_scale_bar_read():
     assert len(drawn.table) == len(res.table)  # ... unless found as drawn marks (annotations)
 
 
+def _dark_discs(bg: float = 0.8, level: float = 0.03, shape=(300, 400)):
+    """Fifteen dark discs (radius 12 px) in the top 200 rows of a light, noisy field in 8-bit
+    levels (as read from a file), and their count."""
+    from scipy import ndimage as ndi
+
+    img = np.full(shape, bg)
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
+    centres = [(40 + 60 * i, 50 + 70 * j) for i in range(3) for j in range(5)]
+    for cy, cx in centres:
+        img[(yy - cy) ** 2 + (xx - cx) ** 2 < 12 ** 2] = level
+    img = ndi.gaussian_filter(img, 1.0) + np.random.default_rng(0).normal(0.0, 0.01, shape)
+    return np.round(np.clip(img, 0.0, 1.0) * 255) / 255, len(centres)
+
+
+def _labels_in(res, y0, y1, x0, x1) -> bool:
+    """Whether any measured particle has a pixel in the window (image coordinates)."""
+    oy, ox = res.segmentation.offset
+    lab = res.segmentation.labels
+    full = np.zeros(res.image.shape, lab.dtype)
+    full[oy:oy + lab.shape[0], ox:ox + lab.shape[1]] = lab
+    return bool(full[y0:y1, x0:x1].any())
+
+
+def test_thick_scale_bar_found_and_excluded():
+    # A 15 px thick dark bar, not at the image's extreme (the particles are darker): it was
+    # refused as a bar (more than 10 rows) and measured as one more particle.
+    img, n = _dark_discs()
+    img[245:260, 150:301] = 0.2
+    bar = find_scale_bar(img)
+    assert bar is not None and bar.length_px == 151 and (bar.y0, bar.y1) == (245, 259)
+    res = measure_micrograph(img, scale_bar_um=1.0)
+    assert res.scale.source == "scale-bar" and res.scale.um_per_px == pytest.approx(1.0 / 151)
+    assert len(res.table) == n and not _labels_in(res, 240, 265, 145, 306)
+
+
+def test_scale_bar_in_white_box_found_and_excluded():
+    # A white label box holding a 16 px black bar and its "text" (open squares), on a light
+    # background: the box was not told from its surroundings and the bar and text were measured
+    # as dark particles.
+    img, n = _dark_discs(bg=0.78)
+    img[222:292, 240:390] = 1.0  # the box
+    img[235:251, 265:366] = 0.05  # the bar: 101 px
+    for x0 in (280, 300, 320):  # the text below it
+        img[262:280, x0:x0 + 12] = 0.05
+        img[265:277, x0 + 3:x0 + 9] = 1.0
+    bar = find_scale_bar(img)
+    assert bar is not None and bar.length_px == 101 and (bar.y0, bar.y1) == (235, 250)
+    res = measure_micrograph(img, um_per_px=1.0)
+    assert res.segmentation.polarity == "dark"
+    assert len(res.table) == n and not _labels_in(res, 220, 294, 238, 392)
+    assert res.report()["scale_bar"]["rows"] == [235, 250]
+
+
+def test_bar_with_label_joined_by_a_tick_is_an_annotation():
+    # A thick white bar whose middle tick touches its label (one component, not a rectangle),
+    # away from the corners: it was taken for neither a bar nor a glyph beside one.
+    from bmctl.measure.annotations import find_annotations
+
+    rng = np.random.default_rng(1)
+    img = 0.55 + rng.normal(0.0, 0.02, (400, 400))
+    yy, xx = np.mgrid[:400, :400]
+    img[(yy - 100) ** 2 + (xx - 200) ** 2 < 25 ** 2] = 1.0  # a saturated round particle
+    img[300:315, 120:271] = 1.0  # the bar ...
+    img[288:300, 194:197] = 1.0  # ... its tick ...
+    img[262:288, 180:210] = 1.0  # ... up to the label: an open square glyph
+    img[266:284, 184:206] = 0.55
+    ann = find_annotations(img)
+    assert ann[307, 130] and ann[307, 260] and ann[294, 195] and ann[263, 195]
+    assert not ann[100, 200]
+
+
 def test_no_data_bar_on_plain_micrograph():
     m = render_micrograph(np.random.default_rng(3), n=30, shape=(300, 300), s_px=(14, 24))
     assert find_info_bar(m.image) is None

@@ -23,7 +23,7 @@ from bmctl.errors import InputError
 from bmctl.measure.annotations import find_annotations
 from bmctl.measure.micrograph import check_verdicts, measure_micrograph, table_reports
 from bmctl.measure.polarity import polarity_vote
-from bmctl.measure.quality import VERDICT_LIMITS, verdict
+from bmctl.measure.quality import MIN_PARTICLES, VERDICT_LIMITS, verdict
 from bmctl.measure.render import render_micrograph
 from bmctl.measure.segment import measure_labels, segment
 from bmctl.validation.measure import match_labels
@@ -168,6 +168,63 @@ def test_verdict_rules():
     assert set(VERDICT_LIMITS) <= set(base)
 
 
+def test_verdict_few_particles_doubtful_never_unusable():
+    base = {"count": 30, "polarity_margin": 0.3, "merged": 0.0, "at_limit": 0.1, "min_area_jump": 0.0, "unsegmented": 0.1}
+    for n in (1, 2, MIN_PARTICLES - 1):
+        value, reasons = verdict({**base, "count": n})
+        assert value == "doubtful" and reasons == [f"few particles: {n} found (fewer than {MIN_PARTICLES}); statistics unreliable"]
+    assert verdict({**base, "count": MIN_PARTICLES}) == ("ok", [])
+    assert verdict({**base, "count": 2}, min_particles=0) == ("ok", [])
+    assert verdict({**base, "count": 2}, min_particles=2) == ("ok", [])
+    # on top of a segmentation doubt it is listed, but does not make the image unusable (still accepted)
+    value, reasons = verdict({**base, "count": 2, "merged": 0.5})
+    assert value == "doubtful" and len(reasons) == 2 and reasons[-1].startswith("few particles: 2 found")
+    assert verdict({**base, "count": 2, "unsegmented": 0.9})[0] == "unusable"
+    assert verdict({**base, "count": 0})[0] == "unusable"
+    from bmctl.commands import measure as cmd
+
+    assert cmd.MIN_PARTICLES == MIN_PARTICLES  # the command's default, kept there without the image stack
+
+
+def _two_particles() -> np.ndarray:
+    rng = np.random.default_rng(3)
+    yy, xx = np.mgrid[:160, :160]
+    img = np.full((160, 160), 0.2)
+    for cy, cx in ((50, 60), (110, 100)):
+        img[(yy - cy) ** 2 + (xx - cx) ** 2 < 14 ** 2] = 0.8
+    return ndi.gaussian_filter(img, 1.0) + rng.normal(0, 0.01, img.shape)
+
+
+def test_few_particles_image_is_doubtful_and_still_accepted():
+    # Two clean particles: the segmentation is right, the verdict was "ok"; two particles say
+    # next to nothing about a size distribution.
+    res = measure_micrograph(_two_particles(), um_per_px=1.0)
+    assert len(res.table) == 2
+    assert res.verdict == "doubtful"
+    assert res.verdict_reasons == [f"few particles: 2 found (fewer than {MIN_PARTICLES}); statistics unreliable"]
+    rep = res.report()
+    assert rep["verdict"] == {"value": "doubtful", "reasons": res.verdict_reasons}
+    lines = check_verdicts([{**rep, "image": "two.png"}])  # estimate, campaign sample, calibrate: warned, not refused
+    assert lines == [f"two.png: verdict doubtful (few particles: 2 found (fewer than {MIN_PARTICLES}); statistics "
+                     "unreliable): check its overlay before trusting its particles"]
+    assert measure_micrograph(_two_particles(), um_per_px=1.0, min_particles=0).verdict == "ok"
+    with pytest.raises(InputError, match=r"^--min-particles: expected a whole number >= 0 \(got -1\)$"):
+        measure_micrograph(_two_particles(), um_per_px=1.0, min_particles=-1)
+
+
+def test_cli_few_particles_verdict_and_flag(tmp_path, capsys):
+    p = _save(tmp_path / "two.png", _two_particles())
+    out = tmp_path / "m" / "p.csv"
+    assert main(["measure", str(p), "--um-per-px", "1", "--out", str(out)]) == 0
+    assert "verdict doubtful (few particles: 2 found" in capsys.readouterr().err
+    assert table_reports(out)[0]["verdict"]["value"] == "doubtful"
+    assert main(["measure", str(p), "--um-per-px", "1", "--min-particles", "0"]) == 0
+    assert "verdict ok" in capsys.readouterr().err
+    assert main(["measure", str(p), "--um-per-px", "1", "--min-particles", "-1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--min-particles: expected a whole number >= 0" in err[0]
+
+
 def test_check_verdicts_refuses_unusable_unless_accepted():
     reps = [{"image": "a.png", "verdict": {"value": "ok", "reasons": []}},
             {"image": "b.png", "verdict": {"value": "unusable", "reasons": ["91% of the foreground in no measured particle"]}}]
@@ -249,3 +306,24 @@ def test_estimate_refuses_unusable_table_from_measure(tmp_path, capsys):
     assert not (tmp_path / "e").exists()
     assert main(args + ["--accept-unusable"]) == 0
     assert "verdict unusable" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_campaign_sample_and_estimate_accept_few_particles_with_warning(tmp_path, capsys):
+    from bmctl import campaign as cp
+
+    root = Path(__file__).resolve().parents[2]
+    card = root / "models" / "alni-1to1-300rpm-lab.toml"
+    recipe = root / "controllers" / "recipe-300rpm-continuous.toml"
+    d = tmp_path / "c"
+    cp.init(d, card, recipe, {"d50_um": 45.0})
+    two = _save(tmp_path / "two.png", _two_particles())
+    r = cp.sample(d, 0.0, [str(two)], um_per_px=1.0)
+    assert r["n"] == 2 and any("verdict doubtful (few particles: 2 found" in w for w in r["warnings"])
+    assert cp.status(d)["counts"]["samples"] == 1  # stored
+    out = tmp_path / "m" / "p.csv"
+    assert main(["measure", str(two), "--um-per-px", "1", "--out", str(out)]) == 0
+    capsys.readouterr()
+    args = ["estimate", str(card), "--samples", str(out), "--times", "0", "--particles", "200", "--out", str(tmp_path / "e" / "e.csv")]
+    assert main(args) == 0
+    assert "verdict doubtful (few particles: 2 found" in capsys.readouterr().err
