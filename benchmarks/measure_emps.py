@@ -371,7 +371,8 @@ def main(argv=None) -> int:
     except ImportError:
         from datetime import datetime, timezone
 
-        out = ROOT / "results" / f"{args.name}.json"
+        # an older checkout without bmctl.results: still where BMCTL_RESULTS_DIR points (its recorded command)
+        out = Path(os.environ.get("BMCTL_RESULTS_DIR") or ROOT / "results") / f"{args.name}.json"
         _write_fallback(out, {"bmctl_version": getattr(bmctl, "__version__", "unknown"), "command": command, "settings": settings,
                               "created_utc": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"), **values})
         results_path = None
