@@ -76,6 +76,8 @@ REGISTRY: tuple[Study, ...] = (
           "--cases M,N,O,P,Q,R,S --seed 0 --results-name hidden_mills_unseen", 8),
     Study("hidden_mills_unseen_seed1", "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml "
           "--cases M,N,O,P,Q,R,S --seed 1 --results-name hidden_mills_unseen_seed1", 8),
+    Study("hidden_mills_out_of_reach", "python benchmarks/hidden_mills.py --mills benchmarks/mills-out-of-reach.toml "
+          "--cases T1,T2,T3 --seed 0 --results-name hidden_mills_out_of_reach", 3),
     Study("hidden_mills_onrequest_unseen", "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml "
           "--cases M,N,O,P,Q,R,S --seed 0 --sample-on-request --results-name hidden_mills_onrequest_unseen", 8),
     Study("hidden_mills_fields", "python benchmarks/hidden_mills.py --mills benchmarks/mills-fields.toml "
