@@ -403,6 +403,7 @@ class ClosedLoop:
         dt = min(interval, self.cfg.hours - t_h)
         plan, solve_ms = self.decide()
         rpm, milling = (float(v) for v in plan.u_apply)
+        milling = interval_share(milling, interval, dt)
         self.apply(rpm, milling, dt)
         t_new = t_h + dt
         sampled = self.observe(t_new)
@@ -436,6 +437,26 @@ class ClosedLoop:
         self.estimator.set_state(state["estimator"])
         self.controller.set_state(state["controller"])
         set_rng_state(self.sample_rng, state["sample_rng"])
+
+
+def interval_share(milling: float, interval_h: float, dt_h: float) -> float:
+    """The milling share of an applied interval of ``dt_h`` hours for a controller's ``milling``,
+    a share of its nominal ``interval_h`` (``plan.u_apply``): the same milling minutes, at most
+    the whole interval. Only the last interval of a batch that is not a whole number of control
+    intervals is shorter; a full interval keeps the share as it is.
+
+    Examples
+    --------
+    >>> interval_share(0.5, 0.5, 0.5)
+    0.5
+    >>> interval_share(1 / 3, 0.5, 0.2)   # 10 of a 30-min interval's minutes in the last 12 min
+    0.8333333333333333
+    >>> interval_share(0.6, 0.5, 0.3)     # 18 min: all of the last 18 min
+    1.0
+    """
+    if dt_h >= interval_h - TIME_EPS_H:
+        return milling
+    return min(1.0, milling * interval_h / dt_h)
 
 
 def run_interval(mill: Mill | None, estimators: Sequence[Estimator], schedule, t0_h: float,

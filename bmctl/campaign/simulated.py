@@ -75,7 +75,7 @@ def trial_steps(scenario_path, folder, seed: int = 0):
         unused), the step's record as ``bmctl trial`` writes it, and the step's advice.
     """
     from ..control.base import Status
-    from ..loop import StepRecord
+    from ..loop import StepRecord, interval_share
     from ..measure.tables import ParticleTable
     from ..scenario import load_scenario, resolve
     from ..trial import build
@@ -109,6 +109,7 @@ def trial_steps(scenario_path, folder, seed: int = 0):
             if status.fallback != "none" or not status.success:
                 stats.setdefault("log", []).append(f"t={t:g} h: {advice['solver']}")
             dt = min(interval, sc.hours - t)
+            milling = interval_share(milling, interval, dt)  # the advised minutes in a short last interval
             trial_loop.apply(rpm, milling, dt)
             t_new = t + dt
             due = t_new >= trial_loop.next_sample_h - TIME_EPS_H or t_new >= sc.hours - TIME_EPS_H

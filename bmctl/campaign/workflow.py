@@ -427,9 +427,13 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
 
     card_p, ctrl_p = Path(model), Path(controller)
     card = load_card(card_p)
-    for_card(card_p, identify=identify, progress=progress)  # the card's own coefficients, or refuse
     cfg = load_controller(ctrl_p)
     check_dwell_interval(cfg, str(ctrl_p))  # as a trial: a minimum the interval-by-interval guard cannot keep
+    if cfg.kind in ("mpc", "lqr"):  # no speed left to mill at on this mill: refused now, not at the first advise
+        from ..control.base import check_rpm_range
+
+        check_rpm_range(cfg, float(card.mill.rpm_max))
+    for_card(card_p, identify=identify, progress=progress)  # the card's own coefficients, or refuse
     tgt = tg.parse(target) if isinstance(target, str) else {k: _finite(v, f"target: {k}", 0, strict=True)
                                                             for k, v in dict(target).items()}
     for k in tgt:

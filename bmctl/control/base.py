@@ -389,6 +389,44 @@ def check_u_prev(u_prev) -> np.ndarray | None:
     return u
 
 
+def check_rpm_range(cfg, rpm_max_card: float) -> None:
+    """Refuse a controller that leaves no speed to mill at on this mill: its lowest milling rpm
+    (``bounds.rpm_min``, ``mill.rpm_min_milling``, up to the dial's step) above the highest
+    (``bounds.rpm_max`` and the card's ``mill.rpm_max``, down to the step). The plans clipped the
+    bounds onto each other and milled below the lowest speed, or advised one above the mill's top.
+
+    Parameters
+    ----------
+    cfg : MPCConfig or LQRConfig
+    rpm_max_card : float
+        The card's ``mill.rpm_max``.
+
+    Examples
+    --------
+    >>> from bmctl.control import load_controller
+    >>> cfg = load_controller("controllers/mpc-default.toml")
+    >>> check_rpm_range(cfg, 600.0)
+    >>> check_rpm_range(cfg, 90.0)
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: controller mpc-default: mill.rpm_min_milling: the lowest milling speed, 100 rpm, ...
+    """
+    b, mill = cfg.bounds, cfg.mill
+    st = float(mill.rpm_step or 0.0)
+    lo_field = "mill.rpm_min_milling" if mill.rpm_min_milling >= b.rpm_min else "bounds.rpm_min"
+    lo = max(float(b.rpm_min), float(mill.rpm_min_milling))
+    card = float(rpm_max_card)
+    hi_field = "the card's mill.rpm_max" if card <= b.rpm_max else "bounds.rpm_max"
+    hi = min(float(b.rpm_max), card)
+    lo_d, hi_d = (math.ceil(lo / st - 1e-9) * st, math.floor(hi / st + 1e-9) * st) if st > 0 else (lo, hi)
+    if lo_d <= hi_d + 1e-9:
+        return
+    dial = f" on its {st:g} rpm dial (mill.rpm_step)" if st > 0 and (lo_d != lo or hi_d != hi) else ""
+    raise InputError(f"controller {cfg.name}: {lo_field}: the lowest milling speed, {lo_d:g} rpm, is above "
+                     f"{hi_field} ({hi_d:g} rpm){dial}: no speed is left to mill at on this mill; set "
+                     f"bounds.rpm_min and mill.rpm_min_milling to at most {hi_d:g} rpm")
+
+
 def rpm_window(bounds, rpm_max_model: float, u_prev) -> tuple[float, float, float]:
     """(lo, hi, rpm_hi) for the first interval's rpm: bounds and the rate limit from ``u_prev``.
 

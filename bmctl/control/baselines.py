@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import InputError
 from ..physics.constants import TIME_EPS_H
 from .base import (Plan, Reference, Status, batch_end_h, applied_input, applied_input_guarded, check_gamma_delta,
-                   check_u_prev, check_x, interval_peaks, max_milling_for_ceiling, rpm_window)
+                   check_rpm_range, check_u_prev, check_x, interval_peaks, max_milling_for_ceiling, rpm_window)
 from .config import TARGET_KEYS, LQRConfig, RecipeConfig, target_centre
 from .mill import MillGuard
 from .mpc import ERR_FLOOR, X_SCALE
@@ -96,7 +96,8 @@ class RecipeController(_Base):
     def __init__(self, cfg: RecipeConfig, model, reference=None):
         super().__init__(cfg, model, reference)
         if cfg.rpm > model.rpm_max:
-            raise InputError(f"rpm: {cfg.rpm:g} exceeds the mill's rpm_max {model.rpm_max:g}")
+            raise InputError(f"controller {cfg.name}: rpm: {cfg.rpm:g} exceeds the mill's rpm_max {model.rpm_max:g} "
+                             "(the card's mill.rpm_max)")
         cyc = None if cfg.mill_min is None else (cfg.mill_min + cfg.rest_min) / 60.0
         self.cycle_h = cyc
         self.interval_h = float(cfg.interval_h if cfg.interval_h is not None else (cyc or 0.5))
@@ -142,6 +143,7 @@ class LQRController(_Base):
     kind = "lqr"
 
     def __init__(self, cfg: LQRConfig, model, reference=None):
+        check_rpm_range(cfg, model.rpm_max)  # no speed left to mill at: refused, not advised above the mill's top
         super().__init__(cfg, model, reference)
         self.interval_h = float(cfg.interval_h)
         self.rpm_scale = float(model.const.rpm_max)

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..errors import InputError
 from .base import (Plan, Reference, Status, batch_end_h, applied_input_guarded, check_gamma_delta, check_u_prev,
-                   check_x, interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
+                   check_rpm_range, check_x, interval_peaks, max_milling_for_ceiling, peak_temperature, rpm_window)
 from .config import DVALUE_KEYS, TARGET_KEYS, MPCConfig, target_bounds, target_centre
 from .compiled import CompiledSolvers
 from .interrupt import keep_interrupts
@@ -96,6 +96,7 @@ class MPCController(CompiledSolvers):
         self.t_end_h = float(cfg.batch_hours if cfg.batch_hours is not None else model.card.process.hours)
         self.reference = Reference.from_config(cfg) if reference is None else Reference.make(reference)
         self.rpm_scale = float(model.const.rpm_max)  # w = rpm / rpm_scale inside the NLP
+        check_rpm_range(cfg, model.rpm_max)  # no speed left to mill at: refused, not clipped onto each other
         self.rpm_hi = min(cfg.bounds.rpm_max, model.rpm_max)
         self.rpm_lo = min(max(cfg.bounds.rpm_min, cfg.mill.rpm_min_milling), self.rpm_hi)
         self.guard = MillGuard(cfg.mill, self.interval_h)

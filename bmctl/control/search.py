@@ -168,6 +168,9 @@ def limits_of(cfg, model) -> Limits:
     cfg : MPCConfig
     model : MomentModel
     """
+    from .base import check_rpm_range
+
+    check_rpm_range(cfg, model.rpm_max)  # no speed left to mill at: refused, not clipped onto each other
     mill, b = cfg.mill, cfg.bounds
     st = float(mill.rpm_step or 1.0)
     hi = min(b.rpm_max, model.rpm_max)

@@ -85,3 +85,24 @@ def test_a_window_target_is_refused_before_anything_is_written(tmp_path, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "target.d50_um: a campaign steers to one value, not a window (e.g. d50_um = 45)" in err[0]
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_trial_campaign_mills_the_advised_minutes_in_a_short_last_interval(tmp_path):
+    """2.2 h of 40-min cycles: the last interval is 12 min; the advice's share is of the whole
+    interval, so the campaign mills and logs the advised minutes, as the plain trial does."""
+    sc = lqr_scenario(tmp_path / "scenario.toml")  # the 30/10 recipe: 30 of every 40 min, 12 min left at the end
+    recipe = Path(__file__).resolve().parents[2] / "controllers" / "recipe-400rpm-30-10.toml"
+    text = sc.read_text().replace("hours = 2.0", "hours = 2.2")
+    sc.write_text(text[:text.index("config = ")] + f'config = "{recipe}"\n')
+    plain, camp = tmp_path / "plain", tmp_path / "camp"
+    assert main(["trial", str(sc), "--seed", "5", "--out", str(plain), "--no-progress"]) == 0
+    assert main(["trial", str(sc), "--seed", "5", "--out", str(camp), "--no-progress", "--campaign"]) == 0
+    from bmctl import campaign as cp
+
+    st = cp.status(camp / "campaign")
+    assert st["clock_h"] == pytest.approx(2.2) and st["deviations"] == []
+    h1, a = _read(plain / "trajectory.csv")
+    _, b = _read(camp / "trajectory.csv")
+    same = [i for i, k in enumerate(h1) if k != "solve_ms"]
+    np.testing.assert_array_equal(a[:, same], b[:, same])

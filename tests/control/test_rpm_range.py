@@ -1,0 +1,73 @@
+"""A controller whose lowest milling speed is above the mill's top speed (a card with a small
+``mill.rpm_max`` under a controller made for a larger mill) is refused when it is built, in one
+line naming the field: the plan on operable schedules milled below ``mill.rpm_min_milling``
+without a word, and the LQR and the NLP MPC advised 100 rpm to a 90 rpm mill, which the plant
+refused in the middle of a trial."""
+
+import pytest
+
+from bmctl.control import load_controller, make_controller
+from bmctl.control.base import check_rpm_range
+from bmctl.errors import InputError
+from bmctl.moments import make_moment_model
+
+from ..conftest import ROOT
+
+
+class _SmallMill:
+    """The lab card's moment model on a mill whose top speed is ``rpm_max``."""
+
+    def __init__(self, model, rpm_max):
+        self._model, self.rpm_max = model, float(rpm_max)
+
+    def __getattr__(self, name):
+        return getattr(self._model, name)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return make_moment_model(str(ROOT / "models" / "alni-1to1-300rpm-lab.toml"))
+
+
+@pytest.mark.parametrize("name", ["mpc-default", "mpc-nominal", "lqr-baseline", "lqr-clip"])
+def test_a_mill_slower_than_the_lowest_milling_speed_is_refused_naming_the_field(model, name):
+    with pytest.raises(InputError, match=rf"^controller {name}: mill\.rpm_min_milling: the lowest milling speed, "
+                                         r"100 rpm, is above the card's mill\.rpm_max \(90 rpm\): no speed is left"):
+        make_controller(ROOT / "controllers" / f"{name}.toml", _SmallMill(model, 90.0))
+
+
+@pytest.mark.parametrize("name", ["mpc-default", "mpc-nominal", "lqr-baseline"])
+def test_a_mill_whose_top_is_the_lowest_milling_speed_is_kept(model, name):
+    ctrl = make_controller(ROOT / "controllers" / f"{name}.toml", _SmallMill(model, 100.0))
+    assert ctrl.interval_h == 0.5
+
+
+def test_the_dial_step_counts():
+    cfg = load_controller(ROOT / "controllers" / "mpc-default.toml")
+    check_rpm_range(cfg, 105.0)  # 100 rpm is on the 10 rpm dial and under 105
+    bounds = cfg.bounds.model_copy(update={"rpm_min": 101.0})
+    with pytest.raises(InputError, match=r"bounds\.rpm_min: the lowest milling speed, 110 rpm, is above the card's "
+                                         r"mill\.rpm_max \(100 rpm\) on its 10 rpm dial"):
+        check_rpm_range(cfg.model_copy(update={"bounds": bounds}), 105.0)
+
+
+def test_a_recipe_faster_than_the_mill_names_its_controller(model):
+    """The refusal said only "rpm: 400 exceeds the mill's rpm_max 90", naming neither file nor controller."""
+    with pytest.raises(InputError, match=r"^controller recipe-400rpm-30-10: rpm: 400 exceeds the mill's rpm_max 90 "
+                                         r"\(the card's mill\.rpm_max\)$"):
+        make_controller(ROOT / "controllers" / "recipe-400rpm-30-10.toml", _SmallMill(model, 90.0))
+
+
+def test_campaign_init_refuses_a_mill_slower_than_the_lowest_milling_speed(tmp_path, capsys):
+    from bmctl.cli import main
+
+    text = (ROOT / "models" / "alni-1to1-300rpm-lab.toml").read_text()
+    card = tmp_path / "lab-rpm90.toml"
+    card.write_text(text.replace("rpm_max = 600", "rpm_max = 90").replace("rpm = 300", "rpm = 90"))
+    assert "rpm_max = 90\n" in card.read_text()
+    d = tmp_path / "c"
+    assert main(["campaign", "init", str(d), "--model", str(card), "--controller",
+                 str(ROOT / "controllers" / "mpc-default.toml"), "--target", "s_mean_um=45"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "mill.rpm_min_milling" in err and "90 rpm" in err
+    assert not d.exists()
