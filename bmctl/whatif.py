@@ -118,13 +118,57 @@ def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[f
                         np.array([m[4] for m in members]))
 
 
+def unique_labels(names: Sequence[str], paths: Sequence[str | Path] | None = None) -> list[str]:
+    """Labels of the schedules, one per schedule and all different: a name shared by several
+    schedules gets its file's folder (``name (folder)``), else the file as given, else its place
+    in the list (``name #k``, counted from 1).
+
+    Examples
+    --------
+    >>> unique_labels(["design", "design", "ramp"], ["A/schedule.toml", "B/schedule.toml", "ramp.toml"])
+    ['design (A)', 'design (B)', 'ramp']
+    >>> unique_labels(["x", "x"], ["a/s.toml", "a/s.toml"])
+    ['x #1', 'x #2']
+    >>> unique_labels(["x", "x"])
+    ['x #1', 'x #2']
+    """
+    names = [str(n) for n in names]
+    paths = [None] * len(names) if paths is None else [None if p is None else Path(p) for p in paths]
+
+    def folder(p):
+        return None if p is None else (p.parent.name or p.resolve().parent.name or str(p.parent))
+
+    out = list(names)
+    for tag in (folder, lambda p: None if p is None else str(p)):
+        seen = {}
+        for lab in out:
+            seen[lab] = seen.get(lab, 0) + 1
+        cand = [f"{lab} ({tag(p)})" if seen[lab] > 1 and tag(p) else lab for lab, p in zip(out, paths)]
+        if len(set(cand)) == len(cand):
+            return cand
+        counts = {}
+        for lab in cand:
+            counts[lab] = counts.get(lab, 0) + 1
+        out = [c if counts[c] == 1 else o for c, o in zip(cand, out)]  # keep what became unique
+    counts, k = {}, {}
+    for lab in out:
+        counts[lab] = counts.get(lab, 0) + 1
+    res = []
+    for lab in out:
+        if counts[lab] > 1:
+            k[lab] = k.get(lab, 0) + 1
+            lab = f"{lab} #{k[lab]}"
+        res.append(lab)
+    return res
+
+
 def table_rows(results: Sequence[WhatIfResult]) -> tuple[list[str], list[list]]:
     header = ["schedule", "hours", "energy_kj", "peak_temperature_c", "peak_temperature_c_q95"]
     for k in KEYS[:4]:
         header += [f"final_{k}", f"final_{k}_q05", f"final_{k}_q95"]
     rows = []
-    for res in results:
-        row = [res.name, res.hours, res.energy_kj, float(res.peak_temperature_c.mean()),
+    for res, label in zip(results, unique_labels([r.name for r in results])):
+        row = [label, res.hours, res.energy_kj, float(res.peak_temperature_c.mean()),
                float(np.percentile(res.peak_temperature_c, 95))]
         for k in KEYS[:4]:
             m, lo, hi = res.band(k)
@@ -152,10 +196,11 @@ def _moments_figure(results: Sequence[WhatIfResult], path: Path) -> None:
 
     plt = io.pyplot()
     fig, axes = plt.subplots(2, 3, figsize=(13.5, 7.6))
+    labels = unique_labels([r.name for r in results])
     for i, res in enumerate(results):
         for ax, key in zip(axes.flat, KEYS):
             m, lo, hi = res.band(key)
-            ax.plot(res.t_h, m, color=f"C{i}", label=res.name)
+            ax.plot(res.t_h, m, color=f"C{i}", label=labels[i])
             ax.fill_between(res.t_h, lo, hi, color=f"C{i}", alpha=0.2)
     for ax, key in zip(axes.flat, KEYS):
         ax.set_title(plots.quantity_label(key), fontsize=10), ax.set_xlabel("batch time (h)"), ax.grid(alpha=0.3)
@@ -167,7 +212,7 @@ def _moments_figure(results: Sequence[WhatIfResult], path: Path) -> None:
     for i in range(len(results)):
         ax.plot(x[i], peak[i], "o", color=f"C{i}", ms=9, label="mean over seeds" if i == 0 else None)
         ax.plot(x[i], p95[i], "v", color="k", ms=7, label="95th percentile" if i == 0 else None)
-    ax.set_xticks(x, [r.name for r in results], rotation=20, ha="right", fontsize=8)
+    ax.set_xticks(x, labels, rotation=20, ha="right", fontsize=8)
     ax.set_xlim(-0.6, len(results) - 0.4)
     ax.set_title("highest vial temperature of the batch (°C)", fontsize=10), ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=8)
@@ -188,10 +233,11 @@ def _final_figure(results: Sequence[WhatIfResult], path: Path) -> None:
     edges = np.geomspace(max(np.percentile(s_all, 0.1), 1e-3) * 0.8, np.percentile(s_all, 99.9) * 1.25, 41)
     r_hi = max(float(np.percentile(np.concatenate([r.final_r for r in results]), 99.5)) * 1.15, 0.02)
     r_edges = np.linspace(0, min(r_hi, 1.0), 41)
+    labels = unique_labels([r.name for r in results])
     for i, res in enumerate(results):
         s = res.final_s_um[res.final_s_um > 0]
         h, _ = np.histogram(s, bins=edges)
-        axes[0].stairs(h / (s.size * np.diff(np.log(edges))), edges, color=f"C{i}", lw=1.5, label=res.name)
+        axes[0].stairs(h / (s.size * np.diff(np.log(edges))), edges, color=f"C{i}", lw=1.5, label=labels[i])
         axes[1].hist(res.final_r, bins=r_edges, density=True, histtype="step", color=f"C{i}", lw=1.5)
     axes[0].set_xscale("log"), plots.log_size_axis(axes[0])
     axes[0].set_xlabel("final size s (µm, log scale)"), axes[1].set_xlabel(f"final {plots.R_LABEL}")

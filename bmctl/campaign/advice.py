@@ -4,6 +4,7 @@ schedule to the batch end, the predicted end-state band and why (reachability, b
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -173,9 +174,59 @@ def _why(c, plan, sched, end, ctrl_target) -> tuple[dict, list[str]]:
         ceil = plan.status.t_ceiling_c if math.isfinite(plan.status.t_ceiling_c) else cfg.temperature.ceiling_c
         if float(np.max(plan.t_peak_c)) >= ceil - 0.5:
             binding.append(f"vial-temperature ceiling ({ceil:g} °C)")
+    binding += mill_limits_binding(getattr(plan.status, "reason", ""), getattr(cfg, "mill", None),
+                                   60.0 * plan.interval_h if hasattr(plan, "interval_h") else None)
     if not all(reach.values()) and not binding:
         binding.append("batch time: the target is not reached by the batch end at the planned inputs")
     return reach, binding
+
+
+_DWELL_NOTE = re.compile(r"^dwell(?: limits)?: milling ([0-9.]+) -> ([0-9.]+) min")
+_SWITCH_NOTE = re.compile(r"^switch budget \((\d+)\) spent: milling ([0-9.]+) -> ([0-9.]+)")
+
+
+def mill_limits_binding(reason: str, mill=None, interval_min: float | None = None) -> list[str]:
+    """The mill's limits that changed the advised interval, read from the controller's status reason
+    (the notes of :meth:`bmctl.control.mill.MillGuard.enforce` and of the MPC's dwell re-solve), in
+    the words of :func:`bmctl.control.planner.plan_binding`; ``mill``: the controller's ``[mill]``,
+    ``interval_min``: the control interval (min) the notes' minutes are of.
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> mill = SimpleNamespace(min_mill_min=5.0, min_rest_min=5.0)
+    >>> mill_limits_binding("dwell limits: milling 3 -> 0 min", mill)
+    ['minimum milling period (5 min) now: the 3 min of milling planned round to a rest']
+    >>> mill_limits_binding("temperature guard: milling 1.00 -> 0.90; dwell limits: milling 27 -> 30 min", mill, 30)
+    ['minimum rest (5 min) now: the milling planned rounds from 27 to 30 min']
+    >>> mill_limits_binding("dwell: milling 3.4 -> 5 min (re-solved)", mill)
+    ['minimum milling period (5 min) now: the 3.4 min of milling planned round up to 5 min']
+    >>> mill_limits_binding("switch budget (36) spent: milling 0.50 -> 0.00", mill)
+    ['switch budget (36 switches) spent now: milling share 0.5 -> 0']
+    >>> mill_limits_binding("dlqr, 1 it", mill)
+    []
+    """
+    out = []
+    lo_mill = float(getattr(mill, "min_mill_min", 0.0) or 0.0)
+    lo_rest = float(getattr(mill, "min_rest_min", 0.0) or 0.0)
+    for part in (reason or "").split("; "):
+        m = _DWELL_NOTE.match(part.strip())
+        if m:
+            a, b = float(m.group(1)), float(m.group(2))
+            if lo_mill and 0 < a < lo_mill:
+                out.append(f"minimum milling period ({lo_mill:g} min) now: the {a:g} min of milling planned round "
+                           + ("to a rest" if b == 0 else f"up to {b:g} min"))
+            elif lo_rest and b > 0 and (b > a if interval_min is None else 0 < interval_min - a < lo_rest):
+                out.append(f"minimum rest ({lo_rest:g} min) now: the milling planned rounds from {a:g} to {b:g} min")
+            else:
+                out.append(f"the mill's dwell limits (milling at least {lo_mill:g} min, rests at least {lo_rest:g} "
+                           f"min) now: the milling planned rounds from {a:g} to {b:g} min")
+            continue
+        m = _SWITCH_NOTE.match(part.strip())
+        if m:
+            out.append(f"switch budget ({m.group(1)} switches) spent now: milling share {float(m.group(2)):g} -> "
+                       f"{float(m.group(3)):g}")
+    return out
 
 
 def cooling_now(binding) -> bool:

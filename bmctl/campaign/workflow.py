@@ -801,6 +801,8 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
         (:func:`bmctl.campaign.advice.sample_first`); ``notes``: what the advice stands on when
         that is not the mill's own data (before the first sample: the card's starting powder).
     """
+    from ..loop import interval_share
+
     t_start = time.perf_counter()
     say = progress or (lambda text: None)
     c = campaign or Campaign(folder)
@@ -841,7 +843,11 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
             advice = {
                 "t_h": clock, "warnings": warnings, "estimate": est, "target": c.meta["target"],
                 "controller_target": ctrl_target,
-                "next": {"rpm": plan.rpm if mill_min > 0 else 0.0, "milling": plan.milling, "interval_h": h_next,
+                # milling: the share of interval_h (the controller's share of its interval ``dt``, as
+                # stored and decided, in the same minutes: a short last interval, bmctl.loop.interval_share)
+                "next": {"rpm": plan.rpm if mill_min > 0 else 0.0,
+                         "milling": interval_share(plan.milling, dt, h_next) if h_next > 0 else plan.milling,
+                         "interval_h": h_next,
                          "mill_min": min(mill_min, round(h_next * 60)),
                          "rest_min": max(0, round(h_next * 60) - mill_min)},
                 "schedule": sched, "end": end,
@@ -855,7 +861,7 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
                 "sampling": sampled,
             }
             advice["sample_first"] = _sample_first(c, advice, clock, history)
-            advice["notes"] = _notes(c, est) + ([sampled_note] if sampled_note else [])
+            advice["notes"] = _notes(c, est, clock) + ([sampled_note] if sampled_note else [])
             advise_ms = (time.perf_counter() - t_start) * 1e3
             advice["advise_ms"] = advise_ms
             cur = c.con.execute("INSERT INTO plans (t_h, rpm, milling, interval_h, advice, controller_state, "
@@ -874,18 +880,42 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
 UNCERTAIN_HALF_WIDTH = 0.25
 
 
-def _notes(c: Campaign, est: dict) -> list[str]:
+def _notes(c: Campaign, est: dict, clock: float = 0.0) -> list[str]:
     """What the operator should know about the advice's footing: before the campaign's first sample
-    the estimate is the card's starting powder, so a feed that differs from the card is steered as
-    if it did not until a sample shows it; after samples, an estimate whose 90 % interval of the
-    mean size is wider than :data:`UNCERTAIN_HALF_WIDTH` either side (samples that disagree with
-    the model widen it) is said to be uncertain.
+    the estimate is the card's starting powder (carried forward by the model over what was logged),
+    so a feed that differs from the card is steered as if it did not until a sample shows it; after
+    samples, an estimate whose 90 % interval of the mean size is wider than
+    :data:`UNCERTAIN_HALF_WIDTH` either side (samples that disagree with the model widen it) is said
+    to be uncertain.
     """
     if c.con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]:
         line = _uncertain(est)
         return [line] if line else []
-    return [f"no sample yet: the estimate is the card's starting powder (s_mean_um {est['s_mean_um']:.4g}); "
-            "if the feed may differ, sample it first (bmctl campaign sample DIR --at-h 0 FILE) and advise again"]
+    return [_no_sample_note(c.loop.model.const.s0_mean_um, est["s_mean_um"], clock)]
+
+
+def _no_sample_note(s0_um: float, s_um: float, clock: float) -> str:
+    """The note of an advice before the campaign's first sample: the estimate is the card's starting
+    powder (mean size ``s0_um``), at ``clock`` > 0 carried forward by the model over the logged
+    hours to ``s_um``.
+
+    Examples
+    --------
+    >>> print(_no_sample_note(40.0, 40.0, 0.0))  # doctest: +NORMALIZE_WHITESPACE
+    no sample yet: the estimate is the card's starting powder (s_mean_um 40); if the feed may differ, sample
+    it first (bmctl campaign sample DIR --at-h 0 FILE) and advise again
+    >>> print(_no_sample_note(40.0, 50.54, 2.0))  # doctest: +NORMALIZE_WHITESPACE
+    no sample yet: the estimate is the card's starting powder (s_mean_um 40) carried forward by the model
+    over the 2 h logged (s_mean_um 50.54 now), not a measurement; sample the powder now (bmctl campaign
+    sample DIR --at-h 2 FILE; a kept sample of the feed at --at-h 0) and advise again
+    """
+    if clock <= EPS_H:
+        return (f"no sample yet: the estimate is the card's starting powder (s_mean_um {s0_um:.4g}); if the feed "
+                "may differ, sample it first (bmctl campaign sample DIR --at-h 0 FILE) and advise again")
+    return (f"no sample yet: the estimate is the card's starting powder (s_mean_um {s0_um:.4g}) carried forward by "
+            f"the model over the {clock:g} h logged (s_mean_um {s_um:.4g} now), not a measurement; sample the powder "
+            f"now (bmctl campaign sample DIR --at-h {clock:g} FILE; a kept sample of the feed at --at-h 0) and "
+            "advise again")
 
 
 def _uncertain(est: dict) -> str:
@@ -977,8 +1007,10 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
     finally:
         if campaign is None:
             c.close()
+    nx = json.loads(plan[5]).get("next") or {}
     return {"plan_id": plan[0], "t_h": plan[1], "accepted": bool(accept), "recommended_rpm": plan[2],
-            "recommended_milling": plan[3], "rpm": plan[2] if accept else rpm,
+            "recommended_milling": plan[3], "recommended_mill_min": nx.get("mill_min"),
+            "recommended_interval_h": nx.get("interval_h"), "rpm": plan[2] if accept else rpm,
             "milling": plan[3] if accept else milling, "replaces": int(replaced)}
 
 
@@ -1008,13 +1040,22 @@ def status(folder, campaign: Campaign | None = None) -> dict:
             c.close()
     return {"folder": str(folder), "clock_h": clock, "hours": c.meta["hours"], "target": c.meta["target"],
             "counts": n, "pending_samples": pending, "estimate": est if t_node >= 0 else est,
-            "latest_advice": None if plan is None else {"id": plan[0], "t_h": plan[1], "rpm": plan[2],
-                                                        "milling": plan[3], "current": abs(plan[1] - clock) < 1e-6,
-                                                        **{k: json.loads(plan[5])["next"][k]
-                                                           for k in ("interval_h", "mill_min", "rest_min")}},
+            "latest_advice": None if plan is None else _latest_advice(plan, clock),
             "decisions_replaced": replaced,
             "decision": None if dec is None else {"accepted": bool(dec[0]), "rpm": dec[1], "milling": dec[2]},
             "deviations": devs, "warnings": warnings, "db_bytes": db.db_path(folder).stat().st_size}
+
+
+def _latest_advice(plan, clock: float) -> dict:
+    """``status``'s latest advice from its ``plans`` row: ``milling`` is the share of its ``interval_h``
+    (as ``advise``'s ``next``; the row keeps the controller's share of its control interval)."""
+    from ..loop import interval_share
+
+    nx = json.loads(plan[5])["next"]
+    h = float(nx["interval_h"])
+    return {"id": plan[0], "t_h": plan[1], "rpm": plan[2],
+            "milling": interval_share(plan[3], plan[4], h) if h > 0 else plan[3],
+            "current": abs(plan[1] - clock) < 1e-6, **{k: nx[k] for k in ("interval_h", "mill_min", "rest_min")}}
 
 
 def _not_a_campaign_file(folder, dest: Path, flag: str) -> None:

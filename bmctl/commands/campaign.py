@@ -204,8 +204,10 @@ def _run(args: argparse.Namespace) -> int:
     elif v == "decide":
         r = cp.decide(d, args.accept, args.rpm, args.milling, args.note)
         what = "accepted" if r["accepted"] else "rejected"
+        mm, ih = r.get("recommended_mill_min"), r.get("recommended_interval_h")
+        minutes = "" if mm is None or ih is None else f": {mm:g} of {60 * ih:.4g} min"  # what the mill runs
         line = f"advice {r['plan_id']} at {r['t_h']:g} h {what} (recommended {r['recommended_rpm']:g} rpm, milling " \
-               f"{r['recommended_milling']:.3g})"
+               f"{r['recommended_milling']:.3g}{minutes})"
         instead = []
         if not r["accepted"] and r["rpm"] is not None:
             instead.append(f"{r['rpm']:g} rpm")

@@ -27,7 +27,7 @@ def configure(p):
 def run(args) -> int:
     from ..config import load_card
     from ..schedule import Schedule
-    from ..whatif import run_schedule_ensemble, table_rows, write_outputs
+    from ..whatif import run_schedule_ensemble, table_rows, unique_labels, write_outputs
 
     out = output_path(args.out)
     card = load_card(args.model)
@@ -39,6 +39,8 @@ def run(args) -> int:
                 raise InputError(f"{path}: segment[{i}].rpm: {seg.rpm:g} exceeds the mill's rpm_max "
                                  f"{card.mill.rpm_max:g}")
         scheds.append((sched.name or Path(path).stem, sched.pairs()))
+    # two files may carry one name (two `design` outputs): each label names its schedule alone
+    scheds = list(zip(unique_labels([n for n, _ in scheds], args.schedules), (s for _, s in scheds)))
     from ..cards import check_melting, check_work, run_warnings, simulation_work, window_warnings
 
     for (_, segs), path in zip(scheds, args.schedules):
@@ -61,10 +63,11 @@ def run(args) -> int:
                      + window_warnings(card, [rpm for _, rpm in segs])):
             print(f"bmctl: warning: {res.name}: {line}", file=sys.stderr)
     print("ensemble mean [5-95 % over the plants] at each schedule's end; peak vial temperature: mean over the plants")
-    print(f"{'schedule':28s} {'h':>5s} {'kJ':>7s} {'peak °C':>7s} {'s_mean µm':>19s} {'s_std µm':>19s} "
+    w = max([28] + [len(r[0]) for r in rows])
+    print(f"{'schedule':{w}s} {'h':>6s} {'kJ':>7s} {'peak °C':>7s} {'s_mean µm':>19s} {'s_std µm':>19s} "
           f"{'r_mean':>21s}")
     for r in rows:
-        print(f"{r[0][:28]:28s} {r[1]:5.1f} {r[2]:7.0f} {r[3]:7.1f} {r[5]:6.1f} [{r[6]:5.1f},{r[7]:5.1f}] "
+        print(f"{r[0]:{w}s} {r[1]:6.4g} {r[2]:7.0f} {r[3]:7.1f} {r[5]:6.1f} [{r[6]:5.1f},{r[7]:5.1f}] "
               f"{r[8]:6.1f} [{r[9]:5.1f},{r[10]:5.1f}] {r[11]:6.3f} [{r[12]:.3f},{r[13]:.3f}]")
     for p in write_outputs(results, out):
         print(f"  wrote {p}")

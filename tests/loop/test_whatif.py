@@ -197,3 +197,38 @@ def test_ctrl_c_while_the_client_closes_comes_after_the_close(python_sigint):
     with pytest.raises(KeyboardInterrupt):
         close_client(client)
     assert cluster.status.name == "closed"
+
+
+def test_whatif_tells_apart_two_schedules_of_one_name(tmp_path, capsys, monkeypatch):
+    """Two `design` outputs both named "design-..." showed as two identical rows, curves and ticks;
+    and 0.05 h printed as 0.1. Each label now names its schedule alone, everywhere it is shown."""
+    from bmctl import io
+
+    paths = []
+    for folder, hours in (("A", 0.05), ("B", 0.1)):
+        (tmp_path / folder).mkdir()
+        p = tmp_path / folder / "schedule.toml"
+        p.write_text(f'name = "design-lab"\n[[segment]]\nhours = {hours}\nrpm = 300\n')
+        paths.append(str(p))
+    shown = []
+    real = io.savefig
+
+    def savefig(fig, path, **kwargs):
+        for ax in fig.axes:
+            leg = ax.get_legend()
+            shown.append(sorted({t.get_text() for t in (leg.get_texts() if leg else [])} - {
+                "mean over seeds", "95th percentile"}))
+            shown.append([t.get_text() for t in ax.get_xticklabels() if t.get_text().startswith("design")])
+        return real(fig, path, **kwargs)
+
+    monkeypatch.setattr(io, "savefig", savefig)
+    rc = main(["whatif", LAB, *paths, "--seeds", "1", "--particles", "100", "--out", str(tmp_path / "o")])
+    out = capsys.readouterr().out
+    assert rc == 0
+    want = ["design-lab (A)", "design-lab (B)"]
+    rows = list(csv.DictReader((tmp_path / "o" / "whatif.csv").read_text().splitlines()))
+    assert [r["schedule"] for r in rows] == want
+    table = [line.split() for line in out.splitlines() if line.startswith("design-lab")]
+    assert [line[:3] for line in table] == [["design-lab", "(A)", "0.05"], ["design-lab", "(B)", "0.1"]]
+    assert want in shown  # legends of the moments and the final pdfs, and the peak-temperature ticks
+    assert all(s in ([], want) for s in shown), shown
