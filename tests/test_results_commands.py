@@ -48,14 +48,33 @@ def parse_with_script(script: Path, args: list[str], cwd: Path, after=None) -> l
     """Run ``script`` as ``python script args`` from ``cwd`` until its argument parser has parsed
     ``args``, then stop it; returns the problems ([] if none). ``after(namespace, script_globals)``,
     called there (the script still ``__main__``), returns further problems."""
+    def parsed(parser, parse, script_globals):
+        ns = parse()
+        return after(ns, script_globals) if after else []
+
+    return run_to_parser(script, args, cwd, parsed)
+
+
+def script_parser(script: Path, cwd: Path = ROOT):
+    """``(parser, script_globals)``: the argument parser ``script`` builds when run as ``python script``
+    from ``cwd``, taken at its ``parse_args`` call (nothing parsed, none of its work run), and the
+    script's globals there; ``(None, problems)`` when it never gets there."""
+    got = []
+    problems = run_to_parser(script, [], cwd, lambda parser, parse, g: got.append((parser, g)) or [])
+    return got[0] if got else (None, problems)
+
+
+def run_to_parser(script: Path, args: list[str], cwd: Path, at_parser) -> list[str]:
+    """Run ``script`` as ``python script args`` from ``cwd`` up to its ``parse_args`` call and stop it
+    there; returns ``at_parser(parser, parse, script_globals)``, the problems found there (``parse()``
+    parses as the script would), or why the script never got there."""
     source = script.read_text(encoding="utf-8")
     if "parse_args(" not in source:  # it would run its work at once: never start it here
         return ["has no argument parser (argparse), so its arguments cannot be checked without running it"]
     real = argparse.ArgumentParser.parse_args
 
     def stop(self, args=None, namespace=None):
-        ns = real(self, args, namespace)
-        raise _Parsed(after(ns, sys._getframe(1).f_globals) if after else [])
+        raise _Parsed(at_parser(self, lambda: real(self, args, namespace), sys._getframe(1).f_globals))
 
     saved = (sys.argv, list(sys.path), set(sys.modules), os.getcwd(), dict(os.environ))
     err = io.StringIO()
