@@ -421,12 +421,23 @@ def simulation_work(card, segments, particles: int, every_h: float, raster: bool
     }
 
 
-def design_work(hours: float, interval_h: float) -> dict[str, float]:
-    """Estimated work of ``bmctl design``: one solve over K = ceil(hours / interval_h) intervals.
+def design_work(hours: float, interval_h: float, sweep=(1.0,)) -> dict[str, float]:
+    """Estimated work of ``bmctl design``: the global search over operable schedules and the local NLP
+    over a batch of ``hours`` in K = ceil(hours / interval_h) control intervals, once per batch length
+    of the sweep (``min_time`` / ``min_energy``: each fraction of ``hours``; ``target``: ``(1.0,)``).
 
-    The solver's size grows with K (6 states, 2 inputs and a slack per interval) and its cost
-    a little faster than linearly: ~1.5 CPU s per interval up to 24 intervals, measured on
-    this project's machine (12 h at 0.5 h: 33 s), and in proportion to K^2 beyond.
+    Both grow with the batch length in proportion, hardly with K: the search's candidates are about as
+    many at any interval, the NLP integrates on a grid of at most 0.5 h, and the memory is the search's
+    states over the batch. Measured on this project's machine (2 cores at load 1-2, ``nice``, the whole
+    command with ``--plant-seeds 0`` on the lab card, targets s_mean_um=30, s_mean_um=400 and d50_um=45),
+    CPU s: 4 h 1.8-3.5 at 0.25, 0.5 and 1 h intervals; 12 h 5.9-8.9; 24 h 13-18; 48 h 26-31; 72 h 67
+    (0.25 h), 53 (0.5 h), 52 (1 h), 58 (2 h), 57 (6 h); 200 h 148 (0.5 h); 24 h at 1-min intervals 30
+    (K = 1440), 12 h and 48 h at 0.02 h 3 and 17; ``--objective min_time`` (the sweep 1/4, 1/2, 3/4, 1)
+    12 h 18 and 24 h 36. Peak memory: 12 h 0.52 GB, 24 h 0.79 GB, 72 h 2.9 GB, 200 h 6.0 GB;
+    min_time 24 h 1.8 GB. The constants below put each CPU time 1.2-3 times under the estimate (at
+    0.02-0.08 h intervals, where the search finds little, up to 8 times) and each peak memory 1.1-1.7
+    times. The old model (1.5 CPU s per interval, in proportion to K^2 beyond 24 intervals) put 72 h
+    at 0.25 h at 5200 CPU s, and its dense KKT block at 53 MB.
 
     Parameters
     ----------
@@ -434,14 +445,33 @@ def design_work(hours: float, interval_h: float) -> dict[str, float]:
         Batch length.
     interval_h : float
         The controller's interval.
+    sweep : sequence of float, optional
+        Fractions of ``hours`` designed one after another (the controller's ``[objective] sweep`` for
+        min_time and min_energy).
+
+    Examples
+    --------
+    >>> round(design_work(72.0, 0.25)["cpu_s"])  # measured: 67 CPU s
+    85
     """
+    hours = min(max(0.0, float(hours)), 1e15)
+    fracs = [min(max(float(f), 0.0), 1.0) for f in sweep] or [1.0]
+    cpu, batch_h = DESIGN_CPU_S, 0.0
+    for f in fracs:
+        k = max(1.0, float(math.ceil(min(hours * f / interval_h, 1e15) - 1e-9)))
+        cpu += DESIGN_CPU_S_PER_H * hours * f + DESIGN_CPU_S_PER_INTERVAL * k
+        batch_h += hours * f
     k = max(1.0, float(math.ceil(min(hours / interval_h, 1e15) - 1e-9)))
-    return {"intervals": k, "variables": 9 * k, "cpu_s": DESIGN_CPU_S_PER_INTERVAL * k * max(1.0, k / 24.0),
-            "memory_bytes": 9 * k * 9 * k * 8.0}  # a dense KKT block at worst
+    return {"intervals": k, "cpu_s": cpu, "memory_bytes": DESIGN_BYTES + DESIGN_BYTES_PER_H * batch_h}
 
 
-#: CPU seconds per design interval (the 12 h / 0.5 h example: 33 s)
-DESIGN_CPU_S_PER_INTERVAL = 1.5
+#: ``design``'s CPU seconds (the command's start included), per batch hour designed and per control
+#: interval, and its memory and memory per batch hour designed (measured numbers: :func:`design_work`)
+DESIGN_CPU_S = 0.5
+DESIGN_CPU_S_PER_H = 1.1
+DESIGN_CPU_S_PER_INTERVAL = 0.02
+DESIGN_BYTES = 4e8
+DESIGN_BYTES_PER_H = 4e7
 
 
 def identify_work(card, specs_seeds: list[tuple[list, int]], particles: int, dt_h: float) -> dict[str, float]:

@@ -59,17 +59,24 @@ def run(args) -> int:
     hours_source = "--hours" if args.hours is not None else f"{args.model}: process.hours (the default of --hours)"
     check_batch(hours, cfg, args.objective, hours_source, str(path))
     check_ceiling(cfg, model.card, str(path))
+    from ..control.base import check_rpm_range
+
+    check_rpm_range(cfg, model.rpm_max)  # no speed left to mill at: refused here, before any progress line
     from ..cards import check_work, design_work
 
-    work = design_work(hours, cfg.interval_h)
+    swept = (args.objective or cfg.objective.kind) != "target"  # min_time / min_energy design every batch of the sweep
+    work = design_work(hours, cfg.interval_h, cfg.objective.sweep if swept else (1.0,))
     if args.plant_seeds:  # the plant check, at the top speed throughout (an upper bound)
         from ..cards import simulation_work
         from ..work import add, scale
 
         top = min(cfg.bounds.rpm_max, model.rpm_max)
-        work = add(work, scale(simulation_work(model.card, [(hours, top)], args.plant_particles, 0.05, raster=False),
-                               args.plant_seeds))
-    check_work(work, f"--hours/--plant-seeds/--plant-particles/{path}: interval_h")
+        plant = scale(simulation_work(model.card, [(hours, top)], args.plant_particles, 0.05, raster=False),
+                      args.plant_seeds)
+        if plant["memory_bytes"] <= work["memory_bytes"]:  # the memory is the search's, not recorded populations
+            plant.pop("records", None)
+        work = add(work, plant)
+    check_work(work, f"--hours/--plant-seeds/--plant-particles/{path}: interval_h" + (", objective.sweep" if swept else ""))
 
     def progress(text):
         print(f"design: {text}", file=sys.stderr, flush=True)
@@ -80,7 +87,7 @@ def run(args) -> int:
     if not d.reach.reachable:  # said up front, before the schedule; exit status stays 0
         print(f"warning: {d.reach.line(target)}")
         print("best schedule per family of the global search (moment model):")
-        print("\n".join(d.reach.family_lines()))
+        print("\n".join(d.family_lines()))
     if args.plant_seeds:
         from ..control.design import plant_check
 

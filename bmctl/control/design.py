@@ -86,6 +86,11 @@ class Design:
     def energy_kWh(self) -> float:  # dissipated in the vial: P_max (rpm / rpm_max)^3 x milling hours
         return self.result.energy_kWh
 
+    def family_lines(self) -> list[str]:
+        """The best schedule of each family of the search (:meth:`~bmctl.control.reach.Reach.family_lines`),
+        a schedule whose peak runs over the ceiling said so: it was not passed over for being farther off."""
+        return family_lines(self.reach, self.ceiling_c)
+
 
 def simulate_segments(model, segs, p=None):
     """Exact moment-model prediction of (hours, rpm) segments from ``model.x0()`` (the model's own
@@ -395,6 +400,9 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
         raise InputError("target: names no moment")
     obj = objective or cfg.objective.kind
     check_batch(hours, cfg, obj)
+    from .base import check_rpm_range
+
+    check_rpm_range(cfg, model.rpm_max)  # every input check before the first progress line
     say = progress or (lambda text: None)
     meth = method or cfg.objective.integer_method
     tol = cfg.objective.tolerance
@@ -420,7 +428,11 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
     if res.error <= tol:
         reach = Reach(True, res.error, res.outputs, [], families)
     else:
-        reach = Reach(False, res.error, res.outputs, list(res.active), families)
+        binding = list(res.active)
+        if not binding:  # a rest or a short milling closest, no limit met: is it the batch time?
+            why = batch_time_binding(model, target, float(res.hours), cfg, p)
+            binding = [why] if why else []
+        reach = Reach(False, res.error, res.outputs, binding, families)
     segs = res.segments
     X = np.array(res.seg_states)
     if not segs:  # the best plan mills nothing: a rest over the whole batch (a schedule of one segment)
@@ -434,6 +446,92 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
     d.search = sr
     d.searched = searched.best
     return d
+
+
+def family_lines(reach, ceiling_c: float) -> list[str]:
+    """One line per schedule family (:meth:`~bmctl.control.reach.Reach.family_lines`); a family whose
+    best schedule peaks over ``ceiling_c`` (by more than the search's tolerance) ends "over the ceiling".
+
+    Parameters
+    ----------
+    reach : Reach
+        Its ``per_family`` rows carry ``peak_c`` (:func:`written_families`).
+    ceiling_c : float
+        The vial-temperature ceiling.
+
+    Examples
+    --------
+    >>> from bmctl.control.reach import Reach
+    >>> row = {"error": 0.072, "peak_c": 26.9, "switches": 5, "schedule": "100 rpm, 2.50 h milling"}
+    >>> family_lines(Reach(False, 0.1, {}, [], {"two-phase": row}), 25.1)[0].split("  ")[-1]
+    'over the ceiling (25.1 °C)'
+    """
+    from .search import CEILING_TOL_C
+
+    lines = reach.family_lines()
+    for i, v in enumerate(reach.per_family.values()):
+        if float(v["peak_c"]) > ceiling_c + CEILING_TOL_C:
+            lines[i] += f"  over the ceiling ({ceiling_c:g} °C)"
+    return lines
+
+
+def batch_time_binding(model, target: dict, hours: float, cfg, p=None) -> str:
+    """Whether the batch time is what keeps a target out of reach when no limit binds the closest
+    schedule (a rest, or milling that stops short): milling throughout to the batch end at every speed
+    on the dial still misses, under the ceiling, and milling on at one speed reaches the target later.
+    The phrase for the design's ``binding``, or "" when that is not so (a schedule of moment-model
+    trajectories only: nothing of the design changes).
+
+    Continuous milling from the card's state at each dial speed (at most 41 of them) is integrated in
+    steps of at most 0.25 h (at most 240 to the batch end) to the batch end and on to
+    ``max(4 hours, the card's process.hours)``.
+
+    Parameters
+    ----------
+    model : MomentModel
+    target : dict
+    hours : float
+        The batch length designed for.
+    cfg : MPCConfig
+        Bounds, ceiling, mill limits and ``[objective] tolerance``.
+    p : array_like, optional
+    """
+    from .config import target_bounds
+    from .outputs import output_values
+    from .search import CEILING_TOL_C, limits_of
+
+    lim = limits_of(cfg, model)
+    tol = cfg.objective.tolerance
+    pp = model.p0() if p is None else np.asarray(p, dtype=float)
+    n_b = max(1, min(240, math.ceil(hours / 0.25 - 1e-9)))
+    dt = hours / n_b
+    n = max(n_b + 1, math.ceil(max(4.0 * hours, float(model.card.process.hours)) / dt - 1e-9))
+    st = lim.rpm_step if lim.rpm_step > 0 else 10.0
+    dial = np.arange(lim.rpm_lo, lim.rpm_hi + 1e-9, st)
+    if dial.size > 41:
+        dial = dial[np.unique(np.linspace(0, dial.size - 1, 41).round().astype(int))]
+    keys = list(target)
+    end_best, later = None, None  # (error at the batch end, rpm); (hours to reach, rpm)
+    for r in dial:
+        X = model.simulate(model.x0(), np.tile([float(r), 1.0], (n, 1)), dt, pp)
+        err = np.zeros(X.shape[0])
+        for k, y in zip(keys, output_values(X, keys)):
+            lo, hi = target_bounds(target[k])
+            y = np.asarray(y, dtype=float).reshape(-1)
+            err = np.maximum(err, np.maximum(y - hi, lo - y).clip(min=0.0) / max(abs(0.5 * (lo + hi)), 1e-12))
+        cool = np.maximum.accumulate(X[:, 4]) <= lim.ceiling_c + CEILING_TOL_C  # the peak so far under the ceiling
+        if cool[n_b] and (end_best is None or err[n_b] < end_best[0]):
+            end_best = (float(err[n_b]), float(r))
+        hit = np.flatnonzero(cool & (err <= tol))
+        if hit.size and hit[0] <= n_b:
+            return ""  # milling at this speed (then resting) reaches it within the batch: not the batch time
+        if hit.size and (later is None or hit[0] * dt < later[0]):
+            later = (float(hit[0] * dt), float(r))
+    if end_best is None or later is None:
+        return ""
+    return (f"batch time ({hours:g} h): milling throughout to the batch end still misses (at best "
+            f"{100 * end_best[0]:.1f} % off, at {end_best[1]:g} rpm); milling on at {later[1]:g} rpm reaches the target "
+            f"after {later[0]:.3g} h")
 
 
 def written_families(per_family: dict, by_family: dict) -> dict:

@@ -220,3 +220,24 @@ def test_the_search_answers_with_its_best_schedule_as_written():
     errors = {f: row["error"] for f, row in d.reach.per_family.items()}
     assert errors[d.searched.family] <= min(errors.values()) + cfg.plan.error_band
     assert min(errors.values()) <= tol < max(errors.values())  # the families disagree: the choice matters
+
+
+def test_a_controller_with_no_speed_left_on_the_card_is_refused_before_any_progress(tmp_path, capsys):
+    """A controller whose lowest milling speed (650 rpm) lies above the card's mill.rpm_max (600 rpm)
+    was refused inside the search, after "design: searching ..." had gone to stderr: two lines."""
+    ctrl = _controller(tmp_path, **{"rpm_min = ": "rpm_min = 650.0", "rpm_max = ": "rpm_max = 700.0"})
+    line = _refused(capsys, ["--target", "s_mean_um=45", "--hours", "4", "--controller", ctrl], tmp_path / "o")
+    assert "no speed is left to mill at" in line and "650 rpm" in line
+
+
+def test_design_schedule_checks_its_inputs_before_its_first_progress_line(tmp_path):
+    from bmctl.control import load_controller
+    from bmctl.control.design import design_schedule
+    from bmctl.errors import InputError
+    from bmctl.moments.model import make_moment_model
+
+    cfg = load_controller(_controller(tmp_path, **{"rpm_min = ": "rpm_min = 650.0", "rpm_max = ": "rpm_max = 700.0"}))
+    said = []
+    with pytest.raises(InputError, match="no speed is left to mill at"):
+        design_schedule(make_moment_model(CARD), {"s_mean_um": 45.0}, 4.0, cfg, progress=said.append)
+    assert said == []
