@@ -21,25 +21,13 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import float_arg, output_path
+from ._args import float_arg, int_arg, output_path
 
 #: default --min-area-px; equals bmctl.measure.segment.MIN_AREA_PX (a test checks), kept here so that
 #: building the parser does not import the image stack
 MIN_AREA_PX = 30
 #: default --min-particles; equals bmctl.measure.quality.MIN_PARTICLES (a test checks)
 MIN_PARTICLES = 5
-
-
-def _min_particles(text: str) -> int:
-    try:
-        if "_" in text:
-            raise ValueError
-        v = int(text)
-    except ValueError:
-        raise InputError(f"--min-particles: expected a whole number >= 0 (got {text!r})") from None
-    if v < 0:
-        raise InputError(f"--min-particles: expected a whole number >= 0 (got {v})")
-    return v
 
 
 def _min_area(text: str):
@@ -65,7 +53,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, metavar="CSV", help="write the pooled particle table here (overlays and measure.json beside it)")
     parser.add_argument("--min-area-px", type=_min_area, default="auto", metavar="N",
                         help="drop blobs below N px (default auto: 1/100 of the area-weighted median particle area, at least 30)")
-    parser.add_argument("--min-particles", type=_min_particles, default=MIN_PARTICLES, metavar="N",
+    parser.add_argument("--min-particles", type=int_arg("--min-particles", 0), default=MIN_PARTICLES, metavar="N",
                         help=f"verdict at least doubtful for an image with fewer than N particles (default {MIN_PARTICLES}; 0: no limit)")
     parser.add_argument("--crop", default=None, metavar="Y0:Y1,X0:X1", help="keep this window only")
     parser.add_argument("--keep-info-bar", action="store_true", help="do not detect and exclude the data bar at the bottom")

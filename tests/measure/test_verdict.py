@@ -222,7 +222,7 @@ def test_cli_few_particles_verdict_and_flag(tmp_path, capsys):
     assert "verdict ok" in capsys.readouterr().err
     assert main(["measure", str(p), "--um-per-px", "1", "--min-particles", "-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--min-particles: expected a whole number >= 0" in err[0]
+    assert len(err) == 1 and "--min-particles: must be >= 0 (got -1)" in err[0]
 
 
 def test_check_verdicts_refuses_unusable_unless_accepted():
