@@ -45,7 +45,8 @@ def _controller_path(arg) -> Path:
 
 def run(args) -> int:
     from ..control.config import MPCConfig, check_ceiling, load_controller, parse_target
-    from ..control.design import check_batch, design_schedule, done_text, switches_of, switches_text, write_design
+    from ..control.design import (check_batch, design_schedule, done_text, mill_violations, switches_of, switches_text,
+                                  write_design)
 
     # all input checks first: nothing is written on bad input
     target = parse_target(args.target)
@@ -82,6 +83,10 @@ def run(args) -> int:
         print(f"design: {text}", file=sys.stderr, flush=True)
 
     d = design_schedule(model, target, hours, cfg, objective=args.objective, progress=progress)
+    broken = mill_violations(d, cfg.mill)
+    if broken:  # a schedule the mill cannot run is not written (the search's families assume intervals of minutes)
+        raise InputError(f"{path}: the designed schedule breaks the mill's limits ({'; '.join(broken[:3])}); nothing "
+                         f"written: lengthen interval_h ({cfg.interval_h:g} h) or relax [mill]")
     from ..control.config import format_target
 
     if not d.reach.reachable:  # said up front, before the schedule; exit status stays 0

@@ -180,6 +180,30 @@ def batch_switches(segments, hours: float) -> int:
     return n
 
 
+def mill_violations(d: "Design", mill) -> list[str]:
+    """The mill's limits a design's written schedule breaks (empty when it runs as written): each
+    milling period and rest at least its minimum (a trailing one may be shorter), rpm on the dial's
+    step and at least the lowest milling speed (:func:`~bmctl.control.mill.check_schedule`), and its
+    switches over the batch (:func:`batch_switches`) within ``max_switches``.
+
+    Parameters
+    ----------
+    d : Design
+    mill : bmctl.control.config.Mill
+        The controller's ``[mill]`` table.
+    """
+    from .mill import check_schedule
+
+    segs = [(h, r) for h, r in d.segments if h > 1e-12]
+    out = []
+    if mill.max_switches is not None and d.switches > mill.max_switches:
+        out.append(f"{d.switches} on/off switches > max_switches {mill.max_switches}")
+    short = [v for v in check_schedule(segs, mill) if "switches >" not in v]
+    if len(short) > 2:  # the first two, and how many
+        short = short[:2] + [f"{len(short) - 2} more"]
+    return out + short
+
+
 def switches_of(r) -> int:
     """:func:`batch_switches` of a design result (a :class:`~bmctl.control.pattern.PatternResult`)."""
     return batch_switches(r.segments, r.hours)

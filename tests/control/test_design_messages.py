@@ -4,6 +4,7 @@ time as the binding limit) and the work estimate it is refused or run by."""
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -175,3 +176,37 @@ def test_the_design_memory_estimate_holds_the_measured_peak(hours):
 
     est = design_work(hours, 0.25 if hours == 72 else 0.5)["memory_bytes"] / 1e9
     assert MEASURED_GB[hours] <= est <= 2 * MEASURED_GB[hours], (hours, est)
+
+
+def test_a_design_whose_schedule_breaks_the_mills_limits_is_not_written(tmp_path, monkeypatch, capsys):
+    """Whatever the search or the NLP return, design writes only a schedule the mill can run: one
+    with 1-min bursts (under the 5-min minimum) and more switches than the budget is refused."""
+    import bmctl.control.design as dz
+    from bmctl.cli import main
+
+    real = dz.design_schedule
+
+    def choppy(*a, **kw):
+        d = real(*a, **kw)
+        d.segments = [(1 / 60, 300.0), (1 / 60, 0.0)] * 40
+        return d
+
+    monkeypatch.setattr(dz, "design_schedule", choppy)
+    out = tmp_path / "d"
+    card = Path(__file__).resolve().parents[2] / "models" / "alni-1to1-300rpm-lab.toml"
+    assert main(["design", str(card), "--target", "s_mean_um=45", "--hours", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "breaks the mill's limits" in err and "< 5 min" in err and "> max_switches 36" in err
+    assert not out.exists()
+
+
+def test_the_shipped_designs_run_as_written():
+    import bmctl.control.design as dz
+    from bmctl.control.config import load_controller
+    from bmctl.moments import make_moment_model
+
+    root = Path(__file__).resolve().parents[2]
+    model = make_moment_model(str(root / "models" / "alni-1to1-300rpm-lab.toml"))
+    cfg = load_controller(root / "controllers" / "mpc-default.toml")
+    d = dz.design_schedule(model, {"s_mean_um": 35.0}, 4.0, cfg)
+    assert d.segments and dz.mill_violations(d, cfg.mill) == []
