@@ -194,14 +194,8 @@ def mill_violations(d: "Design", mill) -> list[str]:
     """
     from .mill import check_schedule
 
-    segs = [(h, r) for h, r in d.segments if h > 1e-12]
-    out = []
-    if mill.max_switches is not None and d.switches > mill.max_switches:
-        out.append(f"{d.switches} on/off switches > max_switches {mill.max_switches}")
-    short = [v for v in check_schedule(segs, mill) if "switches >" not in v]
-    if len(short) > 2:  # the first two, and how many
-        short = short[:2] + [f"{len(short) - 2} more"]
-    return out + short
+    out = check_schedule([(h, r) for h, r in d.segments if h > 1e-12], mill, switches=d.switches)
+    return out if len(out) <= 3 else out[:2] + [f"{len(out) - 2} more"]
 
 
 def switches_of(r) -> int:

@@ -169,12 +169,18 @@ def count_switches(segments) -> int:
     return int(sum(a != b for a, b in zip(states, states[1:])))
 
 
-def check_schedule(segments, mill, tol_min: float = 1e-6) -> list[str]:
-    """Violations of the mill's limits by a schedule of (hours, rpm) segments (empty when it complies).
+def check_schedule(segments, mill, tol_min: float = 1e-6, switches: int | None = None) -> list[str]:
+    """Violations of the mill's limits by a schedule of (hours, rpm) segments (empty when it complies),
+    the switch budget first.
 
     The last segment may be shorter than the dwell minimum only if it is the batch's end.
+    ``switches``: the schedule's on/off switches as the budget counts them (default
+    :func:`count_switches` of the segments; a design passes its count over the batch).
     """
+    n = count_switches(segments) if switches is None else int(switches)
     out = []
+    if mill.max_switches is not None and n > mill.max_switches:
+        out.append(f"{n} on/off switches > max_switches {mill.max_switches}")
     merged: list[list[float]] = []
     for h, r in segments:
         on = r > 0
@@ -192,7 +198,4 @@ def check_schedule(segments, mill, tol_min: float = 1e-6) -> list[str]:
             out.append(f"rpm {r:g} not a multiple of {mill.rpm_step:g}")
         if r > 0 and r < mill.rpm_min_milling - 1e-9:
             out.append(f"rpm {r:g} below {mill.rpm_min_milling:g}")
-    n = count_switches(segments)
-    if mill.max_switches is not None and n > mill.max_switches:
-        out.append(f"{n} switches > {mill.max_switches}")
     return out
