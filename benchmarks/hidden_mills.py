@@ -86,6 +86,11 @@ class Case:
     value: float
     hours: float
     rpm_ref: float  # the reference plain schedule (constant rpm) that defines the target
+    also: tuple[tuple[str, float], ...] = ()  # more card fields changed ("section.key", value), in order
+
+    def changes(self) -> tuple[tuple[str, float], ...]:
+        """Every card field the mill changes beside gamma and delta: ``field`` first, then ``also``."""
+        return ((self.field, self.value),) + tuple(self.also)
 
 
 CASES = (
@@ -123,7 +128,8 @@ NOT_THE_PLANT = {
 def load_mills(path: Path, card_path: Path = CARD) -> tuple[Case, ...]:
     """Hidden mills from a TOML file (``--mills``): ``[[mill]]`` tables with ``name``, ``gamma_mult``,
     ``delta_mult``, ``field`` (a numeric card field as ``section.key``), ``value``, ``hours`` and
-    ``rpm_ref`` (the reference constant rpm that defines the target, in the sweep's 100-460 rpm).
+    ``rpm_ref`` (the reference constant rpm that defines the target, in the sweep's 100-460 rpm);
+    optionally ``[mill.also]``, more card fields the mill changes (``"section.key" = value``, up to 8).
     Every hidden card (``card_path`` changed) is built and validated here; a problem is one
     :class:`~bmctl.errors.InputError` line naming the file and the field."""
     import math
@@ -137,6 +143,26 @@ def load_mills(path: Path, card_path: Path = CARD) -> tuple[Case, ...]:
 
     base = load_card(card_path).model_dump()  # the fields a hidden mill may change
 
+    def _finite_number(v):  # one message for a text, a bool, nan or inf (not the int branch's)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ValueError(f"must be a finite number (got {v!r})")
+        return v
+
+    def _numeric_card_field(v: str) -> str:  # a numeric card field the hidden plant reads
+        sec, key = v.split(".")
+        cur = base.get(sec)
+        if not isinstance(cur, dict) or key not in cur:
+            raise ValueError(f"not a field of the card {Path(card_path).name} (got {v!r})")
+        if cur[key] is None:
+            raise ValueError(f"not set on the card {Path(card_path).name}: a hidden mill changes a number the "
+                             f"card gives (got {v!r})")
+        if isinstance(cur[key], bool) or not isinstance(cur[key], (int, float)):
+            raise ValueError(f"not a numeric card field (got {v!r})")
+        why = NOT_THE_PLANT.get(v, NOT_THE_PLANT.get(sec))
+        if why:
+            raise ValueError(f"{why} (got {v!r})")
+        return v
+
     class MillRow(Strict):
         name: Annotated[str, Field(pattern=r"^[A-Za-z0-9_-]{1,16}$")]
         gamma_mult: Annotated[float, Field(ge=0.1, le=10)]
@@ -145,13 +171,33 @@ def load_mills(path: Path, card_path: Path = CARD) -> tuple[Case, ...]:
         value: int | Finite  # an integer field (ball_count) keeps its type
         hours: Annotated[float, Field(ge=max(HOURS_MIN, INTERVAL_H), le=48)]
         rpm_ref: Annotated[float, Field(ge=100, le=460)]
+        also: Annotated[dict[str, int | Finite], Field(max_length=8)] = {}
 
         @field_validator("value", mode="before")
         @classmethod
         def _a_number(cls, v):  # one message for a text, a bool, nan or inf (not the int branch's)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ValueError(f"must be a finite number (got {v!r})")
+            return _finite_number(v)
+
+        @field_validator("also", mode="before")
+        @classmethod
+        def _more_fields(cls, v):  # each key a numeric card field the plant reads, each value a number
+            if not isinstance(v, dict):
+                return v  # pydantic names the type
+            for k, x in v.items():
+                if not isinstance(k, str) or not re.match(r"^[a-z_]+\.[A-Za-z0-9_]+$", k):
+                    raise ValueError(f"keys are card fields as \"section.key\" (got {k!r})")
+                _numeric_card_field(k)
+                try:
+                    _finite_number(x)
+                except ValueError as exc:
+                    raise ValueError(f"{k}: {exc}") from None
             return v
+
+        @model_validator(mode="after")
+        def _field_once(self):
+            if self.field in self.also:
+                raise ValueError(f"also: {self.field} is the mill's field already (give it once)")
+            return self
 
         @field_validator("hours")
         @classmethod
@@ -164,20 +210,8 @@ def load_mills(path: Path, card_path: Path = CARD) -> tuple[Case, ...]:
 
         @field_validator("field")
         @classmethod
-        def _numeric_card_field(cls, v: str) -> str:
-            sec, key = v.split(".")
-            cur = base.get(sec)
-            if not isinstance(cur, dict) or key not in cur:
-                raise ValueError(f"not a field of the card {Path(card_path).name} (got {v!r})")
-            if cur[key] is None:
-                raise ValueError(f"not set on the card {Path(card_path).name}: a hidden mill changes a number the "
-                                 f"card gives (got {v!r})")
-            if isinstance(cur[key], bool) or not isinstance(cur[key], (int, float)):
-                raise ValueError(f"not a numeric card field (got {v!r})")
-            why = NOT_THE_PLANT.get(v, NOT_THE_PLANT.get(sec))
-            if why:
-                raise ValueError(f"{why} (got {v!r})")
-            return v
+        def _field(cls, v: str) -> str:
+            return _numeric_card_field(v)
 
     class MillSet(Strict):
         mill: Annotated[list[MillRow], Field(min_length=1, max_length=64)]
@@ -193,7 +227,7 @@ def load_mills(path: Path, card_path: Path = CARD) -> tuple[Case, ...]:
     ms = validate(MillSet, read_toml(path), str(path))
     cases = []
     for i, m in enumerate(ms.mill):
-        case = Case(m.name, m.gamma_mult, m.delta_mult, m.field, m.value, m.hours, m.rpm_ref)
+        case = Case(m.name, m.gamma_mult, m.delta_mult, m.field, m.value, m.hours, m.rpm_ref, tuple(m.also.items()))
         try:
             hidden_card(case, card_path)
         except ValidationError as exc:
@@ -298,18 +332,19 @@ def _shown(path: Path) -> str:
 
 
 def hidden_card(case: Case, card_path: Path = CARD):
-    """The hidden plant's card: the given card (the lab card by default) with gamma, delta and one
-    more field changed."""
+    """The hidden plant's card: the given card (the lab card by default) with gamma, delta and the
+    mill's other fields changed (``field``, then ``also`` in order)."""
     from bmctl.config import load_card, with_factors
 
     card = with_factors(load_card(card_path), case.gamma, case.delta)
     d = card.model_dump()
-    sec, key = case.field.split(".")
-    d[sec][key] = case.value
-    if key == "ball_diameter_m":  # one ball's mass follows its size
-        d["material"]["impactor_mass_kg"] *= (case.value / card.mill.ball_diameter_m) ** 3
-    elif key == "ball_density_kg_m3":  # and its density
-        d["material"]["impactor_mass_kg"] *= case.value / card.mill.ball_density_kg_m3
+    for field, value in case.changes():
+        sec, key = field.split(".")
+        if key == "ball_diameter_m":  # one ball's mass follows its size
+            d["material"]["impactor_mass_kg"] *= (value / d["mill"]["ball_diameter_m"]) ** 3
+        elif key == "ball_density_kg_m3":  # and its density
+            d["material"]["impactor_mass_kg"] *= value / d["mill"]["ball_density_kg_m3"]
+        d[sec][key] = value
     return type(card).model_validate(d)
 
 
@@ -535,9 +570,12 @@ def table(rows: list[dict], summary: dict, name: str = "hidden_mills") -> str:
         def inp(v):  # an input of the case (a factor touching × or a decimal would look measured)
             return f"<!--in-->{v:g}<!--/in-->"
 
-        field_value = f"{r['value']:g}" if float(r['value']).is_integer() else inp(r['value'])
-        out.append(f"| {r['case']} | ×{inp(r['gamma_mult'])}, ×{inp(r['delta_mult'])} | {r['field'].split('.')[1]} = "
-                   f"{field_value} | {r['hours']:g} | {m(i, 'target_s_mean_um', '{:.2f}')} | "
+        def shown(v):  # a whole number as is, a decimal marked as an input
+            return f"{v:g}" if float(v).is_integer() else inp(v)
+
+        changed = "; ".join(f"{f.split('.')[1]} = {shown(v)}"
+                            for f, v in [(r["field"], r["value"]), *r.get("also", {}).items()])
+        out.append(f"| {r['case']} | ×{inp(r['gamma_mult'])}, ×{inp(r['delta_mult'])} | {changed} | {r['hours']:g} | {m(i, 'target_s_mean_um', '{:.2f}')} | "
                    f"{m(i, 'error_pct', '{:+.2f}')} | {m(i, 'peak_c', '{:.1f}')} | {m(i, 'idle_needed_h', '{:.2f}')} "
                    f"({m(i, 'longest_idle_needed_h', '{:.2f}')}) | {r['plain_schedule']} | "
                    f"{m(i, 'plain_error_pct', '{:+.1f}')} |")
@@ -758,7 +796,8 @@ def _main() -> None:
 
     def one(plan):  # a mill's campaign (its own generators, its own folder: runs side by side unchanged)
         case, ref, target, pick, _, plain_err = plan
-        head = (f"case {case.name}: gamma x{case.gamma:g}, delta x{case.delta:g}, {case.field} = {case.value:g}, "
+        head = (f"case {case.name}: gamma x{case.gamma:g}, delta x{case.delta:g}, "
+                f"{', '.join(f'{f} = {v:g}' for f, v in case.changes())}, "
                 f"{case.hours:g} h; target s_mean_um = {target:.2f} ({ref['name']} on the hidden plant, "
                 f"peak {ref['peak_c']:.1f} °C); plain schedule chosen on the card: {pick['name']} -> "
                 f"{plain_err:+.1f} % on the hidden plant")
@@ -784,7 +823,8 @@ def _main() -> None:
             results = list(pool.map(one, plans))
     for (case, ref, target, pick, plain_hidden, plain_err), res in zip(plans, results):
         rows.append({"case": case.name, "gamma_mult": case.gamma, "delta_mult": case.delta, "field": case.field,
-                     "value": case.value, "hours": case.hours, "target_s_mean_um": target,
+                     "value": case.value, **({"also": dict(case.also)} if case.also else {}),
+                     "hours": case.hours, "target_s_mean_um": target,
                      "reference_schedule": ref["name"], "reference_peak_c": ref["peak_c"],
                      "plain_schedule": pick["name"], "plain_error_pct": plain_err,
                      "plain_peak_c": plain_hidden["peak_c"], **{k: v for k, v in res.items() if k != "steps"},

@@ -202,3 +202,46 @@ def test_mills_around_another_card_change_that_card():
     assert card.material.model_dump() == base.material.model_dump()  # the 1:3 powder, not the lab card's
     lab = load_card(hm.CARD)
     assert card.material.model_dump() != lab.material.model_dump()
+
+
+ALSO = '[mill.also]\n"thermal.ambient_C" = 20.0\n"mill.ball_diameter_m" = 0.012\n'
+
+
+def test_a_mill_may_change_more_fields_and_its_hidden_card_changes_each():
+    """``[mill.also]``: every listed field is set on the hidden card (a ball's mass follows its new
+    size), the mill's ``field`` first; the docs table lists each changed field."""
+    import tempfile
+
+    hm = load_benchmark("hidden_mills")
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "mills.toml"
+        p.write_text("[[mill]]\n" + ROW + ALSO)
+        (case,) = hm.load_mills(p)
+    assert case.changes() == (("mill.ball_count", 9), ("thermal.ambient_C", 20.0), ("mill.ball_diameter_m", 0.012))
+    card = hm.hidden_card(case)
+    lab = hm.hidden_card(hm.Case("lab", 1.0, 1.0, "mill.ball_count", 10, 6.0, 300.0))
+    assert (card.mill.ball_count, card.thermal.ambient_C, card.mill.ball_diameter_m) == (9, 20.0, 0.012)
+    assert card.material.impactor_mass_kg == pytest.approx(lab.material.impactor_mass_kg * 1.2 ** 3)
+    row = {"case": "X", "gamma_mult": 1.2, "delta_mult": 0.8, "field": "mill.ball_count", "value": 9,
+           "also": dict(case.also), "hours": 6.0, "plain_schedule": "300 rpm continuous"}
+    keys = ("target_s_mean_um", "error_pct", "peak_c", "idle_needed_h", "longest_idle_needed_h", "plain_error_pct")
+    summary = {k: 1.0 for k in ("median_error_pct", "worst_error_pct", "max_over_ceiling_c", "longest_idle_needed_h",
+                                "plain_median_error_pct", "plain_worst_error_pct")}
+    table = hm.table([{**row, **{k: 1.0 for k in keys}}], {**summary, "campaign_beats_plain": 1}, "x")
+    assert "| ball_count = 9; ambient_C = 20; ball_diameter_m = <!--in-->0.012<!--/in--> |" in table
+
+
+@pytest.mark.parametrize("also, where", [
+    ('[mill.also]\n"thermal.ambiant_C" = 20.0\n', "mill[0].also: not a field of the card"),
+    ('[mill.also]\n"thermal.ambient_C" = "warm"\n', "mill[0].also: thermal.ambient_C: must be a finite number"),
+    ('[mill.also]\n"mill.ball_count" = 12\n', "mill[0]: also: mill.ball_count is the mill's field already"),
+    ('[mill.also]\n"simulation.particles" = 200\n', "mill[0].also: the hidden plant's particles are --particles"),
+    ('[mill.also]\nambient = 3\n', 'mill[0].also: keys are card fields as "section.key"'),
+    ('[mill.also]\n"mill.ball_diameter_m" = -0.01\n', "mill[0] (X): the hidden card: mill.ball_diameter_m:"),
+])
+def test_a_bad_also_table_names_the_file_and_the_field(tmp_path, also, where):
+    p = _file(tmp_path, "[[mill]]\n" + ROW + also)
+    with pytest.raises(InputError) as e:
+        load_benchmark("hidden_mills").load_mills(p)
+    msg = str(e.value)
+    assert msg.startswith(str(p)) and where in msg and "\n" not in msg
