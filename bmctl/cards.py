@@ -431,12 +431,11 @@ def design_work(hours: float, interval_h: float, sweep=(1.0,)) -> dict[str, floa
     states over the batch. Measured on this project's machine (2 cores at load 1-2, ``nice``, the whole
     command with ``--plant-seeds 0`` on the lab card, targets s_mean_um=30, s_mean_um=400 and d50_um=45),
     CPU s: 4 h 1.8-3.5 at 0.25, 0.5 and 1 h intervals; 12 h 5.9-8.9; 24 h 13-18; 48 h 26-31; 72 h 67
-    (0.25 h), 53 (0.5 h), 52 (1 h), 58 (2 h), 57 (6 h); 200 h 148 (0.5 h); 24 h at 1-min intervals 30
-    (K = 1440), 12 h and 48 h at 0.02 h 3 and 17; ``--objective min_time`` (the sweep 1/4, 1/2, 3/4, 1)
+    (0.25 h), 53 (0.5 h), 52 (1 h), 58 (2 h), 57 (6 h); 200 h 148 (0.5 h); 24 h at 1-min intervals 43
+    (K = 1440), 12 h and 48 h at 0.02 h 19 and 75; ``--objective min_time`` (the sweep 1/4, 1/2, 3/4, 1)
     12 h 18 and 24 h 36. Peak memory: 12 h 0.52 GB, 24 h 0.79 GB, 72 h 2.9 GB, 200 h 6.0 GB;
-    min_time 24 h 1.8 GB. The constants below put each CPU time 1.2-3 times under the estimate (at
-    0.02-0.08 h intervals, where the search finds little, up to 8 times) and each peak memory 1.1-1.7
-    times. The old model (1.5 CPU s per interval, in proportion to K^2 beyond 24 intervals) put 72 h
+    min_time 24 h 1.8 GB. The constants below put each CPU time 1.2-3 times under the estimate and
+    each peak memory 1.1-1.7 times. The old model (1.5 CPU s per interval, in proportion to K^2 beyond 24 intervals) put 72 h
     at 0.25 h at 5200 CPU s, and its dense KKT block at 53 MB.
 
     Parameters

@@ -65,6 +65,13 @@ CEILING_TOL_C = 0.05
 #: a candidate over the ceiling that comes this much closer (relative error) than the plan is named
 #: in the plan's binding limits: the ceiling is what keeps the plan from it
 CLOSER_OVER_CEILING = 0.005
+#: cycle lengths of the ``cycled`` family, in steps of the search grid
+CYCLE_STEPS = (1, 2, 3, 4, 6, 8)
+#: on a grid of steps under 30 min the cycles of 30 min to 4 h (what :data:`CYCLE_STEPS` gives on a
+#: 30-min grid) are searched too, and the ``two-phase`` family's second phase also mills 30 min in
+#: 1 h and 1.5 h cycles: short intervals do not shrink the cycles under the dwell minimums
+SHORT_STEP_MIN = 30.0
+CYCLE_MIN = (30.0, 60.0, 90.0, 120.0, 180.0, 240.0)
 
 
 @dataclass(frozen=True)
@@ -254,7 +261,8 @@ def expand(params: np.ndarray, grid: Grid, lim: Limits, carry: Carry | None = No
     Returns
     -------
     (ndarray, ndarray)
-        rpm (N, K) (0 where the interval only rests) and milling minutes (N, K), whole minutes.
+        rpm (N, K) (0 where the interval only rests) and milling minutes (N, K), whole minutes or the
+        whole interval (an interval of 19.8 min milled throughout mills 19.8 min, not 19 and a rest).
     """
     P = np.atleast_2d(np.asarray(params, dtype=float))
     N, K = P.shape[0], grid.K
@@ -266,7 +274,8 @@ def expand(params: np.ndarray, grid: Grid, lim: Limits, carry: Carry | None = No
     M = np.where(inA, MA, MB)
     minutes = np.clip(M - L * pos, 0.0, L)
     minutes = np.minimum(minutes, grid.lengths_min[None, :])
-    minutes = np.floor(minutes + 1e-9)
+    full = minutes >= grid.lengths_min[None, :] - 1e-9  # milling throughout: the interval's own length
+    minutes = np.where(full, grid.lengths_min[None, :], np.floor(minutes + 1e-9))  # else whole minutes
     before = np.cumsum(minutes, axis=1) - minutes
     minutes = np.clip(np.minimum(minutes, cap - before), 0.0, None)
     rpm = np.where(inA, rA, rB)
@@ -836,7 +845,10 @@ def coarse_families(grid: Grid, lim: Limits, rpm_step: float) -> tuple[np.ndarra
                 rows.append(_row(r, L, 1, K, cap=cap))
                 fam.append("constant")
     cycles = []
-    for j in (1, 2, 3, 4, 6, 8):
+    steps = set(CYCLE_STEPS)
+    if L < SHORT_STEP_MIN:  # cycles of minutes, not of steps (eq. of a 30-min grid)
+        steps |= {int(round(c / L)) for c in CYCLE_MIN if round(c / L) >= 1}
+    for j in sorted(steps):
         if j > K:
             continue
         for duty in (1 / 6, 1 / 4, 1 / 3, 1 / 2, 2 / 3, 3 / 4, 5 / 6):
@@ -851,6 +863,10 @@ def coarse_families(grid: Grid, lim: Limits, rpm_step: float) -> tuple[np.ndarra
     if K >= 2:
         splits = sorted({max(1, min(K - 1, int(round(K * f)))) for f in (0.25, 0.5, 0.75)})
         b_patterns = [(L, 1)] + [(M, j) for j, M in ((2, L), (3, L)) if j * L - M >= lim.min_rest]
+        if L < SHORT_STEP_MIN:  # 30 min milling in 1 h and 1.5 h cycles, as on a 30-min grid
+            b_patterns += [(SHORT_STEP_MIN, j) for j in sorted({int(round(c / L)) for c in (60.0, 90.0)})
+                           if j <= K and j * L - SHORT_STEP_MIN >= max(lim.min_rest, 1.0)
+                           and (SHORT_STEP_MIN, j) not in b_patterns]
         offs = (-100.0, -60.0, -30.0, 30.0, 60.0, 100.0)
         for r in rpms:
             for dr in offs:
