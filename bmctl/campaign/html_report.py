@@ -113,6 +113,7 @@ class ReportData:
         self.clock_h = c.clock_h()
         self.ceiling_c = c.ceiling_c()
         self.sigma_reading_c = c.filter_settings().sigma_temperature_c
+        self.ambient_c = c.ambient_c()
         self.nodes = c.estimates()
         self.filter_warnings = c.band_warnings()  # sample updates that left the filter nearly degenerate
         self.actions = c.actions()
@@ -140,7 +141,7 @@ class ReportData:
     def warnings(self) -> list[str]:
         out = []
         for _, est in self.nodes:
-            out += reading_warnings(est, self.ceiling_c, self.sigma_reading_c)
+            out += reading_warnings(est, self.ceiling_c, self.sigma_reading_c, self.ambient_c)
         if self.nodes:
             out += estimate_warning(self.nodes[-1][1], self.ceiling_c)
         return out + self.filter_warnings
@@ -347,7 +348,7 @@ def _temperature_table(d: ReportData) -> hs.Markup:
     rows = []
     for t, y in d.temps:
         e = d.node_at(float(t))
-        checks = reading_warnings(e, d.ceiling_c, d.sigma_reading_c) if e else []
+        checks = reading_warnings(e, d.ceiling_c, d.sigma_reading_c, d.ambient_c) if e else []
         rows.append((f"{t:g}", f"{y:g}", "n/a" if d.ceiling_c is None else ("ABOVE" if y > d.ceiling_c else "below"),
                      "n/a" if e is None or "reading_predicted_c" not in e else
                      f"{e['reading_predicted_c']:.1f} ± {e['reading_predicted_sd_c']:.1f}",

@@ -12,12 +12,14 @@ import math
 #: a reading this many standard deviations (reading noise and estimate spread together) from the
 #: estimate just before it is "far from the estimate"
 FAR_Z = 3.0
-#: an estimate this certain (std, degC) of the vial's temperature is the card's room temperature: the
-#: vial has rested (or barely milled), so its heating, which the filter learns, does not enter it
+#: an estimate this certain (std, degC) of the vial's temperature, and within a reading's noise of the
+#: card's room temperature, is the room: the vial has rested (or barely milled), so its heating, which the
+#: filter learns, does not enter it (before the first reading a milling vial is as certain, far above it)
 AT_AMBIENT_SD_C = 0.2
 
 
-def reading_warnings(est: dict, ceiling_c: float | None, sigma_reading_c: float) -> list[str]:
+def reading_warnings(est: dict, ceiling_c: float | None, sigma_reading_c: float,
+                     ambient_c: float | None = None) -> list[str]:
     """One-line warnings for the reading weighed in at the estimator node ``est`` (none without one).
 
     Parameters
@@ -29,6 +31,9 @@ def reading_warnings(est: dict, ceiling_c: float | None, sigma_reading_c: float)
         The campaign's vial-temperature ceiling (degC).
     sigma_reading_c : float
         The stated noise of a reading (degC).
+    ambient_c : float, optional
+        The card's room temperature (``thermal.ambient_C``): a far reading of a certain estimate names
+        it only when the estimate is within ``sigma_reading_c`` of it (None: on the certainty alone).
 
     Returns
     -------
@@ -44,6 +49,9 @@ def reading_warnings(est: dict, ceiling_c: float | None, sigma_reading_c: float)
     >>> rested = {"t_h": 0.5, "reading_c": 15.0, "reading_predicted_c": 25.0, "reading_predicted_sd_c": 0.0}
     >>> print(reading_warnings(rested, 80.0, 2.0)[0])  # doctest: +ELLIPSIS
     reading 15 °C at 0.5 h is far from ... (25.0 ± 0.0 °C; 5.0 σ ...); the estimate is the card's room temperature: ...
+    >>> milled = {"t_h": 0.5, "reading_c": 59.3, "reading_predicted_c": 71.7, "reading_predicted_sd_c": 0.0}
+    >>> print(reading_warnings(milled, 80.0, 2.0, ambient_c=25.0)[0])  # a sure estimate far above the room
+    reading 59.3 °C at 0.5 h is far from the estimate just before it (71.7 ± 0.0 °C; 6.2 σ with the reading's 2 °C)
     """
     y = est.get("reading_c")
     if y is None:
@@ -58,7 +66,8 @@ def reading_warnings(est: dict, ceiling_c: float | None, sigma_reading_c: float)
         if z > FAR_Z:
             line = (f"reading {y:g} °C at {t:g} h is far from the estimate just before it ({m:.1f} ± {sd:.1f} °C; "
                     f"{z:.1f} σ with the reading's {sigma_reading_c:g} °C)")
-            if sd < AT_AMBIENT_SD_C:  # a rested vial: the room, not the heating, is off
+            rested = ambient_c is None or abs(m - ambient_c) <= sigma_reading_c
+            if sd < AT_AMBIENT_SD_C and rested:  # a rested vial: the room, not the heating, is off
                 line += (f"; the estimate is the card's room temperature: if the mill's room is at another, set "
                          "thermal.ambient_C in the card (the filter learns how strongly the mill heats, not the room's "
                          "temperature)")

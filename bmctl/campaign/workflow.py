@@ -234,11 +234,11 @@ class Campaign:
     def temperature_warnings(self, since_h: float | None = None) -> list[str]:
         """Warnings of the readings weighed in after ``since_h`` (all when None; each node's check,
         :mod:`bmctl.campaign.readings`) and of the latest estimate against the ceiling."""
-        ceiling, sigma = self.ceiling_c(), self.filter_settings().sigma_temperature_c
+        ceiling, sigma, ambient = self.ceiling_c(), self.filter_settings().sigma_temperature_c, self.ambient_c()
         out = []
         for t, est in self.estimates():
             if since_h is None or t > since_h + EPS_H:
-                out += reading_warnings(est, ceiling, sigma)
+                out += reading_warnings(est, ceiling, sigma, ambient)
         _, t_node, est = self.last_node()
         if t_node >= 0:
             out += estimate_warning(est, ceiling)
@@ -254,6 +254,12 @@ class Campaign:
             if t in pooled and (since_h is None or t > since_h + EPS_H):
                 out += band_warning(est, *pooled[t], self.meta["particles"])
         return out
+
+    def ambient_c(self) -> float:
+        """The room temperature of the card's mill (``thermal.ambient_C``, degC)."""
+        from ..config import load_card
+
+        return float(load_card(self._input("card")).thermal.ambient_C)
 
     def rpm_max(self) -> float:
         """The highest sun-disc speed of the card's mill (rpm): a logged or stated rpm above it is refused."""
@@ -886,9 +892,9 @@ def _notes(c: Campaign, est: dict, clock: float = 0.0) -> list[str]:
     so a feed that differs from the card is steered as if it did not until a sample shows it; after
     samples, an estimate whose 90 % interval of the mean size is wider than
     :data:`UNCERTAIN_HALF_WIDTH` either side (samples that disagree with the model widen it) is said
-    to be uncertain.
+    to be uncertain. A sample after ``clock`` waits for the log and is not in the estimate yet.
     """
-    if c.con.execute("SELECT COUNT(*) FROM samples").fetchone()[0]:
+    if c.con.execute("SELECT COUNT(*) FROM samples WHERE t_h <= ?", (clock + EPS_H,)).fetchone()[0]:
         line = _uncertain(est)
         return [line] if line else []
     return [_no_sample_note(c.loop.model.const.s0_mean_um, est["s_mean_um"], clock)]

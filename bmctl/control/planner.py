@@ -285,7 +285,9 @@ def plan_binding(res, grid: Grid, lim, carry: Carry, ceiling_c: float) -> list[s
     if res.at_min_rest and lim.min_rest:
         out.append(f"minimum rest ({lim.min_rest:g} min)")
     if lim.max_switches is not None and res.switches >= lim.max_switches - 1:
-        out.append(f"switch budget ({res.switches} of {lim.max_switches} used)")
+        used = int(carry.switches) if carry is not None else 0  # the plan's count includes the logged ones
+        out.append(f"switch budget ({res.switches} of {lim.max_switches} over the batch with this plan"
+                   + (f", {used} used so far" if used else "") + ")")
     if on.all() and np.all(res.minutes >= grid.lengths_min - 1e-9) and res.error > 0:
         out.append("batch time: milling throughout to the batch end")
     closer = [(f, r) for f, r in (res.per_family or {}).items()

@@ -26,7 +26,8 @@ class Reach:
         Target quantities at that optimum (moments and D-values).
     binding : list of str
         Active limits, e.g. "vial-temperature ceiling (80 °C) from 2 h", "rpm at its upper bound
-        (500 rpm) from 0 h", "minimum milling period (5 min)", "switch budget (36 of 36 used)",
+        (500 rpm) from 0 h", "minimum milling period (5 min)",
+        "switch budget (36 of 36 over the batch with this plan)",
         "batch time: milling throughout to the batch end" (empty when reachable).
     per_family : dict
         The global search's best schedule per family: {family: {"error", "peak_c", "schedule", ...}}.

@@ -70,3 +70,23 @@ def test_decide_prints_the_recommended_minutes_of_a_short_last_interval(tmp_path
     assert main(["campaign", "decide", str(d), "--accept"]) == 0
     out = capsys.readouterr().out
     assert "milling 0.6: 18 of 18 min)" in out  # the share is of 30 min; the mill runs all of the last 18
+
+
+def test_a_sample_waiting_for_the_log_leaves_the_note_before_a_sample(tmp_path):
+    """A sample entered ahead of the log (at 2 h, the log at 1 h) is not in the estimate yet: the
+    advice still stands on the card's powder carried forward, and says so rather than calling the
+    estimate uncertain because samples disagree with the model."""
+    from bmctl.measure.tables import ParticleTable
+    import numpy as np
+
+    d = tmp_path / "P"
+    cp.init(d, CARD, LQR, {"s_mean_um": 45.0}, hours=3.0, particles=200)
+    cp.log(d, 300.0, 1.0)
+    rng = np.random.default_rng(0)
+    cp.sample(d, 2.0, [ParticleTable.from_size_aspect(rng.lognormal(np.log(45.0), 0.45, 100),
+                                                      rng.uniform(0.0, 0.12, 100))])
+    a = cp.advise(d)
+    assert a["pending_samples"] == 1
+    assert any(n.startswith("no sample yet") and "carried forward by the model over the 1 h logged" in n
+               for n in a["notes"]), a["notes"]
+    assert not any("samples disagree" in n for n in a["notes"]), a["notes"]

@@ -189,3 +189,20 @@ def test_a_far_reading_of_a_rested_vial_names_the_cards_room_temperature(tmp_pat
     assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--temperature-c", "120"]) == 0
     out = capsys.readouterr().out
     assert "reading 120 °C at 1 h is far from the estimate" in out and "ambient_C" not in out
+
+
+def test_a_far_first_reading_of_a_milling_vial_does_not_name_the_room_temperature(tmp_path, capsys):
+    """Before the first reading every filter particle heats as the card says, so the estimate of a
+    milling vial is sure (std 0) though far above the room: a far first reading there is the
+    heating, which the filter learns, not the card's ambient_C."""
+    d = str(tmp_path / "c")
+    assert main(["campaign", "init", d, "--model", str(CARD), "--controller", str(LQR), "--target", "d50_um=45",
+                 "--hours", "2", "--particles", "100"]) == 0
+    capsys.readouterr()
+    assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--temperature-c", "90"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"reading 90 °C at 0\.5 h is far from the estimate just before it \(\d+\.\d ± 0\.0 °C", out)
+    assert "ambient_C" not in out and "room" not in out
+    # the report and status repeat the warning without the hint
+    assert main(["campaign", "status", d]) == 0
+    assert "ambient_C" not in capsys.readouterr().out

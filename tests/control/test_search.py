@@ -408,3 +408,18 @@ def test_short_intervals_keep_cycles_of_half_an_hour_to_four_hours(model, cfg):
         grid = make_grid(0.0, 12.0, interval_h)
         P, fam = coarse_families(grid, lim, 20.0)
         assert {int(j) for j, f in zip(P[:, 2], fam) if f == "cycled"} == {1, 2, 3, 4, 6, 8}
+
+
+def test_the_switch_budget_line_tells_the_plans_count_from_the_switches_used(model, cfg):
+    """binding's switch-budget line counts the plan over the whole batch, the logged switches included:
+    it says so and how many were used before now (it read '3 of 4 used' with 2 run)."""
+    import dataclasses
+
+    lim = dataclasses.replace(limits_of(cfg, model), max_switches=4)
+    grid = make_grid(0.0, 6.0, 0.5)
+    carry = Carry(state=0, run_min=30.0, switches=2)
+    r = search(model, model.x0()[None], np.ones((1, 2)), {"s_mean_um": 36.0}, grid, lim, cfg.weights, carry,
+               coarse_factor=1)
+    assert r is not None and r.switches >= lim.max_switches - 1, r.switches
+    line = [b for b in plan_binding(r, grid, lim, carry, cfg.temperature.ceiling_c) if b.startswith("switch budget")]
+    assert line == [f"switch budget ({r.switches} of 4 over the batch with this plan, 2 used so far)"]
