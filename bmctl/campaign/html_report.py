@@ -32,7 +32,7 @@ import numpy as np
 
 from .. import htmlsafe as hs
 from .. import io
-from .readings import estimate_warning, reading_warnings
+from .readings import estimate_warning, interval_text, reading_warnings
 
 #: the estimate's quantities shown against the samples: key -> (title, the sample statistic of it)
 QUANTITIES = {
@@ -312,9 +312,7 @@ def _advice_section(d: ReportData) -> hs.Markup:
             x = acts.get(aid)
             if x is None:
                 continue
-            mm = round(x.milling * x.hours * 60)
-            ran.append(f"{x.t0_h:g}-{x.t1_h:g} h: " + (f"rest {round(x.hours * 60)} min" if mm == 0 else
-                                                         f"{x.rpm:g} rpm, mill {mm} min, rest {round(x.hours * 60) - mm} min"))
+            ran.append(f"{x.t0_h:g}-{x.t1_h:g} h: " + interval_text(x.rpm, x.milling, x.hours))
         dev = "; ".join(d.deviations.get(aid, "") for aid in p["actions"] if d.deviations.get(aid)) or "none"
         est = a["estimate"]
         reach = _why(a)

@@ -88,3 +88,31 @@ def estimate_warning(est: dict, ceiling_c: float | None) -> list[str]:
         return []
     return [f"estimated vial temperature at {est['t_h']:g} h: {est['temperature_c']:.1f} "
             f"[{est['temperature_c_q05']:.1f}, {est['temperature_c_q95']:.1f}] °C, above the ceiling ({ceiling_c:g} °C)"]
+
+
+def _minutes_text(m: float) -> str:
+    """Minutes as an operator reads them: whole when within 3 s of a whole minute, else 0.1 min
+    (two figures under a minute)."""
+    if abs(m - round(m)) < 0.05 and (round(m) > 0 or m <= 0):  # a few seconds of milling are not 0 min
+        return f"{round(m)}"
+    return f"{m:.2g}" if m < 1 else f"{m:.1f}"
+
+
+def interval_text(rpm: float, milling: float, hours: float) -> str:
+    """A logged interval in words: ``rest 30 min`` or ``300 rpm, mill 20 min, rest 10 min`` (milling
+    first); a share of a minute is shown, not rounded to a rest.
+
+    Examples
+    --------
+    >>> interval_text(300.0, 0.001, 0.5)
+    '300 rpm, mill 0.03 min, rest 30 min'
+    >>> interval_text(300.0, 0.995, 0.5)
+    '300 rpm, mill 29.9 min, rest 0.15 min'
+    >>> interval_text(0.0, 0.0, 0.5), interval_text(250.0, 2 / 3, 0.5)
+    ('rest 30 min', '250 rpm, mill 20 min, rest 10 min')
+    """
+    total = hours * 60.0
+    mill = milling * total if rpm > 0 else 0.0
+    if mill <= 0:
+        return f"rest {_minutes_text(total)} min"
+    return f"{rpm:g} rpm, mill {_minutes_text(mill)} min, rest {_minutes_text(total - mill)} min"

@@ -168,10 +168,9 @@ def _run(args: argparse.Namespace) -> int:
               + f", controller {meta['controller_kind']}; inputs copied to {d}/inputs")
     elif v == "log":
         r = cp.log(d, args.rpm, args.hours, args.milling, args.temperature_c, args.from_h)
-        h = r["t1_h"] - r["t0_h"]
-        mill_min = round(r["milling"] * h * 60)
-        what = (f"rest {round(h * 60)} min" if mill_min == 0 else
-                f"{r['rpm']:g} rpm, mill {mill_min} min, rest {round(h * 60) - mill_min} min")
+        from bmctl.campaign.readings import interval_text
+
+        what = interval_text(r["rpm"], r["milling"], r["t1_h"] - r["t0_h"])
         print(f"logged {r['t0_h']:g}-{r['t1_h']:g} h: {what}"
               + (f"; vial {args.temperature_c:g} °C at the end" if args.temperature_c is not None else ""))
         if r["deviation"]:
