@@ -90,10 +90,13 @@ def _overlay_names(results, folder: Path) -> list[Path]:
 def _check_work(images) -> None:
     """Refuse images whose segmentation would need more memory or CPU than the work budget
     (:func:`bmctl.work.measure_work` on the headers' pixel counts), before any is decoded."""
+    from ..io import check_input_file
     from ..measure.loading import check_header, image_header
     from ..measure.names import path_text
     from ..work import check_work, measure_work
 
+    for p in images:  # before any header is opened: opening a FIFO's reader waits for a writer
+        check_input_file(p)
     heads = [(image_header(p), p) for p in images]
     for head, p in heads:  # the reader's own limits first: no budget flag lifts them
         check_header(head, path_text(p))

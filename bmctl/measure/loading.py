@@ -6,6 +6,7 @@ import contextlib
 import logging
 import os
 import re
+import stat
 import warnings
 from dataclasses import dataclass
 
@@ -58,8 +59,27 @@ def quiet_tifffile():
         log.setLevel(level)
 
 
-def _is_tiff(path: str) -> bool:
+#: the first bytes of a TIFF file (classic and BigTIFF, little- and big-endian)
+TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+
+
+def _named_tiff(path: str) -> bool:
     return path.lower().endswith((".tif", ".tiff"))
+
+
+def is_tiff(path: str | os.PathLike) -> bool:
+    """Whether the file holds a TIFF, by its first bytes, not its name (a PNG saved as ``.tif``
+    or a TIFF renamed ``.png`` is read as what it holds); the name decides only when the file
+    cannot be opened as a regular file."""
+    p = os.fspath(path)
+    try:  # O_NONBLOCK: a FIFO does not hang the open
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError:
+        return _named_tiff(p)
+    with os.fdopen(fd, "rb") as fh:
+        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+            return _named_tiff(p)
+        return fh.read(4) in TIFF_MAGIC
 
 
 def _tiff_header(path: str) -> ImageHeader:
@@ -96,7 +116,7 @@ def image_header(path: str) -> ImageHeader:
     """
     try:
         with quiet_tifffile():
-            return _tiff_header(path) if _is_tiff(path) else _pillow_header(path)
+            return _tiff_header(path) if is_tiff(path) else _pillow_header(path)
     except Exception:  # noqa: BLE001 - unreadable headers are reported by the reader itself
         return ImageHeader()
 
@@ -126,7 +146,19 @@ def _decode(path: str, head: ImageHeader) -> np.ndarray:
         if head.mode in CONVERTED_MODES:
             with Image.open(path) as im:
                 return np.asarray(im.convert("RGB"))
-        return io.imread(path)
+        tiff = is_tiff(path)
+        if tiff == _named_tiff(path):
+            return io.imread(path)
+        if tiff:  # a TIFF under another name: what scikit-image does for a .tif (tifffile, planar colour last)
+            import tifffile
+
+            img = tifffile.imread(path)
+            if img.ndim > 2 and img.shape[-1] not in (3, 4) and img.shape[-3] in (3, 4):
+                img = np.moveaxis(img, -3, -1)
+            return img
+        import imageio.v3 as iio  # another format named .tif: scikit-image would hand it to tifffile by its name
+
+        return np.asarray(iio.imread(path, plugin="pillow"))
 
 
 def load_image(path: str | os.PathLike) -> np.ndarray:
@@ -169,7 +201,8 @@ def as_gray_float(img, name: str = "image") -> np.ndarray:
     """Convert an array (gray, gray and alpha, RGB or RGBA; any integer, bool or real dtype) to
     gray float in [0, 1].
 
-    Integer images are scaled by their dtype's range; float images are taken as they are. An
+    8-bit integer images are scaled by their dtype's range, wider integer images (16-bit frames
+    of a 10- or 12-bit detector) by their own range; float images are taken as they are. An
     alpha channel must be opaque everywhere (it is then dropped); a leading axis of one frame
     (a single-frame GIF) is dropped.
 
@@ -217,8 +250,17 @@ def _opaque(img: np.ndarray, name: str) -> np.ndarray:
 
 
 def _scale_int(img: np.ndarray) -> np.ndarray:
+    """8-bit (and bool) pixels over their dtype's range; wider integers over their own range.
+
+    The segmentation's saturation floor is 1.5 grey levels of an 8-bit image: a 16-bit frame of a
+    10- or 12-bit detector (or any narrow-range 16-bit frame) scaled by 65,535 spans a few 8-bit
+    levels and fell below it (a 10-bit frame of a clean powder came out ``unusable``)."""
     if img.dtype.kind == "b":
         return img.astype(float)
+    if img.dtype.itemsize > 1 and img.size:
+        lo, hi = img.min(), img.max()
+        if hi > lo:
+            return (img.astype(float) - float(lo)) / (float(hi) - float(lo))
     info = np.iinfo(img.dtype)
     return (img.astype(float) - info.min) / (info.max - info.min)
 

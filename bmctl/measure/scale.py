@@ -192,12 +192,12 @@ def scale_from_metadata(path: str | os.PathLike) -> Scale | None:
     -------
     Scale or None
     """
+    from .loading import is_tiff, quiet_tifffile
+
     path = Path(path)
     found = None
-    if path.suffix.lower() in (".tif", ".tiff"):
+    if is_tiff(path):  # by its first bytes: a TIFF renamed .png keeps its instrument's pixel size
         import tifffile
-
-        from .loading import quiet_tifffile
 
         try:
             with quiet_tifffile(), tifffile.TiffFile(path) as tif:

@@ -259,3 +259,39 @@ def test_tiff_whose_last_page_links_back_is_read_not_looped_over(tmp_path):
     worker.start()
     worker.join(20)
     assert got and got[0].pixels == 128 * 128 and got[0].images == 1, got
+
+
+def test_file_under_a_misleading_extension_is_read_as_what_it_holds(tmp_path, capsys):
+    """The reader was chosen by the file's name: a PNG saved as ``.tif`` was refused ("cannot read
+    image (TiffFileError)") and a calibrated TIFF renamed ``.png`` lost its pixel size."""
+    import tifffile
+
+    Image.fromarray(_discs()).save(tmp_path / "png_inside.tif", format="PNG")
+    assert np.allclose(load_image(tmp_path / "png_inside.tif"), _discs() / 255.0)
+    tifffile.imwrite(tmp_path / "tif_inside.png", _discs(), imagej=True, resolution=(2, 2), metadata={"unit": "micron"})
+    assert np.allclose(load_image(tmp_path / "tif_inside.png"), _discs() / 255.0)
+    rc, out, err = _cli(capsys, ["measure", str(tmp_path / "png_inside.tif"), "--um-per-px", "0.5"])
+    assert rc == 0 and "particles; 0.5 µm/px from user" in out, err
+    rc, out, err = _cli(capsys, ["measure", str(tmp_path / "tif_inside.png")])
+    assert rc == 0 and "0.5 µm/px from metadata" in out, err
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no named pipes here")
+def test_cli_refuses_a_named_pipe_without_waiting_for_a_writer(tmp_path, capsys):
+    """The work-budget check opened every image's header before the input check, so a FIFO
+    given as IMAGE blocked ``bmctl measure`` forever instead of being refused."""
+    import threading
+
+    os.mkfifo(tmp_path / "pipe.png")
+    got = []
+    worker = threading.Thread(target=lambda: got.append(main(["measure", str(tmp_path / "pipe.png"), "--um-per-px", "0.5"])),
+                              daemon=True)
+    worker.start()
+    worker.join(20)
+    in_time = list(got)
+    if not got:  # unblock the reader so the thread can end
+        with open(tmp_path / "pipe.png", "wb"):
+            pass
+        worker.join(5)
+    assert in_time == [2], "bmctl measure waited on the pipe"
+    assert "not a regular file" in _one_error_line(capsys.readouterr().err, str(tmp_path / "pipe.png"))

@@ -57,3 +57,23 @@ def test_no_particle_found_names_what_finds_particles_not_the_scale(tmp_path, ca
     assert "scale" not in err  # the pixel size plays no part in finding particles
     assert "particles (" in err and "--min-area-px" in err and "--dark-particles" in err  # how it was read, what to try
     assert not (tmp_path / "o").exists()
+
+
+def test_a_16_bit_frame_of_a_10_bit_detector_measures_as_its_8_bit_copy(tmp_path):
+    """A 16-bit TIFF holding 10-bit data (values 0..1023) was scaled by 65,535: its whole range
+    fell within the segmentation's 8-bit saturation floor and a clean powder field came out with
+    2 particles, verdict unusable; its 8-bit copy gives the full count."""
+    from pathlib import Path
+
+    import tifffile
+
+    from bmctl.measure.micrograph import measure_micrograph
+
+    data = Path(__file__).resolve().parents[1] / "data" / "ampis_powder_b.png"
+    img8 = np.asarray(Image.open(data).convert("L"))[:512, :768]
+    tifffile.imwrite(tmp_path / "ten_bit.tif", img8.astype(np.uint16) * 4)
+    ref = measure_micrograph(img8, um_per_px=0.1)
+    got = measure_micrograph(tmp_path / "ten_bit.tif", um_per_px=0.1)
+    assert len(ref.table) >= 20
+    assert got.verdict == ref.verdict and len(got.table) == len(ref.table)
+    assert np.allclose(np.sort(got.table.s_um), np.sort(ref.table.s_um))
