@@ -92,6 +92,13 @@ class Design:
         return family_lines(self.reach, self.ceiling_c)
 
 
+#: RKC substeps of a milling segment at least: a 0.5 h interval's milling phase gets 8 whatever its
+#: length (the step the moment model is identified with), so a 5-min burst is integrated as finely as
+#: there; with the 2 substeps of 1/16 h, 5-min bursts at 480 rpm every 30 min for 5.5 h ended at
+#: 36.0 µm for 34.2 (34.15 with 64 substeps; the plant 34.5)
+MILLING_SUBSTEPS_MIN = 8
+
+
 def simulate_segments(model, segs, p=None):
     """Exact moment-model prediction of (hours, rpm) segments from ``model.x0()`` (the model's own
     integration, segment by segment): (final state, peak T, energy kWh, milling h, states at the ends).
@@ -104,12 +111,17 @@ def simulate_segments(model, segs, p=None):
     p : array_like, optional
         (gamma_mult, delta_mult).
     """
+    from ..moments.model import n_substeps
+
     c = model.const
     pp = model.p0() if p is None else np.asarray(p, dtype=float)
     x = model.x0()
     peak, energy, mh, states = float(x[4]), 0.0, 0.0, [x]
     for h, r in segs:
-        x = model.simulate(x, np.array([[r, 1.0 if r > 0 else 0.0]]), h, pp)[-1]
+        if r > 0 and n_substeps(h) < MILLING_SUBSTEPS_MIN:  # a short burst: as finely as in a 0.5 h interval
+            x = model.step(x, [r, 1.0], h, pp, substeps=MILLING_SUBSTEPS_MIN)
+        else:
+            x = model.simulate(x, np.array([[r, 1.0 if r > 0 else 0.0]]), h, pp)[-1]
         states.append(x)
         peak = max(peak, float(x[4]))
         if r > 0:
@@ -241,7 +253,8 @@ def searched_pattern(model, cfg, target: dict, hours: float, p=None):
     grid = make_grid(0.0, hours, cfg.interval_h)
     lim = limits_of(cfg, model)
     ps = cfg.plan
-    sr = search(model, model.x0()[None], pp[None], target, grid, lim, cfg.weights, Carry(), substeps=ps.substeps,
+    sr = search(model, model.x0()[None], pp[None], target, grid, lim, cfg.weights, Carry(),
+                substeps=(MILLING_SUBSTEPS_MIN, ps.substeps),
                 rpm_step=ps.rpm_step, band=ps.error_band, rounds=max(2, ps.rounds), keep=8, coarse_factor=1)
     L = grid.lengths_min
     binding = plan_binding(sr, grid, lim, Carry(), cfg.temperature.ceiling_c)

@@ -392,7 +392,7 @@ class Evaluation:
 ONSET_MIN = 5.0
 
 
-def interval_step(model, X, P, rpm, mill_min, length_min: float, substeps: int = 2) -> np.ndarray:
+def interval_step(model, X, P, rpm, mill_min, length_min: float, substeps: int | tuple = 2) -> np.ndarray:
     """States after one interval: mill ``mill_min`` minutes at ``rpm``, then rest (eqns (15)-(20)).
 
     The milling phase is integrated in two parts, its first :data:`ONSET_MIN` minutes and the rest,
@@ -410,8 +410,9 @@ def interval_step(model, X, P, rpm, mill_min, length_min: float, substeps: int =
     rpm, mill_min : ndarray, (n,)
     length_min : float
         Interval length (min).
-    substeps : int
-        RKC substeps per part.
+    substeps : int or (int, int)
+        RKC substeps per part, or (onset part, the rest) (``bmctl design``: (8, 2), a 5-min burst
+        integrated as finely as the moment model's own 0.5 h step does it).
 
     Returns
     -------
@@ -420,11 +421,11 @@ def interval_step(model, X, P, rpm, mill_min, length_min: float, substeps: int =
     from ..moments.model import rkc_stages
 
     c = model.const
-    n = max(1, int(substeps))
+    n1, n2 = (substeps, substeps) if np.ndim(substeps) == 0 else substeps
     a = np.minimum(np.asarray(mill_min, dtype=float), length_min)
     a1 = np.minimum(a, ONSET_MIN)
     out = X
-    for dur, mill in ((a1, a1), (length_min - a1, a - a1)):
+    for dur, mill, n in ((a1, a1, max(1, int(n1))), (length_min - a1, a - a1, max(1, int(n2)))):
         top = float(np.max(mill)) if mill.size else 0.0
         dt = np.maximum(dur, 1e-12) / 60.0
         duty = np.where(dur > 1e-12, mill / np.maximum(dur, 1e-12), 0.0)

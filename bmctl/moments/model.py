@@ -108,7 +108,7 @@ class MomentModel:
         p = self.p0() if p is None else p
         return B.stack(eq.rhs(B, self.const, self.coeffs, _ca_cols(x, 6), _ca_cols(u, 2), _ca_cols(p, 2)))
 
-    def step(self, x, u, dt_h: float, p=None) -> np.ndarray:
+    def step(self, x, u, dt_h: float, p=None, substeps: int | None = None) -> np.ndarray:
         """Next state after ``dt_h`` hours: mill ``milling * dt_h`` at rpm, then rest.
 
         Parameters
@@ -120,10 +120,19 @@ class MomentModel:
             Interval length (h), > 0.
         p : array_like, (..., 2), optional
             (gamma_mult, delta_mult); default (1, 1).
+        substeps : int, optional
+            RKC substeps of the milling phase (default: substeps of <= 1/16 h over ``dt_h``); the
+            stages follow from the stiffness.
         """
         dt_h = float(dt_h)
         x, u, p = _arr(x), _arr(u), _arr(self._p(p))
-        out = eq.step(eq.NP, self.const, self.coeffs, _cols(x), _cols(u), _cols(p), dt_h, *self._integration(dt_h))
+        n, st = self._integration(dt_h)
+        if substeps is not None and int(substeps) != n:
+            n = int(substeps)
+            if n < 1:
+                raise InputError(f"substeps: must be >= 1 (got {substeps})")
+            st = rkc_stages(self.const.rate_max_per_h, dt_h / n)
+        out = eq.step(eq.NP, self.const, self.coeffs, _cols(x), _cols(u), _cols(p), dt_h, n, st)
         return eq.NP.stack(out)
 
     def simulate(self, x0, U, dt_h: float, p=None) -> np.ndarray:
