@@ -113,6 +113,7 @@ def test_a_bad_controller_file_is_refused_with_exit_2_and_one_line(tmp_path):
 @pytest.mark.parametrize("variant, key, differs", [
     ("mpc-narrow-pool.toml", "pool_band", lambda v, d: v < d),  # a narrower pool
     ("mpc-nudge.toml", "nudge", lambda v, d: v and not d),  # nudges on
+    ("mpc-onset8.toml", "onset_substeps", lambda v, d: v == 8 and d is None),  # bursts at 8 substeps
 ])
 def test_each_benchmark_variant_differs_from_the_default_in_one_plan_field(variant, key, differs):
     from bmctl.control.config import load_controller

@@ -199,6 +199,9 @@ class PlanSearch(Strict):
     method: Literal["nlp", "search"] = "nlp"
     #: RKC substeps of the search's prediction per part of a milling period (its first 5 min, the rest)
     substeps: Annotated[int, Field(ge=1, le=16)] = 2
+    #: RKC substeps of a milling period's first 5 min in the search's prediction (None: ``substeps``);
+    #: ``bmctl design`` uses 8 (a burst as finely as the model's own 0.5 h step)
+    onset_substeps: Annotated[int, Field(ge=1, le=32)] | None = None
     #: filter particles (a deterministic weighted selection) the closest plans are also scored on; 0: the estimate only
     spread: Annotated[int, Field(ge=0, le=1000)] = 64
     rpm_step: Annotated[float, Field(gt=0)] = 20.0  # spacing of the coarse search's rpm grid

@@ -254,7 +254,7 @@ def searched_pattern(model, cfg, target: dict, hours: float, p=None):
     lim = limits_of(cfg, model)
     ps = cfg.plan
     sr = search(model, model.x0()[None], pp[None], target, grid, lim, cfg.weights, Carry(),
-                substeps=(MILLING_SUBSTEPS_MIN, ps.substeps),
+                substeps=(max(MILLING_SUBSTEPS_MIN, ps.onset_substeps or 0), ps.substeps),
                 rpm_step=ps.rpm_step, band=ps.error_band, rounds=max(2, ps.rounds), keep=8, coarse_factor=1)
     L = grid.lengths_min
     binding = plan_binding(sr, grid, lim, Carry(), cfg.temperature.ceiling_c)

@@ -184,7 +184,8 @@ class PlanController:
         has_milled = milled(hist)
         # before the first milling resting is kept out of the pool (rest_within): a nudge there would be a
         # token burst after which resting is let back in, so nudges are weighed once the mill has milled
-        kw = dict(substeps=ps_cfg.substeps, rpm_step=ps_cfg.rpm_step, band=ps_cfg.error_band,
+        sub = ps_cfg.substeps if ps_cfg.onset_substeps is None else (ps_cfg.onset_substeps, ps_cfg.substeps)
+        kw = dict(substeps=sub, rpm_step=ps_cfg.rpm_step, band=ps_cfg.error_band,
                   coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool, pool_band=ps_cfg.pool_band, risk=ps_cfg.risk,
                   rest_within=None if has_milled else self.cfg.objective.tolerance,
                   nudge_above=self.cfg.objective.tolerance if ps_cfg.nudge and has_milled else None)
