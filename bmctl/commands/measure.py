@@ -62,6 +62,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     pol.add_argument("--dark-particles", action="store_true", help="particles darker than the background (default: decided per image)")
     pol.add_argument("--bright-particles", action="store_true", help="particles brighter than the background (default: decided per image)")
     parser.add_argument("--no-flatten", action="store_true", help="skip the background flattening")
+    parser.add_argument("--no-progress", action="store_true",
+                        help=f"no progress lines on stderr (printed when the images' estimated work is over "
+                             f"{PROGRESS_AFTER_S:g} s)")
 
 
 def _polarity_text(res) -> str:
@@ -87,9 +90,14 @@ def _overlay_names(results, folder: Path) -> list[Path]:
     return names
 
 
-def _check_work(images) -> None:
+#: progress lines on stderr when the images' estimated CPU time (:func:`bmctl.work.measure_work`) is over this
+PROGRESS_AFTER_S = 5.0
+
+
+def _check_work(images) -> dict:
     """Refuse images whose segmentation would need more memory or CPU than the work budget
-    (:func:`bmctl.work.measure_work` on the headers' pixel counts), before any is decoded."""
+    (:func:`bmctl.work.measure_work` on the headers' pixel counts), before any is decoded; the
+    pixel count of each image (``{path: pixels}``)."""
     from ..io import check_input_file
     from ..measure.loading import check_header, image_header
     from ..measure.names import path_text
@@ -102,11 +110,13 @@ def _check_work(images) -> None:
         check_header(head, path_text(p))
     px = [(head.pixels or 0, p) for head, p in heads]
     if not px:
-        return
+        return {}
     most, name = max(px, key=lambda q: q[0])
+    pixels = {p: n for n, p in px}
     check_work(measure_work([n for n, _ in px]),
                f"{path_text(name)} ({most:,} px{f' of {sum(n for n, _ in px):,} in {len(px)} images' if len(px) > 1 else ''}; "
                "downsample or crop the file first)")
+    return pixels
 
 
 def run(args: argparse.Namespace) -> int:
@@ -118,6 +128,8 @@ def run(args: argparse.Namespace) -> int:
     from ..measure.names import path_text, refuse_repeats
     from ..measure.scale import check_scale
     from ..measure.tables import ParticleLocations, ParticleTable, check_table, read_table
+    from ..work import measure_work
+    from ._model import progress_printer
 
     scale = check_scale(args.um_per_px) if args.um_per_px is not None else None
     bar_um = check_scale(args.scale_bar_um, "--scale-bar-um") if args.scale_bar_um is not None else None
@@ -126,9 +138,13 @@ def run(args: argparse.Namespace) -> int:
     tables, locs, lines, results, reports, warned = [], [], [], [], [], []
     next_id = 1
     refuse_repeats(args.inputs)  # one image twice would be counted twice
-    _check_work([p for p in args.inputs if not _is_table(p)])
-    for path in args.inputs:
+    pixels = _check_work([p for p in args.inputs if not _is_table(p)])
+    est = {p: measure_work([n])["cpu_s"] for p, n in pixels.items()}
+    progress = None if args.no_progress or sum(est.values()) <= PROGRESS_AFTER_S else progress_printer("measure")
+    for i, path in enumerate(args.inputs):
         name = path_text(path)  # printed and in the table: bytes that are not UTF-8 as escapes
+        if progress and path in est:
+            progress(f"input {i + 1} of {len(args.inputs)}: {name} ({pixels[path] / 1e6:.1f} Mpx)")
         if _is_table(path):
             t = read_table(path)
             x = y = np.full(len(t), np.nan)
@@ -161,6 +177,8 @@ def run(args: argparse.Namespace) -> int:
         more = {1: "", 2: " (nor in the other image)"}.get(len(results), f" (nor in the other {len(results) - 1} images)")
         raise InputError(f"{path_text(first.name)}: no particles found{more}: read as {_polarity_text(first)}; "
                          "check --min-area-px, --crop, or the polarity (--dark-particles / --bright-particles)")
+    if progress:
+        progress("measured; writing" if args.out else "measured")
     loc = ParticleLocations(np.concatenate([q.particle_id for q in locs]), sum((q.image for q in locs), ()),
                             np.concatenate([q.x_um for q in locs]), np.concatenate([q.y_um for q in locs]))
     written = []

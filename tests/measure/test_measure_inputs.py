@@ -295,3 +295,20 @@ def test_cli_refuses_a_named_pipe_without_waiting_for_a_writer(tmp_path, capsys)
         worker.join(5)
     assert in_time == [2], "bmctl measure waited on the pipe"
     assert "not a regular file" in _one_error_line(capsys.readouterr().err, str(tmp_path / "pipe.png"))
+
+
+def test_large_images_print_progress_per_input_and_small_ones_do_not(tmp_path, capsys):
+    """Work estimated over 5 s (here 0.6 Mpx of tiled discs) prints a line per input on stderr before
+    it is measured, and one when all are measured; --no-progress and a small image print none."""
+    big = tmp_path / "big.png"
+    Image.fromarray(np.tile(_discs(), (6, 6))).save(big)  # 768 x 768 px
+    small = tmp_path / "small.png"
+    Image.fromarray(_discs()).save(small)
+    rc, _, err = _cli(capsys, ["measure", str(small), str(big), "--um-per-px", "0.5"])
+    lines = [ln for ln in err.splitlines() if "] measure: " in ln]
+    assert rc == 0 and len(lines) == 3, err
+    assert lines[1].endswith(f"measure: input 2 of 2: {big} (0.6 Mpx)") and lines[-1].endswith("measure: measured")
+    rc, _, err = _cli(capsys, ["measure", str(small), str(big), "--um-per-px", "0.5", "--no-progress"])
+    assert rc == 0 and "] measure: " not in err
+    rc, _, err = _cli(capsys, ["measure", str(small), "--um-per-px", "0.5"])
+    assert rc == 0 and "] measure: " not in err
