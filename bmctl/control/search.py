@@ -289,6 +289,10 @@ def expand(params: np.ndarray, grid: Grid, lim: Limits, carry: Carry | None = No
             has = on & np.isfinite(prev)
             r = np.where(has, np.clip(r, prev - s, prev + s), r)
             r = np.round(r / lim.rpm_step) * lim.rpm_step
+            # onto the dial, a limit that is not a whole number of dial steps (15 rpm on a 10-rpm dial) can
+            # round past it by up to half a step: one step back toward the previous rpm
+            over = has & (np.abs(r - prev) > s + 1e-9)
+            r = np.where(over, r - np.sign(r - prev) * lim.rpm_step, r)
             rpm[:, j] = np.clip(r, lim.rpm_lo, lim.rpm_hi)
             prev = np.where(on, rpm[:, j], np.nan)
     rpm = np.where(minutes > 0, rpm, 0.0)

@@ -391,6 +391,27 @@ def test_an_interval_of_fractional_minutes_is_milled_throughout(model, cfg):
     assert r.error < 0.01 and r.peak_c <= cfg.temperature.ceiling_c
 
 
+def test_a_rate_limit_between_dial_steps_is_kept_on_the_dial(model, cfg):
+    """rpm_step_max = 15 on a 10-rpm dial: a phase's rpm is approached 10 rpm per interval (rounding
+    300 + 15 onto the dial gave 320, 20 rpm in one interval), also from a logged rpm off the dial and
+    downwards; the default 100 rpm on the 10-rpm dial still moves 100 rpm per interval."""
+    grid = make_grid(0.0, 4.0, 0.5)
+    for step_max, moves in ((15.0, (10.0,)), (25.0, (20.0,)), (100.0, (100.0,))):
+        c = cfg.model_copy(deep=True)
+        c.bounds.rpm_step_max = step_max
+        lim = limits_of(c, model)
+        for rA, rB in ((300, 400), (400, 300), (300, 500)):
+            rows = np.array([[rA, 30, 1, 2, 0, rB, 30, 1, 1e9]], dtype=float)
+            for carry in (None, Carry(state=1, run_min=30.0, rpm=305.0)):
+                rpm, _ = expand(rows, grid, lim, carry)
+                steps = np.abs(np.diff(rpm[0]))
+                assert steps.max() <= step_max + 1e-9, (step_max, rA, rB, rpm[0])
+                if carry is None:
+                    assert set(steps[steps > 0]) <= set(moves) | {abs(rB - rA) % moves[0]}, rpm[0]
+                else:
+                    assert abs(rpm[0, 0] - 305.0) <= step_max + 1e-9, rpm[0]
+
+
 def test_short_intervals_keep_cycles_of_half_an_hour_to_four_hours(model, cfg):
     """On a grid of 1-min or 5-min steps the cycled family still holds cycles of 30 min to 4 h that
     keep the 5-min dwell minimums (cycles counted in steps alone gave 1-8 min at 1-min steps: none
