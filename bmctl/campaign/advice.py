@@ -234,13 +234,16 @@ def cooling_now(binding) -> bool:
     as :func:`bmctl.control.planner.plan_binding` words it): reachability is judged by the next
     advice, when a plan may mill again.
 
-    >>> cooling_now(["vial-temperature ceiling (80 °C) now: the vial is at it (...)"])
+    >>> cooling_now(["vial-temperature ceiling (80 °C) now: the vial is at it (...); ... plans milling again"])
     True
+    >>> cooling_now(["vial-temperature ceiling (80 °C) now: ... with 3 of 3 switches used the mill cannot start again "
+    ...              "this batch"])   # the budget spent: the resting plan's verdict is the batch's
+    False
     >>> cooling_now(["vial-temperature ceiling (80 °C) from 2 h"])
     False
     """
     return any(isinstance(b, str) and b.startswith("vial-temperature ceiling (") and ") now:" in b
-               for b in binding or [])
+               and b.endswith("plans milling again") for b in binding or [])
 
 
 def reach_line(key: str, target: float, end: dict | None, reachable: bool, cooling: bool = False) -> str:

@@ -266,9 +266,17 @@ def plan_binding(res, grid: Grid, lim, carry: Carry, ceiling_c: float) -> list[s
             and all(r["peak_c"] > ceiling_c + CEILING_TOL_C for r in others):
         # the vial (in one scenario at least) is at the ceiling now: every plan that mills now is over it,
         # so the plan shown rests to the end; the next advice, from a cooler vial, plans milling again
-        out.append(f"vial-temperature ceiling ({ceiling_c:g} °C) now: the vial is at it (up to {res.peak_c:.1f} °C "
-                   "in the filter's spread), so no plan may start milling; this one rests, and the next advice, "
-                   "with the vial cooler, plans milling again")
+        # milling again takes a start, and a stop first when the mill is milling now
+        need = 1 + (1 if carry is not None and carry.state == 1 else 0)
+        used = int(carry.switches) if carry is not None else 0
+        if lim.max_switches is not None and used + need > lim.max_switches:
+            out.append(f"vial-temperature ceiling ({ceiling_c:g} °C) now: the vial is at it (up to {res.peak_c:.1f} "
+                       f"°C in the filter's spread), so no plan may start milling; this one rests, and with "
+                       f"{used} of {lim.max_switches} switches used the mill cannot start again this batch")
+        else:
+            out.append(f"vial-temperature ceiling ({ceiling_c:g} °C) now: the vial is at it (up to {res.peak_c:.1f} "
+                       "°C in the filter's spread), so no plan may start milling; this one rests, and the next "
+                       "advice, with the vial cooler, plans milling again")
     elif hot.size:
         out.append(f"vial-temperature ceiling ({ceiling_c:g} °C) from {t[hot[0]]:g} h")
     elif getattr(res, "over_ceiling", None):  # the plan stays clear of the ceiling, closer ones do not

@@ -281,6 +281,12 @@ def test_a_vial_above_the_ceiling_rests_instead_of_milling_on(model, cfg):
     now = "vial-temperature ceiling (80 °C) now"
     assert any(b.startswith(now) and "next advice" in b for b in plan_binding(r, g, lim, Carry(), lim.ceiling_c))
     assert not any(b.startswith(now) for b in plan_binding(cool, g, lim, Carry(), lim.ceiling_c))
+    # with the switch budget spent it does not promise milling again (it read "plans milling again")
+    spent = Carry(state=0, run_min=30.0, switches=int(lim.max_switches))
+    lines = [b for b in plan_binding(r, g, lim, spent, lim.ceiling_c) if b.startswith(now)]
+    assert len(lines) == 1 and "next advice" not in lines[0]
+    assert lines[0].endswith(f"with {lim.max_switches} of {lim.max_switches} switches used the mill cannot start "
+                             "again this batch")
 
 
 def test_binding_names_the_ceiling_when_it_keeps_closer_schedules_out(model, cfg):
