@@ -99,7 +99,7 @@ def _check_work(images) -> dict:
     (:func:`bmctl.work.measure_work` on the headers' pixel counts), before any is decoded; the
     pixel count of each image (``{path: pixels}``)."""
     from ..io import check_input_file
-    from ..measure.loading import check_header, image_header
+    from ..measure.loading import check_header, image_header, verify_image
     from ..measure.names import path_text
     from ..work import check_work, measure_work
 
@@ -108,6 +108,8 @@ def _check_work(images) -> dict:
     heads = [(image_header(p), p) for p in images]
     for head, p in heads:  # the reader's own limits first: no budget flag lifts them
         check_header(head, path_text(p))
+    for p in images:  # a truncated file is named now, not after the images before it are measured
+        verify_image(p, path_text(p))
     px = [(head.pixels or 0, p) for head, p in heads]
     if not px:
         return {}

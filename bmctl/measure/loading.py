@@ -137,6 +137,24 @@ def check_header(head: ImageHeader, name: str) -> None:
                          f"save the one to measure as a file of its own")
 
 
+def verify_image(path: str | os.PathLike, name: str) -> None:
+    """Refuse a PNG whose chunks do not check out (a truncated or damaged file) without decoding it
+    (Pillow's ``verify``: the chunk checksums), so a bad file among several is named before any is
+    measured; other formats are left to the reader."""
+    from PIL import Image
+
+    p = os.fspath(path)
+    if is_tiff(p):
+        return
+    try:
+        with Image.open(p) as im:
+            if im.format != "PNG":
+                return
+            im.verify()
+    except Exception as exc:  # noqa: BLE001 - Pillow raises OSError, SyntaxError, ValueError ...
+        raise InputError(f"{name}: cannot read image (a damaged or truncated PNG: {exc or type(exc).__name__})") from None
+
+
 def _decode(path: str, head: ImageHeader) -> np.ndarray:
     from PIL import Image
     from skimage import io

@@ -312,3 +312,23 @@ def test_large_images_print_progress_per_input_and_small_ones_do_not(tmp_path, c
     assert rc == 0 and "] measure: " not in err
     rc, _, err = _cli(capsys, ["measure", str(small), "--um-per-px", "0.5"])
     assert rc == 0 and "] measure: " not in err
+
+
+def test_a_truncated_png_after_a_good_image_is_refused_before_anything_is_measured(tmp_path, capsys, monkeypatch):
+    """The header of a PNG cut in half reads fine; its chunks do not: it is named in one line before
+    the good image before it is measured (it was refused only after that image's segmentation)."""
+    import bmctl.measure.micrograph as micrograph
+
+    good, cut = tmp_path / "good.png", tmp_path / "cut.png"
+    Image.fromarray(np.tile(_discs(), (2, 2))).save(good)
+    data = good.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+
+    def measured(*a, **k):
+        raise AssertionError("an image was measured")
+
+    monkeypatch.setattr(micrograph, "measure_micrograph", measured)
+    rc, out, err = _cli(capsys, ["measure", str(good), str(cut), "--um-per-px", "0.5"])
+    assert rc == 2 and out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"bmctl: error: {cut}: cannot read image (a damaged or truncated PNG")
