@@ -117,6 +117,21 @@ REGISTRY: tuple[Study, ...] = (
     Study("hidden_mills_narrowpool_unseen_seed1",
           "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml --cases M,N,O,P,Q,R,S --seed 1 "
           "--controller benchmarks/mpc-narrow-pool.toml --results-name hidden_mills_narrowpool_unseen_seed1", 8),
+    Study("hidden_mills_onset8",
+          "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
+          "--controller benchmarks/mpc-onset8.toml --results-name hidden_mills_onset8", 8),
+    Study("hidden_mills_onset8_seed1_all",
+          "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
+          "--controller benchmarks/mpc-onset8.toml --results-name hidden_mills_onset8_seed1_all", 8),
+    Study("hidden_mills_onset8_seed2_all",
+          "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 2 "
+          "--controller benchmarks/mpc-onset8.toml --results-name hidden_mills_onset8_seed2_all", 8),
+    Study("hidden_mills_onset8_heldout",
+          "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 0 "
+          "--controller benchmarks/mpc-onset8.toml --results-name hidden_mills_onset8_heldout", 6),
+    Study("hidden_mills_onset8_heldout_seed1",
+          "python benchmarks/hidden_mills.py --cases H,I,J,K,L --seed 1 "
+          "--controller benchmarks/mpc-onset8.toml --results-name hidden_mills_onset8_heldout_seed1", 6),
     Study("hidden_mills_lqr",
           "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 0 "
           "--controller controllers/lqr-baseline.toml --results-name hidden_mills_lqr", 12),
