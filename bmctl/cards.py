@@ -117,6 +117,50 @@ def _fill_or_check(table: dict, key: str, derived: float, rtol: float, where: st
                          f"(more than {rtol:.0%} apart); correct it or leave it out to derive it")
 
 
+#: the stated fields the derivations read, checked (type and range) before anything is derived
+DERIVATION_INPUTS = {
+    "mill": ("ball_diameter_m", "ball_count", "ball_density_kg_m3", "ball_modulus_Pa"),
+    "material": ("impactor_mass_kg",),
+    "powder": ("mass_kg",),
+}
+#: fields a card may leave out when what derives them is stated, in the order they are derived,
+#: with what derives them (named when neither is there)
+DERIVED_FROM = {
+    ("mill", "ball_density_kg_m3"): "mill.ball_material",
+    ("mill", "ball_modulus_Pa"): "mill.ball_material",
+    ("material", "impactor_mass_kg"): "mill.ball_diameter_m with the ball's density",
+    ("material", "elastic_modulus_Pa"): "[powder] materials and molar_ratio",
+    ("material", "yield_stress_Pa"): "[powder] materials and molar_ratio",
+    ("material", "powder_density_kg_m3"): "[powder] materials and molar_ratio",
+    ("mill", "ball_to_powder_ratio"): "powder.mass_kg with the balls' count and mass",
+}
+
+
+def _check_derivation_inputs(d: dict[str, Any], source: str) -> None:
+    """Refuse a stated input of a derivation that is not a number in its range, naming that field.
+
+    Without this a ball diameter stated in mm (``ball_diameter_m = 20``) is refused as the
+    ball-to-powder ratio it implies, and ``ball_count = "8"`` as a missing ratio.
+    """
+    from pydantic import ValidationError
+
+    from .config import Material, Mill, Powder, _fmt_loc, quote
+
+    for name, model in (("mill", Mill), ("material", Material), ("powder", Powder)):
+        table = d.get(name)
+        if not isinstance(table, dict):
+            continue
+        try:
+            model.model_validate(table)
+        except ValidationError as exc:
+            for e in exc.errors():
+                if e["type"] != "missing" and e["loc"] and e["loc"][0] in DERIVATION_INPUTS[name]:
+                    msg = e["msg"].removeprefix("Value error, ")
+                    if "input" in e and not isinstance(e["input"], (dict, list)) and "got" not in msg:
+                        msg += f" (got {quote(e['input'])})"
+                    raise InputError(f"{source}: {_fmt_loc((name,) + tuple(e['loc']))}: {msg}") from None
+
+
 def check_unknown_keys(d: dict[str, Any], source: str) -> None:
     """Refuse a table or field a card does not have, naming the known one it likely mistypes.
 
@@ -182,6 +226,7 @@ def resolve_card_data(data: dict[str, Any], source: str) -> dict[str, Any]:
     for name in ("powder", "validity", "material"):
         if name in d and not isinstance(d[name], dict):
             raise InputError(f"{source}: {name}: expected a table")
+    _check_derivation_inputs(d, source)
     mill, mat = d["mill"], d.setdefault("material", {})
     # the ball: density and modulus from its material
     if isinstance(mill.get("ball_material"), str):
@@ -225,14 +270,20 @@ def resolve_card_data(data: dict[str, Any], source: str) -> dict[str, Any]:
                                  f"{n_b * m_b / m_p:.4g}, outside {lo:g}-{hi:g} (mechanical alloying uses 1:1 to "
                                  "100:1); check both")
             _fill_or_check(mill, "ball_to_powder_ratio", n_b * m_b / m_p, POWDER_MASS_RTOL, f"{source}: mill", why)
-    # completeness: every field that has a meaning is stated or derived
+    # completeness: every field that has a meaning is stated or derived; a derivable one is named
+    # last, with what derives it (a card without mill.ball_material lacks the ball's density first,
+    # not the ball-to-powder ratio that would follow from it)
+    missing = []
     for name in tables + tuple(t for t in ("powder", "validity") if t in d):
         model = ModelCard.model_fields[name].annotation
         model = next((a for a in getattr(model, "__args__", (model,)) if a is not type(None)), model)
         optional = OPTIONAL_FIELDS.get(name, set()) | (set(model.model_fields) if name == "validity" else set())
-        for field in model.model_fields:
-            if field not in optional and field not in d[name]:
-                raise InputError(f"{source}: {name}.{field}: required field is missing")
+        missing += [(name, f) for f in model.model_fields if f not in optional and f not in d[name]]
+    if missing:
+        order = list(DERIVED_FROM)
+        name, field = min(missing, key=lambda nf: order.index(nf) + 1 if nf in DERIVED_FROM else 0)
+        hint = f" (state it, or {DERIVED_FROM[name, field]} to derive it)" if (name, field) in DERIVED_FROM else ""
+        raise InputError(f"{source}: {name}.{field}: required field is missing{hint}")
     return d
 
 

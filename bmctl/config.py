@@ -257,6 +257,15 @@ class ModelCard(Strict):
         if self.initial.s_mean_um >= self.simulation.s_max_um:
             raise ValueError(f"initial.s_mean_um: {self.initial.s_mean_um:g} is not below simulation.s_max_um "
                              f"{self.simulation.s_max_um:g}")
+        from .cards import S_MIN_UM_DEFAULT
+
+        v = self.validity
+        s_lo = v.s_min_um if v.s_min_um is not None else S_MIN_UM_DEFAULT
+        s_hi = v.s_max_um if v.s_max_um is not None else self.simulation.s_max_um
+        if s_lo >= s_hi:  # an empty size range: every run would warn from its first record
+            where = "validity.s_min_um" if v.s_min_um is not None else "validity.s_max_um"
+            raise ValueError(f"{where}: sizes {s_lo:g} to {s_hi:g} µm are an empty range (s_min_um must be below "
+                             f"s_max_um{'' if v.s_max_um is not None else ', default simulation.s_max_um'})")
         if self.material.yield_stress_Pa >= 0.1 * self.material.elastic_modulus_Pa:
             raise ValueError("material.yield_stress_Pa: must be below 10 % of elastic_modulus_Pa (a yield strain "
                              "above 0.1 is not a metal)")

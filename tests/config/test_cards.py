@@ -118,3 +118,37 @@ def test_card_show_flags_rows_outside_validity(tmp_path, capsys):
     out = capsys.readouterr().out
     row = [ln for ln in out.splitlines() if ln.strip().startswith("1200 ")][0]
     assert row.rstrip().endswith("outside")
+
+
+@pytest.mark.parametrize("old, new, field", [
+    ("ball_diameter_m = 0.010", "ball_diameter_m = 10", "mill.ball_diameter_m"),  # mm in a metre field
+    ("ball_diameter_m = 0.010", 'ball_diameter_m = "0.010"', "mill.ball_diameter_m"),
+    ("ball_count = 10", 'ball_count = "10"', "mill.ball_count"),
+    ("ball_count = 10", "ball_count = 10.5", "mill.ball_count"),
+    ("ball_count = 10", "ball_count = 0", "mill.ball_count"),
+])
+def test_a_bad_input_of_a_derivation_is_named_itself(tmp_path, capsys, old, new, field):
+    """Not as the ball mass or ball-to-powder ratio derived from it, nor as a 'missing' ratio."""
+    p = _edit(tmp_path, old, new)
+    p.write_text(p.read_text().replace("impactor_mass_kg = 4.14e-3\n", "")
+                 .replace("ball_to_powder_ratio = 10.0\n", "").replace("[powder]", "[powder]\nmass_kg = 0.00414"))
+    assert main(["card", "show", str(p)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f": {field}: " in err and "required field is missing" not in err, err
+
+
+def test_a_missing_ball_material_names_the_ball_density_not_the_ratio(tmp_path, capsys):
+    p = _edit(tmp_path, 'ball_material = "steel"', "")
+    p.write_text(p.read_text().replace("ball_density_kg_m3 = 7900\n", "").replace("impactor_mass_kg = 4.14e-3\n", "")
+                 .replace("ball_to_powder_ratio = 10.0\n", "").replace("[powder]", "[powder]\nmass_kg = 0.00414"))
+    assert main(["card", "show", str(p)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert ": mill.ball_density_kg_m3: required field is missing" in err and "mill.ball_material" in err, err
+
+
+@pytest.mark.parametrize("extra", ["s_min_um = 500.0\ns_max_um = 100.0", "s_min_um = 2000.0"])
+def test_an_empty_size_validity_range_is_refused(tmp_path, capsys, extra):
+    p = _edit(tmp_path, "[validity]", "[validity]\n" + extra)
+    assert main(["card", "show", str(p)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "validity.s_m" in err and "empty range" in err, err
