@@ -775,7 +775,8 @@ WINDOW_SLACK_K = 0.5
 
 def window_warnings(card, rpms, coeff_window: dict | None = None) -> list[str]:
     """One warning line when the steady vial temperature at a milling speed in use leaves
-    :func:`operating_window` (the hottest or coldest offender is named); empty otherwise.
+    :func:`operating_window` (the hottest or coldest offender is named), and one before it when a
+    speed is above the card's ``validity.rpm_max``; empty otherwise.
 
     Parameters
     ----------
@@ -798,17 +799,24 @@ def window_warnings(card, rpms, coeff_window: dict | None = None) -> list[str]:
     >>> window_warnings(card, [400.0])  # the calibration's own 400 rpm: within WINDOW_SLACK_K of the maximum
     []
     """
+    rpms = [float(r) for r in rpms]
+    lines = []
+    v_rpm = card.validity.rpm_max
+    fast = max((r for r in rpms if r > 0), default=0.0)
+    if v_rpm is not None and fast > v_rpm:  # the card's own statement of where it holds
+        lines.append(f"{card.card.name}: {fast:g} rpm is above the card's validity.rpm_max ({v_rpm:g} rpm), where "
+                     "it holds: its predictions at that speed are extrapolations")
     win = operating_window(card, coeff_window)
     if win["temperature_c"] is None:
-        return []
+        return lines
     lo, hi = win["temperature_c"]
-    temps = {float(r): steady_temperature_c(card, float(r)) for r in set(rpms) if r > 0}
+    temps = {r: steady_temperature_c(card, r) for r in set(rpms) if r > 0}
     out = [(T, r) for r, T in temps.items() if not lo - WINDOW_SLACK_K <= T <= hi + WINDOW_SLACK_K]
     if not out:
-        return []
+        return lines
     T, r = max(out, key=lambda tr: max(tr[0] - hi, lo - tr[0]))
     # as many decimals as it takes for a temperature just past the range not to print as its end
     d = next((k for k in range(3) if round(T, k) not in (round(lo, k), round(hi, k))), 3)
-    return [f"{card.card.name}: steady vial temperature {T:.{d}f} °C at {r:g} rpm is outside {lo:g}–{hi:g} °C, "
-            f"the range the model was calibrated for ({win['why']}): its predictions at that speed are "
-            "extrapolations, also in bursts that keep the vial cooler"]
+    return lines + [f"{card.card.name}: steady vial temperature {T:.{d}f} °C at {r:g} rpm is outside {lo:g}–{hi:g} "
+                    f"°C, the range the model was calibrated for ({win['why']}): its predictions at that speed are "
+                    "extrapolations, also in bursts that keep the vial cooler"]

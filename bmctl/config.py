@@ -152,7 +152,8 @@ class Powder(Strict):
 
 
 class Validity(Strict):
-    """Where the card holds; runs that leave it warn (temperature, sizes) or are refused (rpm)."""
+    """Where the card holds; runs that leave it warn (rpm, temperature, sizes); the mill's own top speed,
+    ``mill.rpm_max``, is what refuses a faster run."""
 
     rpm_max: Range(0.0, RPM_MAX, lo_open=True) | None = None  # default: mill.rpm_max
     s_min_um: Range(0.01, 1e5) | None = None  # default: 1 um (below, Hertzian trapping is unmodelled)

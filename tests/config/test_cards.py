@@ -152,3 +152,16 @@ def test_an_empty_size_validity_range_is_refused(tmp_path, capsys, extra):
     assert main(["card", "show", str(p)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "validity.s_m" in err and "empty range" in err, err
+
+
+def test_a_run_above_the_cards_validity_rpm_max_warns():
+    """``[validity] rpm_max`` below the mill's top speed: a run there warned of nothing (the card's
+    statement was used only by ``card show``); a speed within it still says nothing."""
+    from bmctl.cards import window_warnings
+
+    card = load_card(card_path("alni-1to1-300rpm-lab"))
+    card = card.model_copy(update={"validity": card.validity.model_copy(update={"rpm_max": 300.0})})
+    lines = window_warnings(card, [0.0, 250.0, 350.0])
+    assert lines and lines[0] == ("alni-1to1-300rpm-lab: 350 rpm is above the card's validity.rpm_max (300 rpm), "
+                                  "where it holds: its predictions at that speed are extrapolations")
+    assert window_warnings(card, [250.0, 300.0]) == []
