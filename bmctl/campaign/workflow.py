@@ -967,7 +967,8 @@ def _sample_first(c: Campaign, advice: dict, clock: float, history: list) -> str
 
 
 def _last_sampling(c: Campaign, clock: float) -> tuple[dict | None, str | None]:
-    """:func:`bmctl.campaign.advice.sampling` of the latest sample at or before ``clock`` against the
+    """:func:`bmctl.campaign.advice.sampling` of the latest sample at or before ``clock`` (with every
+    other sample taken at that time, pooled as the filter reads them) against the
     controller's ``[objective] tolerance`` (None: no sample yet, or a controller without one), and
     the note that says why it is None for a sample too small to show the spread of sizes
     (:func:`bmctl.campaign.advice.sampling_note`; else None)."""
@@ -976,11 +977,14 @@ def _last_sampling(c: Campaign, clock: float) -> tuple[dict | None, str | None]:
                         (clock + EPS_H,)).fetchone()
     if tol is None or row is None:
         return None, None
-    s = c.particles(int(row[0]))[0]
+    t = float(row[1])  # every sample at that time: the filter reads them as one
+    ids = [int(i) for (i,) in c.con.execute("SELECT id FROM samples WHERE ABS(t_h - ?) <= ? ORDER BY id",
+                                            (t, EPS_H)).fetchall()]
+    s = np.concatenate([c.particles(i)[0] for i in ids])
     out = sampling(s, tol)
     if out is None:
-        return None, sampling_note(float(row[1]), s.size) if s.size < 2 else None
-    return {"t_h": float(row[1]), **out}, None
+        return None, sampling_note(t, s.size) if s.size < 2 else None
+    return {"t_h": t, "samples": len(ids), **out}, None
 
 
 def decide(folder, accept: bool, rpm: float | None = None, milling: float | None = None, note: str = "",

@@ -135,8 +135,9 @@ def _print_advice(a: dict) -> None:
     if sm:
         more = (f"; about {sm['particles_for_tolerance']} particles would read it within the "
                 f"{sm['tolerance_pct']:g} % tolerance" if sm["particles"] < sm["particles_for_tolerance"] else "")
-        print(f"sampling: the sample at {sm['t_h']:g} h ({sm['particles']} particles) reads the mean size to "
-              f"±{sm['mean_95_pct']:.1f} % (95 %){more}")
+        what = (f"the sample at {sm['t_h']:g} h ({sm['particles']} particles) reads" if sm.get("samples", 1) == 1 else
+                f"the {sm['samples']} samples at {sm['t_h']:g} h ({sm['particles']} particles together) read")
+        print(f"sampling: {what} the mean size to ±{sm['mean_95_pct']:.1f} % (95 %){more}")
 
 
 def run(args: argparse.Namespace) -> int:

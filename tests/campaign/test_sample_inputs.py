@@ -185,11 +185,15 @@ def test_a_one_particle_sample_says_why_the_sampling_hint_is_missing(tmp_path, c
     assert len(why) == 1 and "too few to estimate the spread of sizes" in why[0] and "at 0.5 h" in why[0]
     assert main(["campaign", "advise", str(d)]) == 0
     assert "note: the latest sample (at 0.5 h) holds 1 particle: too few" in capsys.readouterr().out
-    # two particles read a spread: the hint is given, and no note
+    # two more particles at that time read a spread: the hint is given for the samples pooled as the
+    # filter reads them (it was the latest sample's alone), and no note
     (tmp_path / "two.csv").write_text("s_um,r\n38.0,0.05\n47.0,0.07\n")
     cp.sample(d, 0.5, [tmp_path / "two.csv"])
     a = cp.advise(d)
-    assert a["sampling"]["particles"] == 2 and not any("holds" in n for n in a["notes"])
+    assert (a["sampling"]["particles"], a["sampling"]["samples"]) == (3, 2)
+    assert not any("holds" in n for n in a["notes"])
+    assert main(["campaign", "advise", str(d)]) == 0
+    assert "sampling: the 2 samples at 0.5 h (3 particles together) read the mean size to" in capsys.readouterr().out
 
 
 # --- the report's sample std ------------------------------------------------------------------------------
