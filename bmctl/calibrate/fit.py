@@ -393,8 +393,13 @@ def ridge_posterior(ev: _Evaluator, y: np.ndarray, W: np.ndarray, P: np.ndarray,
             if p > 1:  # one Gauss-Newton step in the other directions: profile value and conditional mean
                 g = Wb.T @ (J.T @ W @ r - P @ u)
                 c = Cw @ g
-                q -= float(g @ c)
-                u = u + Wb @ c
+                drop = float(g @ c)
+                # a step predicted to take q below zero (q is a sum of squares) is one J does not describe
+                # here (far from where J was taken, or H's debiased information below J'WJ): the point
+                # keeps its own exact value instead of a negative profile that would take all the weight
+                if drop <= q:
+                    q -= drop
+                    u = u + Wb @ c
             grid[k] = (q, u, chi2)
         return True
 

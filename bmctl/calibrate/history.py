@@ -172,3 +172,26 @@ def load_history(path: str | Path, card: ModelCard | None = None, accept_unusabl
         raise InputError(f"{src}: sample[{len(times) - 1}].t_h: {times[-1]:g} h is after the schedule's end ({total:g} h)")
     read = [_read_sample(src, spec, base, k, accept_unusable) for k, spec in enumerate(h.sample)]
     return History(h.name or Path(path).stem, src, segments, [r[0] for r in read], [w for r in read for w in r[1]])
+
+
+def size_range_warnings(card: ModelCard, samples) -> list[str]:
+    """One line per sample whose mean size lies outside the card's range of validity
+    (:func:`bmctl.cards.validity`, as ``bmctl simulate`` warns for a run): the model does not hold
+    there, and a table in mm or nm read as µm lands there.
+
+    Parameters
+    ----------
+    card : ModelCard
+    samples : iterable of (source, t_h, s_um)
+    """
+    from ..cards import validity
+
+    val = validity(card)
+    lo, hi = val["s_min_um"], val["s_max_um"]
+    out = []
+    for source, t_h, s_um in samples:
+        m = float(np.mean(s_um))
+        if not lo <= m <= hi:
+            out.append(f"{source}: mean size {m:.3g} µm at {t_h:g} h is outside the card's [{lo:g}, {hi:g}] µm: "
+                       "the model does not hold there (sizes in another unit?)")
+    return out

@@ -20,6 +20,7 @@ from .params import set_params
 
 UM = 1e-6
 SUMMARY_NAMES = ("ln_s_mean", "ln_s_std", "r_mean", "r_std")
+BOOT_BLOCK = 1 << 22  # bootstrap indices drawn at once (bootstrap_cov)
 
 
 def summaries(s_um: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -32,10 +33,17 @@ def summaries(s_um: np.ndarray, r: np.ndarray) -> np.ndarray:
 def bootstrap_cov(s_um: np.ndarray, r: np.ndarray, rng: np.random.Generator, n_boot: int = 400) -> np.ndarray:
     """Sampling covariance (4 x 4) of :func:`summaries` for this sample (nonparametric bootstrap)."""
     n = s_um.size
-    idx = rng.integers(0, n, size=(n_boot, n))
-    ls, rr = np.log(s_um)[idx], r[idx]
-    stats = np.stack([ls.mean(1), ls.std(1), rr.mean(1), rr.std(1)], axis=1)
-    return np.cov(stats, rowvar=False)
+    log_s, r = np.log(s_um), np.asarray(r, dtype=float)
+    # resamples in blocks of about BOOT_BLOCK indices: a sample of a million particles would otherwise
+    # hold n_boot x n indices and values at once (~13 GB); the generator's stream, and so every
+    # resample, is the same whatever the block size
+    rows = max(1, BOOT_BLOCK // max(n, 1))
+    stats = []
+    for k in range(0, n_boot, rows):
+        idx = rng.integers(0, n, size=(min(rows, n_boot - k), n))
+        ls, rr = log_s[idx], r[idx]
+        stats.append(np.stack([ls.mean(1), ls.std(1), rr.mean(1), rr.std(1)], axis=1))
+    return np.cov(np.concatenate(stats), rowvar=False)
 
 
 def pieces(segments: Sequence[tuple[float, float, float]], t0: float, t1: float) -> list[tuple[float, float, float]]:

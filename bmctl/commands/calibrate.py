@@ -58,8 +58,11 @@ def run(args) -> int:
         if name_part(h.name) in seen:
             raise_dup(h)
         seen.add(name_part(h.name))
-    for h in histories:  # doubtful images: once every history is read (a bad one still prints one line)
-        for w in h.warnings:
+    from ..calibrate.history import size_range_warnings
+
+    for h in histories:  # doubtful images and sizes the card does not cover: once every history is read
+        for w in h.warnings + size_range_warnings(card, [(f"{h.path}: sample[{k}]", s.t_h, s.s_um)
+                                                            for k, s in enumerate(h.samples)]):
             print(f"bmctl: warning: {w}", file=sys.stderr)
     settings = FitSettings(particles=args.particles, replicates=args.replicates)
     from ..work import add, calibrate_work, check_work, identify_work

@@ -165,8 +165,8 @@ def run(args) -> int:
     times = _parse_list("--times", args.times)
     if any(t < 0 for t in times):
         raise InputError(f"--times: must be >= 0 (got {min(times):g})")
-    if any(b < a for a, b in zip(times, times[1:])):
-        raise InputError(f"--times: must be in increasing order (got {args.times})")
+    if any(b <= a for a, b in zip(times, times[1:])):  # equal times too: docs/estimation.md, "--times"
+        raise InputError(f"--times: must be in increasing order, each later than the one before (got {args.times})")
     if max(times) > 1000.0:  # the longest batch a card allows (bmctl.config.HOURS)
         raise InputError(f"--times: {max(times):g} h exceeds the longest batch, 1000 h")
     folders: list = []
@@ -226,6 +226,9 @@ def run(args) -> int:
         tab, doubts = _read_sample(f, args.um_per_px, args.accept_unusable)
         warned += doubts
         samples.append(check_sample(Sample(t, tab.s_um, tab.r, temp, str(f))))
+    from ..calibrate.history import size_range_warnings
+
+    warned += size_range_warnings(card, [(s.source, s.t_h, s.s_um) for s in samples])
 
     for w in warned:
         print(f"bmctl: warning: {w}", file=sys.stderr)
@@ -258,7 +261,8 @@ def run(args) -> int:
                   file=sys.stderr)
     last = estimates[-1]
     d = last.as_dict()
-    print(f"{card.card.name}: {len(samples)} samples to t = {t_end:g} h, {what}; {health}")
+    print(f"{card.card.name}: {len(samples)} sample{'' if len(samples) == 1 else 's'} to t = {t_end:g} h, {what}; "
+          f"{health}")
     print(f"  at {last.t_h:g} h (mean [90 % interval]): s mean {d['s_mean_um']:.1f} µm "
           f"[{d['s_mean_um_q05']:.1f}, {d['s_mean_um_q95']:.1f}], "
           f"r mean {d['r_mean']:.3f} [{d['r_mean_q05']:.3f}, {d['r_mean_q95']:.3f}], "

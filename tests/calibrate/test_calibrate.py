@@ -380,3 +380,43 @@ def test_a_trial_value_beyond_a_constants_range_is_run_at_its_bound():
     hist = SimpleNamespace(segments=[(0.2, 300.0, 1.0)], times_h=[0.2])  # what a task reads of a history
     summ, _ = simulate_task(ev.task(u, hist), np.random.default_rng(0))
     assert np.all(np.isfinite(summ))
+
+
+def test_ridge_posterior_never_scores_a_point_below_zero():
+    """The profile -2 ln posterior (chi2 + u'Pu after a conditional Gauss-Newton step) is a sum of
+    squares. Where J does not describe a grid point -- far from where it was taken, or with H's
+    information debiased below J'WJ -- the predicted step took it below zero, and that one point took
+    all the weight: on data the card could not reach (sizes in mm read as um) the estimate jumped to
+    ln gamma = -24 with a zero-width interval. A step predicted below zero is not taken."""
+    from bmctl.calibrate.fit import FitSettings, ridge_posterior
+
+    J = np.array([[1.0, 0.9], [0.8, 0.75], [0.5, 0.48], [0.2, 0.1]]) * 6.0
+    W, P = np.eye(4), np.eye(2)
+    y = J @ np.array([3.0, -2.0]) + np.array([4.0, -3.0, 2.0, 1.0])  # far from every point the model reaches
+
+    class Linear:
+        def run(self, pts):
+            return np.stack([np.stack([J @ u] * 2) for u in pts])
+
+    H = 0.05 * J.T @ W @ J + P  # the noise-debiased information: well below J'WJ
+    u0 = np.array([0.5, 0.2])
+    u_hat, lo, hi, _, info = ridge_posterior(Linear(), y, W, P, J, H, u0, FitSettings())
+    q = [pt["minus2_log_posterior"] for pt in info["points"]]
+    assert min(q) >= 0.0, q
+    assert np.all(np.abs(u_hat) <= 3.0 * FitSettings().prior_sd + np.abs(u0)), u_hat
+
+
+def test_cli_warns_of_a_sample_outside_the_cards_size_range(tmp_path, capsys):
+    """A table in mm read as µm (sizes ~0.05 µm, inside the 1 nm..10 mm a table may hold) was fitted
+    without a word; like `bmctl simulate` for a run, calibrate now names the sample whose mean size
+    lies outside the card's range of validity (before any work: refused here by the budget)."""
+    _table(tmp_path / "t1.csv")
+    (tmp_path / "mm.csv").write_text("s_um,r\n" + "".join(f"{0.04 + 0.001 * k:g},0.2\n" for k in range(30)))
+    p = tmp_path / "hist.toml"
+    p.write_text(GOOD.replace('"t2.csv"', '"mm.csv"'))
+    rc = main(["calibrate", str(LAB), str(p), "--params", "gamma,delta", "--out", str(tmp_path / "out"),
+               "--workers", "0", "--budget-cpu-h", "1e-9"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    warns = [ln for ln in err.splitlines() if ln.startswith("bmctl: warning:")]
+    assert len(warns) == 1 and "sample[1]" in warns[0] and "outside the card's" in warns[0], err

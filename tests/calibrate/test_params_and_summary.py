@@ -114,3 +114,32 @@ def test_summary_gives_units_and_singular_counts(tmp_path, capsys, monkeypatch):
     assert "0.0001836 µm^-2  90 % [0.00016, 0.00021] µm^-2  x1.01 of the card" in out
     alpha = next(ln for ln in out.splitlines() if ln.strip().startswith("alpha"))
     assert "µm" not in alpha and "2  90 % [1.5, 2.6]  x0.95 of the card  NOT IDENTIFIED" in alpha
+
+
+def test_bootstrap_of_a_large_sample_is_drawn_in_blocks_with_the_same_numbers(monkeypatch):
+    """A measured sample of many particles is resampled in blocks: the covariance is the one of all
+    resamples drawn at once (same stream), and the memory held does not grow as n_boot x n."""
+    import tracemalloc
+
+    from bmctl.calibrate import simulate
+
+    rng = np.random.default_rng(4)
+    n, n_boot = 20_001, 400
+    s_um, r = np.exp(rng.normal(4.0, 0.5, n)), rng.uniform(0.0, 0.6, n)
+    gen = np.random.default_rng(9)  # the reference: every resample's indices drawn at once
+    idx = gen.integers(0, n, size=(n_boot, n))
+    ls, rr = np.log(s_um)[idx], r[idx]
+    want = np.cov(np.stack([ls.mean(1), ls.std(1), rr.mean(1), rr.std(1)], axis=1), rowvar=False)
+    after = gen.integers(0, 1000, size=5)  # and the stream goes on where it would have
+    del idx, ls, rr
+    monkeypatch.setattr(simulate, "BOOT_BLOCK", 1 << 16, raising=False)
+    gen = np.random.default_rng(9)
+    tracemalloc.start()
+    try:
+        got = simulate.bootstrap_cov(s_um, r, gen, n_boot)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert np.array_equal(got, want)
+    assert np.array_equal(gen.integers(0, 1000, size=5), after)
+    assert peak < 8 * n_boot * n / 4, peak  # all at once: 3 x 8 bytes x n_boot x n (~190 MB)

@@ -259,7 +259,7 @@ def _bad_table(tmp_path, text, name="bad.csv"):
 
 
 @pytest.mark.parametrize("case", ["missing", "empty", "header-only", "nan", "count", "negative", "unknown-flag",
-                                  "not-a-number", "decreasing", "empty-dir", "bad-schedule", "rpm"])
+                                  "not-a-number", "decreasing", "repeated", "empty-dir", "bad-schedule", "rpm"])
 def test_cli_estimate_bad_input(tmp_path, capsys, case):
     good = [str(p) for p in _write_samples(tmp_path / "ok")]
     out = tmp_path / "o" / "estimate.csv"
@@ -273,6 +273,7 @@ def test_cli_estimate_bad_input(tmp_path, capsys, case):
         "unknown-flag": ["--samples", good[0], "--times", "1", "--bogus"],
         "not-a-number": ["--samples", good[0], "--times", "one"],
         "decreasing": ["--samples", *good, "--times", "2,1"],
+        "repeated": ["--samples", *good, "--times", "1,1"],  # non-increasing (docs/estimation.md), was filtered
         "empty-dir": ["--samples", str((tmp_path / "void").resolve()), "--times", "1"],
         "bad-schedule": ["--samples", *good, "--times", "1,2", "--schedule", _bad_table(tmp_path, "[[segment]]\nhours = 1\nrpm = 300\n", "s.toml")],
         "rpm": ["--samples", good[0], "--times", "1", "--rpm", "9000"],
@@ -334,3 +335,18 @@ def test_write_card_never_replaces_an_input_or_output(tmp_path, capsys, dest, wh
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and why in err[0], err
     assert card.read_bytes() == before and not (tmp_path / "w.csv").exists()
+
+
+def test_cli_estimate_warns_of_a_sample_outside_the_cards_size_range(tmp_path, capsys):
+    """A table in mm read as µm was filtered without a word (the update's ESS stayed just above the
+    degenerate limit, its band a clamp at 0.1 µm); it is now named on stderr, as `bmctl simulate`
+    names a run outside the card's range of validity."""
+    good = [str(p) for p in _write_samples(tmp_path / "ok")]
+    mm = tmp_path / "mm.csv"
+    mm.write_text("s_um,r\n" + "".join(f"{0.04 + 0.001 * k:g},0.2\n" for k in range(30)))
+    rc = main(["estimate", LAB, "--samples", good[0], str(mm), "--times", "1,2", "--particles", "100",
+               "--out", str(tmp_path / "e.csv"), "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 0
+    warns = [ln for ln in err.splitlines() if "outside the card's" in ln]
+    assert len(warns) == 1 and "mm.csv" in warns[0] and "at 2 h" in warns[0], err
