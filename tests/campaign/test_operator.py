@@ -57,11 +57,17 @@ def test_temperature_estimate_follows_made_up_readings_within_their_noise(tmp_pa
     assert max(law_gap) > 10.0  # the card's law alone would be far off: the readings carry the estimate
 
 
-def test_reading_above_the_ceiling_or_far_off_warns_in_log_and_in_the_next_advice(tmp_path, capsys):
+def _lqr_campaign(tmp_path, capsys, *more) -> str:
+    """A fresh 2-h campaign folder on the lab card with the LQR baseline (d50 45 um, 100 filter particles)."""
     d = str(tmp_path / "c")
     assert main(["campaign", "init", d, "--model", str(CARD), "--controller", str(LQR), "--target", "d50_um=45",
-                 "--hours", "2", "--particles", "100", "--temperature-max-c", "60"]) == 0
+                 "--hours", "2", "--particles", "100", *more]) == 0
     capsys.readouterr()
+    return d
+
+
+def test_reading_above_the_ceiling_or_far_off_warns_in_log_and_in_the_next_advice(tmp_path, capsys):
+    d = _lqr_campaign(tmp_path, capsys, "--temperature-max-c", "60")
     # the card's law puts the vial near 60 degC after 30 min at 300 rpm: 30 degC is far from it
     assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--temperature-c", "30"]) == 0
     out = capsys.readouterr().out
@@ -177,10 +183,7 @@ def test_report_holds_estimates_against_samples_decisions_notes_plans_and_readin
 
 
 def test_a_far_reading_of_a_rested_vial_names_the_cards_room_temperature(tmp_path, capsys):
-    d = str(tmp_path / "c")
-    assert main(["campaign", "init", d, "--model", str(CARD), "--controller", str(LQR), "--target", "d50_um=45",
-                 "--hours", "2", "--particles", "100"]) == 0
-    capsys.readouterr()
+    d = _lqr_campaign(tmp_path, capsys)
     # a rested vial is at the card's ambient (25 degC) for sure: a 15 degC reading is the room, not the heating
     assert main(["campaign", "log", d, "--rpm", "0", "--hours", "0.5", "--temperature-c", "15"]) == 0
     out = capsys.readouterr().out
@@ -195,10 +198,7 @@ def test_a_far_first_reading_of_a_milling_vial_does_not_name_the_room_temperatur
     """Before the first reading every filter particle heats as the card says, so the estimate of a
     milling vial is sure (std 0) though far above the room: a far first reading there is the
     heating, which the filter learns, not the card's ambient_C."""
-    d = str(tmp_path / "c")
-    assert main(["campaign", "init", d, "--model", str(CARD), "--controller", str(LQR), "--target", "d50_um=45",
-                 "--hours", "2", "--particles", "100"]) == 0
-    capsys.readouterr()
+    d = _lqr_campaign(tmp_path, capsys)
     assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--temperature-c", "90"]) == 0
     out = capsys.readouterr().out
     assert re.search(r"reading 90 °C at 0\.5 h is far from the estimate just before it \(\d+\.\d ± 0\.0 °C", out)
