@@ -486,8 +486,8 @@ def design_work(hours: float, interval_h: float, sweep=(1.0,)) -> dict[str, floa
     (K = 1440), 12 h and 48 h at 0.02 h 19 and 75; ``--objective min_time`` (the sweep 1/4, 1/2, 3/4, 1)
     12 h 18 and 24 h 36. Peak memory: 12 h 0.52 GB, 24 h 0.79 GB, 72 h 2.9 GB, 200 h 6.0 GB;
     min_time 24 h 1.8 GB. The constants below put each CPU time 1.2-3 times under the estimate and
-    each peak memory 1.1-1.7 times. The old model (1.5 CPU s per interval, in proportion to K^2 beyond 24 intervals) put 72 h
-    at 0.25 h at 5200 CPU s, and its dense KKT block at 53 MB.
+    each peak memory 1.1-1.7 times. The old model (1.5 CPU s per interval, in proportion to K^2
+    beyond 24 intervals) put 72 h at 0.25 h at 5200 CPU s, and its dense KKT block at 53 MB.
 
     Parameters
     ----------

@@ -152,7 +152,8 @@ def verify_image(path: str | os.PathLike, name: str) -> None:
                 return
             im.verify()
     except Exception as exc:  # noqa: BLE001 - Pillow raises OSError, SyntaxError, ValueError ...
-        raise InputError(f"{name}: cannot read image (a damaged or truncated PNG: {exc or type(exc).__name__})") from None
+        why = exc or type(exc).__name__
+        raise InputError(f"{name}: cannot read image (a damaged or truncated PNG: {why})") from None
 
 
 def _decode(path: str, head: ImageHeader) -> np.ndarray:
