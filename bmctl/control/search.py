@@ -851,7 +851,7 @@ def coarse_families(grid: Grid, lim: Limits, rpm_step: float) -> tuple[np.ndarra
                 fam.append("constant")
     cycles = []
     steps = set(CYCLE_STEPS)
-    if L < SHORT_STEP_MIN:  # cycles of minutes, not of steps (eq. of a 30-min grid)
+    if L < SHORT_STEP_MIN:  # cycles of minutes, not of steps (as on a 30-min grid)
         steps |= {int(round(c / L)) for c in CYCLE_MIN if round(c / L) >= 1}
     for j in sorted(steps):
         if j > K:
