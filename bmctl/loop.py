@@ -29,7 +29,7 @@ import numpy as np
 
 from .checkpoint import rng_state, set_rng_state
 from .errors import InputError, require_generator
-from .limits import is_rpm_milling
+from .limits import HOURS_MIN, is_rpm_milling
 from .physics.constants import TIME_EPS_H
 
 #: finest plant step within a control interval: the vial temperature is watched at this spacing (h)
@@ -313,7 +313,7 @@ class ClosedLoop:
     @property
     def steps(self) -> int:
         """Number of control intervals of the batch."""
-        return int(math.ceil(self.cfg.hours / self.controller.interval_h - TIME_EPS_H))
+        return interval_count(self.cfg.hours, self.controller.interval_h)
 
     @property
     def done(self) -> bool:
@@ -400,7 +400,7 @@ class ClosedLoop:
             self.observe_feed()
         interval = self.controller.interval_h
         t_h = self.k * interval
-        dt = min(interval, self.cfg.hours - t_h)
+        dt = interval_length(t_h, self.cfg.hours, interval)
         plan, solve_ms = self.decide()
         rpm, milling = (float(v) for v in plan.u_apply)
         milling = interval_share(milling, interval, dt)
@@ -437,6 +437,34 @@ class ClosedLoop:
         self.estimator.set_state(state["estimator"])
         self.controller.set_state(state["controller"])
         set_rng_state(self.sample_rng, state["sample_rng"])
+
+
+def interval_count(hours: float, interval_h: float) -> int:
+    """Control intervals of a batch of ``hours``: a remainder under a second (:data:`bmctl.limits.HOURS_MIN`)
+    is no interval of its own but the end of the last one (``interval_h = 0.3333333`` over 2 h is six
+    intervals, not six and one of 0.7 ms that no log could record).
+
+    Examples
+    --------
+    >>> interval_count(12.0, 0.5), interval_count(2.2, 0.5), interval_count(2.0, 0.3333333)
+    (24, 5, 6)
+    """
+    return max(1, int(math.ceil((hours - HOURS_MIN) / interval_h))) if hours > 0 else 0
+
+
+def interval_length(t_h: float, hours: float, interval_h: float) -> float:
+    """Length of the control interval that starts at ``t_h``: ``interval_h``, or what is left of the batch
+    when that is shorter or within a second (:data:`bmctl.limits.HOURS_MIN`) longer (see :func:`interval_count`).
+
+    Examples
+    --------
+    >>> interval_length(11.5, 12.0, 0.5), interval_length(2.0, 2.2, 0.5)
+    (0.5, 0.20000000000000018)
+    >>> round(interval_length(5 * 0.3333333, 2.0, 0.3333333), 7)   # the last one takes the 0.7 ms left
+    0.3333335
+    """
+    left = hours - t_h
+    return left if left < interval_h + HOURS_MIN else interval_h
 
 
 def interval_share(milling: float, interval_h: float, dt_h: float) -> float:

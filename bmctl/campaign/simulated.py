@@ -75,7 +75,7 @@ def trial_steps(scenario_path, folder, seed: int = 0):
         unused), the step's record as ``bmctl trial`` writes it, and the step's advice.
     """
     from ..control.base import Status
-    from ..loop import StepRecord, interval_share
+    from ..loop import StepRecord, interval_length, interval_share
     from ..measure.tables import ParticleTable
     from ..scenario import load_scenario, resolve
     from ..trial import build
@@ -108,7 +108,7 @@ def trial_steps(scenario_path, folder, seed: int = 0):
             stats["solver_failures"] += int(not status.success)
             if status.fallback != "none" or not status.success:
                 stats.setdefault("log", []).append(f"t={t:g} h: {advice['solver']}")
-            dt = min(interval, sc.hours - t)
+            dt = interval_length(t, sc.hours, interval)
             milling = interval_share(milling, interval, dt)  # the advised minutes in a short last interval
             trial_loop.apply(rpm, milling, dt)
             t_new = t + dt

@@ -807,7 +807,7 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
         (:func:`bmctl.campaign.advice.sample_first`); ``notes``: what the advice stands on when
         that is not the mill's own data (before the first sample: the card's starting powder).
     """
-    from ..loop import interval_share
+    from ..loop import interval_length, interval_share
 
     t_start = time.perf_counter()
     say = progress or (lambda text: None)
@@ -843,7 +843,7 @@ def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
             reach, binding = _why(c, plan, sched, end, ctrl_target)
             x_end = np.asarray(plan.x[-1], dtype=float)
             dt = plan.interval_h
-            h_next = min(dt, c.meta["hours"] - clock) if clock < c.meta["hours"] - EPS_H else 0.0
+            h_next = interval_length(clock, c.meta["hours"], dt) if clock < c.meta["hours"] - EPS_H else 0.0
             mill_min = round(plan.milling * dt * 60.0)
             sampled, sampled_note = _last_sampling(c, clock)
             advice = {

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..limits import HOURS_MIN
 from ..moments import equations as eq
 from .config import target_bounds, target_centre
 from .outputs import ERR_FLOOR, output_values
@@ -121,7 +122,8 @@ def make_grid(t0_h: float, t_end_h: float, interval_h: float) -> Grid:
     step = interval_h * 60.0
     rem = max(0.0, (t_end_h - t0_h) * 60.0)
     rem = round(rem, 6)
-    K = int(math.ceil(rem / step - 1e-9)) if rem > 1e-9 else 0
+    # a remainder under a second ends the last interval (bmctl.loop.interval_count)
+    K = max(1, int(math.ceil((rem - HOURS_MIN * 60.0) / step))) if rem > 1e-9 else 0
     lengths = np.full(K, step)
     if K:
         lengths[-1] = rem - step * (K - 1)

@@ -106,3 +106,25 @@ def test_trial_campaign_mills_the_advised_minutes_in_a_short_last_interval(tmp_p
     _, b = _read(camp / "trajectory.csv")
     same = [i for i, k in enumerate(h1) if k != "solve_ms"]
     np.testing.assert_array_equal(a[:, same], b[:, same])
+
+
+@pytest.mark.slow
+def test_a_remainder_under_a_second_ends_the_last_interval(tmp_path):
+    """interval_h = 0.3333333 over 1 h leaves 0.36 ms: it was a fourth interval that the campaign's log
+    refused ("--hours: must be >= 0.000277778"), so ``trial --campaign`` failed at the batch end; now
+    it ends the third, in the plain trial and through the campaign alike."""
+    lqr = Path(__file__).resolve().parents[2] / "controllers" / "lqr-baseline.toml"
+    ctrl = tmp_path / "lqr-20min.toml"
+    ctrl.write_text(lqr.read_text().replace("interval_h = 0.5", "interval_h = 0.3333333"))
+    sc = lqr_scenario(tmp_path / "scenario.toml")
+    text = sc.read_text().replace("hours = 2.0", "hours = 1.0")
+    sc.write_text(text[:text.index("config = ")] + f'config = "{ctrl}"\n')
+    plain, camp = tmp_path / "plain", tmp_path / "camp"
+    assert main(["trial", str(sc), "--seed", "5", "--out", str(plain), "--no-progress"]) == 0
+    assert main(["trial", str(sc), "--seed", "5", "--out", str(camp), "--no-progress", "--campaign"]) == 0
+    s1 = json.loads((plain / "summary.json").read_text())
+    s2 = json.loads((camp / "summary.json").read_text())
+    assert s1["steps"] == s2["steps"] == 3
+    from bmctl import campaign as cp
+
+    assert cp.status(camp / "campaign")["clock_h"] == pytest.approx(1.0)
