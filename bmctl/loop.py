@@ -339,6 +339,11 @@ class ClosedLoop:
         else:
             plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev)
         st = checked_plan(plan).status
+        extra = getattr(plan, "extra", None)  # a controller's own plan object may have none
+        binding = extra.get("binding") if isinstance(extra, dict) else None
+        if binding is not None:  # the limits the first and the latest plan run against (plans on operable schedules)
+            self.stats.setdefault("binding_first", [str(b) for b in binding])
+            self.stats["binding_last"] = [str(b) for b in binding]
         solve_ms = st.solve_ms if st.solve_ms else (time.perf_counter() - t0) * 1e3
         fallback = st.fallback != "none"
         self.stats["solve_ms"].append(solve_ms)

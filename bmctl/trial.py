@@ -399,13 +399,15 @@ def summarise(sc: Scenario, loop: ClosedLoop) -> dict:
         "temperature_ceiling_c": ceiling,
         "temperature_violations": st["violations"],
         "energy_kj": st["energy_J"] / 1e3,
-        "batch_h": min(loop.k * loop.controller.interval_h, sc.hours),
+        "batch_h": sc.hours if loop.done else min(loop.k * loop.controller.interval_h, sc.hours),
         "solver_failures": st["solver_failures"],
         "fallbacks": st["fallbacks"],
         "median_solve_ms": float(np.median(solve)),
         "steps": loop.k,
         "feed_sampled": bool(st.get("feed_sampled", False)),
         "solver_log": st.get("log", []),
+        "binding_first": st.get("binding_first", []),
+        "binding_last": st.get("binding_last", []),
     }
 
 

@@ -298,3 +298,19 @@ def test_campaign_init_refuses_a_minimum_the_interval_guard_cannot_keep(tmp_path
     err = capsys.readouterr().err
     assert rc == 2 and "mill.min_mill_min: 45 min is longer than the control interval" in err, err
     assert len(err.strip().splitlines()) == 1 and not (tmp_path / "camp").exists()
+
+
+def test_a_missed_target_is_explained_by_the_plans_binding_limits(tmp_path, capsys):
+    """s_mean 25 µm in 2 h on the lab card is out of reach under the 80 °C ceiling: the trial misses it
+    and says what bound its first plan (the ceiling) and its last; summary.json keeps both lists.
+    It printed the miss alone."""
+    sc = tmp_path / "far.toml"
+    sc.write_text(SMALL.format(root=ROOT).replace("s_mean_um = 50.0", "s_mean_um = 25.0")
+                  .replace("mpc-fast.toml", "mpc-default.toml"))
+    assert main(["trial", str(sc), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    line = [ln for ln in out.splitlines() if "missed by more than 2 %" in ln or "missed by more than 2%" in ln]
+    assert len(line) == 1 and "binding limits of the first plan: vial-temperature ceiling (80 °C)" in line[0]
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert any(b.startswith("vial-temperature ceiling") for b in summary["binding_first"])
+    assert isinstance(summary["binding_last"], list)
