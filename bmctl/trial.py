@@ -220,9 +220,9 @@ def _kept_rows(traj: Path, steps: int) -> str:
     return "".join(lines[: steps + 1])
 
 
-#: loop tallies that appear during a run (a solver fallback's log line, the feed sampled): a
-#: checkpoint may hold them where a fresh loop does not
-GROWN_KEYS = frozenset({"log", "feed_sampled"})
+#: loop tallies that appear during a run (a solver fallback's log line, the feed sampled, the binding
+#: limits of the first and latest plans): a checkpoint may hold them where a fresh loop does not
+GROWN_KEYS = frozenset({"log", "feed_sampled", "binding_first", "binding_last"})
 
 
 def _finite_numbers(value) -> bool:
