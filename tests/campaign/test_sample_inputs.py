@@ -58,13 +58,25 @@ def logged(tmp_path_factory):
     return d
 
 
-# --- the same bytes under two names ---------------------------------------------------------------
-def test_one_table_under_two_names_in_one_command_is_refused_naming_both(logged, tmp_path, capsys):
+def _copy(logged, tmp_path) -> Path:
+    """A copy of the ``logged`` campaign to change in one test."""
     d = tmp_path / "c"
     shutil.copytree(logged, d)
-    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
-    shutil.copyfile(SAMPLES / "lab-300rpm-0p5h.csv", a)
-    shutil.copyfile(SAMPLES / "lab-300rpm-0p5h.csv", b)
+    return d
+
+
+def _sample_files(tmp_path, *names) -> tuple[Path, ...]:
+    """Copies of the example samples ``names`` as a.csv, b.csv, ... in ``tmp_path``."""
+    out = tuple(tmp_path / f"{chr(ord('a') + i)}.csv" for i in range(len(names)))
+    for name, path in zip(names, out):
+        shutil.copyfile(SAMPLES / name, path)
+    return out
+
+
+# --- the same bytes under two names ---------------------------------------------------------------
+def test_one_table_under_two_names_in_one_command_is_refused_naming_both(logged, tmp_path, capsys):
+    d = _copy(logged, tmp_path)
+    a, b = _sample_files(tmp_path, "lab-300rpm-0p5h.csv", "lab-300rpm-0p5h.csv")
     os.link(a, tmp_path / "hard.csv")  # the same file by a second name (another path, not a symlink)
     before = _counts(d)
     for pair in ((a, b), (a, tmp_path / "hard.csv")):
@@ -82,11 +94,9 @@ def test_one_table_under_two_names_in_one_command_is_refused_naming_both(logged,
 def test_a_table_of_an_earlier_larger_sample_is_refused_naming_both(logged, tmp_path, capsys):
     """A table that was one of the inputs of a stored sample, entered again under another name (or
     again as a table in memory), would count its particles twice."""
-    d = tmp_path / "c"
-    shutil.copytree(logged, d)
-    a, b, again = tmp_path / "a.csv", tmp_path / "b.csv", tmp_path / "again.csv"
-    shutil.copyfile(SAMPLES / "lab-300rpm-0p5h.csv", a)
-    shutil.copyfile(SAMPLES / "lab-300rpm-1h.csv", b)
+    d = _copy(logged, tmp_path)
+    a, b = _sample_files(tmp_path, "lab-300rpm-0p5h.csv", "lab-300rpm-1h.csv")
+    again = tmp_path / "again.csv"
     assert main(["campaign", "sample", str(d), "--at-h", "0.5", str(a), str(b)]) == 0
     shutil.copyfile(b, again)
     capsys.readouterr()
@@ -124,11 +134,8 @@ def _version(d: Path) -> int:
 
 
 def test_a_version_1_campaign_is_read_upgraded_and_its_samples_matched_by_particles(logged, tmp_path, capsys):
-    d = tmp_path / "c"
-    shutil.copytree(logged, d)
-    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
-    shutil.copyfile(SAMPLES / "lab-300rpm-0p5h.csv", a)
-    shutil.copyfile(SAMPLES / "lab-300rpm-1h.csv", b)
+    d = _copy(logged, tmp_path)
+    a, b = _sample_files(tmp_path, "lab-300rpm-0p5h.csv", "lab-300rpm-1h.csv")
     cp.sample(d, 0.5, [a, b])
     _as_version_1(d)
     # the readers read it as it is, the verbs that do not sample leave it at version 1
@@ -158,8 +165,7 @@ def test_a_version_1_campaign_is_read_upgraded_and_its_samples_matched_by_partic
     ("UPDATE schema_version SET version = 3", "schema version 3, this bmctl reads 1 and 2"),
 ])
 def test_a_damaged_input_hash_is_refused_in_one_line(logged, tmp_path, capsys, damage, named):
-    d = tmp_path / "c"
-    shutil.copytree(logged, d)
+    d = _copy(logged, tmp_path)
     cp.sample(d, 0.5, [SAMPLES / "lab-300rpm-0p5h.csv"])
     con = sqlite3.connect(str(d / db.DB_NAME))
     con.execute(damage)
@@ -205,8 +211,7 @@ def test_the_reports_sample_std_is_with_n_minus_1_and_none_for_one_particle(logg
         warnings.simplefilter("error")  # no "degrees of freedom <= 0" from numpy
         one = sample_statistics(np.array([12.0]), np.array([0.1]))
     assert np.isnan(one["s_std_um"]) and np.isnan(one["r_std"]) and one["s_mean_um"] == 12.0
-    d = tmp_path / "c"
-    shutil.copytree(logged, d)
+    d = _copy(logged, tmp_path)
     t = _table(3, n=40)
     cp.sample(d, 0.5, [t])
     cp.sample(d, 1.0, [ParticleTable.from_size_aspect([33.0], [0.05])])
@@ -225,8 +230,7 @@ def _small(sizes, r0):
 def test_two_small_samples_at_one_time_that_leave_the_filter_degenerate_are_warned_of(logged, tmp_path, capsys):
     """Two samples of three particles at 0.5 h, read as one: the filter's update leaves its weight
     on a few of its 100 particles. The numbers stay the filter's; sample, advise and the report say it."""
-    d = tmp_path / "c"
-    shutil.copytree(logged, d)
+    d = _copy(logged, tmp_path)
     cp.sample(d, 0.5, [_small([50.0, 51.0, 52.0], 0.0)])
     assert cp.status(d)["estimate"]["t_h"] == 1.0
     first = cp.advise(d)
@@ -258,8 +262,7 @@ def test_two_small_samples_at_one_time_that_leave_the_filter_degenerate_are_warn
 
 
 def test_samples_of_a_usual_size_give_no_filter_warning(logged, tmp_path):
-    d = tmp_path / "c"
-    shutil.copytree(logged, d)
+    d = _copy(logged, tmp_path)
     cp.sample(d, 0.5, [SAMPLES / "lab-300rpm-0p5h.csv"])
     cp.sample(d, 1.0, [SAMPLES / "lab-300rpm-1h.csv"])
     a = cp.advise(d)

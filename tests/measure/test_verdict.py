@@ -28,6 +28,10 @@ from bmctl.measure.render import render_micrograph
 from bmctl.measure.segment import measure_labels, segment
 from bmctl.validation.measure import match_labels
 
+ROOT = Path(__file__).resolve().parents[2]
+CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+RECIPE = ROOT / "controllers" / "recipe-300rpm-continuous.toml"
+
 DATA = Path(__file__).resolve().parents[1] / "data"
 DARK_TEM = DATA / "065d8e352c.png"  # dark nanoparticles (TEM), black "200 nm" and bar
 BRIGHT_SEM = DATA / "43875c5b20.png"  # bright particles (SEM), white "(d)", "200 nm" and bar
@@ -250,6 +254,24 @@ def test_hand_edited_measure_json_is_no_traceback(tmp_path):
 
 # --- command line, campaign, estimate ---------------------------------------------------------------
 
+def _lab_campaign(tmp_path: Path) -> Path:
+    """A fresh campaign on the lab card with the 300 rpm recipe (target d50 45 µm)."""
+    from bmctl import campaign as cp
+
+    d = tmp_path / "c"
+    cp.init(d, CARD, RECIPE, {"d50_um": 45.0})
+    return d
+
+
+def _measured_estimate_args(image: Path, tmp_path: Path, capsys) -> list[str]:
+    """``bmctl measure`` the image (1 µm/px) to a table; the ``bmctl estimate`` arguments that read it at 0 h."""
+    out = tmp_path / "m" / "p.csv"
+    assert main(["measure", str(image), "--um-per-px", "1", "--out", str(out)]) == 0
+    capsys.readouterr()
+    return ["estimate", str(CARD), "--samples", str(out), "--times", "0", "--particles", "200", "--out",
+            str(tmp_path / "e" / "e.csv")]
+
+
 def _save(path: Path, img: np.ndarray) -> Path:
     from skimage import io
 
@@ -279,11 +301,7 @@ def test_cli_dark_and_bright_flags_exclusive(capsys):
 def test_campaign_sample_refuses_unusable_image(tmp_path):
     from bmctl import campaign as cp
 
-    root = Path(__file__).resolve().parents[2]
-    card = root / "models" / "alni-1to1-300rpm-lab.toml"
-    recipe = root / "controllers" / "recipe-300rpm-continuous.toml"
-    d = tmp_path / "c"
-    cp.init(d, card, recipe, {"d50_um": 45.0})
+    d = _lab_campaign(tmp_path)
     bad = _save(tmp_path / "bad.png", _unusable_image())
     with pytest.raises(InputError, match="verdict unusable"):
         cp.sample(d, 0.0, [str(bad)], um_per_px=1.0)
@@ -294,13 +312,8 @@ def test_campaign_sample_refuses_unusable_image(tmp_path):
 
 @pytest.mark.slow
 def test_estimate_refuses_unusable_table_from_measure(tmp_path, capsys):
-    root = Path(__file__).resolve().parents[2]
-    card = root / "models" / "alni-1to1-300rpm-lab.toml"
     bad = _save(tmp_path / "bad.png", _unusable_image())
-    out = tmp_path / "m" / "p.csv"
-    assert main(["measure", str(bad), "--um-per-px", "1", "--out", str(out)]) == 0
-    capsys.readouterr()
-    args = ["estimate", str(card), "--samples", str(out), "--times", "0", "--particles", "200", "--out", str(tmp_path / "e" / "e.csv")]
+    args = _measured_estimate_args(bad, tmp_path, capsys)
     assert main(args) == 2
     assert "verdict unusable" in capsys.readouterr().err
     assert not (tmp_path / "e").exists()
@@ -312,18 +325,11 @@ def test_estimate_refuses_unusable_table_from_measure(tmp_path, capsys):
 def test_campaign_sample_and_estimate_accept_few_particles_with_warning(tmp_path, capsys):
     from bmctl import campaign as cp
 
-    root = Path(__file__).resolve().parents[2]
-    card = root / "models" / "alni-1to1-300rpm-lab.toml"
-    recipe = root / "controllers" / "recipe-300rpm-continuous.toml"
-    d = tmp_path / "c"
-    cp.init(d, card, recipe, {"d50_um": 45.0})
+    d = _lab_campaign(tmp_path)
     two = _save(tmp_path / "two.png", _two_particles())
     r = cp.sample(d, 0.0, [str(two)], um_per_px=1.0)
     assert r["n"] == 2 and any("verdict doubtful (few particles: 2 found" in w for w in r["warnings"])
     assert cp.status(d)["counts"]["samples"] == 1  # stored
-    out = tmp_path / "m" / "p.csv"
-    assert main(["measure", str(two), "--um-per-px", "1", "--out", str(out)]) == 0
-    capsys.readouterr()
-    args = ["estimate", str(card), "--samples", str(out), "--times", "0", "--particles", "200", "--out", str(tmp_path / "e" / "e.csv")]
+    args = _measured_estimate_args(two, tmp_path, capsys)
     assert main(args) == 0
     assert "verdict doubtful (few particles: 2 found" in capsys.readouterr().err
