@@ -289,6 +289,13 @@ def resolve_card_data(data: dict[str, Any], source: str) -> dict[str, Any]:
 
 # --- validity ------------------------------------------------------------------------------------
 
+def size_range(card) -> tuple[float, float]:
+    """``(s_min_um, s_max_um)`` where ``card`` holds: ``[validity]``'s, else 1 µm and ``simulation.s_max_um``."""
+    v = card.validity
+    return (v.s_min_um if v.s_min_um is not None else S_MIN_UM_DEFAULT,
+            v.s_max_um if v.s_max_um is not None else card.simulation.s_max_um)
+
+
 def validity(card) -> dict[str, Any]:
     """The range where ``card`` holds, with the reason of each limit.
 
@@ -303,10 +310,11 @@ def validity(card) -> dict[str, Any]:
     if t_max is None and card.powder is not None:
         mix = mixture(card.powder.materials, card.powder.molar_ratio)
         t_max, reason = mix["melting_C"], f"melting point of {mix['melting_of']}"
+    s_min, s_max = size_range(card)
     return {
         "rpm_max": min(v.rpm_max or card.mill.rpm_max, card.mill.rpm_max),
-        "s_min_um": v.s_min_um if v.s_min_um is not None else S_MIN_UM_DEFAULT,
-        "s_max_um": v.s_max_um if v.s_max_um is not None else card.simulation.s_max_um,
+        "s_min_um": s_min,
+        "s_max_um": s_max,
         "temperature_max_C": t_max,
         "temperature_reason": reason,
     }

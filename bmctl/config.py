@@ -258,11 +258,10 @@ class ModelCard(Strict):
         if self.initial.s_mean_um >= self.simulation.s_max_um:
             raise ValueError(f"initial.s_mean_um: {self.initial.s_mean_um:g} is not below simulation.s_max_um "
                              f"{self.simulation.s_max_um:g}")
-        from .cards import S_MIN_UM_DEFAULT
+        from .cards import size_range
 
         v = self.validity
-        s_lo = v.s_min_um if v.s_min_um is not None else S_MIN_UM_DEFAULT
-        s_hi = v.s_max_um if v.s_max_um is not None else self.simulation.s_max_um
+        s_lo, s_hi = size_range(self)
         if s_lo >= s_hi:  # an empty size range: every run would warn from its first record
             where = "validity.s_min_um" if v.s_min_um is not None else "validity.s_max_um"
             raise ValueError(f"{where}: sizes {s_lo:g} to {s_hi:g} µm are an empty range (s_min_um must be below "

@@ -184,10 +184,9 @@ def size_range_warnings(card: ModelCard, samples) -> list[str]:
     card : ModelCard
     samples : iterable of (source, t_h, s_um)
     """
-    from ..cards import validity
+    from ..cards import size_range
 
-    val = validity(card)
-    lo, hi = val["s_min_um"], val["s_max_um"]
+    lo, hi = size_range(card)
     out = []
     for source, t_h, s_um in samples:
         m = float(np.mean(s_um))

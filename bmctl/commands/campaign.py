@@ -169,7 +169,7 @@ def _run(args: argparse.Namespace) -> int:
               + f", controller {meta['controller_kind']}; inputs copied to {d}/inputs")
     elif v == "log":
         r = cp.log(d, args.rpm, args.hours, args.milling, args.temperature_c, args.from_h)
-        from bmctl.campaign.readings import interval_text
+        from ..campaign.readings import interval_text
 
         what = interval_text(r["rpm"], r["milling"], r["t1_h"] - r["t0_h"])
         print(f"logged {r['t0_h']:g}-{r['t1_h']:g} h: {what}"

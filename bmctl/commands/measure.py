@@ -141,11 +141,11 @@ def run(args: argparse.Namespace) -> int:
     next_id = 1
     refuse_repeats(args.inputs)  # one image twice would be counted twice
     pixels = _check_work([p for p in args.inputs if not _is_table(p)])
-    est = {p: measure_work([n])["cpu_s"] for p, n in pixels.items()}
-    progress = None if args.no_progress or sum(est.values()) <= PROGRESS_AFTER_S else progress_printer("measure")
+    long = measure_work(list(pixels.values()))["cpu_s"] > PROGRESS_AFTER_S
+    progress = progress_printer("measure") if long and not args.no_progress else None
     for i, path in enumerate(args.inputs):
         name = path_text(path)  # printed and in the table: bytes that are not UTF-8 as escapes
-        if progress and path in est:
+        if progress and path in pixels:
             progress(f"input {i + 1} of {len(args.inputs)}: {name} ({pixels[path] / 1e6:.1f} Mpx)")
         if _is_table(path):
             t = read_table(path)
