@@ -38,8 +38,8 @@ from ..errors import InputError
 from .base import Plan, Reference, Status, batch_end_h, check_p, check_u_prev, check_x
 from dataclasses import replace
 
-from .search import (CEILING_TOL_C, Carry, Grid, _row, expand, fit_power, limits_of, make_grid, power_bound, search,
-                     shift_params, thermal_peaks)
+from .search import (CEILING_TOL_C, Carry, Grid, _row, expand, fit_power, limits_of, make_grid, operable, power_bound,
+                     search, shift_params, thermal_peaks)
 
 
 #: ``binding`` names the spread when another family comes this much closer nominally (relative error)
@@ -175,7 +175,7 @@ class PlanController:
             if s >= -1e-6 and abs(s - round(s)) < 1e-6:
                 q = shift_params(np.array(prev["params"]), np.array(prev["minutes"]), int(round(s)))
                 extra.append((q, "previous"))
-                r_q, m_q = expand(q[None], grid, self.lim, carry)
+                r_q, m_q = expand(q[None], grid, self.lim, replace(carry, check_open=False))
                 if m_q.sum() > 0:  # the same milling, started now: a local move the phases cannot make
                     on = m_q[0] > 0
                     extra.append((np.array(_row(float(np.max(r_q[0][on])), grid.interval_min, 1, grid.K,
@@ -189,16 +189,32 @@ class PlanController:
                   coarse_factor=ps_cfg.coarse_factor, pool=ps_cfg.pool, pool_band=ps_cfg.pool_band, risk=ps_cfg.risk,
                   rest_within=None if has_milled else self.cfg.objective.tolerance,
                   nudge_above=self.cfg.objective.tolerance if ps_cfg.nudge and has_milled else None)
-        args = (self.model, np.array(x0s), np.array(ps), target, grid, lim, self.cfg.weights, carry)
-        res, scope = None, "global"
-        if extra:  # the previous plan still reaches the target: a local search around it
-            tol = self.cfg.objective.tolerance
-            res = search(*args, rounds=0, extra=extra, coarse=False, give_up_above=tol, **kw)
-            scope = "local"
-            if res is not None and res.error > tol:
-                res = None
-        if res is None:
-            res, scope = search(*args, rounds=ps_cfg.rounds, extra=extra, **kw), "global"
+
+        def searched(c: Carry):
+            args = (self.model, np.array(x0s), np.array(ps), target, grid, lim, self.cfg.weights, c)
+            if extra:  # the previous plan still reaches the target: a local search around it
+                tol = self.cfg.objective.tolerance
+                r = search(*args, rounds=0, extra=extra, coarse=False, give_up_above=tol, **kw)
+                if r is not None and r.error <= tol:
+                    return r, "local"
+            return search(*args, rounds=ps_cfg.rounds, extra=extra, **kw), "global"
+
+        # The period open at t (a logged rest or milling period) counts toward the dwell minimums. The
+        # search excepts it first and its plan is kept where that plan keeps the minimums with it: checked
+        # from the start, the candidates that end the period short drop out of the local search's heads
+        # and of the spread's pool and so move decisions that keep it too. Where the plan would end it
+        # short (a 1-min logged rest, milling at once), the search runs again with the period checked (a
+        # short rest then rests on through the first interval: :meth:`Carry.rests_on`);
+        # its plan replaces the first unless it would take the vial over the ceiling where the first did
+        # not (a logged milling period shorter than the minimum may then end short: the ceiling first).
+        res, scope = searched(replace(carry, check_open=False))
+        if not operable(res.minutes[None], grid, lim, carry)[0][0]:
+            try:
+                kept, kept_scope = searched(carry)
+            except RuntimeError:  # nothing keeps it (cannot happen to a logged rest: resting on keeps it)
+                kept = None
+            if kept is not None and kept.peak_c <= max(res.peak_c, ceil + CEILING_TOL_C):
+                res, scope = kept, kept_scope
         ms = (time.perf_counter() - t0) * 1e3
         cpu = (time.process_time() - c0) * 1e3
         fam = res.family if res.family != "previous" else (prev or {}).get("family", "previous")

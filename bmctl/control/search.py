@@ -205,12 +205,31 @@ class Carry:
         rpm of the last interval when it milled (the rate limit starts from it).
     switches : int
         On/off transitions used so far.
+    check_open : bool
+        Whether the period open when the search starts counts toward the dwell minimums (its
+        ``run_min`` logged plus the plan's continuation): a plan may then not end a logged rest or
+        milling period short. False excepts it (:func:`operable`); the planner checks its chosen plan
+        with it and searches again with it where that plan would end the period short.
     """
 
     state: int = -1
     run_min: float = 0.0
     rpm: float | None = None
     switches: int = 0
+    check_open: bool = True
+
+    def rests_on(self, lim: "Limits") -> bool:
+        """Whether the first interval must rest: a checked open rest is under the minimum rest (with
+        milling first in each interval, milling in it would end the rest now).
+
+        Examples
+        --------
+        >>> from bmctl.control.search import Limits
+        >>> lim = Limits(0.0, 500.0, 10.0, None, 5.0, 5.0, None, 80.0)
+        >>> Carry(state=0, run_min=1.0).rests_on(lim), Carry(state=0, run_min=1.0, check_open=False).rests_on(lim)
+        (True, False)
+        """
+        return bool(self.check_open and self.state == 0 and self.run_min < lim.min_rest - 1e-6)
 
     @classmethod
     def from_history(cls, history) -> "Carry":
@@ -278,6 +297,8 @@ def expand(params: np.ndarray, grid: Grid, lim: Limits, carry: Carry | None = No
     minutes = np.minimum(minutes, grid.lengths_min[None, :])
     full = minutes >= grid.lengths_min[None, :] - 1e-9  # milling throughout: the interval's own length
     minutes = np.where(full, grid.lengths_min[None, :], np.floor(minutes + 1e-9))  # else whole minutes
+    if carry is not None and K > 0 and carry.rests_on(lim):
+        minutes[:, 0] = 0.0  # a logged rest under the minimum runs on through the first interval
     before = np.cumsum(minutes, axis=1) - minutes
     minutes = np.clip(np.minimum(minutes, cap - before), 0.0, None)
     rpm = np.where(inA, rA, rB)
@@ -311,7 +332,8 @@ def operable(minutes: np.ndarray, grid: Grid, lim: Limits, carry: Carry | None =
     grid : Grid
     lim : Limits
     carry : Carry, optional
-        The state before the first interval (its open period is not checked).
+        The state before the first interval; its open period is checked with its logged minutes
+        where ``carry.check_open`` (the default), excepted otherwise.
 
     Returns
     -------
@@ -324,7 +346,7 @@ def operable(minutes: np.ndarray, grid: Grid, lim: Limits, carry: Carry | None =
     N = A.shape[0]
     state = np.full(N, c.state)
     run = np.full(N, float(c.run_min))
-    carried = np.ones(N, dtype=bool)
+    carried = np.full(N, not c.check_open)  # still in the open period, and it is excepted
     sw = np.full(N, int(c.switches))
     bad = np.zeros(N, dtype=bool)
     at_mill = np.zeros(N, dtype=bool)
@@ -1084,6 +1106,7 @@ def search(model, x0s, ps, target: dict, grid: Grid, lim: Limits, weights, carry
         work["nodes"] += ev.nodes
         sc = score(ev, target, lim, weights, sw[idx])
         defer = (mins[idx, 0] <= 0) & (mins[idx, 1:].sum(axis=1) > 0) if g.K > 1 else np.zeros(idx.size, bool)
+        defer &= not carry.rests_on(lim)  # (milling now is not open to any plan)
         sc.nominal = sc.nominal + DEFER_PENALTY * defer  # milling later what could be milled now: ranks lower
         if not store:
             return idx, sc
