@@ -266,6 +266,12 @@ class ModelCard(Strict):
             where = "validity.s_min_um" if v.s_min_um is not None else "validity.s_max_um"
             raise ValueError(f"{where}: sizes {s_lo:g} to {s_hi:g} µm are an empty range (s_min_um must be below "
                              f"s_max_um{'' if v.s_max_um is not None else ', default simulation.s_max_um'})")
+        amb = self.thermal.ambient_C
+        for key in ("temperature_max_C", "calibrated_temperature_max_C"):  # both bound the vial from the ambient up
+            t = getattr(v, key)
+            if t is not None and t <= amb:
+                raise ValueError(f"validity.{key}: {t:g} °C is not above thermal.ambient_C {amb:g} °C (the vial "
+                                 "starts at the ambient and heats while milling: every milling run would leave it)")
         if self.material.yield_stress_Pa >= 0.1 * self.material.elastic_modulus_Pa:
             raise ValueError("material.yield_stress_Pa: must be below 10 % of elastic_modulus_Pa (a yield strain "
                              "above 0.1 is not a metal)")

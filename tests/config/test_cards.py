@@ -154,6 +154,19 @@ def test_an_empty_size_validity_range_is_refused(tmp_path, capsys, extra):
     assert "\n" not in err and "validity.s_m" in err and "empty range" in err, err
 
 
+@pytest.mark.parametrize("extra, field", [("calibrated_temperature_max_C = 20.0", "calibrated_temperature_max_C"),
+                                          ("temperature_max_C = 25.0", "temperature_max_C")])
+def test_a_validity_temperature_not_above_the_ambient_is_refused(tmp_path, capsys, extra, field):
+    """The card's ambient is 25 °C: a calibrated maximum of 20 °C (an empty window from the ambient up,
+    every milling run warned) or a validity maximum at the ambient is refused, naming the field."""
+    p = _edit(tmp_path, "[validity]", "[validity]\n" + extra)
+    p.write_text("\n".join(ln for ln in p.read_text().splitlines()
+                           if not (ln.startswith(field + " ") and "=" in ln and extra not in ln)) + "\n")
+    assert main(["card", "show", str(p)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f"validity.{field}: " in err and "thermal.ambient_C" in err, err
+
+
 def test_a_run_above_the_cards_validity_rpm_max_warns():
     """``[validity] rpm_max`` below the mill's top speed: a run there warned of nothing (the card's
     statement was used only by ``card show``); a speed within it still says nothing."""
