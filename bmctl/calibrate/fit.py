@@ -293,7 +293,7 @@ def calibrate(card: ModelCard, histories: Sequence[History], names: Sequence[str
         chi2 = ridge["chi2_at_estimate"]
         sd = np.sqrt(np.diag(cov))
     ratio = sd / s.prior_sd
-    identified, why = _identifiability(names, F, ratio, s)
+    identified, why = _identifiability(names, F, ratio, s, bounds_hit(ev, u_hat))
     cv = ev.card_values
     return Calibration(
         names=names, card_values=cv, start_values=ev.values(u_start), values=ev.values(u_hat),
@@ -487,17 +487,33 @@ def local_information(card: ModelCard, histories: Sequence[History], names: Sequ
     J, F = _jacobian_information(S, W, s.fd_step)
     cov = np.linalg.inv(F + np.eye(len(names)) / s.prior_sd**2)
     ratio = np.sqrt(np.diag(cov)) / s.prior_sd
-    identified, why = _identifiability(names, F, ratio, s)
+    identified, why = _identifiability(names, F, ratio, s, bounds_hit(ev, u))
     return {"fisher": F, "cov_u": cov, "sd_ratio": ratio, "identified": identified, "why": why,
             "plant_runs": ev.runs}
 
 
-def _identifiability(names, F: np.ndarray, ratio: np.ndarray, s: FitSettings) -> tuple[list[bool], list[str]]:
-    """Which parameters the data identify: posterior sd vs prior sd, and the Fisher information."""
+def bounds_hit(ev, u: np.ndarray) -> list[str | None]:
+    """Per parameter: ``"lower"`` or ``"upper"`` where ``card value * exp(u)`` is at or past the card's
+    range of that constant (the plant ran it at the bound: :meth:`_Evaluator.values`), else None."""
+    raw = ev.card_values * np.exp(np.asarray(u, dtype=float))
+    return ["upper" if r >= hi else "lower" if r <= lo else None for r, lo, hi in zip(raw, ev.lo, ev.hi)]
+
+
+def _identifiability(names, F: np.ndarray, ratio: np.ndarray, s: FitSettings,
+                     at_bound: Sequence[str | None] | None = None) -> tuple[list[bool], list[str]]:
+    """Which parameters the data identify: posterior sd vs prior sd, and the Fisher information. An
+    estimate at the card's bound of its constant (``at_bound``) is not identified, however narrow: the
+    data push it past the range the card accepts, and the plant runs it at the bound."""
     lam, vec = np.linalg.eigh(F)
     prior_prec = 1.0 / s.prior_sd**2
     identified, why = [], []
     for i, n in enumerate(names):
+        side = (at_bound or [None] * len(names))[i]
+        if side is not None:
+            identified.append(False)
+            why.append(f"the estimate of {n} is at the {side} bound of the range the card accepts: the data "
+                       "push it further, the plant ran it at the bound, and its interval measures nothing")
+            continue
         ok = bool(ratio[i] <= s.unidentified_ratio)
         identified.append(ok)
         if ok:

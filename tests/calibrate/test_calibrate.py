@@ -382,6 +382,22 @@ def test_a_trial_value_beyond_a_constants_range_is_run_at_its_bound():
     assert np.all(np.isfinite(summ))
 
 
+def test_an_estimate_at_a_constants_bound_is_not_called_identified():
+    """softening_max pushed past 1 and alpha past 20 are run at their bounds; their posterior sd can be
+    narrow (the plant no longer responds past the bound), which printed them as identified."""
+    from bmctl.calibrate.fit import _Evaluator, _identifiability, bounds_hit
+
+    card = load_card(LAB)
+    names = ["thermal.softening_max", "alpha", "gamma"]
+    ev = _Evaluator(card, names, [], FitSettings(), [], None, None)
+    u = np.array([2.0, -4.0, -1.0])  # 0.45 e^2 = 3.3 > 1; 2.1 e^-4 = 0.04 < 0.1; gamma well inside
+    assert bounds_hit(ev, u) == ["upper", "lower", None]
+    s = FitSettings()
+    ok, why = _identifiability(names, np.eye(3) * 400.0, np.full(3, 0.05), s, bounds_hit(ev, u))
+    assert ok == [False, False, True]
+    assert "upper bound" in why[0] and "lower bound" in why[1] and "posterior sd" in why[2]
+
+
 def test_ridge_posterior_never_scores_a_point_below_zero():
     """The profile -2 ln posterior (chi2 + u'Pu after a conditional Gauss-Newton step) is a sum of
     squares. Where J does not describe a grid point -- far from where it was taken, or with H's
