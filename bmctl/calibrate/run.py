@@ -6,7 +6,7 @@ Shared by ``bmctl calibrate`` and ``benchmarks/calibrate_accuracy.py``.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -32,6 +32,7 @@ class CalibrationRun:
     distances: list[dict]
     paths: list[Path]
     wall_s: float
+    removed: list[Path] = field(default_factory=list)  # figures of an earlier calibration in ``out``
 
 
 def model_samples_at(cal: Calibration, card: ModelCard, histories: Sequence[History], settings: FitSettings,
@@ -114,14 +115,41 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
                                    workers=0 if client is None else None)  # serial when the fit was
         meta = {"card": str(card_path), "seed": seed, "settings": s.model_dump(), "moment_stage": info,
                 "wall_s": wall}
+        figures = [out / f"histograms-{name_part(h.name)}.png" for h in histories]
+        stale = [p for p in earlier_figures(out) if p not in figures]
         with output_set():  # card, coefficients, calibration.json and figures: all of them or none
             write_text(card_out, outputs.card_toml(new, f"{new.card.name}: {note}\nSee calibration.json next to this "
                                                         "file; its moment coefficients are in the .moments.toml beside it."))
             write_text(coeffs_path(card_out), text)
             paths += [card_out, coeffs_path(card_out)]
             paths.append(outputs.write_json(out / "calibration.json", outputs.calibration_dict(cal, histories, dist, meta)))
-            for h, k in zip(histories, kept):
-                paths.append(outputs.plot_history(out / f"histograms-{name_part(h.name)}.png", h, k,
-                                                  f"{h.name}: measured vs calibrated {stem}"))
+            for h, k, fig in zip(histories, kept, figures):
+                paths.append(outputs.plot_history(fig, h, k, f"{h.name}: measured vs calibrated {stem}"))
+        for p in stale:  # the new calibration.json does not name them: they would pass for this run's
+            p.unlink(missing_ok=True)
         load_card(card_out)  # the written card loads (as outputs.write_card checks)
-    return CalibrationRun(cal, info, kept, dist, paths, wall)
+    return CalibrationRun(cal, info, kept, dist, paths, wall, stale if out is not None else [])
+
+
+def earlier_figures(out: Path) -> list[Path]:
+    """The histogram figures an earlier calibration wrote to ``out`` (those its ``calibration.json`` names
+    that are still there); nothing when there is none or it cannot be read.
+
+    Examples
+    --------
+    >>> import tempfile, json
+    >>> d = Path(tempfile.mkdtemp())
+    >>> _ = (d / "calibration.json").write_text(json.dumps({"histories": [{"name": "run 1"}, {"name": "b"}]}))
+    >>> _ = (d / "histograms-run_1.png").write_bytes(b"")
+    >>> [p.name for p in earlier_figures(d)]
+    ['histograms-run_1.png']
+    """
+    import json
+
+    try:
+        hist = json.loads((Path(out) / "calibration.json").read_text()).get("histories", [])
+        names = [str(h["name"]) for h in hist]
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return []
+    figs = [Path(out) / f"histograms-{name_part(n)}.png" for n in names]
+    return [p for p in dict.fromkeys(figs) if p.is_file()]

@@ -98,6 +98,8 @@ def run(args) -> int:
         print(estimate_line(cal, i))
     for p in res.paths:
         print(f"  wrote {p}")
+    for p in res.removed:
+        print(f"  removed {p} (a figure of the earlier calibration in this folder; no history of this one)")
     return 0
 
 

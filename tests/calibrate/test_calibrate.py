@@ -197,9 +197,15 @@ def test_cli_calibrate_small_end_to_end(tmp_path, capsys, monkeypatch):
     h = synthetic_history(truth, [(1.0, 300.0, 1.0)], [0.5, 1.0], 150, 400, np.random.default_rng(3), name="tiny")
     hp = write_history(h, tmp_path)
     out = tmp_path / "out"
+    out.mkdir()  # an earlier calibration's outputs: its figure of another history goes, the user's file stays
+    (out / "calibration.json").write_text(json.dumps({"histories": [{"name": "old run"}, {"name": "tiny"}]}))
+    for f in ("histograms-old_run.png", "histograms-tiny.png", "histograms-mine.png"):
+        (out / f).write_bytes(b"")
     rc = main(["calibrate", str(LAB), str(hp), "--params", "gamma,delta", "--particles", "200", "--workers", "0",
                "--out", str(out), "--seed", "2"])
     assert rc == 0
+    assert not (out / "histograms-old_run.png").exists() and (out / "histograms-mine.png").exists()
+    assert f"removed {out / 'histograms-old_run.png'}" in capsys.readouterr().out
     card = load_card(out / "alni-1to1-300rpm-lab-calibrated.toml")
     data = json.loads((out / "calibration.json").read_text())
     est = data["parameters"]["gamma"]
