@@ -123,7 +123,10 @@ class CampaignLoop(ClosedLoop):
 
 def predicted_temperature(estimator) -> tuple[float, float]:
     """Weighted mean and std (degC) of a particle estimator's vial temperature now, before a
-    reading (NaN for an estimator without particles)."""
+    reading (its own ``reading_prediction`` where it has one: the heating gain's prior at the first
+    reading counts; NaN for an estimator without particles)."""
+    if hasattr(estimator, "reading_prediction"):
+        return estimator.reading_prediction()
     X, w = getattr(estimator, "X", None), getattr(estimator, "weights", None)
     if X is None or w is None:
         return math.nan, math.nan

@@ -468,6 +468,18 @@ class ParticleFilter:
         f_rest = st.rest_noise_fraction
         self.pending_model_h += dt_h if f_rest == 1.0 else mill_h + f_rest * (dt_h - mill_h)
 
+    def reading_prediction(self) -> tuple[float, float]:
+        """Weighted mean and sd (degC) of the vial temperature a reading now is expected at, before the
+        reading's own noise: the particles' spread and the change of the heating gain the reading will
+        weigh in (its prior at the first reading, the walk since the last one; a jump, the rare event
+        a far reading signals, is left out)."""
+        st, w = self.settings, self.weights
+        T = self.X[:, 4]
+        m = float(w @ T)
+        v = st.thermal_gain_walk_per_sqrt_h**2 * self.pending_h + self.gain_var
+        var = float(w @ (T - m) ** 2) + v * float(w @ self._excess() ** 2)  # y = T + c E (_reading_update)
+        return m, math.sqrt(max(var, 0.0))
+
     def _excess(self) -> np.ndarray:
         """The card law's temperature excess over ambient of every particle, (T - T_amb) / g (degC)."""
         return (self.X[:, 4] - self.ambient_c) / self.gain

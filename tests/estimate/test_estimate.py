@@ -350,3 +350,35 @@ def test_cli_estimate_warns_of_a_sample_outside_the_cards_size_range(tmp_path, c
     assert rc == 0
     warns = [ln for ln in err.splitlines() if "outside the card's" in ln]
     assert len(warns) == 1 and "mm.csv" in warns[0] and "at 2 h" in warns[0], err
+
+
+def test_the_first_readings_prediction_counts_the_heating_gains_prior(model):
+    """Before the first reading every particle heats as the card says (gain 1): the particles' spread
+    of the vial temperature is nil, and a reading 20 % off the card's heating was called '6 σ far'.
+    The reading will weigh in the gain's prior N(1, 0.3^2) and its walk, so its predicted sd is that
+    share of the card law's excess over ambient (eqn 7 in closed form, 0.5 h at 400 rpm from ambient);
+    once spent, the prediction narrows to what the reading taught."""
+    import math
+
+    from bmctl.campaign.mill import predicted_temperature
+    from bmctl.campaign.readings import reading_warnings
+    from bmctl.config import load_card
+    from bmctl.plant.kinematics import kinematics
+
+    card = load_card(LAB)
+    st = FilterSettings(n_particles=200)
+    pf = ParticleFilter(model, np.random.default_rng(0), st)
+    pf.predict([400.0, 1.0], 0.5)
+    th = card.thermal
+    excess = (kinematics(card, 400.0).mean_power_W * th.cooling_time_s / th.heat_capacity_J_per_K
+              * (1 - math.exp(-1800.0 / th.cooling_time_s)))
+    m, sd = predicted_temperature(pf)
+    assert m == pytest.approx(th.ambient_C + excess, rel=1e-6)
+    assert sd == pytest.approx(math.hypot(st.thermal_gain_prior_std, st.thermal_gain_walk_per_sqrt_h
+                                          * math.sqrt(0.5)) * excess, rel=1e-3)
+    y = th.ambient_C + 0.8 * excess  # a mill heating 20 % less than its card
+    est = {"t_h": 0.5, "reading_c": y, "reading_predicted_c": m, "reading_predicted_sd_c": sd}
+    assert not any("far from" in w for w in reading_warnings(est, 200.0, st.sigma_temperature_c, th.ambient_C))
+    pf.update(temperature_c=y)
+    pf.predict([400.0, 1.0], 0.5)
+    assert predicted_temperature(pf)[1] < 0.25 * sd
