@@ -312,7 +312,8 @@ def _stop_reason(log: list[dict], converged: bool, s: FitSettings, chi2: float, 
     last = f"{steps[-1]:.2f}" if steps else "n/a"
     halved = sum(1 for e in log[-3:] if e.get("action", "").startswith("worse"))
     if n and chi2 > 3.0 * n:
-        helps = (f"the model does not reach the data (chi2 {chi2:.0f} on {n} summaries): check the card's "
+        helps = (f"the model does not reach the data (chi2 {chi2:.0f} on {n} summaries at the last Gauss-Newton "
+                 "step): check the card's "
                  "fixed parameters or fit more of them")
     elif halved:
         helps = ("the objective is noisy at this scale (steps were halved): more simulated particles "

@@ -89,7 +89,7 @@ def run(args) -> int:
     n_samples = sum(len(h.samples) for h in histories)
     print(f"{card.card.name}: {count(len(histories), 'history', 'histories')}, {count(n_samples, 'sample')}; "
           f"{count(cal.plant_runs, 'plant run')} ({engine}) in {res.wall_s:.0f} s, "
-          f"{time.perf_counter() - t0:.0f} s with the calibrated card's moment identification; chi2 {cal.chi2:.1f} on "
+          f"{time.perf_counter() - t0:.0f} s with the calibrated card's moment identification; chi2 {cal.chi2:.1f} at the estimate on "
           f"{count(cal.n_summaries, 'summary', 'summaries')}{'' if cal.converged else ' (not converged)'}")
     if not cal.converged:
         print(f"  {cal.stop_reason}")

@@ -355,7 +355,8 @@ def test_local_information_reports_identifiability_without_a_fit():
 @pytest.mark.parametrize("log, chi2, expect", [
     ([{"step_in_sd": 3.0}, {"step_in_sd": 1.5}], 14.0, "more iterations"),
     ([{"step_in_sd": 1.0}, {"step_in_sd": 1.4, "action": "step"}, {"action": "worse: step halved"}], 14.0, "noisy"),
-    ([{"step_in_sd": 1.0}, {"step_in_sd": 1.2}], 400.0, "does not reach the data"),
+    ([{"step_in_sd": 1.0}, {"step_in_sd": 1.2}], 400.0,
+     "does not reach the data (chi2 400 on 16 summaries at the last Gauss-Newton step)"),
     ([{"step_in_sd": 1.0}, {"step_in_sd": 1.2}], 14.0, "another time or rpm"),
 ])
 def test_unconverged_fit_says_why_and_what_would_help(log, chi2, expect):
