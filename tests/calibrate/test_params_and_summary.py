@@ -105,7 +105,7 @@ def test_summary_gives_units_and_singular_counts(tmp_path, capsys, monkeypatch):
                           hi90=np.array([2.1e-4, 2.6]), card_values=np.array([1.82e-4, 2.1]), identified=[True, False],
                           plant_runs=1, chi2=3.0, n_summaries=20, converged=True, stop_reason="")
     monkeypatch.setattr(run_module, "run_calibration",
-                        lambda *a, **k: SimpleNamespace(calibration=cal, wall_s=1.0, paths=[]))
+                        lambda *a, **k: SimpleNamespace(calibration=cal, wall_s=1.0, paths=[], removed=[]))
     rc = main(["calibrate", str(LAB), str(HISTORY), "--params", "gamma,alpha", "--workers", "0",
                "--out", str(tmp_path / "out")])
     out = capsys.readouterr().out
