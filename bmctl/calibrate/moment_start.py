@@ -65,7 +65,10 @@ def moment_start(card_path: str | Path, histories: Sequence[History], names: Seq
             t = smp.t_h
             ll += model.loglik(x, smp.s_um, smp.r)
     ll = np.where(np.isfinite(ll), ll, -np.inf)
-    best = int(np.argmax(ll))
+    # among equally likely points the one nearest the card: samples that saw no milling (all at 0 h) leave
+    # the likelihood flat, and the first maximum was the grid's corner (gamma and delta x1/4)
+    top = np.flatnonzero(ll >= ll.max() - 1e-9 * max(1.0, abs(float(ll.max())))) if np.isfinite(ll.max()) else [0]
+    best = int(min(top, key=lambda i: float(np.sum(np.log(P[i]) ** 2))))
     gm, dm = P[best]
     if "gamma" in names:
         u0[names.index("gamma")] = np.log(gm)

@@ -443,3 +443,16 @@ def test_cli_warns_of_a_sample_outside_the_cards_size_range(tmp_path, capsys):
     assert rc == 2
     warns = [ln for ln in err.splitlines() if ln.startswith("bmctl: warning:")]
     assert len(warns) == 1 and "sample[1]" in warns[0] and "outside the card's" in warns[0], err
+
+
+def test_the_moment_start_of_samples_that_saw_no_milling_is_the_card():
+    """A history sampled only at 0 h says nothing of gamma and delta: the moment model's likelihood is
+    the same over its whole grid, and the first maximum, the grid's corner (x1/4, x1/4), was reported
+    as the first stage's optimum. Among equal points the start is the card's value."""
+    from bmctl.calibrate.moment_start import moment_start
+    from bmctl.calibrate.synthetic import synthetic_history
+
+    h = synthetic_history(load_card(LAB), [(1.0, 300.0, 1.0)], [0.0], 150, 400, np.random.default_rng(3), name="feed")
+    u0, info = moment_start(LAB, [h], ["gamma", "delta"])
+    np.testing.assert_array_equal(u0, [0.0, 0.0])
+    assert (info["gamma_mult"], info["delta_mult"]) == (1.0, 1.0)
