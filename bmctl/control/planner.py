@@ -254,11 +254,12 @@ def milled(history) -> bool:
 
 
 def describe_plan(res, grid: Grid) -> str:
-    """One line: the plan's rpm range, milling time, switches and predicted error."""
+    """One line: the plan's rpm range, milling time, switches and predicted error at the estimate's mean (the
+    spread's median miss, which ``why`` names, can differ)."""
     from .search import describe
 
     return (f"{describe(res.rpm, res.minutes, grid)}; {res.switches} switches; predicted error "
-            f"{100 * res.error:.1f} %, peak {res.peak_c:.1f} °C")
+            f"{100 * res.error:.1f} % at the estimate's mean, peak {res.peak_c:.1f} °C")
 
 
 def plan_binding(res, grid: Grid, lim, carry: Carry, ceiling_c: float) -> list[str]:
