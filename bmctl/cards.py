@@ -373,7 +373,8 @@ def card_report(card, rpms: list[float] | None = None, coeff_window: dict | None
         ball velocity (Burgio), ``collisions_per_s`` f = Z v / l, ``impact_energy_mJ`` mean
         m v^2 / 2, ``hertz_radius_um``, ``trapped_share``, ``hits_per_particle_per_h``,
         ``power_W`` dissipated, ``steady_temperature_C`` = T_amb + P tau / C, ``valid``,
-        ``in_window``: the steady temperature lies in :func:`operating_window`), ``validity`` and
+        ``in_window``: the steady temperature lies in :func:`operating_window`, within
+        :data:`WINDOW_SLACK_K` as :func:`window_warnings` allows), ``validity`` and
         ``window`` (:func:`operating_window`).
     """
     from .moments.physics import plant_hit_rate  # lazy: the kinematics' home may move
@@ -421,7 +422,8 @@ def card_report(card, rpms: list[float] | None = None, coeff_window: dict | None
             "power_W": power,
             "steady_temperature_C": t_ss,
             "valid": rpm <= val["rpm_max"] and (val["temperature_max_C"] is None or t_ss <= val["temperature_max_C"]),
-            "in_window": lo <= t_ss <= hi,
+            # with the slack the run's warning allows (window_warnings): the card's own calibration speeds are in
+            "in_window": lo - WINDOW_SLACK_K <= t_ss <= hi + WINDOW_SLACK_K,
         })
     return {"name": card.card.name, "loading": loading, "powder": powder, "rows": rows, "validity": val,
             "window": win}

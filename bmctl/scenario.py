@@ -108,6 +108,8 @@ class Scenario(Strict):
 
     @model_validator(mode="after")
     def _check(self):
+        from .control.config import check_dvalue_order, target_value
+
         for k in self.target:
             if k not in TARGET_KEYS:
                 from .config import did_you_mean
@@ -119,6 +121,14 @@ class Scenario(Strict):
                 if len(v) != 2 or v[0] > v[1]:
                     raise ValueError(f"target.{k}: a window is [lo, hi] with lo <= hi (got {v})")
                 self.target[k] = (float(v[0]), float(v[1])) if v[1] > v[0] else float(v[0])
+            try:  # each key's range, as the controllers take it (a message naming target.<key>)
+                target_value(k, self.target[k], "target")
+            except InputError as exc:
+                raise ValueError(f"target.{str(exc).removeprefix('target: ')}") from None
+        try:
+            check_dvalue_order(self.target, "target")
+        except InputError as exc:
+            raise ValueError(str(exc)) from None
         return self
 
 
@@ -133,9 +143,26 @@ def resolve(path: str, base: Path) -> Path:
     raise InputError(f"{path}: file not found (looked in {base}, {base.parent}, .)")
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Load and validate a scenario TOML; referenced files must exist."""
+def load_scenario(path: str | Path, campaign: bool = False) -> Scenario:
+    """Load and validate a scenario TOML; referenced files must exist.
+
+    Parameters
+    ----------
+    path : path-like
+        The scenario TOML.
+    campaign : bool, optional
+        The trial runs through the campaign verbs (``bmctl trial --campaign``): what a campaign
+        cannot reproduce (:func:`bmctl.campaign.simulated.check_scenario`) is refused first.
+
+    Returns
+    -------
+    Scenario
+    """
     sc = load(Scenario, path)
+    if campaign:
+        from .campaign.simulated import check_scenario
+
+        check_scenario(sc, path)
     base = Path(path).resolve().parent
     for ref in (sc.model, sc.plant.model, sc.controller.config):
         if ref is not None:
@@ -143,11 +170,14 @@ def load_scenario(path: str | Path) -> Scenario:
                 resolve(ref, base)
             except InputError as exc:
                 raise InputError(f"{path}: {exc}") from None
-    from .control.config import check_dwell_interval, load_controller
+    from .control.config import check_dwell_interval, check_lqr_track, load_controller
+    from .control.design import check_batch
 
     cfg_path = resolve(sc.controller.config, base)
     cfg = load_controller(cfg_path)
     check_dwell_interval(cfg, str(cfg_path))
+    # as `bmctl design --hours`: a batch under the mill's minimum milling period (or 5 min) is not a schedule
+    check_batch(sc.hours, cfg, "target", f"{path}: hours", str(cfg_path))
     interval_h = cfg.interval_h if cfg.interval_h is not None else (
         (cfg.mill_min + cfg.rest_min) / 60.0 if getattr(cfg, "mill_min", None) is not None else 0.5)
     interval_h = min(interval_h, sc.hours)  # a batch shorter than one interval is one interval
@@ -165,4 +195,6 @@ def load_scenario(path: str | Path) -> Scenario:
                              f"temperature (thermal.ambient_C = {ambient:g} °C): a resting vial is already at the ambient")
     if cfg.kind != "recipe" and not sc.target:
         raise InputError(f"{path}: target: a feedback controller ({cfg.kind}) needs at least one target")
+    if cfg.kind == "lqr":  # a target the LQR cannot track: refused before the trial writes anything
+        check_lqr_track(cfg.lqr.track, sc.target, f"{path}: target", str(cfg_path))
     return sc

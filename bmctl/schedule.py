@@ -16,6 +16,9 @@ TOML form (``bmctl simulate --schedule``, ``bmctl whatif``)::
     rpm = 300
     # milling = 1.0   (optional share of the segment spent milling)
 
+A share strictly between 0 and 1 must leave a milling phase and a rest phase of at least
+:data:`~bmctl.limits.PHASE_MIN_MINUTES` (6 s) each, the shortest phase any mill is run for.
+
 Examples
 --------
 >>> s = Schedule.from_pairs([(1.0, 300.0), (0.5, 0.0)])
@@ -34,9 +37,10 @@ from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, ValidationInfo, field_validator
 
 from .config import HOURS, RPM, Strict, load
+from .limits import PHASE_MIN_MINUTES
 from .physics.constants import TIME_EPS_H
 
 #: pieces shorter than this (h) are dropped when a schedule is cut or merged
@@ -50,12 +54,111 @@ class SegmentSpec(Strict):
     rpm: RPM
     milling: float = Field(default=1.0, ge=0.0, le=1.0)
 
+    @field_validator("milling", mode="after")
+    @classmethod
+    def _phases_long_enough(cls, milling: float, info: ValidationInfo) -> float:
+        """Refuse a share that leaves a milling or rest phase shorter than :func:`short_phase` allows."""
+        hours, rpm = info.data.get("hours"), info.data.get("rpm")
+        if hours is not None and rpm is not None:
+            why = short_phase(hours, rpm, milling)
+            if why:
+                raise ValueError(why)
+        return milling
+
+
+#: the shortest milling or rest phase a segment's share may leave (s): bmctl.limits.PHASE_MIN_MINUTES
+PHASE_MIN_S = PHASE_MIN_MINUTES * 60.0
+
+
+def short_phase(hours: float, rpm: float, milling: float) -> str:
+    """What is wrong with a segment whose milling share leaves a milling or rest phase shorter than
+    :data:`PHASE_MIN_S`; empty when nothing is.
+
+    A share of 0 or 1 (and any share of a rest, rpm 0) leaves no second phase and is always fine.
+
+    Parameters
+    ----------
+    hours : float
+        Segment length (h).
+    rpm : float
+        Its speed (0: a rest).
+    milling : float
+        The share of ``hours`` spent milling, first.
+
+    Returns
+    -------
+    str
+        The reason, one line, or "".
+
+    Examples
+    --------
+    >>> short_phase(0.5, 300.0, 0.5), short_phase(0.5, 300.0, 1.0), short_phase(0.5, 0.0, 0.0001)
+    ('', '', '')
+    >>> print(short_phase(0.5, 300.0, 0.0001))  # doctest: +NORMALIZE_WHITESPACE
+    mills 0.18 s of the segment's 0.5 h, shorter than the 6 s a mill or rest phase lasts at least
+    (a share of 0 or 1 leaves none)
+    >>> short_phase(0.5, 300.0, 0.99999)[:40]
+    "rests 0.018 s of the segment's 0.5 h, sh"
+    """
+    if rpm <= 0 or not 0.0 < milling < 1.0:
+        return ""
+    for what, seconds in (("mills", milling * hours * 3600.0), ("rests", (1.0 - milling) * hours * 3600.0)):
+        if seconds < PHASE_MIN_S * (1.0 - 1e-9):  # a share that divides the segment exactly at 6 s is kept
+            return (f"{what} {seconds:.2g} s of the segment's {hours:g} h, shorter than the {PHASE_MIN_S:g} s a mill "
+                    "or rest phase lasts at least (a share of 0 or 1 leaves none)")
+    return ""
+
 
 class ScheduleFile(Strict):
     """A schedule TOML file."""
 
     name: str = ""
     segment: list[SegmentSpec] = Field(min_length=1)
+
+
+#: a length within this of a whole number of minutes is whole (min): a few microseconds
+WHOLE_MINUTE_TOL = 1e-7
+
+
+def is_whole_minutes(hours: float) -> bool:
+    """Whether ``hours`` is a whole number of minutes (within :data:`WHOLE_MINUTE_TOL`).
+
+    Parameters
+    ----------
+    hours : float
+        A length (h).
+
+    Examples
+    --------
+    >>> is_whole_minutes(7 / 60), is_whole_minutes(0.09)
+    (True, False)
+    """
+    m = hours * 60.0
+    return abs(m - round(m)) <= WHOLE_MINUTE_TOL
+
+
+def minutes_text(hours: float) -> str:
+    """A length in minutes as a schedule file's comment shows it: whole minutes as such, else with the
+    decimals it takes (at most 4, with "≈" beyond), so that the comment never rounds a length to a
+    whole minute it is not.
+
+    Parameters
+    ----------
+    hours : float
+        The length (h).
+
+    Examples
+    --------
+    >>> minutes_text(0.5), minutes_text(0.09), minutes_text(0.08334), minutes_text(0.123456789)
+    ('30 min', '5.4 min', '5.0004 min', '≈ 7.4074 min')
+    """
+    m = hours * 60.0
+    if is_whole_minutes(hours):
+        return f"{round(m):d} min"
+    for k in range(1, 5):
+        if abs(round(m, k) - m) <= WHOLE_MINUTE_TOL:
+            return f"{m:.{k}f} min"
+    return f"≈ {m:.4f} min"
 
 
 @dataclass(frozen=True)
@@ -156,6 +259,36 @@ class Schedule:
                 add((1 - m) * interval_h, 0.0)
         return cls.from_pairs(segs, name)
 
+    # --- checks ---------------------------------------------------------------------------------
+    def check_rpm_max(self, rpm_max: float, where: str) -> None:
+        """Refuse a segment faster than the mill's ``rpm_max``, naming the file and segment.
+
+        Parameters
+        ----------
+        rpm_max : float
+            The card's ``mill.rpm_max``.
+        where : str
+            The schedule file, named first.
+
+        Raises
+        ------
+        bmctl.errors.InputError
+            ``where: segment[i].rpm: R exceeds the mill's rpm_max M``.
+
+        Examples
+        --------
+        >>> Schedule.from_pairs([(1.0, 300.0)]).check_rpm_max(600.0, "s.toml")
+        >>> Schedule.from_pairs([(1.0, 300.0), (1.0, 1500.0)]).check_rpm_max(600.0, "s.toml")
+        Traceback (most recent call last):
+        ...
+        bmctl.errors.InputError: s.toml: segment[1].rpm: 1500 exceeds the mill's rpm_max 600
+        """
+        from .errors import InputError
+
+        for i, seg in enumerate(self.segments):
+            if seg.rpm > rpm_max:
+                raise InputError(f"{where}: segment[{i}].rpm: {seg.rpm:g} exceeds the mill's rpm_max {rpm_max:g}")
+
     # --- views ----------------------------------------------------------------------------------
     @property
     def hours(self) -> float:
@@ -211,7 +344,7 @@ class Schedule:
         """TOML text of the schedule (the ``bmctl simulate --schedule`` format)."""
         lines = [f'name = "{self.name}"'] if self.name else []
         for s in self.segments:
-            lines += ["", "[[segment]]", f"hours = {s.hours:.10g}   # {s.hours * 60:.0f} min", f"rpm = {s.rpm:g}"]
+            lines += ["", "[[segment]]", f"hours = {s.hours:.10g}   # {minutes_text(s.hours)}", f"rpm = {s.rpm:g}"]
             if s.milling != 1.0:
                 lines.append(f"milling = {s.milling:.10g}")
         return "\n".join(lines) + "\n"

@@ -118,10 +118,33 @@ def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[f
                         np.array([m[4] for m in members]))
 
 
+#: the brackets a shared name's folder or file is put in: the first pair that no other schedule's own
+#: name already shows after that name (``x (a)`` given as a name: the folders of two schedules named
+#: ``x`` are ``x [a]``, ``x [b]``)
+TAG_BRACKETS = (("(", ")"), ("[", "]"), ("{", "}"), ("<", ">"))
+
+
 def unique_labels(names: Sequence[str], paths: Sequence[str | Path] | None = None) -> list[str]:
-    """Labels of the schedules, one per schedule and all different: a name shared by several
-    schedules gets its file's folder (``name (folder)``), else the file as given, else its place
-    in the list (``name #k``, counted from 1).
+    """Labels of the schedules, one per schedule and all different.
+
+    A name held by one schedule is its label. A name shared by several gets, for each of them, its
+    file's folder (``name (folder)``), else the file as given (``name (file)``), else its place among
+    them (``name #k``, counted from 1). No label made so is another schedule's own name, nor reads
+    like a label made from one: where another schedule is named ``name (...)`` the folder or file is
+    put in the first other brackets of :data:`TAG_BRACKETS` (``name [folder]``), and where one is
+    named ``name #...`` the place is put in brackets (``name (#k)``).
+
+    Parameters
+    ----------
+    names : sequence of str
+        Each schedule's own name (its ``name``, else its file's stem).
+    paths : sequence of str or Path, optional
+        The schedule files as given (None: no file, the place in the list tells them apart).
+
+    Returns
+    -------
+    list of str
+        One label per schedule, in order.
 
     Examples
     --------
@@ -131,35 +154,62 @@ def unique_labels(names: Sequence[str], paths: Sequence[str | Path] | None = Non
     ['x #1', 'x #2']
     >>> unique_labels(["x", "x"])
     ['x #1', 'x #2']
+
+    A schedule named like a label kept its name, and the others do not read like it:
+
+    >>> unique_labels(["x", "x", "x #1"])
+    ['x (#1)', 'x (#2)', 'x #1']
+    >>> unique_labels(["x", "x", "x (a)"], ["a/s.toml", "b/s.toml", "c.toml"])
+    ['x [a]', 'x [b]', 'x (a)']
     """
+    import re
+    from collections import Counter
+
     names = [str(n) for n in names]
     paths = [None] * len(names) if paths is None else [None if p is None else Path(p) for p in paths]
 
     def folder(p):
         return None if p is None else (p.parent.name or p.resolve().parent.name or str(p.parent))
 
-    out = list(names)
-    for tag in (folder, lambda p: None if p is None else str(p)):
-        seen = {}
-        for lab in out:
-            seen[lab] = seen.get(lab, 0) + 1
-        cand = [f"{lab} ({tag(p)})" if seen[lab] > 1 and tag(p) else lab for lab, p in zip(out, paths)]
-        if len(set(cand)) == len(cand):
-            return cand
-        counts = {}
-        for lab in cand:
-            counts[lab] = counts.get(lab, 0) + 1
-        out = [c if counts[c] == 1 else o for c, o in zip(cand, out)]  # keep what became unique
-    counts, k = {}, {}
-    for lab in out:
-        counts[lab] = counts.get(lab, 0) + 1
-    res = []
-    for lab in out:
-        if counts[lab] > 1:
-            k[lab] = k.get(lab, 0) + 1
-            lab = f"{lab} #{k[lab]}"
-        res.append(lab)
-    return res
+    def as_given(p):
+        return None if p is None else str(p)
+
+    count = Counter(names)
+    labels: list[str | None] = [n if count[n] == 1 else None for n in names]
+    taken = set(names)  # every schedule's own name: no label made here may be one
+    for base in dict.fromkeys(n for n in names if count[n] > 1):
+        others = [n for n in count if n != base]
+        b = re.escape(base)
+
+        def imitated(pattern: str) -> bool:
+            return any(re.fullmatch(pattern, o, re.DOTALL) for o in others)
+
+        pending = [i for i, n in enumerate(names) if n == base]
+        brackets = next(((o, c) for o, c in TAG_BRACKETS if not imitated(f"{b} {re.escape(o)}.*{re.escape(c)}")),
+                        None)
+        if brackets is not None:
+            for tag in (folder, as_given):
+                cand = {i: f"{base} {brackets[0]}{t}{brackets[1]}" for i in pending if (t := tag(paths[i]))}
+                once = Counter(cand.values())
+                for i, lab in cand.items():  # keep what tells a schedule apart, try the next tag on the rest
+                    if once[lab] == 1 and lab not in taken:
+                        labels[i] = lab
+                        taken.add(lab)
+                pending = [i for i in pending if labels[i] is None]
+        if brackets is not None and imitated(f"{b} #.*"):
+            def numbered(k, o=brackets[0], c=brackets[1]):
+                return f"{base} {o}#{k}{c}"
+        else:
+            def numbered(k):
+                return f"{base} #{k}"
+        k = 0
+        for i in pending:
+            k += 1
+            while numbered(k) in taken:  # only where every bracket is taken: never one of the names
+                k += 1
+            labels[i] = numbered(k)
+            taken.add(labels[i])
+    return labels
 
 
 def table_rows(results: Sequence[WhatIfResult]) -> tuple[list[str], list[list]]:

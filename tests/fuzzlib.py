@@ -559,7 +559,7 @@ def fixtures() -> Path:
     (root / "t.csv").write_bytes(_table_csv(rng))
     for c, ctrl in CAMPAIGN_CTRL.items():
         fresh, logged = root / f"campaign-fresh-{c}", root / f"campaign-logged-{c}"
-        cp.init(fresh, CAMPAIGN_CARD, ctrl, "d50_um=45", hours=CAMPAIGN_HOURS, particles=100)
+        cp.init(fresh, CAMPAIGN_CARD, ctrl, campaign_target(c), hours=CAMPAIGN_HOURS, particles=100)
         shutil.copytree(fresh, logged)
         cp.log(logged, 300.0, 0.5, 1.0, 40.0)
         cp.sample(logged, 0.5, [str(root / "t.csv")])
@@ -757,12 +757,17 @@ def _verb_argv(rng: random.Random, verb: str, files: dict[str, bytes]) -> list[s
     return ["campaign", verb, "@out"] + (["--json"] if verb in ("advise", "status") and rng.random() < 0.3 else [])
 
 
+def campaign_target(ctrl: str) -> str:
+    """The fixtures' campaign target: D50 45 µm, the mean size for the LQR (it tracks a moment)."""
+    return "s_mean_um=45" if ctrl == "lqr" else "d50_um=45"
+
+
 def _campaign_case(rng: random.Random) -> Case:
     op = rng.choice(["init", "init", "init-file", "log", "log", "log", "sample", "sample-table", "sample-image",
                      "decide", "damaged", "damaged", "damaged", "damaged"])
     ctrl = rng.choice(["recipe", "recipe", "lqr"])
     files: dict[str, bytes] = {}
-    init = {"--model": str(CAMPAIGN_CARD), "--controller": str(CAMPAIGN_CTRL[ctrl]), "--target": "d50_um=45",
+    init = {"--model": str(CAMPAIGN_CARD), "--controller": str(CAMPAIGN_CTRL[ctrl]), "--target": campaign_target(ctrl),
             "--hours": "2", "--particles": "100"}
     verify = check_campaign
     then_advise = rng.random() < 0.4

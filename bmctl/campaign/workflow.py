@@ -428,7 +428,7 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         The campaign's meta data.
     """
     from ..config import load_card
-    from ..control.config import check_ceiling, check_dwell_interval, load_controller
+    from ..control.config import TARGET_KEYS, check_ceiling, check_dwell_interval, check_lqr_track, load_controller
     from ..moments.coeffs import coeffs_path
 
     card_p, ctrl_p = Path(model), Path(controller)
@@ -447,7 +447,13 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
             raise InputError(f"target: unknown key {k!r} (one of {', '.join(tg.known_keys())})")
     if not tgt and cfg.kind != "recipe":
         raise InputError(f"--target: a feedback controller ({cfg.kind}) needs a target")
+    if cfg.kind == "lqr" and all(k in TARGET_KEYS for k in tgt):  # one the LQR cannot track: refused now
+        check_lqr_track(cfg.lqr.track, tgt, "--target", str(ctrl_p))
     H = float(card.process.hours) if hours is None else _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)
+    from ..control.design import check_batch
+
+    # as `bmctl design --hours` and a trial's hours: a batch under the mill's minimum milling period is no batch
+    check_batch(H, cfg, "target", "--hours" if hours is not None else f"{card_p}: process.hours", str(ctrl_p))
     Tmax = None if temperature_max_c is None else _finite(temperature_max_c, "--temperature-max-c", -50, 400)
     if Tmax is not None and Tmax <= card.thermal.ambient_C:
         raise InputError(f"--temperature-max-c: {Tmax:g} °C is not above the card's ambient temperature "

@@ -10,6 +10,7 @@ axis) and ``compare.json`` into ``--out``.
 from __future__ import annotations
 
 import json
+import sys
 
 from ._args import hours_arg, int_arg, output_path
 
@@ -57,14 +58,19 @@ def run(args) -> int:
     table = read_table(args.sample)
     card = load_card(args.model)
     if args.schedule is not None:
-        segments = Schedule.load(args.schedule).pairs()
+        sched = Schedule.load(args.schedule)
+        sched.check_rpm_max(card.mill.rpm_max, args.schedule)  # as whatif: the file and segment, before any work
+        segments = sched.pairs()
     else:
         segments = Schedule.from_card(card).pairs()
-    from ..cards import simulation_work
+    from ..cards import check_melting, simulation_work
     from ..measure.compare import truncate_schedule
     from ..work import check_work
 
-    check_work(simulation_work(card, truncate_schedule(segments, args.at_h) or [(1e-3, 0.0)],
+    ran = truncate_schedule(segments, args.at_h)  # what the plant runs: the schedule cut at --at-h
+    # the vial's peak over what runs, as simulate and whatif: above the melting limit nothing runs
+    check_melting(card, ran, args.schedule or f"{args.model}: process.rpm")
+    check_work(simulation_work(card, ran or [(1e-3, 0.0)],
                                args.particles or card.simulation.particles, max(args.at_h, 1e-3), raster=False),
                "--at-h/--particles/--schedule")
     out = output_path(args.out)
@@ -84,7 +90,45 @@ def run(args) -> int:
     if r_stat.ks_p < R_NOTE_P and r_stat.median_measured > r_stat.median_predicted:
         print(r_note(r_stat.median_measured, r_stat.median_predicted))
     print(f"compare: wrote {path_text(out / 'compare.png')}, {path_text(out / 'compare.json')}")
+    for line in validity_warnings(card, ran, args.at_h, float(np.mean(s_pred))):
+        print(f"bmctl: warning: {line}", file=sys.stderr)
     return 0
+
+
+def validity_warnings(card, segments, at_h: float, s_mean_um: float) -> list[str]:
+    """The warnings ``simulate`` gives for the run a comparison makes (one line each): the vial above
+    the card's maximum (at its exact peak, :func:`bmctl.cards.peak_temperature_c`), the predicted
+    mean size outside the card's range at ``at_h``, and a milling speed outside the calibrated window.
+
+    Parameters
+    ----------
+    card : ModelCard
+    segments : sequence of (hours, rpm)
+        The schedule as run, cut at ``at_h``.
+    at_h : float
+        The sample's time (h).
+    s_mean_um : float
+        The predicted population's mean size there (µm).
+
+    Returns
+    -------
+    list of str
+
+    Examples
+    --------
+    >>> from bmctl.config import load_card
+    >>> card = load_card("models/alni-1to1-300rpm-lab.toml")
+    >>> validity_warnings(card, [(2.0, 300.0)], 2.0, 45.0)
+    []
+    >>> print(validity_warnings(card, [(3.0, 600.0)], 3.0, 15.0)[0][:63])
+    alni-1to1-300rpm-lab: steady vial temperature 349 °C at 600 rpm
+    """
+    from ..cards import peak_temperature_c, run_warnings, window_warnings
+
+    peak, at = peak_temperature_c(card, segments)
+    # the peak and the final size are the run's records here (empty lists: the other check has none)
+    return (run_warnings(card, [at], [peak], []) + run_warnings(card, [at_h], [], [s_mean_um])
+            + window_warnings(card, [rpm for _, rpm in segments]))
 
 
 #: below this KS p-value a measured r above the prediction gets :func:`r_note`

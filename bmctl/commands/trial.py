@@ -55,7 +55,7 @@ def run(args) -> int:
     from ..scenario import load_scenario
     from ..trial import run_trial
 
-    sc = load_scenario(args.scenario)
+    sc = load_scenario(args.scenario, campaign=args.campaign)  # every input check before --out is touched
     if args.campaign and args.resume:
         raise InputError("--resume: a trial run with --campaign does not resume (the simulated plant is not in the "
                          "campaign); run it again with the same --seed into a new --out: same trajectory")
@@ -77,9 +77,8 @@ def run(args) -> int:
             bar.update(k - bar.n)
     try:
         if args.campaign:
-            from ..campaign.simulated import check_scenario, run_trial_as_campaign
+            from ..campaign.simulated import run_trial_as_campaign
 
-            check_scenario(sc, args.scenario)
             summary = run_trial_as_campaign(args.scenario, out, seed=args.seed, progress=progress)
         else:
             summary = run_trial(args.scenario, out, seed=args.seed, resume=args.resume is not None,
@@ -103,10 +102,11 @@ def run(args) -> int:
 
     tol = Objective.model_fields["tolerance"].default  # a miss: beyond the controllers' default tolerance
     missed = [k for k, v in summary["final_error"].items() if abs(v) > tol]
-    if missed and (summary.get("binding_first") or summary.get("binding_last")):  # why, as the plans saw it
-        print(f"  missed by more than {tol:.0%} ({', '.join(missed)}); binding limits of the first plan: "
-              + ("; ".join(summary["binding_first"]) or "none") + "; of the last: "
-              + ("; ".join(summary["binding_last"]) or "none"))
+    if missed:  # always said; why, as the plans saw it, where they recorded binding limits
+        first, last = summary.get("binding_first") or [], summary.get("binding_last") or []
+        print(f"  missed by more than {tol:.0%} ({', '.join(missed)})"
+              + (f"; binding limits of the first plan: {'; '.join(first) or 'none'}; of the last: "
+                 f"{'; '.join(last) or 'none'}" if first or last else ""))
     print(f"  wrote {out}/trajectory.csv, summary.json, trial.json, trial.png"
           + ("" if args.campaign else ", checkpoint.npz")
           + (f"; the campaign in {out}/campaign (bmctl campaign report {out}/campaign)" if args.campaign else ""))

@@ -5,7 +5,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ..errors import InputError
 from ._args import int_arg, output_path
 
 
@@ -34,10 +33,7 @@ def run(args) -> int:
     scheds = []
     for path in args.schedules:
         sched = Schedule.load(path)
-        for i, seg in enumerate(sched.segments):
-            if seg.rpm > card.mill.rpm_max:
-                raise InputError(f"{path}: segment[{i}].rpm: {seg.rpm:g} exceeds the mill's rpm_max "
-                                 f"{card.mill.rpm_max:g}")
+        sched.check_rpm_max(card.mill.rpm_max, path)
         scheds.append((sched.name or Path(path).stem, sched.pairs()))
     # two files may carry one name (two `design` outputs): each label names its schedule alone
     scheds = list(zip(unique_labels([n for n, _ in scheds], args.schedules), (s for _, s in scheds)))

@@ -17,9 +17,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..physics.constants import TIME_EPS_H
-from .base import (Plan, Reference, Status, batch_end_h, applied_input, applied_input_guarded, check_gamma_delta,
-                   check_rpm_range, check_u_prev, check_x, interval_peaks, max_milling_for_ceiling, rpm_window)
-from .config import TARGET_KEYS, LQRConfig, RecipeConfig, target_centre
+from .base import (Plan, Reference, Status, _CallableReference, batch_end_h, applied_input, applied_input_guarded,
+                   check_gamma_delta, check_rpm_range, check_u_prev, check_x, interval_peaks, max_milling_for_ceiling,
+                   rpm_window)
+from .config import TARGET_KEYS, LQRConfig, RecipeConfig, check_lqr_track, target_centre
 from .mill import MillGuard
 from .mpc import ERR_FLOOR, X_SCALE
 
@@ -145,10 +146,26 @@ class LQRController(_Base):
     def __init__(self, cfg: LQRConfig, model, reference=None):
         check_rpm_range(cfg, model.rpm_max)  # no speed left to mill at: refused, not advised above the mill's top
         super().__init__(cfg, model, reference)
+        self._check_track(self.reference)
         self.interval_h = float(cfg.interval_h)
         self.rpm_scale = float(model.const.rpm_max)
         self._jac = None
         self.reset()
+
+    def _check_track(self, reference: Reference) -> None:
+        """Refuse a reference the LQR cannot track (:func:`bmctl.control.config.check_lqr_track`); a
+        callable reference is known only at plan time."""
+        if not isinstance(reference, _CallableReference):
+            check_lqr_track(self.cfg.lqr.track, reference.points, "target", f"controller {self.cfg.name or 'lqr'}")
+
+    def set_target(self, target, t_end_h: float | None = None) -> None:
+        """As :meth:`bmctl.control.mpc.MPCController.set_target`; a target that never names the
+        tracked moment (or, with ``lqr.track`` unset, names only D-values) is refused."""
+        reference = Reference.make(target)
+        self._check_track(reference)
+        self.reference = reference
+        if t_end_h is not None:
+            self.t_end_h = batch_end_h(t_end_h)
 
     def reset(self) -> None:
         self._x_last = None

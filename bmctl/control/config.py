@@ -114,15 +114,19 @@ class Target(Strict):
     d90_um: TargetValue | None = None
     span: TargetValue | None = None
 
+    @field_validator(*TARGET_KEYS, mode="after")
+    @classmethod
+    def _value(cls, value, info):
+        """Each value in its range (the error's location names the key: ``target.r_mean``)."""
+        if value is not None:
+            try:
+                target_value(info.field_name, value, "target")
+            except InputError as exc:
+                raise ValueError(str(exc).split(": ", 2)[-1]) from None
+        return value
+
     @model_validator(mode="after")
     def _values(self):
-        for k in TARGET_KEYS:
-            v = getattr(self, k)
-            if v is not None:
-                try:
-                    target_value(k, v, "target")
-                except InputError as exc:
-                    raise ValueError(str(exc).split(": ", 2)[-1]) from None
         try:
             check_dvalue_order({k: getattr(self, k) for k in TARGET_KEYS if getattr(self, k) is not None}, "target")
         except InputError as exc:
@@ -376,12 +380,21 @@ class MPCConfig(_Common):
 class LQRTuning(Strict):
     """Velocity-form LQR on rpm with integral action on one moment (re-linearised every interval)."""
 
-    track: Literal["s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "d90_um", "span"] | None = None  # default: first target key
+    #: the moment with integral action (a state of the moment model); default: the first moment the target names
+    track: Literal["s_mean_um", "s_std_um", "r_mean", "r_std"] | None = None
     q_error: Pos = 1.0  # on the integrated relative error of the tracked moment
     q_dx: NonNeg = 1e-3  # on the state increments (scaled)
     r_du: Pos = 1.0  # on the rpm increments (rpm / rpm_max)
     milling: Frac = 1.0  # nominal milling fraction (the temperature guard may lower it)
     rpm_start: Range(0.0, RPM_MAX, lo_open=True) = 300.0  # rpm of the first interval when no previous input is known
+
+    @field_validator("track", mode="before")
+    @classmethod
+    def _track_a_moment(cls, value):
+        if isinstance(value, str) and value in DVALUE_KEYS:  # an output of the moment model, not one of its states
+            raise ValueError(f"a D-value is not a state of the moment model: an LQR tracks a moment "
+                             f"({', '.join(MOMENT_KEYS)}); a D-value target is for the MPC")
+        return value
 
 
 class LQRConfig(_Common):
@@ -487,7 +500,75 @@ def validate_controller(data: dict[str, Any], source: str) -> ControllerConfig:
     if cfg.kind == "lqr" and not bounds.milling_min <= cfg.lqr.milling <= bounds.milling_max:
         raise InputError(f"{source}: lqr.milling: {cfg.lqr.milling:g} is outside [bounds.milling_min, "
                          f"bounds.milling_max] = [{bounds.milling_min:g}, {bounds.milling_max:g}]")
+    if cfg.kind == "lqr":  # the file's own target and reference (a caller's set_target replaces them)
+        points = ([(0.0, cfg.target.as_dict())] if cfg.target.as_dict() else []) + \
+            [(r.from_h, r.as_dict()) for r in cfg.reference]
+        fields = "/".join(f for f, given in (("target", cfg.target.as_dict()), ("reference", cfg.reference)) if given)
+        check_lqr_track(cfg.lqr.track, points, f"{source}: {fields}", source)
     return cfg
+
+
+def check_lqr_track(track: str | None, target, source: str, controller: str) -> None:
+    """Refuse a target an LQR cannot track: one that never names the tracked moment (``lqr.track``),
+    or, with ``lqr.track`` unset, one that names only D-values at some time.
+
+    The LQR's integral action is on one state of the moment model (a moment, not a D-value, which
+    is an output of those states). Without a target on it the LQR holds its rpm; a reference that
+    names the tracked moment from some time on is fine (rpm is held before), one that never names
+    it would hold rpm the whole batch.
+
+    Parameters
+    ----------
+    track : str or None
+        ``lqr.track``; None: at each time, the first moment the target names.
+    target : mapping or sequence of (float, mapping)
+        A constant target, or the reference's (from_h, target) points.
+    source : str
+        The file and field (or flag) that gave the target, named first in the message.
+    controller : str
+        The controller (its file), named with ``lqr.track``.
+
+    Raises
+    ------
+    InputError
+        One line naming the target's keys and the tracked moment.
+
+    Examples
+    --------
+    >>> check_lqr_track("s_mean_um", {"s_mean_um": 45.0, "r_mean": 0.05}, "--target", "c.toml")
+    >>> check_lqr_track(None, [(0.0, {"r_mean": 0.05}), (6.0, {"s_mean_um": 40.0})], "c.toml: reference", "c.toml")
+    >>> check_lqr_track("s_mean_um", {"d50_um": 45.0}, "sc.toml: target", "c.toml")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: sc.toml: target: names d50_um, never s_mean_um, the moment the LQR tracks (lqr.track in c.toml): ...
+    >>> check_lqr_track(None, {"d50_um": 45.0}, "--target", "c.toml")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: --target: names only D-values (d50_um), and an LQR tracks a moment ...
+    """
+    if track is not None and track not in MOMENT_KEYS:
+        raise InputError(f"{controller}: lqr.track: {track} is not a state of the moment model: an LQR tracks a "
+                         f"moment ({', '.join(MOMENT_KEYS)})")
+    points = [(0.0, dict(target))] if hasattr(target, "keys") else [(float(t), dict(d)) for t, d in target]
+    points = [(t, d) for t, d in points if d]
+    if not points:  # nothing targeted: the callers that need a target refuse its absence themselves
+        return
+    named = [k for k in TARGET_KEYS if any(k in d for _, d in points)]
+    if track is not None:
+        if track in named:
+            return
+        moments = [k for k in named if k in MOMENT_KEYS]
+        instead = (f" or set lqr.track to {' or '.join(moments)}" if moments
+                   else " (an LQR tracks a moment: a D-value target is for the MPC)")
+        raise InputError(f"{source}: names {', '.join(named)}, never {track}, the moment the LQR tracks (lqr.track in "
+                         f"{controller}): it would hold its rpm the whole batch; give a target on {track}{instead}")
+    for t, d in points:
+        if not any(k in d for k in MOMENT_KEYS):  # the first key the target names would be a D-value
+            keys = ", ".join(k for k in TARGET_KEYS if k in d)
+            when = f" from {t:g} h" if len(points) > 1 else ""
+            raise InputError(f"{source}: names only D-values ({keys}){when}, and an LQR tracks a moment of the moment "
+                             f"model (lqr.track unset in {controller}: the first moment the target names); give a "
+                             f"target on one of {', '.join(MOMENT_KEYS)}, or use an MPC")
 
 
 def check_dwell_interval(cfg, source: str) -> None:

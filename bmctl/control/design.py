@@ -684,7 +684,19 @@ def done_text(d: Design) -> str:
 
 
 def schedule_toml(d: Design) -> str:
-    """The schedule as TOML text (``bmctl simulate --schedule`` format)."""
+    """The schedule as TOML text (``bmctl simulate --schedule`` format).
+
+    Each segment's comment gives its length in minutes (:func:`bmctl.schedule.minutes_text`); the
+    header says that the times are whole minutes only where every one is: a segment that fills out
+    a control interval of a fractional number of minutes (a batch that is not a whole number of
+    minutes, or ``interval_h = 0.33``) is written with its decimals and counted in the header.
+
+    Parameters
+    ----------
+    d : Design
+    """
+    from ..schedule import is_whole_minutes, minutes_text
+
     tgt = ", ".join(f"{k} = {format_target(v)}" for k, v in d.target.items())
     last = d.X[-1]
     r = d.result
@@ -698,7 +710,7 @@ def schedule_toml(d: Design) -> str:
         + f" (error {100 * r.error:.2f} %)",
         f"# predicted (moment model): s mean {last[0]:.2f} µm, s std {last[1]:.2f} µm, r mean {last[2]:.4f}, "
         f"r std {last[3]:.4f}; peak vial T {np.max(d.t_peak_c):.1f} °C (ceiling {d.ceiling_c:g} °C)",
-        "# rpm 0 = rest; milling times are whole minutes",
+        "# rpm 0 = rest; " + _minutes_note([h for h, _ in d.segments], is_whole_minutes),
     ]
     if d.plant:
         pc = d.plant
@@ -709,8 +721,34 @@ def schedule_toml(d: Design) -> str:
         f'name = "design-{d.card_name}"',
     ]
     for h, r in d.segments:
-        lines += ["", "[[segment]]", f"hours = {h:.10g}   # {h * 60:.0f} min", f"rpm = {r:g}"]
+        lines += ["", "[[segment]]", f"hours = {h:.10g}   # {minutes_text(h)}", f"rpm = {r:g}"]
     return "\n".join(lines) + "\n"
+
+
+def _minutes_note(hours, is_whole) -> str:
+    """The header's note on the segments' minutes: whole, or how many are not.
+
+    Parameters
+    ----------
+    hours : list of float
+        The segments' lengths (h).
+    is_whole : callable
+        Whether a length is a whole number of minutes (:func:`bmctl.schedule.is_whole_minutes`).
+
+    Examples
+    --------
+    >>> from bmctl.schedule import is_whole_minutes
+    >>> _minutes_note([0.5, 0.25], is_whole_minutes)
+    'milling times are whole minutes'
+    >>> _minutes_note([0.09], is_whole_minutes)  # doctest: +ELLIPSIS
+    'times are whole minutes but for 1 of 1 segment, which fills out a control interval of a fractional ...'
+    """
+    odd = sum(not is_whole(h) for h in hours)
+    if not odd:
+        return "milling times are whole minutes"
+    return (f"times are whole minutes but for {odd} of {len(hours)} segment{'s' if len(hours) != 1 else ''}, "
+            f"which fill{'s out a control interval' if odd == 1 else ' out control intervals'} of a fractional number "
+            f"of minutes ({'its' if odd == 1 else 'their'} minutes shown with decimals)")
 
 
 def predicted_csv(d: Design) -> str:

@@ -32,9 +32,10 @@ def _table(seed: int, s_um: float = 45.0, n: int = 150) -> ParticleTable:
 
 
 def _init(d, ctrl=RECIPE, **kw):
+    """A 2-h campaign on the lab card: D50 45 µm (the LQR, which tracks the mean size: s_mean 45 µm)."""
     kw.setdefault("hours", 2.0)
     kw.setdefault("particles", 100)
-    return cp.init(d, CARD, ctrl, {"d50_um": 45.0}, **kw)
+    return cp.init(d, CARD, ctrl, {"s_mean_um" if ctrl == LQR else "d50_um": 45.0}, **kw)
 
 
 def _states(d) -> list[tuple[float, bytes]]:
@@ -218,7 +219,7 @@ if crash:
     wf._insert_particles = boom
 kind, arg = {plan!r}[step]
 if kind == "init":
-    cp.init(d, {card!r}, {ctrl!r}, {{"d50_um": 45.0}}, hours=2.0, particles=100)
+    cp.init(d, {card!r}, {ctrl!r}, {{"s_mean_um": 45.0}}, hours=2.0, particles=100)
 elif kind == "advise":
     print(json.dumps(cp.advise(d)["next"]))
 elif kind == "decide":
@@ -612,3 +613,15 @@ def test_a_ceiling_below_the_ambient_is_refused_at_init(tmp_path):
     with pytest.raises(InputError, match="--temperature-max-c: 20 °C is not above the card's ambient"):
         _init(tmp_path / "c", temperature_max_c=20.0)
     assert not (tmp_path / "c").exists()
+
+
+@pytest.mark.parametrize("ctrl", [RECIPE, LQR, ROOT / "controllers" / "mpc-default.toml"], ids=["recipe", "lqr", "mpc"])
+def test_a_batch_under_the_minimum_milling_period_is_refused_at_init(tmp_path, capsys, ctrl):
+    """--hours 0.05 (3 min) under the 5-min minimum milling period: refused as trial and design refuse
+    it, one line naming --hours, nothing created (it was accepted and advised 3-min milling)."""
+    d = tmp_path / "c"
+    assert main(["campaign", "init", str(d), "--model", str(CARD), "--controller", str(ctrl), "--target",
+                 "s_mean_um=45", "--hours", "0.05"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("bmctl: error: --hours: a batch of 0.05 h (3 min) is shorter"), err
+    assert not d.exists()

@@ -58,9 +58,10 @@ def test_temperature_estimate_follows_made_up_readings_within_their_noise(tmp_pa
 
 
 def _lqr_campaign(tmp_path, capsys, *more) -> str:
-    """A fresh 2-h campaign folder on the lab card with the LQR baseline (d50 45 um, 100 filter particles)."""
+    """A fresh 2-h campaign folder on the lab card with the LQR baseline (s_mean 45 um, the moment it
+    tracks; 100 filter particles)."""
     d = str(tmp_path / "c")
-    assert main(["campaign", "init", d, "--model", str(CARD), "--controller", str(LQR), "--target", "d50_um=45",
+    assert main(["campaign", "init", d, "--model", str(CARD), "--controller", str(LQR), "--target", "s_mean_um=45",
                  "--hours", "2", "--particles", "100", *more]) == 0
     capsys.readouterr()
     return d
@@ -94,7 +95,7 @@ def test_reading_above_the_ceiling_or_far_off_warns_in_log_and_in_the_next_advic
 # --- rests -------------------------------------------------------------------------------------------
 def test_a_rest_logs_as_a_rest_and_a_followed_advice_is_no_deviation(tmp_path, capsys):
     d = str(tmp_path / "c")
-    cp.init(d, CARD, LQR, {"d50_um": 45.0}, hours=2.0, particles=100, temperature_max_c=60)
+    cp.init(d, CARD, LQR, {"s_mean_um": 45.0}, hours=2.0, particles=100, temperature_max_c=60)
     cp.log(d, 300, 0.5, temperature_c=75.0)  # hot vial: the guard advises a rest
     a = cp.advise(d)
     assert a["next"]["mill_min"] == 0 and a["next"]["rest_min"] == 30
@@ -126,7 +127,7 @@ def test_a_rest_logs_as_a_rest_and_a_followed_advice_is_no_deviation(tmp_path, c
 def run(tmp_path_factory):
     """A short campaign with samples, accepted and rejected advice, a note, readings and a rest."""
     d = tmp_path_factory.mktemp("op") / "c"
-    cp.init(d, CARD, LQR, {"d50_um": 45.0}, hours=3.0, particles=200, temperature_max_c=60)
+    cp.init(d, CARD, LQR, {"s_mean_um": 45.0}, hours=3.0, particles=200, temperature_max_c=60)
     with cp.Campaign(d) as c:
         cp.log(d, 300, 0.5, temperature_c=57.0, campaign=c)
         cp.sample(d, 0.5, [_table(1, 60.0)], campaign=c)

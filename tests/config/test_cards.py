@@ -178,3 +178,18 @@ def test_a_run_above_the_cards_validity_rpm_max_warns():
     assert lines and lines[0] == ("alni-1to1-300rpm-lab: 350 rpm is above the card's validity.rpm_max (300 rpm), "
                                   "where it holds: its predictions at that speed are extrapolations")
     assert window_warnings(card, [250.0, 300.0]) == []
+
+
+def test_card_show_marks_uncalibrated_exactly_where_a_run_warns(capsys):
+    """The fan card's own 400 rpm (steady 121.103 °C against a stated 121.1 °C) was marked `uncalib.` by
+    `card show` while `simulate` at 400 rpm gives no warning (window_warnings allows WINDOW_SLACK_K)."""
+    card = load_card(card_path("alni-1to1-400rpm-fan"))
+    rpms = [300.0, 399.0, 400.0, 401.0, 402.0, 405.0, 420.0]
+    rows = cards.card_report(card, rpms)["rows"]
+    for row in rows:
+        warns = any("steady vial temperature" in ln for ln in cards.window_warnings(card, [row["rpm"]]))
+        assert row["in_window"] == (not warns), row
+    assert rows[2]["in_window"] and not rows[-1]["in_window"]
+    assert main(["card", "show", str(card_path("alni-1to1-400rpm-fan")), "--rpm", "400"]) == 0
+    row = [ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith("400 ")][0]
+    assert "uncalib." not in row, row

@@ -241,3 +241,35 @@ def test_design_schedule_checks_its_inputs_before_its_first_progress_line(tmp_pa
     with pytest.raises(InputError, match="no speed is left to mill at"):
         design_schedule(make_moment_model(CARD), {"s_mean_um": 45.0}, 4.0, cfg, progress=said.append)
     assert said == []
+
+
+def _segment_minutes(text: str) -> list[tuple[float, str]]:
+    """(hours, the comment's minutes) of every ``hours = X   # Y min`` line of a schedule.toml."""
+    out = []
+    for ln in text.splitlines():
+        if ln.startswith("hours = "):
+            value, comment = ln[len("hours = "):].split("#")
+            out.append((float(value), comment.strip().removesuffix(" min")))
+    return out
+
+
+@pytest.mark.parametrize("hours", ["0.09", "0.08334", "0.5"])
+def test_schedule_toml_says_the_minutes_it_writes(tmp_path, capsys, hours):
+    """A batch of 0.09 h (5.4 min) is one control interval, milled whole: its segment was commented
+    `# 5 min` under a header calling every milling time whole minutes. Each comment now gives the
+    written length, and the header says whole minutes only where every segment is; a batch of whole
+    minutes (0.5 h) is written as before."""
+    out = tmp_path / "o"
+    rc = main(["design", str(CARD), "--target", "d50_um=45", "--hours", hours, "--plant-seeds", "0",
+               "--out", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    text = (out / "schedule.toml").read_text()
+    segs = _segment_minutes(text)
+    assert segs
+    for h, shown in segs:
+        assert float(shown.lstrip("≈ ")) == pytest.approx(h * 60, abs=1e-4), (h, shown)
+    whole = all(abs(h * 60 - round(h * 60)) < 1e-6 for h, _ in segs)
+    assert ("# rpm 0 = rest; milling times are whole minutes\n" in text) == whole, text
+    assert whole == (hours == "0.5")
+    if whole:
+        assert all(shown == f"{h * 60:.0f}" for h, shown in segs)

@@ -232,3 +232,56 @@ def test_whatif_tells_apart_two_schedules_of_one_name(tmp_path, capsys, monkeypa
     assert [line[:3] for line in table] == [["design-lab", "(A)", "0.05"], ["design-lab", "(B)", "0.1"]]
     assert want in shown  # legends of the moments and the final pdfs, and the peak-temperature ticks
     assert all(s in ([], want) for s in shown), shown
+
+
+def _named(path, name, hours=0.05):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(f'name = "{name}"\n[[segment]]\nhours = {hours}\nrpm = 300\n')
+    return str(path)
+
+
+def _labels(tmp_path, capsys, paths) -> list[str]:
+    rc = main(["whatif", LAB, *paths, "--seeds", "1", "--particles", "100", "--out", str(tmp_path / "o")])
+    assert rc == 0, capsys.readouterr().err
+    return [r["schedule"] for r in csv.DictReader((tmp_path / "o" / "whatif.csv").read_text().splitlines())]
+
+
+def test_whatif_labels_never_take_or_imitate_another_schedules_name(tmp_path, capsys):
+    """One file given twice (named x) and a file named `x #1` were labelled `x #1 #1`, `x #2`, `x #1 #2`;
+    files a/s.toml and b/s.toml (both x) and one named `x (a)` were `x`, `x (b)`, `x (a)`, where `x (a)`
+    read as a/s.toml. Each schedule named alone keeps its name; the others read like none of them."""
+    s = _named(tmp_path / "s.toml", "x")
+    assert _labels(tmp_path, capsys, [s, s, _named(tmp_path / "t.toml", "x #1")]) == ["x (#1)", "x (#2)", "x #1"]
+    paths = [_named(tmp_path / "a" / "s.toml", "x"), _named(tmp_path / "b" / "s.toml", "x"),
+             _named(tmp_path / "c.toml", "x (a)")]
+    assert _labels(tmp_path, capsys, paths) == ["x [a]", "x [b]", "x (a)"]
+
+
+@pytest.mark.parametrize("names,paths", [
+    (["x", "x", "x #1"], None), (["x", "x", "x #1"], ["s", "s", "t"]), (["x", "x", "x (a)"], ["a/s", "b/s", "c"]),
+    (["x", "x", "x (a)", "x [a]", "x {a}", "x <a>"], ["a/s", "b/s", "c", "d", "e", "f"]),
+    (["x", "x", "x (#1)", "x #2", "x #1"], None), (["x", "x", "x #1", "x #1"], None),
+    (["x (a)", "x", "x", "x (a)"], ["a/s", "a/s", "b/s", "b/s"])])
+def test_unique_labels_are_distinct_and_no_made_label_is_a_name(names, paths):
+    from bmctl.whatif import unique_labels
+
+    labels = unique_labels(names, paths)
+    assert len(set(labels)) == len(labels), labels
+    alone = {n for n in names if names.count(n) == 1}
+    for name, label in zip(names, labels):
+        if name in alone:
+            assert label == name
+        else:
+            assert label not in names and label.startswith(name + " "), labels
+
+
+@pytest.mark.parametrize("milling", ["0.0001", "0.99999"])
+def test_whatif_refuses_a_share_leaving_a_phase_under_six_seconds(tmp_path, capsys, milling):
+    """0.0001 of 0.5 h mills 0.18 s, 0.99999 rests 0.018 s: under the 6 s phase, and both ran."""
+    p = tmp_path / "short.toml"
+    p.write_text(f"[[segment]]\nhours = 0.5\nrpm = 300\nmilling = {milling}\n")
+    rc = main(["whatif", LAB, str(p), "--seeds", "1", "--particles", "100", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert err.startswith(f"bmctl: error: {p}: segment[0].milling: ") and "6 s" in err
+    assert not (tmp_path / "o").exists()
