@@ -222,6 +222,16 @@ def test_checker_flags_outputs_outside_physical_bounds(tmp_path):
     assert fuzzlib.check_outputs(tmp_path) == []
 
 
+def test_checker_reads_designs_batch_end_row_as_no_action(tmp_path):
+    """design's predicted.csv states no action over the batch end (empty cells on its last row); an empty
+    action on any other row is nonsense (the checker called the stated one nonsense)."""
+    head = "t_h,rpm,milling,t_peak_c,s_mean_um,s_std_um,r_mean,r_std,temperature_c,hardening,target_s_mean_um\n"
+    (tmp_path / "predicted.csv").write_text(head + "0,0,0,25,40,4,0.02,0.02,25,0,30\n1,,,,40,4,0.02,0.02,25,0,30\n")
+    assert fuzzlib.check_outputs(tmp_path) == []
+    (tmp_path / "predicted.csv").write_text(head + "0,,0,25,40,4,0.02,0.02,25,0,30\n1,,,,40,4,0.02,0.02,25,0,30\n")
+    assert fuzzlib.check_outputs(tmp_path) == ["predicted.csv: row 2: rpm = "]
+
+
 def test_classify_sorts_outcomes(tmp_path):
     case = fuzzlib.Case("card", "x", [], names=["card.toml"])
     assert fuzzlib.classify(case, 2, "", "bmctl: error: card.toml: mill.rpm_max: bad\n", tmp_path)[0] == "clean"
