@@ -147,6 +147,7 @@ class PlanController:
         self._record(t, up)
         hist = self._hist if history is None else history
         carry = Carry.from_history(hist)
+        loose = replace(carry, check_open=False)  # the open period excepted: the search's first pass (below)
         if history is None:  # the own record carries no readings: the card's heating
             power = power_hi = fit_power(self.model, hist)
         else:  # a mill's log: the heating fitted to its readings, the ceiling checked at its upper bound
@@ -175,7 +176,7 @@ class PlanController:
             if s >= -1e-6 and abs(s - round(s)) < 1e-6:
                 q = shift_params(np.array(prev["params"]), np.array(prev["minutes"]), int(round(s)))
                 extra.append((q, "previous"))
-                r_q, m_q = expand(q[None], grid, self.lim, replace(carry, check_open=False))
+                r_q, m_q = expand(q[None], grid, self.lim, loose)
                 if m_q.sum() > 0:  # the same milling, started now: a local move the phases cannot make
                     on = m_q[0] > 0
                     extra.append((np.array(_row(float(np.max(r_q[0][on])), grid.interval_min, 1, grid.K,
@@ -207,7 +208,7 @@ class PlanController:
         # short rest then rests on through the first interval: :meth:`Carry.rests_on`);
         # its plan replaces the first unless it would take the vial over the ceiling where the first did
         # not (a logged milling period shorter than the minimum may then end short: the ceiling first).
-        res, scope = searched(replace(carry, check_open=False))
+        res, scope = searched(loose)
         if not operable(res.minutes[None], grid, lim, carry)[0][0]:
             try:
                 kept, kept_scope = searched(carry)
