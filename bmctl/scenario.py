@@ -60,6 +60,8 @@ class EstimatorSpec(Strict):
         other = "ukf" if self.kind == "pf" else "pf"
         if getattr(self, other):  # settings of the estimator not chosen would be ignored without a word
             raise ValueError(f"{other}: settings of the {other} estimator, but estimator.kind is {self.kind!r}")
+        if self.kind == "ukf" and "particles" in self.model_fields_set:  # a count the UKF would ignore
+            raise ValueError("particles: a particle count, but estimator.kind is 'ukf' (sigma points, no particles)")
         try:
             settings = self.filter_settings()
         except ValidationError as exc:

@@ -45,8 +45,8 @@ def configure(p):
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
     p.add_argument("--estimator", choices=("pf", "ukf"), default="pf",
                    help="particle filter (pf, default) or unscented Kalman filter (ukf); see docs/estimation.md")
-    p.add_argument("--particles", type=int_arg("--particles", 100, 1_000_000), default=2000,
-                   help="filter particles N (default 2000; pf only)")
+    p.add_argument("--particles", type=int_arg("--particles", 100, 1_000_000), default=None,
+                   help="filter particles N (default 2000; pf only, refused with --estimator ukf)")
     p.add_argument("--size-law", choices=("weibull", "lognormal"), default="weibull",
                    help="law of s given (s_mean, s_std) (default weibull; see docs/estimation.md)")
     p.add_argument("--sigma-r", type=float_arg("--sigma-r", lo=0.005, hi=1.0), default=None,
@@ -161,6 +161,10 @@ def run(args) -> int:
     from ..estimate.ukf import UKFSettings
     from ..io import write_csv
 
+    if args.particles is not None and args.estimator == "ukf":  # a count the UKF would ignore
+        raise InputError("--particles: a particle count, but --estimator ukf has sigma points, no particles")
+    if args.particles is None:
+        args.particles = 2000
     card = load_card(args.model)
     times = _parse_list("--times", args.times)
     if any(t < 0 for t in times):

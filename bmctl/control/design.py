@@ -654,7 +654,7 @@ def pareto_table(d: Design) -> str:
     """The batch-length sweep as a markdown table: time, energy, final error, switches, peak T."""
     rows = ["| batch h | milling h | energy kWh | final error % | switches | peak T °C |", "|---|---|---|---|---|---|"]
     for r in d.pareto:
-        rows.append(f"| {r.hours:.2f} | {r.milling_h:.2f} | {r.energy_kWh:.3f} | {100 * r.error:.2f} | "
+        rows.append(f"| {r.hours:.2f} | {r.milling_h:.2f} | {r.energy_kWh:.4g} | {100 * r.error:.2f} | "
                     f"{switches_of(r)} | {r.peak_c:.1f} |")
     return "\n".join(rows)
 

@@ -62,6 +62,7 @@ def test_trial_campaign_refusals_are_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--campaign does not resume" in err
     ukf = lqr_scenario(tmp_path / "ukf.toml", 'kind = "ukf"')
+    ukf.write_text(ukf.read_text().replace("[estimator]\nparticles = 100\n", "[estimator]\n"))
     assert main(["trial", str(ukf), "--campaign", "--out", str(tmp_path / "u"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "particle filter" in err

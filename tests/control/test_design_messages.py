@@ -210,3 +210,14 @@ def test_the_shipped_designs_run_as_written():
     cfg = load_controller(root / "controllers" / "mpc-default.toml")
     d = dz.design_schedule(model, {"s_mean_um": 35.0}, 4.0, cfg)
     assert d.segments and dz.mill_violations(d, cfg.mill) == []
+
+
+def test_the_trade_off_table_keeps_energies_apart_that_differ_below_a_watt_hour():
+    from types import SimpleNamespace
+
+    from bmctl.control.design import pareto_table
+
+    rows = [SimpleNamespace(hours=h, milling_h=2.0, energy_kWh=e, error=0.01, segments=[(h, 300.0)], peak_c=50.0)
+            for h, e in ((6.0, 0.01234), (8.0, 0.01238))]  # 12.34 Wh and 12.38 Wh: told apart
+    cells = [line.split("|")[3].strip() for line in pareto_table(SimpleNamespace(pareto=rows)).splitlines()[2:]]
+    assert cells[0] != cells[1] and abs(float(cells[0]) - 0.01234) < 1e-6, cells

@@ -334,3 +334,10 @@ def test_cli_estimate_ukf(tmp_path, capsys, model):
             assert float(r[f"{name}_q05"]) <= float(r[name]) <= float(r[f"{name}_q95"])
     rc = main(["estimate", LAB, "--samples", str(folder), "--times", "1,2", "--estimator", "kf", "--out", str(out)])
     assert rc == 2
+    capsys.readouterr()
+    out2 = tmp_path / "res2" / "estimate.csv"
+    rc = main(["estimate", LAB, "--samples", str(folder), "--times", "1,2", "--estimator", "ukf",
+               "--particles", "500", "--out", str(out2)])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "--particles: a particle count" in err, err
+    assert not out2.parent.exists()

@@ -243,6 +243,11 @@ def test_estimator_settings_name_typos_and_refuse_the_unused_table(small, tmp_pa
         sc.write_text(sc.read_text().replace("[estimator]\n", '[estimator]\nkind = "ukf"\n'))
         with pytest.raises(InputError, match="settings of the pf estimator, but estimator.kind is 'ukf'"):
             load_scenario(sc)
+        sc.write_text(sc.read_text().replace(table, ""))  # the particle count alone is refused too
+        with pytest.raises(InputError, match="particles: a particle count, but estimator.kind is 'ukf'"):
+            load_scenario(sc)
+        sc.write_text(sc.read_text().replace("particles = 300\n[controller]", "[controller]"))
+        assert load_scenario(sc).estimator.kind == "ukf"
 
 
 def _lqr_with(tmp_path, *edits) -> Path:
