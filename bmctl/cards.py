@@ -830,3 +830,43 @@ def window_warnings(card, rpms, coeff_window: dict | None = None) -> list[str]:
     return lines + [f"{card.card.name}: steady vial temperature {T:.{d}f} °C at {r:g} rpm is outside {lo:g}–{hi:g} "
                     f"°C, the range the model was calibrated for ({win['why']}): its predictions at that speed are "
                     "extrapolations, also in bursts that keep the vial cooler"]
+
+
+def simulation_warnings(card, segments, t_h, temperature_c, s_mean_um, size_t_h=None) -> list[str]:
+    """Every warning ``simulate`` gives for a run (one line each): the vial above the card's maximum
+    and a mean size outside its range (:func:`run_warnings`), then a milling speed outside the
+    calibrated window (:func:`window_warnings`).
+
+    Parameters
+    ----------
+    card : ModelCard
+    segments : sequence of (hours, rpm)
+        The schedule the run mills.
+    t_h, temperature_c, s_mean_um : sequences of float
+        Recorded times, vial temperatures and mean sizes.
+    size_t_h : sequence of float, optional
+        The times of ``s_mean_um`` where they are not ``t_h`` (``compare`` takes the peak temperature
+        and the size at different times).
+
+    Returns
+    -------
+    list of str
+
+    Examples
+    --------
+    >>> from bmctl.config import load_card
+    >>> card = load_card("models/alni-1to1-300rpm-lab.toml")
+    >>> simulation_warnings(card, [(2.0, 300.0)], [0.0, 2.0], [25.0, 60.0], [50.0, 40.0])
+    []
+    >>> for line in simulation_warnings(card, [(1.0, 0.0), (2.0, 600.0)], [3.0], [700.0], [0.5], size_t_h=[2.0]):
+    ...     print(line)  # doctest: +NORMALIZE_WHITESPACE
+    alni-1to1-300rpm-lab: vial temperature 700 °C at 3 h is above the card's maximum 660.3 °C (melting point
+    of Al): the model does not hold there
+    alni-1to1-300rpm-lab: mean size 0.5 µm at 2 h is outside the card's [1, 1000] µm
+    alni-1to1-300rpm-lab: steady vial temperature 349 °C at 600 rpm is outside 25–121.1 °C, the range the model
+    was calibrated for (the card's validity.calibrated_temperature_max_C): its predictions at that speed are
+    extrapolations, also in bursts that keep the vial cooler
+    """
+    return (run_warnings(card, t_h, temperature_c, [])
+            + run_warnings(card, t_h if size_t_h is None else size_t_h, [], s_mean_um)
+            + window_warnings(card, [rpm for _, rpm in segments]))

@@ -110,7 +110,7 @@ class Scenario(Strict):
 
     @model_validator(mode="after")
     def _check(self):
-        from .control.config import check_dvalue_order, target_value
+        from .control.config import check_dvalue_order, target_value_problem
 
         for k in self.target:
             if k not in TARGET_KEYS:
@@ -123,10 +123,9 @@ class Scenario(Strict):
                 if len(v) != 2 or v[0] > v[1]:
                     raise ValueError(f"target.{k}: a window is [lo, hi] with lo <= hi (got {v})")
                 self.target[k] = (float(v[0]), float(v[1])) if v[1] > v[0] else float(v[0])
-            try:  # each key's range, as the controllers take it (a message naming target.<key>)
-                target_value(k, self.target[k], "target")
-            except InputError as exc:
-                raise ValueError(f"target.{str(exc).removeprefix('target: ')}") from None
+            problem = target_value_problem(k, self.target[k])  # each key's range, as the controllers take it
+            if problem is not None:
+                raise ValueError(f"target.{k}: {problem}")
         try:
             check_dvalue_order(self.target, "target")
         except InputError as exc:

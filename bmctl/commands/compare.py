@@ -96,9 +96,10 @@ def run(args) -> int:
 
 
 def validity_warnings(card, segments, at_h: float, s_mean_um: float) -> list[str]:
-    """The warnings ``simulate`` gives for the run a comparison makes (one line each): the vial above
-    the card's maximum (at its exact peak, :func:`bmctl.cards.peak_temperature_c`), the predicted
-    mean size outside the card's range at ``at_h``, and a milling speed outside the calibrated window.
+    """The warnings ``simulate`` gives (:func:`bmctl.cards.simulation_warnings`) for the run a comparison
+    makes (one line each): the vial above the card's maximum (at its exact peak,
+    :func:`bmctl.cards.peak_temperature_c`), the predicted mean size outside the card's range at ``at_h``,
+    and a milling speed outside the calibrated window.
 
     Parameters
     ----------
@@ -123,12 +124,11 @@ def validity_warnings(card, segments, at_h: float, s_mean_um: float) -> list[str
     >>> print(validity_warnings(card, [(3.0, 600.0)], 3.0, 15.0)[0][:63])
     alni-1to1-300rpm-lab: steady vial temperature 349 °C at 600 rpm
     """
-    from ..cards import peak_temperature_c, run_warnings, window_warnings
+    from ..cards import peak_temperature_c, simulation_warnings
 
     peak, at = peak_temperature_c(card, segments)
-    # the peak and the final size are the run's records here (empty lists: the other check has none)
-    return (run_warnings(card, [at], [peak], []) + run_warnings(card, [at_h], [], [s_mean_um])
-            + window_warnings(card, [rpm for _, rpm in segments]))
+    # the peak and the final size are the run's records here, each at its own time
+    return simulation_warnings(card, segments, [at], [peak], [s_mean_um], size_t_h=[at_h])
 
 
 #: below this KS p-value a measured r above the prediction gets :func:`r_note`

@@ -45,7 +45,7 @@ def run(args) -> int:
     if args.every is not None and args.every <= 0:
         raise InputError(f"--every: must be > 0 (got {args.every:g})")
     out = output_path(args.out)
-    from ..cards import check_melting, check_work, run_warnings, simulation_work, window_warnings
+    from ..cards import check_melting, check_work, simulation_warnings, simulation_work
 
     check_melting(card, segments, args.schedule or ("--rpm" if args.rpm is not None else f"{args.model}: process.rpm"))
 
@@ -70,8 +70,8 @@ def run(args) -> int:
 
     with io.output_set():  # a late failure leaves none of the run's files
         paths = write_outputs(res, out)
-    for line in (run_warnings(card, res.column("t_h"), res.column("temperature_c"), res.column("s_mean_um"))
-                 + window_warnings(card, [rpm for _, rpm in segments])):
+    for line in simulation_warnings(card, segments, res.column("t_h"), res.column("temperature_c"),
+                                    res.column("s_mean_um")):
         print(f"bmctl: warning: {line}", file=sys.stderr)
     last = res.records[-1]
     m = last.moments

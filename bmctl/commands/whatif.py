@@ -37,7 +37,7 @@ def run(args) -> int:
         scheds.append((sched.name or Path(path).stem, sched.pairs()))
     # two files may carry one name (two `design` outputs): each label names its schedule alone
     scheds = list(zip(unique_labels([n for n, _ in scheds], args.schedules), (s for _, s in scheds)))
-    from ..cards import check_melting, check_work, run_warnings, simulation_work, window_warnings
+    from ..cards import check_melting, check_work, simulation_warnings, simulation_work
 
     for (_, segs), path in zip(scheds, args.schedules):
         check_melting(card, segs, path)
@@ -55,8 +55,7 @@ def run(args) -> int:
         close_client(client)
     header, rows = table_rows(results)
     for res, (_, segs) in zip(results, scheds):  # the validity range, on the ensemble mean
-        for line in (run_warnings(card, res.t_h, res.band("temperature_c")[0], res.band("s_mean_um")[0])
-                     + window_warnings(card, [rpm for _, rpm in segs])):
+        for line in simulation_warnings(card, segs, res.t_h, res.band("temperature_c")[0], res.band("s_mean_um")[0]):
             print(f"bmctl: warning: {res.name}: {line}", file=sys.stderr)
     print("ensemble mean [5-95 % over the plants] at each schedule's end; peak vial temperature: mean over the plants")
     w = max([28] + [len(r[0]) for r in rows])

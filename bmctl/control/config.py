@@ -69,6 +69,36 @@ def target_value(key: str, value, source: str):
     return one(value)
 
 
+def target_value_problem(key: str, value) -> str | None:
+    """What is wrong with a target value, as :func:`target_value` says it without its
+    ``<source>: <key>: `` prefix (for a message whose location names the key, ``target.<key>``).
+
+    Parameters
+    ----------
+    key : str
+        One of :data:`TARGET_KEYS`.
+    value : float or [lo, hi]
+        The value as given.
+
+    Returns
+    -------
+    str or None
+        None when the value is valid.
+
+    Examples
+    --------
+    >>> target_value_problem("r_mean", 5.0)
+    'must be in (0, 1) (got 5)'
+    >>> target_value_problem("r_mean", [0.2, 0.3]) is None
+    True
+    """
+    try:
+        target_value(key, value, "target")
+    except InputError as exc:
+        return str(exc).split(": ", 2)[-1]
+    return None
+
+
 def target_bounds(value) -> tuple[float, float]:
     """(lo, hi) of a target value (a point has lo = hi)."""
     if isinstance(value, (tuple, list)):
@@ -118,11 +148,9 @@ class Target(Strict):
     @classmethod
     def _value(cls, value, info):
         """Each value in its range (the error's location names the key: ``target.r_mean``)."""
-        if value is not None:
-            try:
-                target_value(info.field_name, value, "target")
-            except InputError as exc:
-                raise ValueError(str(exc).split(": ", 2)[-1]) from None
+        problem = None if value is None else target_value_problem(info.field_name, value)
+        if problem is not None:
+            raise ValueError(problem)
         return value
 
     @model_validator(mode="after")
