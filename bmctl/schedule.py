@@ -18,6 +18,8 @@ TOML form (``bmctl simulate --schedule``, ``bmctl whatif``)::
 
 A share strictly between 0 and 1 must leave a milling phase and a rest phase of at least
 :data:`~bmctl.limits.PHASE_MIN_MINUTES` (6 s) each, the shortest phase any mill is run for.
+The segments' hours may add up to at most :data:`~bmctl.limits.HOURS_MAX` (1,000 h), the longest
+batch (each segment is held to that already).
 
 Examples
 --------
@@ -40,7 +42,7 @@ import numpy as np
 from pydantic import Field, ValidationInfo, field_validator
 
 from .config import HOURS, RPM, Strict, load
-from .limits import PHASE_MIN_MINUTES
+from .limits import HOURS_MAX, PHASE_MIN_MINUTES
 from .physics.constants import TIME_EPS_H
 
 #: pieces shorter than this (h) are dropped when a schedule is cut or merged
@@ -70,7 +72,7 @@ class SegmentSpec(Strict):
 PHASE_MIN_S = PHASE_MIN_MINUTES * 60.0
 
 
-def short_phase(hours: float, rpm: float, milling: float) -> str:
+def short_phase(hours: float, rpm: float, milling: float, piece: str = "segment") -> str:
     """What is wrong with a segment whose milling share leaves a milling or rest phase shorter than
     :data:`PHASE_MIN_S`; empty when nothing is.
 
@@ -84,6 +86,8 @@ def short_phase(hours: float, rpm: float, milling: float) -> str:
         Its speed (0: a rest).
     milling : float
         The share of ``hours`` spent milling, first.
+    piece : str, optional
+        What ``hours`` is the length of, as the reason names it (a logged interval: "interval").
 
     Returns
     -------
@@ -104,7 +108,7 @@ def short_phase(hours: float, rpm: float, milling: float) -> str:
         return ""
     for what, seconds in (("mills", milling * hours * 3600.0), ("rests", (1.0 - milling) * hours * 3600.0)):
         if seconds < PHASE_MIN_S * (1.0 - 1e-9):  # a share that divides the segment exactly at 6 s is kept
-            return (f"{what} {seconds:.2g} s of the segment's {hours:g} h, shorter than the {PHASE_MIN_S:g} s a mill "
+            return (f"{what} {seconds:.2g} s of the {piece}'s {hours:g} h, shorter than the {PHASE_MIN_S:g} s a mill "
                     "or rest phase lasts at least (a share of 0 or 1 leaves none)")
     return ""
 
@@ -114,6 +118,32 @@ class ScheduleFile(Strict):
 
     name: str = ""
     segment: list[SegmentSpec] = Field(min_length=1)
+
+    @field_validator("segment", mode="after")
+    @classmethod
+    def _total_within_a_batch(cls, segment: list[SegmentSpec]) -> list[SegmentSpec]:
+        """Refuse segments whose hours add up to more than :data:`~bmctl.limits.HOURS_MAX`."""
+        why = long_total(sum(s.hours for s in segment))
+        if why:
+            raise ValueError(why)
+        return segment
+
+
+def long_total(hours: float) -> str:
+    """What is wrong with a schedule of ``hours`` in all: longer than :data:`~bmctl.limits.HOURS_MAX`,
+    the longest batch; empty when nothing is (a sum rounded within
+    :data:`~bmctl.physics.constants.TIME_EPS_H` of it is kept).
+
+    Examples
+    --------
+    >>> long_total(1000.0)
+    ''
+    >>> print(long_total(1500.0))
+    the segments' hours add up to 1500 h, more than the longest batch (1000 h)
+    """
+    if hours > HOURS_MAX + TIME_EPS_H:
+        return f"the segments' hours add up to {hours:.15g} h, more than the longest batch ({HOURS_MAX:g} h)"
+    return ""
 
 
 #: a length within this of a whole number of minutes is whole (min): a few microseconds

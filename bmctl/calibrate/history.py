@@ -1,7 +1,8 @@
 """History files: what a mill ran and what was measured at which times.
 
 A history (TOML) names the schedule the mill ran (a schedule file, or inline
-``[[segment]]`` tables with ``hours``, ``rpm``, optional ``milling`` share) and the samples
+``[[segment]]`` tables with ``hours``, ``rpm``, optional ``milling`` share, held to a schedule
+file's limits, :class:`bmctl.schedule.SegmentSpec`: a share leaves no phase under 6 s) and the samples
 taken (``[[sample]]`` with ``t_h`` and either ``table`` = a particle table CSV or ``image``
 = a micrograph measured as ``bmctl measure`` does, with ``um_per_px``). Paths are relative
 to the history file and stay inside its folder (:func:`bmctl.io.inside`: an absolute path or
@@ -16,24 +17,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated
 
 import numpy as np
 from pydantic import Field
 
 from .. import io
-from ..config import HOURS, RPM, ModelCard, Range, Strict, load_schedule, read_toml, validate
+from ..config import ModelCard, Range, Strict, load_schedule, read_toml, validate
 from ..limits import HOURS_MAX
 from ..errors import InputError
+from ..schedule import SegmentSpec
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 MIN_PARTICLES = 10
 
 
-class HistorySegment(Strict):
-    hours: HOURS  # 1 s to 1000 h, as every schedule (bmctl.limits)
-    rpm: RPM
-    milling: Annotated[float, Field(ge=0, le=1)] = 1.0
+class HistorySegment(SegmentSpec):
+    """One inline ``[[segment]]``: a schedule file's segment (:class:`bmctl.schedule.SegmentSpec`), held to
+    the same limits: ``hours`` 1 s to 1000 h, ``rpm`` within :data:`bmctl.limits.RPM_MAX`, and a ``milling``
+    share that leaves no milling or rest phase shorter than 6 s (:func:`bmctl.schedule.short_phase`)."""
 
 
 class SampleSpec(Strict):

@@ -47,6 +47,7 @@ from . import targets as tg
 from .advice import _end_band, _measure, _schedule, _why, band_warning, sample_first, sampling, sampling_note
 from .readings import estimate_warning, reading_warnings
 from ..measure.names import path_text, refuse_repeats
+from ..schedule import short_phase
 from ..moments.forcard import for_card
 
 # The campaign's particle filter (changes from FilterSettings' defaults; ``init`` records them in the
@@ -540,8 +541,10 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
         from_h: float | None = None, campaign: Campaign | None = None) -> dict:
     """Record what the mill ran: ``rpm`` for ``milling * hours``, then rest, from ``from_h``
     (default: the end of the last logged interval); ``rpm = 0`` or ``milling = 0`` is a rest
-    (recorded as 0 rpm, no milling). A vial-temperature reading at its end enters the
-    estimator. Overlaps (time going backwards) and gaps are refused.
+    (recorded as 0 rpm, no milling). A share strictly between 0 and 1 must leave a milling and a
+    rest phase of at least 6 s each, as a schedule file's (:func:`bmctl.schedule.short_phase`). A
+    vial-temperature reading at its end enters the estimator. Overlaps (time going backwards) and
+    gaps are refused.
 
     Returns
     -------
@@ -555,6 +558,12 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
     milling = _finite(milling, "--milling", 0, 1)
     if rpm == 0 or milling == 0:  # a rest: the mill stood still for the whole interval
         rpm, milling = 0.0, 0.0
+    # as a schedule file's share: no milling or rest phase under 6 s; a phase under EPS_H (microseconds)
+    # is a share of 1 or 0 rounded (bmctl.loop.interval_share of a short last interval), not a phase
+    share = milling if min(milling, 1.0 - milling) * hours >= EPS_H else float(round(milling))
+    why = short_phase(hours, rpm, share, "interval")
+    if why:
+        raise InputError(f"--milling {milling:.12g} of --hours {hours:.12g}: {why}")
     T = None if temperature_c is None else _finite(temperature_c, "--temperature-c", -50, 400)
     c = campaign or Campaign(folder)
     try:

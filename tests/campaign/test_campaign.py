@@ -192,10 +192,10 @@ def test_log_prints_seconds_of_milling_not_a_rest(tmp_path, capsys):
     """A share of a minute of milling is stored as milling and printed so ("rest 30 min" before)."""
     d = str(tmp_path / "c")
     _init(d)
-    assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--milling", "0.001"]) == 0
+    assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--milling", "0.004"]) == 0
     assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--milling", "0.995"]) == 0
     out = capsys.readouterr().out
-    assert "logged 0-0.5 h: 300 rpm, mill 0.03 min, rest 30 min" in out
+    assert "logged 0-0.5 h: 300 rpm, mill 0.12 min, rest 29.9 min" in out
     assert "logged 0.5-1 h: 300 rpm, mill 29.9 min, rest 0.15 min" in out
 
 
