@@ -29,7 +29,7 @@ import numpy as np
 
 from .checkpoint import rng_state, set_rng_state
 from .errors import InputError, require_generator
-from .limits import HOURS_MIN, is_rpm_milling
+from .limits import HOURS_MIN, PHASE_MIN_MINUTES, is_rpm_milling
 from .physics.constants import TIME_EPS_H
 
 #: finest plant step within a control interval: the vial temperature is watched at this spacing (h)
@@ -476,7 +476,9 @@ def interval_share(milling: float, interval_h: float, dt_h: float) -> float:
     """The milling share of an applied interval of ``dt_h`` hours for a controller's ``milling``,
     a share of its nominal ``interval_h`` (``plan.u_apply``): the same milling minutes, at most
     the whole interval. Only the last interval of a batch that is not a whole number of control
-    intervals is shorter; a full interval keeps the share as it is.
+    intervals is shorter; a full interval keeps the share as it is. A rest that would be left
+    shorter than the shortest phase (:data:`~bmctl.limits.PHASE_MIN_MINUTES`, 6 s: a batch a few
+    seconds longer than whole minutes) is milled through: no mill is switched off for seconds.
 
     Examples
     --------
@@ -486,10 +488,17 @@ def interval_share(milling: float, interval_h: float, dt_h: float) -> float:
     0.8333333333333333
     >>> interval_share(0.6, 0.5, 0.3)     # 18 min: all of the last 18 min
     1.0
+    >>> interval_share(1 / 3, 0.5, 10.05 / 60)   # 10 min of the last 10.05: the 3-s rest is milled
+    1.0
+    >>> interval_share(0.0, 0.5, 0.001)   # a rest stays a rest
+    0.0
     """
     if dt_h >= interval_h - TIME_EPS_H:
         return milling
-    return min(1.0, milling * interval_h / dt_h)
+    share = min(1.0, milling * interval_h / dt_h)
+    if share > 0.0 and (1.0 - share) * dt_h * 60.0 < PHASE_MIN_MINUTES * (1.0 - 1e-9):  # seconds of rest: mill on
+        return 1.0
+    return share
 
 
 def run_interval(mill: Mill | None, estimators: Sequence[Estimator], schedule, t0_h: float,

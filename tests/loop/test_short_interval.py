@@ -54,3 +54,18 @@ def test_a_full_interval_keeps_the_share_bit_for_bit():
     for m in (0.0, 1.0 / 3.0, 0.7, 1.0):
         assert interval_share(m, 0.5, 0.5) == m
         assert interval_share(m, 0.25, 0.25) == m
+
+
+def test_a_short_last_interval_leaves_no_phase_a_log_would_refuse():
+    """Whole advised minutes in a last interval seconds longer than whole minutes: the share
+    mills the seconds on (a 3-s rest would be refused by ``campaign log``, bmctl.schedule.short_phase)."""
+    from bmctl.schedule import short_phase
+
+    for dt_min in (10.05, 10.099, 0.05, 7.0, 29.99):
+        for mill_min in range(0, 31):
+            share = interval_share(mill_min / 30.0, 0.5, dt_min / 60.0)
+            assert short_phase(dt_min / 60.0, 300.0, share) == "", (dt_min, mill_min, share)
+            if mill_min == 0:
+                assert share == 0.0
+            else:  # the advised minutes, or all of the interval, never fewer
+                assert share * dt_min >= min(mill_min, dt_min) - 1e-9
