@@ -161,6 +161,8 @@ def run(args: argparse.Namespace) -> int:
             results.append(res)
             reports.append(res.report())
             excl = f", data bar from row {res.info_bar_row} excluded" if res.info_bar_row is not None else ""
+            if res.info_bar_top_last_row is not None:
+                excl += f", data bar rows 0-{res.info_bar_top_last_row} excluded"
             lines.append(f"{name}: {len(t)} particles; {res.scale.um_per_px:.5g} µm/px from {res.scale.source} "
                          f"({res.scale.detail}){excl}; min area {res.min_area_px} px")
             warned.append(f"bmctl: {name}: {_polarity_text(res)}; verdict {res.verdict}"
@@ -230,7 +232,7 @@ def _write_set(args, results, locs, reports, table, loc) -> list[str]:
         img_index = [i for i, p in enumerate(args.inputs) if not _is_table(p)]
         for res, out_png, i in zip(results, _overlay_names(results, folder), img_index):
             write_overlay(out_png, res.image, res.segmentation.labels, res.segmentation.offset, locs[i].particle_id,
-                          excluded_from_row=res.info_bar_row, scale_bar=res.scale_bar,
+                          excluded_from_row=res.info_bar_row, excluded_to_row=res.info_bar_top_last_row, scale_bar=res.scale_bar,
                           title=f"{path_text(Path(res.name).name)}: {len(res.table)} particles, {res.scale.um_per_px:.4g} µm/px, "
                                 f"{res.segmentation.polarity} particles, verdict {res.verdict}")
             reports[i]["overlay"] = str(out_png)

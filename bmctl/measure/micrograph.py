@@ -38,7 +38,7 @@ class MicrographResult:
     scale : Scale
     scale_bar : ScaleBar or None
     info_bar_row : int or None
-        First excluded row of the data bar (``None``: none found or kept).
+        First excluded row of the data bar at the bottom (``None``: none found or kept).
     min_area_px : int
         Speck limit used.
     table : ParticleTable
@@ -50,6 +50,9 @@ class MicrographResult:
     verdict : {"ok", "doubtful", "unusable"}
         Reliability verdict (:func:`bmctl.measure.quality.verdict`).
     verdict_reasons : list of str
+    info_bar_top_last_row : int or None
+        Last excluded row of a data bar at the top of the image, rows 0 to it excluded
+        (``None``: none found or kept).
     """
 
     name: str
@@ -66,6 +69,7 @@ class MicrographResult:
     evidence: dict | None = None
     verdict: str = "ok"
     verdict_reasons: list = dataclasses.field(default_factory=list)
+    info_bar_top_last_row: int | None = None
 
     def report(self) -> dict:
         """JSON-ready summary: scale and how it was found, exclusions, counts, medians, warnings."""
@@ -82,6 +86,7 @@ class MicrographResult:
             "scale": {"um_per_px": self.scale.um_per_px, "source": self.scale.source, "detail": self.scale.detail},
             "scale_bar": bar,
             "info_bar_first_row": self.info_bar_row,
+            "info_bar_top_last_row": self.info_bar_top_last_row,
             "min_area_px": self.min_area_px,
             "count": summ["count"],
             "s_median_um": summ["s_median_um"],
@@ -130,7 +135,7 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
     scale_bar_um : float, optional
         Length of the scale bar drawn on the image (used when there is no metadata).
     keep_info_bar : bool, optional
-        Do not detect and exclude the data bar at the bottom.
+        Do not detect and exclude the data bar (at the bottom, or a banner at the top).
     min_area_px : int or "auto", optional
         Speck limit; ``"auto"`` = :func:`bmctl.measure.quality.auto_min_area`.
     crop : str or tuple, optional
@@ -162,14 +167,20 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
     if isinstance(min_particles, bool) or not isinstance(min_particles, (int, np.integer)) or min_particles < 0:
         raise InputError(f"--min-particles: expected a whole number >= 0 (got {min_particles!r})")
     info_row = None if keep_info_bar else find_info_bar(img)
-    scale, bar = resolve_scale(path, img, um_per_px=um_per_px, scale_bar_um=scale_bar_um, info_top=info_row)
+    banner = None if keep_info_bar else find_info_bar(img, side="top")
+    scale, bar = resolve_scale(path, img, um_per_px=um_per_px, scale_bar_um=scale_bar_um, info_top=info_row,
+                               info_banner=banner)
     mask = None
     if crop is not None:
         crop = parse_crop(crop) if isinstance(crop, str) else crop
-        if info_row is not None:
-            mask = np.arange(img.shape[0])[:, None] < info_row * np.ones((1, img.shape[1]), dtype=bool)
-    elif info_row is not None:
-        crop = (0, info_row, 0, -1)
+        if info_row is not None or banner is not None:
+            mask = np.ones(img.shape, dtype=bool)
+            if info_row is not None:
+                mask[info_row:] = False
+            if banner is not None:
+                mask[:banner + 1] = False
+    elif info_row is not None or banner is not None:
+        crop = (0 if banner is None else banner + 1, -1 if info_row is None else info_row, 0, -1)
     if bar is not None and "drawn" not in segment_kw:
         segment_kw["drawn"] = _bar_pixels(img.shape, bar)  # masked with the annotations (unless switched off)
     auto = isinstance(min_area_px, str)
@@ -195,7 +206,8 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
         warns.insert(0, extra)
     ev = evidence(seg, used)
     value, reasons = verdict(ev, min_particles)
-    return MicrographResult(name, img, seg, scale, bar, info_row, used, table, x_um, y_um, warns, ev, value, reasons)
+    return MicrographResult(name, img, seg, scale, bar, info_row, used, table, x_um, y_um, warns, ev, value, reasons,
+                            banner)
 
 
 def table_reports(csv_path) -> list[dict]:

@@ -24,7 +24,8 @@ def display_levels(image: np.ndarray) -> np.ndarray:
 
 
 def write_overlay(path: str | os.PathLike, image: np.ndarray, labels: np.ndarray, offset=(0, 0), ids=None,
-                  *, excluded_from_row: int | None = None, scale_bar=None, title: str = "") -> None:
+                  *, excluded_from_row: int | None = None, scale_bar=None, title: str = "",
+                  excluded_to_row: int | None = None) -> None:
     """Write the image with particle outlines (yellow) and ids (cyan) as a PNG, atomically.
 
     Parameters
@@ -39,10 +40,12 @@ def write_overlay(path: str | os.PathLike, image: np.ndarray, labels: np.ndarray
     ids : sequence of int, optional
         Id printed for label ``i`` (``ids[i - 1]``); default ``i``.
     excluded_from_row : int, optional
-        First row of the excluded data bar (shaded red).
+        First row of the excluded data bar (shaded red to the bottom edge).
     scale_bar : bmctl.measure.scale.ScaleBar, optional
         Marked in green when found.
     title : str, optional
+    excluded_to_row : int, optional
+        Last row of an excluded data bar at the top of the image (shaded red from the top edge).
     """
     plt = pyplot()
     h, w = image.shape
@@ -53,6 +56,8 @@ def write_overlay(path: str | os.PathLike, image: np.ndarray, labels: np.ndarray
     rgb[segmentation.find_boundaries(full, mode="inner")] = (1.0, 0.9, 0.0)
     if excluded_from_row is not None:
         rgb[excluded_from_row:] = 0.6 * rgb[excluded_from_row:] + 0.4 * np.array([1.0, 0.0, 0.0])
+    if excluded_to_row is not None:
+        rgb[:excluded_to_row + 1] = 0.6 * rgb[:excluded_to_row + 1] + 0.4 * np.array([1.0, 0.0, 0.0])
     scale = max(1.0, 1400.0 / max(h, w))
     fig = plt.figure(figsize=(w * scale / 100.0, h * scale / 100.0), dpi=100)
     ax = fig.add_axes([0, 0, 1, 1])

@@ -19,8 +19,9 @@ bar found in the image when the user gives its length (``--scale-bar-um``,
 * plain TIFF XResolution/ResolutionUnit (cm or inch) only when it is physical, i.e. the pixel
   is <= 10 um; print resolutions (72-600 dpi, >= 42 um per px) are ignored.
 
-The data bar (info strip) of SEM images is a band of rows near the bottom in which most
-pixels have exactly one value (the strip's fill); :func:`find_info_bar` finds its first row.
+The data bar (info strip) of SEM images is a band of rows near the bottom (or, as some
+instruments write it, a banner at the top) in which most pixels have one value (the strip's
+fill); :func:`find_info_bar` finds its first row (or a banner's last row).
 """
 
 from __future__ import annotations
@@ -38,8 +39,9 @@ from ..errors import InputError
 #: sane pixel sizes: 0.1 nm (a TEM) to 1 mm (a photograph of a sieve) per px
 UM_PER_PX_RANGE = (1e-4, 1e3)
 MAX_PHYSICAL_UM_PER_PX = 10.0  # larger "pixel sizes" in XResolution are print/screen dpi
-INFO_BAR_SEARCH = 0.35  # share of the image height (from the bottom) searched for a data bar
-INFO_BAR_FLAT_SHARE = 0.5  # a data-bar row: at least this share of its pixels has the modal value
+INFO_BAR_SEARCH = 0.35  # share of the image height searched for a data bar (from the bottom; from the top for a banner)
+INFO_BAR_FLAT_SHARE = 0.5  # a data-bar row: at least this share of its pixels has the modal value ...
+INFO_BAR_EXTREME = 0.03  # ... or lies within this share of the image range of its darkest or brightest value
 INFO_BAR_MIN_ROWS = 4
 SCALE_BAR_MIN_PX = 20
 SCALE_BAR_ASPECT = 3.0  # a bar is at least this many times longer than thick
@@ -231,32 +233,69 @@ def _modal_share(row: np.ndarray) -> tuple[float, float]:
     return float(counts[k]) / row.size, float(vals[k])
 
 
-def find_info_bar(img: np.ndarray) -> int | None:
-    """First row of the data bar (info strip) at the bottom of an SEM image, or ``None``.
+def _flat_rows(img: np.ndarray, rows: range) -> np.ndarray:
+    """Whether each of ``rows`` is a data-bar row: at least ``INFO_BAR_FLAT_SHARE`` of its pixels
+    have its modal value, or lie within ``INFO_BAR_EXTREME`` of the image range of the image's
+    darkest value, or of its brightest (a black or white fill that JPEG compression or blurring
+    has spread over a few levels next to the text)."""
+    lo, hi = float(img.min()), float(img.max())
+    tol = INFO_BAR_EXTREME * (hi - lo)
+    band = img[rows.start:rows.stop]
+    near = np.maximum((band <= lo + tol).mean(axis=1), (band >= hi - tol).mean(axis=1))
+    modal = np.array([_modal_share(row)[0] for row in band])
+    return (modal >= INFO_BAR_FLAT_SHARE) | (near >= INFO_BAR_FLAT_SHARE)
+
+
+def _bar_run(flat: np.ndarray) -> int | None:
+    """Index of the first element of the first run of at least ``INFO_BAR_MIN_ROWS`` true values
+    that follows a false one (a run from index 0 on is not a bar: it has no inner edge)."""
+    run, edge = 0, False
+    for i, f in enumerate(flat):
+        if not f:
+            run, edge = 0, True
+        elif edge:
+            run += 1
+            if run >= INFO_BAR_MIN_ROWS:
+                return i - run + 1
+    return None
+
+
+def find_info_bar(img: np.ndarray, side: str = "bottom") -> int | None:
+    """First row of the data bar (info strip) at the bottom of an SEM image, or ``None``; with
+    ``side="top"``, the last row of a data bar at the top of the image (a banner).
 
     A data-bar row has one value (the strip's fill) in at least ``INFO_BAR_FLAT_SHARE`` of its
-    pixels, which a noisy micrograph row never has. The bar is the topmost run of at least
-    ``INFO_BAR_MIN_ROWS`` such rows in the bottom ``INFO_BAR_SEARCH`` of the image; everything
-    from it to the bottom edge is excluded.
+    pixels, which a noisy micrograph row never has: its modal value, or (a black or white fill
+    spread by JPEG compression or blurring) a value within ``INFO_BAR_EXTREME`` of the image
+    range of the image's darkest or brightest value (:func:`_flat_rows`). The bar is the run of
+    at least ``INFO_BAR_MIN_ROWS`` such rows nearest the image's middle that begins within the
+    outer ``INFO_BAR_SEARCH`` of the image (the row on its inner side is not a data-bar row: a
+    flat background reaching into the band is no bar): at the bottom its topmost such run,
+    everything from it to the bottom edge excluded; at the top the bottommost, everything from
+    the top edge to it excluded.
 
     Parameters
     ----------
     img : ndarray of float, shape (H, W)
+    side : {"bottom", "top"}, optional
 
     Returns
     -------
     int or None
+        Bottom: the first excluded row. Top: the last excluded row.
     """
+    if side not in ("bottom", "top"):
+        raise ValueError(f"side must be 'bottom' or 'top' (got {side!r})")
     h = img.shape[0]
-    start = int(h * (1.0 - INFO_BAR_SEARCH))
-    flat = np.array([_modal_share(img[y])[0] >= INFO_BAR_FLAT_SHARE for y in range(start, h)])
-    run = 0
-    for i, f in enumerate(flat):
-        run = run + 1 if f else 0
-        if run >= INFO_BAR_MIN_ROWS:
-            top = start + i - run + 1
-            return top if top > 8 else None
-    return None
+    n = h - int(h * (1.0 - INFO_BAR_SEARCH))  # rows searched at either edge
+    if n >= h:
+        return None
+    if side == "top":  # rows n (the one below the band) up to 0
+        i = _bar_run(_flat_rows(img, range(0, n + 1))[::-1])
+        return None if i is None or n - i >= h - 9 else n - i
+    start = h - n  # rows start - 1 (the one above the band) down to h - 1
+    i = _bar_run(_flat_rows(img, range(start - 1, h)))
+    return None if i is None or start - 1 + i <= 8 else start - 1 + i
 
 
 def _bar_in(img: np.ndarray, y0: int, ink: np.ndarray, span: float) -> ScaleBar | None:
@@ -343,10 +382,11 @@ def _drawn_inks(region: np.ndarray, lo: float, hi: float, span: float):
             yield ink
 
 
-def find_scale_bar(img: np.ndarray, top: int | None = None) -> ScaleBar | None:
+def find_scale_bar(img: np.ndarray, top: int | None = None, banner: int | None = None) -> ScaleBar | None:
     """The longest straight horizontal bar of strongly contrasting pixels below row ``top``.
 
-    Searched in the data bar when there is one (``top`` = its first row), else in the bottom
+    Searched in the data bar when there is one (``top`` = its first row), else in a data bar at
+    the top of the image (``banner`` = its last row) and, when that gives none, in the bottom
     quarter of the image. First among the pixels that differ from the region's modal (fill)
     value by more than half the image range; when that gives no bar, among the marks drawn in
     the image's extreme values (within ``SCALE_BAR_SATURATION`` of the range), and inside each
@@ -362,8 +402,16 @@ def find_scale_bar(img: np.ndarray, top: int | None = None) -> ScaleBar | None:
         ``None`` when no run of at least ``SCALE_BAR_MIN_PX`` px is a bar.
     """
     h, w = img.shape
-    y0 = top if top is not None else int(0.75 * h)
-    region = img[y0:]
+    if top is None and banner is not None:
+        bar = _scale_bar_in(img, 0, banner + 1)
+        if bar is not None:
+            return bar
+    return _scale_bar_in(img, top if top is not None else int(0.75 * h), h)
+
+
+def _scale_bar_in(img: np.ndarray, y0: int, y1: int) -> ScaleBar | None:
+    """:func:`find_scale_bar` in rows ``y0:y1`` of ``img``."""
+    region = img[y0:y1]
     if region.size == 0:
         return None
     span = float(np.ptp(img) or 1.0)
@@ -388,7 +436,8 @@ def nearest_125(value: float) -> float:
 SCALE_HELP = "give the scale with --um-per-px X, or --scale-bar-um L (the length written on the image's scale bar)"
 
 
-def resolve_scale(path, img: np.ndarray, *, um_per_px=None, scale_bar_um=None, info_top=None) -> tuple[Scale, ScaleBar | None]:
+def resolve_scale(path, img: np.ndarray, *, um_per_px=None, scale_bar_um=None, info_top=None,
+                  info_banner=None) -> tuple[Scale, ScaleBar | None]:
     """The pixel size to use for one image, and the scale bar found (if any).
 
     Parameters
@@ -403,6 +452,8 @@ def resolve_scale(path, img: np.ndarray, *, um_per_px=None, scale_bar_um=None, i
         Length of the image's scale bar in um; used when there is no user scale and no metadata.
     info_top : int, optional
         First row of the data bar (where the scale bar is searched).
+    info_banner : int, optional
+        Last row of a data bar at the top of the image (searched when ``info_top`` is None).
 
     Returns
     -------
@@ -413,7 +464,7 @@ def resolve_scale(path, img: np.ndarray, *, um_per_px=None, scale_bar_um=None, i
     bmctl.errors.InputError
         No scale can be found; the message says how to give one.
     """
-    bar = find_scale_bar(img, info_top)
+    bar = find_scale_bar(img, info_top, info_banner)
     if um_per_px is not None:
         return Scale(float(um_per_px), "user", "--um-per-px"), bar
     meta = scale_from_metadata(path) if path is not None else None
