@@ -35,9 +35,12 @@ HOURS = 12.0
 MOMENTS = ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening")
 FIT_IDX = (0, 1, 2, 3)
 N_RANDOM_TRAIN = 16  # random schedules in the training design (docs/moments.md, Sec. 6)
-#: (gamma, delta) factors of the training plants off the card, and random schedules on each
+#: (gamma, delta) factors of the training plants off the card, and random schedules on each (a factor
+#: that would take the card's gamma or delta past its field's upper limit is cut there: :func:`plant_factors`)
 TRAIN_FACTORS = ((1.15, 0.85), (0.85, 1.15))
 N_RANDOM_OFF_CARD = 3
+#: the card fields (``[stochastic]``) that a plant's (gamma, delta) factors multiply (:func:`bmctl.config.with_factors`)
+FACTOR_FIELDS = ("gamma_per_um2", "delta_per_um2")
 #: plant seeds of the training ensemble (offsets to 1000 x --seed). Four seeds instead of two halve the
 #: variance of the ensemble means the fit chases; on three held-out sets the lab card's r_std fell by
 #: 0.07-0.14 points and no fan entry moved by more than 0.06 (docs/moments.md, Sec. 6)
@@ -58,7 +61,8 @@ class Spec:
     name: str
     inputs: list[tuple[float, float]]
     prefix: list[tuple[float, float]] = field(default_factory=list)
-    #: (gamma, delta) of the plant relative to the card; the model runs with p = factors
+    #: (gamma, delta) of the plant relative to the card, as the plant has them (:func:`plant_factors`);
+    #: the model runs with p = factors
     factors: tuple[float, float] = (1.0, 1.0)
 
 
@@ -79,6 +83,65 @@ class Experiment:
     @property
     def x0(self) -> np.ndarray:
         return self.Y[0]
+
+
+def _field_max(name: str) -> tuple[float, bool]:
+    """The upper limit of the ``[stochastic]`` field ``name`` and whether it is excluded (inf: none)."""
+    from ..config import Stochastic
+
+    for m in Stochastic.model_fields[name].metadata:
+        if getattr(m, "le", None) is not None:
+            return float(m.le), False
+        if getattr(m, "lt", None) is not None:
+            return float(m.lt), True
+    return math.inf, False
+
+
+def plant_factors(card: ModelCard, factors: Sequence[float]) -> tuple[float, float]:
+    """The (gamma, delta) factors of a plant off ``card``: ``factors``, each cut where it would take the
+    card's field past its upper limit (``stochastic.gamma_per_um2`` and ``delta_per_um2`` lie in (0, 1]
+    µm^-2), so that the plant sits at the limit.
+
+    The plant (:func:`bmctl.config.with_factors`) stays a valid card, and the factor returned is the one
+    the plant has, which the experiment records and the model runs with (p = the factors): the fit stays
+    consistent. The other factor keeps its full step, so the design still excites the response to it.
+    Cards far from the limit (every shipped card) get ``factors`` unchanged.
+
+    Parameters
+    ----------
+    card : ModelCard
+    factors : (float, float)
+        Multipliers of gamma and delta (positive).
+
+    Returns
+    -------
+    (float, float)
+
+    Examples
+    --------
+    >>> from bmctl.config import load_card
+    >>> card = load_card("models/alni-1to1-300rpm-lab.toml")
+    >>> plant_factors(card, (1.3, 0.7))
+    (1.3, 0.7)
+    >>> near = card.model_copy(update={"stochastic": card.stochastic.model_copy(update={"gamma_per_um2": 0.95})})
+    >>> g, d = plant_factors(near, (1.3, 0.7))
+    >>> round(g, 6), d, 0.95 * g <= 1.0
+    (1.052632, 0.7, True)
+    """
+    out = []
+    for name, f in zip(FACTOR_FIELDS, factors):
+        v, f = float(getattr(card.stochastic, name)), float(f)
+        hi, excluded = _field_max(name)
+
+        def past(x: float) -> bool:  # the plant's value, v * x, as with_factors multiplies
+            return v * x >= hi if excluded else v * x > hi
+
+        if past(f):
+            f = hi / v
+            while past(f):  # the quotient can round up by an ulp
+                f = math.nextafter(f, 0.0)
+        out.append(f)
+    return out[0], out[1]
 
 
 def _grid(segments: Sequence[tuple[float, float, float]]) -> list[tuple[float, float]]:
@@ -194,10 +257,11 @@ def design(card: ModelCard, seed: int = 0, quick: bool = False, n_random: int | 
         specs.append(Spec(f"random-train-{k}", random_schedule(rng, R)))
     # plants off the card (TRAIN_FACTORS, half the off-card check's +-30 %): the fit sees how the
     # plant answers gamma and delta, which the particle filter estimates through the model
-    # (docs/moments.md, Sec. 6); their schedules come from their own stream [seed, 4]
+    # (docs/moments.md, Sec. 6); their schedules come from their own stream [seed, 4]. A card near the
+    # limit of gamma or delta gets the factor cut there (plant_factors): Spec.factors is the plant's
     grng = np.random.default_rng([seed, 4])
     recipe = min(float(card.process.rpm), R)
-    for g, d in TRAIN_FACTORS:
+    for g, d in (plant_factors(card, f) for f in TRAIN_FACTORS):
         specs.append(Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, recipe, 1.0)]), factors=(g, d)))
         for k in range(1 if quick else N_RANDOM_OFF_CARD):
             specs.append(Spec(f"random-g{g:g}-d{d:g}-{k}", random_schedule(grng, R), factors=(g, d)))
@@ -259,9 +323,11 @@ def off_card_design(card: ModelCard) -> list[Spec]:
     """The off-card check: the card's own recipe (process rpm, 12 h) on plants whose gamma and
     delta are off the card (:data:`FACTORS`). Nothing is fitted on them: they test the derived
     response of the rates to the parameters p = (gamma, delta) factors (at most the top speed,
-    :func:`speed_limit`)."""
+    :func:`speed_limit`). A factor that would take gamma or delta past its field's upper limit is cut
+    there (:func:`plant_factors`)."""
     rpm = min(float(card.process.rpm), speed_limit(card)[0])
-    return [Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, rpm, 1.0)]), factors=(g, d)) for g, d in FACTORS]
+    return [Spec(f"recipe-g{g:g}-d{d:g}", _grid([(HOURS, rpm, 1.0)]), factors=(g, d))
+            for g, d in (plant_factors(card, f) for f in FACTORS)]
 
 
 def _plant_states(plant) -> np.ndarray:
