@@ -566,10 +566,29 @@ def card_schedule(card: ModelCard, hours: float | None = None, rpm: float | None
     return segs
 
 
-def with_factors(card: ModelCard, gamma_mult: float, delta_mult: float) -> ModelCard:
+def with_factors(card: ModelCard, gamma_mult: float, delta_mult: float, source: str = "plant") -> ModelCard:
     """A copy of ``card`` with its contact factor gamma and parting factor delta multiplied
-    (eqns 15, 20): a plant whose bonding/fracture propensities are off the card."""
+    (eqns 15, 20): a plant whose bonding/fracture propensities are off the card. A product the
+    card does not allow (above 1 µm^-2) is an :class:`~bmctl.errors.InputError` naming ``source``
+    (``plant.gamma_factor``, ...), the factor and the card field.
+
+    Examples
+    --------
+    >>> card = load_card("models/alni-1to1-300rpm-lab.toml")
+    >>> with_factors(card, 1.5, 0.6).stochastic.gamma_per_um2 / card.stochastic.gamma_per_um2
+    1.5
+    """
     d = card.model_dump()
     d["stochastic"]["gamma_per_um2"] *= gamma_mult
     d["stochastic"]["delta_per_um2"] *= delta_mult
-    return type(card).model_validate(d)
+    try:
+        return type(card).model_validate(d)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = str(err["loc"][-1])
+        key = field.removesuffix("_per_um2")
+        if key not in ("gamma", "delta"):
+            raise
+        mult = gamma_mult if key == "gamma" else delta_mult
+        raise InputError(f"{source}.{key}_factor: {mult:g} takes the card's stochastic.{field} "
+                         f"{getattr(card.stochastic, field):g} to {d['stochastic'][field]:g}: {err['msg']}") from None

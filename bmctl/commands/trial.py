@@ -32,13 +32,14 @@ SOLVE_CPU_S = 2.0
 def _check_trial_work(sc, path):
     """Refuse a trial whose plant, filter and controller work exceeds the budget; returns the plant's card."""
     from ..cards import check_work, simulation_work
-    from ..config import load_card
+    from ..config import load_card, with_factors
     from ..control.config import load_controller
     from ..scenario import resolve
     from ..work import add, filter_work
 
     base = Path(path).resolve().parent
     card = load_card(resolve(sc.plant.model or sc.model, base))
+    with_factors(card, sc.plant.gamma_factor, sc.plant.delta_factor, source=f"{path}: plant")  # a card it allows
     cfg = load_controller(resolve(sc.controller.config, base))
     work = simulation_work(card, [(sc.hours, card.mill.rpm_max)], sc.plant.particles, sc.sampling.every_h, raster=False)
     samples = sc.hours / sc.sampling.every_h + 1

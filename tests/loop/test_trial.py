@@ -319,3 +319,17 @@ def test_a_missed_target_is_explained_by_the_plans_binding_limits(tmp_path, caps
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert any(b.startswith("vial-temperature ceiling") for b in summary["binding_first"])
     assert isinstance(summary["binding_last"], list)
+
+
+def test_a_plant_factor_past_the_card_limit_is_one_line(small, tmp_path, capsys):
+    """gamma_factor x the plant card's gamma above the 1 um^-2 a card allows: the scenario file and
+    the factor named, before --out is made (it was a pydantic traceback from the plant's card)."""
+    card = tmp_path / "card.toml"
+    card.write_text((ROOT / "models" / "alni-1to1-300rpm-lab.toml").read_text()
+                    .replace("gamma_per_um2 = 1.82e-4", "gamma_per_um2 = 0.02"))
+    sc = tmp_path / "s.toml"
+    sc.write_text(small.read_text().replace("gamma_factor = 1.3", f'gamma_factor = 99.0\nmodel = "{card}"'))
+    assert main(["trial", str(sc), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{sc}: plant.gamma_factor: 99 takes the card's stochastic.gamma_per_um2" in err[0], err
+    assert not (tmp_path / "o").exists()
