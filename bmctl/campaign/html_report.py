@@ -11,8 +11,9 @@ What it holds, in order:
 3. the measured size histograms against the filter's size law at the estimate;
 4. every advice: the estimate it saw, the recommended interval, reachability, binding
    constraints, the sample asked for first, warnings, the decision (accepted / rejected, what instead,
-   the note), what was then logged and the deviation, and the plan to the batch end that was advised
-   (a table per advice, and all plans in one figure);
+   the note; or the one recorded on an earlier advice at the same time that it repeats,
+   :func:`bmctl.campaign.workflow.standing_decision`), what was then logged and the deviation,
+   and the plan to the batch end that was advised (a table per advice, and all plans in one figure);
 5. the vial-temperature readings against the ceiling, with the estimate and each reading's check;
 6. the log as recorded.
 
@@ -115,6 +116,7 @@ class ReportData:
         self.sigma_reading_c = c.filter_settings().sigma_temperature_c
         self.ambient_c = c.ambient_c()
         self.nodes = c.estimates()
+        _, self.now_t, self.now = c.last_node()  # the estimate now: the prior (t < 0) before anything is logged
         self.filter_warnings = c.band_warnings()  # sample updates that left the filter nearly degenerate
         self.actions = c.actions()
         self.deviations = {r[0]: r[1] for r in c.con.execute("SELECT id, deviation FROM actions")}
@@ -125,12 +127,20 @@ class ReportData:
             self.samples.append({"id": sid, "t_h": float(t), "n": int(n), "s_um": s, "r": r,
                                  "sources": [Path(x).name for x in json.loads(src)], "stats": sample_statistics(s, r),
                                  "estimate": self.node_at(float(t))})
+        from .workflow import repeats, standing_decision
+
         self.plans = []
-        for pid, t, advice in c.con.execute("SELECT id, t_h, advice FROM plans ORDER BY id").fetchall():
+        rows = c.con.execute("SELECT id, t_h, advice FROM plans ORDER BY id").fetchall()
+        for i, (pid, t, advice) in enumerate(rows):
             dec = c.con.execute("SELECT accepted, rpm, milling, note FROM decisions WHERE plan_id = ? ORDER BY id",
                                 (pid,)).fetchall()
             act = c.con.execute("SELECT id FROM actions WHERE plan_id = ? ORDER BY t0_h", (pid,)).fetchall()
-            self.plans.append({"id": pid, "t_h": float(t), "advice": json.loads(advice), "decisions": dec,
+            advice = json.loads(advice)
+            # the advice asked for again at the same logged time (the log links what was run to the latest)
+            later = next((r for r in rows[i + 1:] if abs(float(r[1]) - float(t)) < 1e-6), None)
+            again = None if later is None else (later[0], repeats(json.loads(later[2])["next"], advice["next"]))
+            self.plans.append({"id": pid, "t_h": float(t), "advice": advice, "decisions": dec,
+                               "standing": None if dec else standing_decision(c.con, pid), "again": again,
                                "actions": [a[0] for a in act]})
 
     def node_at(self, t_h: float) -> dict | None:
@@ -288,6 +298,16 @@ def _why(a: dict) -> str:
     return "; ".join(out)
 
 
+def _decision_text(accepted, rpm, milling) -> str:
+    """A decision as the report words it: accepted, or rejected and what instead."""
+    text = "accepted" if accepted else "rejected"
+    if not accepted and rpm is not None:
+        text += f"; instead {rpm:g} rpm"
+    if not accepted and milling is not None:
+        text += f", milling {milling:g}"
+    return text
+
+
 def _advice_section(d: ReportData) -> hs.Markup:
     acts = {a.id: a for a in d.actions}
     parts = []
@@ -298,13 +318,12 @@ def _advice_section(d: ReportData) -> hs.Markup:
                f"{nx['rpm']:g} rpm, mill {nx['mill_min']} min, rest {nx['rest_min']} min")
         if p["decisions"]:
             acc, rpm, mil, note = p["decisions"][-1]
-            dec = "accepted" if acc else "rejected"
-            if not acc and rpm is not None:
-                dec += f"; instead {rpm:g} rpm"
-            if not acc and mil is not None:
-                dec += f", milling {mil:g}"
+            dec = _decision_text(acc, rpm, mil)
             if len(p["decisions"]) > 1:
                 dec += f" (replaces {len(p['decisions']) - 1} earlier decision(s))"
+        elif p["standing"]:  # recorded on an earlier advice at this time that this one repeats
+            acc, rpm, mil, note, src = p["standing"]
+            dec = _decision_text(acc, rpm, mil) + f" (recorded on advice {src}, which this advice repeats)"
         else:
             dec, note = "no decision recorded", ""
         ran = []
@@ -314,6 +333,10 @@ def _advice_section(d: ReportData) -> hs.Markup:
                 continue
             ran.append(f"{x.t0_h:g}-{x.t1_h:g} h: " + interval_text(x.rpm, x.milling, x.hours))
         dev = "; ".join(d.deviations.get(aid, "") for aid in p["actions"] if d.deviations.get(aid)) or "none"
+        if not ran and p["again"]:  # what was run is under the later advice at this time
+            later, same = p["again"]
+            ran = [f"nothing under this advice: advice {later} at this time {'repeats' if same else 'replaces'} it"]
+            dev = f"see advice {later}"
         est = a["estimate"]
         reach = _why(a)
         items = [("recommended next", rec),
@@ -403,9 +426,11 @@ def html_page(c) -> str:
     wblock = (hs.render('<ul class="warnings">{items}</ul>', items=hs.join(hs.render("<li>{w}</li>", w=w)
                                                                            for w in warns))
               if warns else hs.Markup("<p>No warnings.</p>"))
-    last = d.nodes[-1][1] if d.nodes else None
+    last = d.now  # as ``bmctl campaign status``: the prior, labelled, before anything is logged
     est_rows = [(k, _band(last, k)) for k in ("s_mean_um", "s_std_um", "r_mean", "r_std", "d50_um", "temperature_c",
                                               "thermal_gain", "gamma_mult", "delta_mult", "energy_mult") if last and k in last]
+    est_when = ("prior: the card's starting powder (nothing logged yet)" if d.now_t < 0
+                else f"at {d.now_t:g} h")
 
     def img(k: str, alt: str) -> hs.Markup:
         return hs.png_figure(base64.b64decode(figs[k]), alt) if k in figs else hs.Markup("")
@@ -415,7 +440,8 @@ def html_page(c) -> str:
         ceiling="none" if d.ceiling_c is None else f"{d.ceiling_c:g} °C", kind=meta["controller_kind"],
         card=Path(str(meta["inputs"]["card"]["file"])).name, clock=d.clock_h, n_act=len(d.actions),
         n_smp=len(d.samples), n_tmp=len(d.temps), n_adv=len(d.plans), warnings=wblock,
-        estimate=hs.table(["quantity", "mean [90 % interval]"], est_rows),
+        estimate=hs.join([hs.render("<p>{w}</p>", w=est_when),
+                          hs.table(["quantity", "mean [90 % interval]"], est_rows)]),
         fig_estimate=img("estimate", "Estimate (mean and 90 % interval) of each quantity over batch time, each "
                                      "sample statistic of the same quantity, and the target"),
         samples=_samples_table(d),

@@ -56,6 +56,25 @@ def check_scenario(sc, path) -> None:
                              f"{(lo + hi) / 2:g}); drop --campaign to run the window")
 
 
+def _tally_binding(loop, stats: dict) -> None:
+    """Tally the limits the first and the latest plan run against into the trial's ``stats``
+    (``binding_first``, ``binding_last``), as :meth:`bmctl.loop.ClosedLoop.decide` does for a plain
+    trial: every plan of ``loop`` (the campaign's, :meth:`bmctl.campaign.mill.CampaignLoop.decide_at`)
+    that names its binding limits (a plan on operable schedules) counts."""
+    decide_at = loop.decide_at
+
+    def tallied(t_h, history=None):
+        plan, solve_ms = decide_at(t_h, history=history)
+        extra = getattr(plan, "extra", None)
+        binding = extra.get("binding") if isinstance(extra, dict) else None
+        if binding is not None:
+            stats.setdefault("binding_first", [str(b) for b in binding])
+            stats["binding_last"] = [str(b) for b in binding]
+        return plan, solve_ms
+
+    loop.decide_at = tallied
+
+
 def trial_steps(scenario_path, folder, seed: int = 0):
     """Run a trial scenario through the campaign verbs, one control interval at a time.
 
@@ -91,6 +110,7 @@ def trial_steps(scenario_path, folder, seed: int = 0):
             estimator=dict(sc.estimator.pf))
     stats = trial_loop.stats
     with wf.Campaign(folder) as c:
+        _tally_binding(c.loop, stats)
         interval = c.loop.controller.interval_h
         kind = c.meta["controller_kind"]
         if sc.sampling.feed:  # the feed before anything runs, as ClosedLoop.observe_feed

@@ -248,8 +248,13 @@ class Campaign:
     def band_warnings(self, since_h: float | None = None) -> list[str]:
         """Warnings of the sample nodes after ``since_h`` (all when None) whose update left the filter
         nearly degenerate (:func:`bmctl.campaign.advice.band_warning`)."""
-        pooled = {float(t): (int(k), int(n)) for t, k, n in self.con.execute(
-            "SELECT t_h, COUNT(*), SUM(n) FROM samples GROUP BY t_h")}
+        rows = [(float(t), int(k), int(n)) for t, k, n in self.con.execute(
+            "SELECT t_h, COUNT(*), SUM(n) FROM samples GROUP BY t_h")]
+        node = _node_times([a.t1_h for a in self.actions()], [t for t, _, _ in rows])  # as the replay pools them
+        pooled: dict[float, tuple[int, int]] = {}
+        for t, k, n in rows:
+            k0, n0 = pooled.get(node[t], (0, 0))
+            pooled[node[t]] = (k0 + k, n0 + n)
         out = []
         for t, est in self.estimates():
             if t in pooled and (since_h is None or t > since_h + EPS_H):
@@ -277,19 +282,25 @@ class Campaign:
         r = self.con.execute("SELECT MAX(t1_h) FROM actions").fetchone()[0]
         return 0.0 if r is None else float(r)
 
-    def _observations(self, upto_h: float) -> dict[float, dict]:
-        """Observations at times <= upto_h: {t: {"s_um", "r", "temperature_c"}}."""
+    def _observations(self, upto_h: float, ends=()) -> dict[float, dict]:
+        """Observations at times <= upto_h: {t: {"s_um", "r", "temperature_c"}}, keyed by their
+        estimator node (:func:`_node_times`: times within EPS_H of an action end in ``ends`` or of
+        one another are one time); a node's samples in the order they were stored."""
+        lim = (upto_h + EPS_H,)
+        samples = [(int(sid), float(t)) for sid, t in self.con.execute(
+            "SELECT id, t_h FROM samples WHERE t_h <= ? ORDER BY t_h, id", lim)]
+        temps = [(float(t), float(T)) for t, T in self.con.execute(
+            "SELECT t_h, temperature_c FROM temperatures WHERE t_h <= ? ORDER BY t_h, id", lim)]
+        node = _node_times(ends, [t for _, t in samples] + [t for t, _ in temps])
         obs: dict[float, dict] = {}
-        for sid, t in self.con.execute("SELECT id, t_h FROM samples WHERE t_h <= ? ORDER BY t_h, id",
-                                       (upto_h + EPS_H,)):
+        for sid, t in sorted(samples, key=lambda st: (node[st[1]], st[0])):  # exact times: ORDER BY t_h, id
             s, r = self.particles(sid)
-            o = obs.setdefault(float(t), {"s_um": [], "r": [], "temperature_c": None})
+            o = obs.setdefault(node[t], {"s_um": [], "r": [], "temperature_c": None})
             o["s_um"].append(s)
             o["r"].append(r)
-        for t, T in self.con.execute("SELECT t_h, temperature_c FROM temperatures WHERE t_h <= ? ORDER BY t_h, id",
-                                     (upto_h + EPS_H,)):
-            o = obs.setdefault(float(t), {"s_um": [], "r": [], "temperature_c": None})
-            o["temperature_c"] = float(T)
+        for t, T in temps:
+            o = obs.setdefault(node[t], {"s_um": [], "r": [], "temperature_c": None})
+            o["temperature_c"] = T
         return obs
 
     def particles(self, sample_id: int) -> tuple[np.ndarray, np.ndarray]:
@@ -362,8 +373,9 @@ class Campaign:
         self._restore_node(node_id)
         clock = self.clock_h()
         acts = self.actions()
-        obs = self._observations(clock)
-        times = {a.t1_h for a in acts} | set(obs)
+        ends = [a.t1_h for a in acts]
+        obs = self._observations(clock, ends)  # a sample a rounding off an action end is at that node
+        times = set(ends) | set(obs)
         bounds = sorted(t for t in times if t > t_from + EPS_H and t <= clock + EPS_H)
         lp, prev, n = self.loop, max(t_from, 0.0), 0
         for tau in bounds:
@@ -379,6 +391,26 @@ class Campaign:
             self._write_node(tau)
             prev, n = tau, n + 1
         return n
+
+
+def _node_times(ends, times) -> dict[float, float]:
+    """The estimator node of each observation time in ``times``: the action end in ``ends`` within
+    EPS_H of it (the logged clock's value), else the earliest of the observation times within EPS_H
+    of one another (a sample at 0.3 h and a reading at 0.1 + 0.2 h are one time, as ``sample``
+    takes them). Exact times are their own nodes."""
+    e = np.array(sorted({float(x) for x in ends}), dtype=float)
+    out: dict[float, float] = {}
+    anchor = None
+    for t in sorted({float(x) for x in times}):
+        k = int(np.searchsorted(e, t))
+        near = [float(x) for x in e[max(k - 1, 0):k + 1] if abs(float(x) - t) <= EPS_H]
+        if near:
+            out[t] = min(near, key=lambda x: abs(x - t))
+            continue
+        if anchor is None or t - anchor > EPS_H:
+            anchor = t
+        out[t] = anchor
+    return out
 
 
 def _filter_settings(changes: dict, particles: int, source: str):
@@ -468,17 +500,26 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
     folder = Path(folder)
     inp = folder / INPUTS
     made = [p for p in (folder, inp) if not p.exists()]
+    files = {"card": (card_p, inp / card_p.name), "controller": (ctrl_p, inp / f"controller-{ctrl_p.name}")}
+    if coeffs_path(card_p).exists():
+        files["moments"] = (coeffs_path(card_p), coeffs_path(inp / card_p.name))
+    if not db.db_path(folder).exists():  # a folder that holds a campaign: db.create's refusal says so
+        for _, dst in files.values():
+            if os.path.lexists(dst):
+                raise _input_exists(dst)
     con = db.create(folder)
     copied: list[Path] = []
     try:
         try:
             inp.mkdir(exist_ok=True)
-            files = {"card": (card_p, inp / card_p.name), "controller": (ctrl_p, inp / f"controller-{ctrl_p.name}")}
-            if coeffs_path(card_p).exists():
-                files["moments"] = (coeffs_path(card_p), coeffs_path(inp / card_p.name))
             for src, dst in files.values():
+                try:  # never over a file of the user's (one made since the check above included)
+                    out = open(dst, "xb")
+                except FileExistsError:
+                    raise _input_exists(dst) from None
                 copied.append(dst)
-                shutil.copyfile(src, dst)
+                with out, open(src, "rb") as fh:
+                    shutil.copyfileobj(fh, out)
             meta = {"inputs": {k: {"source": str(src.resolve()), "file": str(dst.relative_to(folder)),
                                    "sha256": _sha(dst)} for k, (src, dst) in files.items()},
                     "target": tgt, "hours": H, "temperature_max_c": Tmax, "seed": int(seed),
@@ -498,7 +539,8 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
 
 
 def _undo_init(folder: Path, made: list[Path], copied: list[Path]) -> None:
-    """Remove what a failed :func:`init` wrote: its database, the input copies and the folders it made."""
+    """Remove what a failed :func:`init` wrote: its database, the input copies and the folders it made
+    (``copied`` names only the files it created: a file of the user's in ``inputs/`` is never one)."""
     path = db.db_path(folder)
     for p in [path.with_name(path.name + x) for x in ("", "-wal", "-shm", "-journal")] + copied:
         with contextlib.suppress(OSError):
@@ -506,6 +548,46 @@ def _undo_init(folder: Path, made: list[Path], copied: list[Path]) -> None:
     for d in reversed(made):  # inputs/ first, then the campaign folder; only when empty
         with contextlib.suppress(OSError):
             d.rmdir()
+
+
+def _input_exists(dst: Path) -> InputError:
+    """The refusal of an ``init`` whose input copy would replace a file already in ``inputs/``."""
+    return InputError(f"{path_text(dst)}: already exists; campaign init copies its inputs into "
+                      f"{path_text(dst.parent)} and never replaces a file there (move it, or choose another folder)")
+
+
+def repeats(a: dict, b: dict) -> bool:
+    """Whether two advices' ``next`` intervals are the same as ``advise`` prints them (rpm while
+    milling, milling and rest minutes, interval length)."""
+    return (int(a["mill_min"]) == int(b["mill_min"]) and int(a["rest_min"]) == int(b["rest_min"])
+            and abs(float(a["interval_h"]) - float(b["interval_h"])) * 60.0 < 1.0
+            and (int(a["mill_min"]) == 0 or abs(float(a["rpm"]) - float(b["rpm"])) <= 0.5))
+
+
+def standing_decision(con, plan_id: int) -> tuple | None:
+    """The decision that stands for advice ``plan_id``: its own latest, else the latest one recorded on
+    an earlier advice at the same logged time that this advice repeats (:func:`repeats`; advising again
+    at one time repeats the advice, and the operator's decision on it still stands). An advice at that
+    time that differs (a sample came in between) needs its own decision.
+
+    Returns
+    -------
+    tuple or None
+        ``(accepted, rpm, milling, note, advice_id)``, ``advice_id`` the advice it was recorded on.
+    """
+    row = con.execute("SELECT t_h, advice FROM plans WHERE id = ?", (plan_id,)).fetchone()
+    if row is None:
+        return None
+    nx = json.loads(row[1])["next"]
+    for pid, advice in con.execute("SELECT id, advice FROM plans WHERE abs(t_h - ?) < 1e-6 AND id <= ? "
+                                   "ORDER BY id DESC", (row[0], plan_id)).fetchall():
+        if pid != plan_id and not repeats(json.loads(advice)["next"], nx):
+            return None
+        dec = con.execute("SELECT accepted, rpm, milling, note FROM decisions WHERE plan_id = ? ORDER BY id DESC "
+                          "LIMIT 1", (pid,)).fetchone()
+        if dec is not None:
+            return (*dec, pid)
+    return None
 
 
 def _deviation(c: Campaign, t0: float, rpm: float, milling: float, hours: float) -> tuple[int | None, str]:
@@ -518,8 +600,7 @@ def _deviation(c: Campaign, t0: float, rpm: float, milling: float, hours: float)
     pid = row[0]
     nx = json.loads(row[1])["next"]
     p_rpm, p_mill_min, p_h = float(nx["rpm"]), float(nx["mill_min"]), float(nx["interval_h"])
-    dec = c.con.execute("SELECT accepted, rpm, milling FROM decisions WHERE plan_id = ? ORDER BY id DESC LIMIT 1",
-                        (pid,)).fetchone()
+    dec = standing_decision(c.con, pid)  # its own, or one on an earlier advice at this time that it repeats
     mill_min = milling * hours * 60.0
     diffs = []
     if mill_min >= 1.0 and p_mill_min >= 1.0 and abs(rpm - p_rpm) > 0.5:
@@ -636,9 +717,13 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
             _refuse_parts_of_unhashed(c, table, inputs, counts)
             summ = table.summary()
             srcs = [_source(i) for i in inputs]
+            # stored at its estimator node's time (an action end, or a stored sample's, within EPS_H)
+            at_h = _node_times([a.t1_h for a in c.actions()],
+                               [at_h] + [float(t) for (t,) in c.con.execute("SELECT t_h FROM samples")])[at_h]
+            scaled = um_per_px if any("image" in rep for rep in reports) else None  # a table is not rescaled
             cur = c.con.execute("INSERT INTO samples (t_h, sources, um_per_px, n, s_median_um, r_median, report, "
                                 "logged_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-                                (at_h, json.dumps(srcs), um_per_px, len(table), summ["s_median_um"],
+                                (at_h, json.dumps(srcs), scaled, len(table), summ["s_median_um"],
                                  summ["r_median"], json.dumps(reports), db.now()))
             sid = cur.lastrowid
             rows = [(sid, i + 1, path_text(images[i]), None if not np.isfinite(x[i]) else float(x[i]),
@@ -720,23 +805,38 @@ def _refuse_same_bytes(inputs: list, digests: list) -> None:
         seen[h] = k
 
 
+#: how far a particle read back from a table may lie from the one measured (s relative, r absolute):
+#: ``bmctl measure`` writes 7 significant digits (:func:`bmctl.measure.tables.write_table`), s and r
+#: then come back within 1e-6 of the image's
+SAME_PARTICLE_TOL = 1e-6
+
+
+def _same_particles(s_old, r_old, s_new, r_new) -> bool:
+    """True when two samples hold the same particles in the same order, within :data:`SAME_PARTICLE_TOL`."""
+    return (s_old.shape == s_new.shape and r_old.shape == r_new.shape
+            and bool(np.all(np.abs(s_old - s_new) <= SAME_PARTICLE_TOL * np.maximum(s_old, s_new)))
+            and bool(np.all(np.abs(r_old - r_new) <= SAME_PARTICLE_TOL)))
+
+
 def _refuse_stored_table(c: Campaign, table, inputs: list) -> None:
-    """Refuse a particle table whose particles are a stored sample's (the same file or image entered
-    by a second ``sample``): it would read as a sample twice its size, as a file named twice in one
-    command would (:func:`bmctl.measure.names.refuse_repeats`)."""
+    """Refuse a sample whose particles are a stored sample's (the same file or image entered by a
+    second ``sample``, or an image and the ``bmctl measure`` table of it, in either order: their
+    values agree to the table's 7 digits, :data:`SAME_PARTICLE_TOL`): it would read as a sample
+    twice its size, as a file named twice in one command would (:func:`bmctl.measure.names.refuse_repeats`)."""
     if not len(table):
         return
     s_new, r_new = np.asarray(table.s_um, dtype=float), np.asarray(table.r, dtype=float)
+    s0, r0, tol = float(s_new[0]), float(r_new[0]), SAME_PARTICLE_TOL
     for sid, t_h, srcs in c.con.execute(
             "SELECT s.id, s.t_h, s.sources FROM samples s JOIN particles p ON p.sample_id = s.id AND p.particle_id = 1 "
-            "WHERE s.n = ? AND p.s_um = ? AND p.r = ? ORDER BY s.id",
-            (len(table), float(s_new[0]), float(r_new[0]))).fetchall():
+            "WHERE s.n = ? AND p.s_um BETWEEN ? AND ? AND p.r BETWEEN ? AND ? ORDER BY s.id",
+            (len(table), s0 * (1 - 2 * tol), s0 * (1 + 2 * tol), r0 - 2 * tol, r0 + 2 * tol)).fetchall():
         s_old, r_old = c.particles(int(sid))
-        if np.array_equal(s_old, s_new) and np.array_equal(r_old, r_new):
+        if _same_particles(s_old, r_old, s_new, r_new):
             new = ", ".join(_name(i, k) for k, i in enumerate(inputs))
             raise InputError(f"sample: {new}: the same particles as sample {sid} at {t_h:g} h, from "
-                             f"{', '.join(json.loads(srcs))} (one table entered twice would read as a sample twice "
-                             "its size); take another sample")
+                             f"{', '.join(json.loads(srcs))} (one sample entered twice, as one table or as an image "
+                             "and its table, would read as a sample twice its size); take another sample")
 
 
 def _refuse_stored_inputs(c: Campaign, inputs: list, digests: list) -> None:
@@ -1040,8 +1140,9 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
 
 
 def status(folder, campaign: Campaign | None = None) -> dict:
-    """Where the campaign stands: clock, counts, the current estimate, the latest advice and decision,
-    the deviations, and the temperature warnings since the latest advice."""
+    """Where the campaign stands: clock, counts, the current estimate, the latest advice and the
+    decision that stands for it (:func:`standing_decision`; ``advice_id`` the advice it was recorded
+    on), the deviations, and the temperature warnings since the latest advice."""
     c = campaign or Campaign(folder, read_only=True)
     try:
         with db.transaction(c.con, write=False, where=str(folder)):
@@ -1051,10 +1152,7 @@ def status(folder, campaign: Campaign | None = None) -> dict:
             pending = c.con.execute("SELECT COUNT(*) FROM samples WHERE t_h > ?", (clock + EPS_H,)).fetchone()[0]
             _, t_node, est = c.last_node()
             plan = c.latest_plan()
-            dec = None
-            if plan is not None:
-                dec = c.con.execute("SELECT accepted, rpm, milling FROM decisions WHERE plan_id = ? ORDER BY id DESC "
-                                    "LIMIT 1", (plan[0],)).fetchone()
+            dec = None if plan is None else standing_decision(c.con, plan[0])  # carried by a repeat at its time
             devs = [f"at {r[0]:g} h: {r[1]}" for r in c.con.execute("SELECT t0_h, deviation FROM actions "
                                                                      "WHERE deviation != '' ORDER BY t0_h")]
             replaced = n["decisions"] - c.con.execute("SELECT COUNT(DISTINCT plan_id) FROM decisions").fetchone()[0]
@@ -1067,7 +1165,8 @@ def status(folder, campaign: Campaign | None = None) -> dict:
             "counts": n, "pending_samples": pending, "estimate": est if t_node >= 0 else est,
             "latest_advice": None if plan is None else _latest_advice(plan, clock),
             "decisions_replaced": replaced,
-            "decision": None if dec is None else {"accepted": bool(dec[0]), "rpm": dec[1], "milling": dec[2]},
+            "decision": None if dec is None else {"accepted": bool(dec[0]), "rpm": dec[1], "milling": dec[2],
+                                                  "advice_id": dec[4]},
             "deviations": devs, "warnings": warnings, "db_bytes": db.db_path(folder).stat().st_size}
 
 

@@ -271,9 +271,12 @@ class LQRController(_Base):
                 rpm = rpm_ok
         m_cap = max_milling_for_ceiling(self.model, x0[4], rpm, dt, ceiling)
         milling = min(m_nom, m_cap)
-        if milling < m_nom - 1e-9:
-            status.reason = (status.reason + "; " if status.reason else "") + \
-                f"temperature guard: milling {m_nom:.2f} -> {milling:.2f}"
+        if milling < m_nom - 1e-9:  # named in the minutes applied (whole minutes, as _plan rounds them)
+            applied = applied_input_guarded(self.model, x0, (rpm, milling), dt, ceiling, cfg.round_minutes)[1]
+            a, b = (round(m * dt * 60.0, 1) for m in (m_nom, applied))
+            if b < a:
+                status.reason = (status.reason + "; " if status.reason else "") + \
+                    f"temperature guard: milling {a:g} -> {b:g} min"
         self._x_last, self._t_last, self._rpm_last = x0.copy(), t, rpm
         status.solve_ms = (time.perf_counter() - t0) * 1e3
         return self._plan(x0, t, pp, np.array([[rpm, milling]]), status, cfg.round_minutes, ceiling)
