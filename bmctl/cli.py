@@ -161,9 +161,15 @@ def main(argv: list[str] | None = None) -> int:
         words = sys.argv[1:] if argv is None else list(argv)
         resumable = _chosen(words) == ["trial"] and "--campaign" not in words
         print("bmctl: interrupted (Ctrl-C): no output was left half-written (each file, or the whole set, is "
-              "renamed into place only when complete)" + ("; carry the trial on with --resume DIR" if resumable else ""),
-              file=sys.stderr)
+              "renamed into place only when complete)"
+              + ("; carry the trial on with --resume DIR and the same --seed" if resumable else ""), file=sys.stderr)
+        sys.unraisablehook = _quiet  # objects a library left half-built when interrupted: no traceback after the line
         return 130
+
+
+def _quiet(unraisable) -> None:
+    """Drop an exception raised where Python cannot raise it (a ``__del__`` of an object whose
+    ``__init__`` Ctrl-C cut short), after the one line an interrupted run prints."""
 
 
 def _interrupt(exc: BaseException) -> bool:

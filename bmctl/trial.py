@@ -295,8 +295,12 @@ def _resume(loop: ClosedLoop, out: Path, scenario_path, seed: int) -> None:
     if meta.get("campaign"):
         raise InputError(f"--resume: {out} holds a trial run with --campaign, which does not resume; run it again "
                          "with the same --seed into a new --out")
-    if meta.get("seed") != seed or meta.get("scenario") != str(Path(scenario_path).resolve()):
-        raise InputError(f"--resume: {out} holds a trial of {meta.get('scenario')} with seed {meta.get('seed')}")
+    if meta.get("scenario") != str(Path(scenario_path).resolve()):
+        raise InputError(f"--resume: {out} holds a trial of {meta.get('scenario')} with seed {meta.get('seed')}, "
+                         f"not of {Path(scenario_path).resolve()}")
+    if meta.get("seed") != seed:
+        raise InputError(f"--resume: {out} holds the trial with seed {meta.get('seed')}, not {seed}; "
+                         f"carry it on with --seed {meta.get('seed')}")
     if "sha256" in meta and meta["sha256"] != inputs_digest(load_scenario(scenario_path), scenario_path):
         raise InputError(f"--resume: {scenario_path} (or the card or controller it names) changed since the trial "
                          f"in {out} began; resume with the files as they were, or start it again in a new --out")

@@ -27,9 +27,9 @@ def configure(p):
     p.add_argument("--out", default="out/design", metavar="DIR", help="output folder (default out/design)")
     p.add_argument("--plant-seeds", type=int_arg("--plant-seeds", 0, 64), default=3, metavar="N",
                    help="plants the designed schedule is checked on (seeded ensemble; 0: no check; default 3)")
-    p.add_argument("--plant-particles", type=int_arg("--plant-particles", 100, 1_000_000), default=5000,
+    p.add_argument("--plant-particles", type=int_arg("--plant-particles", 100, 1_000_000), default=None,
                    metavar="N", help="simulated particles per plant of the check (default 5000)")
-    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the plant check (default 0)")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=None, help="seed of the plant check (default 0)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 256), default=None,
                    help="Dask workers of the plant check (default: serial for a small ensemble; at most one per "
                         "plant and 4 per CPU)")
@@ -49,6 +49,13 @@ def run(args) -> int:
                                   write_design)
 
     # all input checks first: nothing is written on bad input
+    if args.plant_seeds == 0:  # flags of the plant check, which --plant-seeds 0 skips: they would do nothing
+        given = [f for f, v in (("--seed", args.seed), ("--workers", args.workers),
+                                ("--plant-particles", args.plant_particles)) if v is not None]
+        if given:
+            raise InputError(f"{given[0]}: sets the plant check, which --plant-seeds 0 skips")
+    args.seed = 0 if args.seed is None else args.seed
+    args.plant_particles = 5000 if args.plant_particles is None else args.plant_particles
     target = parse_target(args.target)
     path = _controller_path(args.controller)
     cfg = load_controller(path)

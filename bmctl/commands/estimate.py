@@ -42,7 +42,8 @@ def configure(p):
     p.add_argument("--accept-unusable", action="store_true",
                    help="use micrographs whose measurement verdict is unusable (default: refused)")
     p.add_argument("--out", default="out/estimate/estimate.csv", metavar="FILE.csv", help="estimate table (default out/estimate/estimate.csv)")
-    p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=int_arg("--seed", 0), default=None,
+                   help="random seed of the particle filter (default 0; refused with --estimator ukf, which draws none)")
     p.add_argument("--estimator", choices=("pf", "ukf"), default="pf",
                    help="particle filter (pf, default) or unscented Kalman filter (ukf); see docs/estimation.md")
     p.add_argument("--particles", type=int_arg("--particles", 100, 1_000_000), default=None,
@@ -163,8 +164,12 @@ def run(args) -> int:
 
     if args.particles is not None and args.estimator == "ukf":  # a count the UKF would ignore
         raise InputError("--particles: a particle count, but --estimator ukf has sigma points, no particles")
+    if args.seed is not None and args.estimator == "ukf":  # a seed the UKF would ignore
+        raise InputError("--seed: seeds the particle filter; --estimator ukf is deterministic and draws no random numbers")
     if args.particles is None:
         args.particles = 2000
+    if args.seed is None:
+        args.seed = 0
     card = load_card(args.model)
     times = _parse_list("--times", args.times)
     if any(t < 0 for t in times):

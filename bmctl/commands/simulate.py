@@ -19,7 +19,7 @@ def configure(p):
     p.add_argument("--particles", type=int_arg("--particles", 100, 10_000_000), default=None, help="simulated particles M")
     p.add_argument("--rpm", type=rpm_arg("--rpm"), default=None, help="sun-disc speed (default: the card's)")
     p.add_argument("--schedule", default=None, metavar="FILE.toml", help="[[segment]] hours, rpm (rpm 0 = rest)")
-    p.add_argument("--every", type=hours_arg("--every"), default=None, help="recording interval in h (default 1)")
+    p.add_argument("--every", type=hours_arg("--every"), default=None, help="recording interval in h (default: the card's simulation.record_every_h)")
     p.add_argument("--out", default="out/simulate", metavar="DIR", help="output folder (default out/simulate)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 

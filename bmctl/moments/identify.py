@@ -97,6 +97,23 @@ def _field_max(name: str) -> tuple[float, bool]:
     return math.inf, False
 
 
+def plant_seeds(seed: int, n_seeds: int, quick: bool = False) -> tuple[list[int], list[int]]:
+    """The plant seeds of the training ensemble (``1000 seed + 1 ... n_seeds``) and of the held-out
+    and off-card ones (:data:`VALID_SEEDS`, the first two with ``quick``; moved past the training
+    seeds when there are more than 10 of them: a held-out plant is never a training plant).
+
+    Examples
+    --------
+    >>> plant_seeds(0, 4)
+    ([1, 2, 3, 4], [11, 12, 13])
+    >>> plant_seeds(1, 12, quick=True)
+    ([1001, 1002, 1003, 1004, 1005, 1006, 1007, 1008, 1009, 1010, 1011, 1012], [1013, 1014])
+    """
+    train = [1000 * seed + k for k in range(1, n_seeds + 1)]
+    shift = max(0, n_seeds - (VALID_SEEDS[0] - 1))
+    return train, [1000 * seed + k + shift for k in (VALID_SEEDS[:2] if quick else VALID_SEEDS)]
+
+
 def plant_factors(card: ModelCard, factors: Sequence[float]) -> tuple[float, float]:
     """The (gamma, delta) factors of a plant off ``card``: ``factors``, each cut where it would take the
     card's field past its upper limit (``stochastic.gamma_per_um2`` and ``delta_per_um2`` lie in (0, 1]
@@ -974,8 +991,7 @@ def identify(card: ModelCard, seed: int = 0, quick: bool = False, particles: int
     particles = particles or default_particles(quick)
     n_seeds = seeds if seeds is not None else (1 if quick else DEFAULT_SEEDS)
     n_held = heldout if heldout is not None else (4 if quick else DEFAULT_HELDOUT)
-    train_seeds = [1000 * seed + k for k in range(1, n_seeds + 1)]
-    valid_seeds = [1000 * seed + k for k in (VALID_SEEDS[:2] if quick else VALID_SEEDS)]
+    train_seeds, valid_seeds = plant_seeds(seed, n_seeds, quick)
     specs = design(card, seed, quick, random_schedules)
     vspecs = validation_design(card, seed, n_held)
     ospecs = off_card_design(card)

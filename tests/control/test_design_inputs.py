@@ -273,3 +273,14 @@ def test_schedule_toml_says_the_minutes_it_writes(tmp_path, capsys, hours):
     assert whole == (hours == "0.5")
     if whole:
         assert all(shown == f"{h * 60:.0f}" for h, shown in segs)
+
+
+@pytest.mark.parametrize("flag", [["--seed", "7"], ["--workers", "2"], ["--plant-particles", "800"]])
+def test_plant_check_flags_without_a_plant_check_are_refused(tmp_path, capsys, flag):
+    """--plant-seeds 0 skips the plant check: its seed, workers and particles would do nothing."""
+    out = tmp_path / "o"
+    rc = main(["design", str(CARD), "--target", "d50_um=45", "--hours", "4", "--plant-seeds", "0", *flag,
+               "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and f"{flag[0]}: sets the plant check, which --plant-seeds 0 skips" in err
+    assert not out.exists()

@@ -341,3 +341,8 @@ def test_cli_estimate_ukf(tmp_path, capsys, model):
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and "--particles: a particle count" in err, err
     assert not out2.parent.exists()
+    rc = main(["estimate", LAB, "--samples", str(folder), "--times", "1,2", "--estimator", "ukf",
+               "--seed", "3", "--out", str(out2)])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "--seed: seeds the particle filter" in err, err
+    assert not out2.parent.exists()

@@ -117,10 +117,12 @@ def test_resume_refuses_damaged_files_one_line(small, one_step, tmp_path, capsys
 
 
 @pytest.mark.slow
-def test_resume_refuses_other_seed(small, one_step, tmp_path):
+def test_resume_refuses_other_seed(small, one_step, tmp_path, capsys):
     out = _copy(one_step, tmp_path)
+    capsys.readouterr()
     rc = main(["trial", str(small), "--resume", str(out), "--seed", "2", "--no-progress"])
-    assert rc == 2
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "holds the trial with seed 1, not 2; carry it on with --seed 1" in err
 
 
 @pytest.mark.parametrize("edit,expect", [

@@ -109,3 +109,15 @@ def test_identify_a_near_limit_card_end_to_end(tmp_path, capsys, monkeypatch):
     st = status(load_card(p), p)
     assert st.state == "match"
     assert cf.coeffs_path(p).exists()
+
+
+@pytest.mark.parametrize("n", [1, 2, 4, 10, 11, 12, 64])
+@pytest.mark.parametrize("quick", [False, True])
+def test_held_out_plants_are_never_training_plants(n, quick):
+    from bmctl.moments.identify import plant_seeds
+
+    train, valid = plant_seeds(3, n, quick)
+    assert len(train) == n and len(valid) == (2 if quick else 3)
+    assert not set(train) & set(valid), (train, valid)
+    if n <= 10:  # the shipped cards' seeds (4): held-out on 11-13 as identified
+        assert valid == [3011, 3012, 3013][:len(valid)]
