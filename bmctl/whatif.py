@@ -80,7 +80,7 @@ def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[f
     particles : int
         Simulated particles per plant.
     base_seed : int, optional
-        First seed: plant k draws from ``default_rng(base_seed + k)``.
+        Seed: plant k draws from child k of ``SeedSequence(base_seed)`` (its ``spawn``).
     every_h : float, optional
         Recording interval (h).
     client : distributed.Client, optional
@@ -107,9 +107,8 @@ def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[f
     segments = as_schedule(segments).pairs()
     hours = sum(h for h, _ in segments)
     task = _MemberTask(card, tuple((float(h), float(rpm)) for h, rpm in segments), int(particles), float(every_h))
-    # SeedSequence(k) seeds the same generator as default_rng(k): the streams of the serial loop
-    members = map_seeded(_member, [task] * seeds, [np.random.SeedSequence(base_seed + k) for k in range(seeds)],
-                         client)
+    # plant k: child k of SeedSequence(base_seed), whatever the workers; neighbouring seeds share no plant
+    members = map_seeded(_member, [task] * seeds, np.random.SeedSequence(base_seed).spawn(seeds), client)
     t_h = members[-1][0] if members else None
     traj = {k: np.array([m[1][k] for m in members]) for k in KEYS}
     energy = sum(kinematics(card, rpm).mean_power_W * h * 3600 for h, rpm in segments) / 1e3

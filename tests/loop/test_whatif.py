@@ -75,9 +75,9 @@ def test_whatif_same_numbers_serial_and_on_two_workers(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_whatif_member_k_is_the_plant_seeded_base_seed_plus_k():
-    """The ensemble keeps its streams: member k is the plant drawn from default_rng(base_seed + k),
-    run open loop (the definition the outputs had before the ensemble ran on Dask)."""
+def test_whatif_member_k_is_the_plant_seeded_by_child_k():
+    """Member k is the plant drawn from child k of SeedSequence(base_seed), run open loop; the
+    ensembles of neighbouring seeds share no plant."""
     import numpy as np
 
     from bmctl.config import load_card
@@ -89,13 +89,15 @@ def test_whatif_member_k_is_the_plant_seeded_base_seed_plus_k():
     segs = [(0.5, 350.0), (0.25, 0.0)]
     res = run_schedule_ensemble(card, "x", segs, 2, 300, base_seed=5)
     for k in range(2):
-        plant = Plant(card, np.random.default_rng(5 + k), 300)
+        plant = Plant(card, np.random.default_rng(np.random.SeedSequence(5).spawn(2)[k]), 300)
         recs = []
         run_open_loop(plant, segs, 0.25, lambda t, mill: recs.append(mill.moments()))
         assert np.array_equal(res.traj["s_mean_um"][k], [m["s_mean_um"] for m in recs])
         assert np.array_equal(res.traj["r_std"][k], [m["r_std"] for m in recs])
         assert np.array_equal(res.final_s_um[k * 300:(k + 1) * 300], plant.s * 1e6)
     assert not np.array_equal(res.traj["s_mean_um"][0], res.traj["s_mean_um"][1])
+    nxt = run_schedule_ensemble(card, "x", segs, 2, 300, base_seed=6)
+    assert not any(np.array_equal(a, b) for a in res.traj["s_mean_um"] for b in nxt.traj["s_mean_um"])
 
 
 def _short_schedule(tmp_path):
