@@ -13,7 +13,10 @@ library, as they do on x86-64 without AVX-512; elsewhere the two agree to a rela
 (docs/performance.md).
 
 Compiled code is cached on disk (numba ``cache=True``: next to this file, or in the user's
-cache directory when the package folder is read-only).
+cache directory when the package folder is read-only). The background compile warms it with a
+small card built in code (:func:`warmup_card`), so it needs nothing outside the package; a failed
+compile leaves its error in ``$XDG_CACHE_HOME/bmctl`` (:func:`compile_failure`) and is not retried
+for the same install.
 """
 
 from __future__ import annotations
@@ -406,15 +409,103 @@ def _lock_path() -> str:
     return os.path.join(tempfile.gettempdir(), f"bmctl-plant-compile-{tag}.lock")
 
 
+def _state_dir() -> str:
+    """bmctl's own cache folder, ``$XDG_CACHE_HOME/bmctl`` (``~/.cache/bmctl`` when unset)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "bmctl")
+
+
+def _install_tag() -> str:
+    """This install's compile inputs: the path and stamp of this file, bmctl's, numba's and Python's versions."""
+    import hashlib
+    import sys
+
+    import numba
+
+    from .. import __version__
+
+    path = os.path.abspath(__file__)
+    try:
+        st = os.stat(path)
+        stamp = f"{st.st_mtime_ns} {st.st_size}"
+    except OSError:  # pragma: no cover
+        stamp = ""
+    key = "\0".join((path, stamp, __version__, numba.__version__, sys.version))
+    return hashlib.sha1(key.encode()).hexdigest()[:12]
+
+
+def failure_path() -> str:
+    """The file that records a failed background compile of this install (:func:`compile_failure`)."""
+    return os.path.join(_state_dir(), f"plant-compile-{_install_tag()}.failed")
+
+
+def compile_failure() -> str | None:
+    """The last line of the error of this install's failed background compile, or None.
+
+    While it is recorded, no process starts another background compile (the plant keeps the
+    numpy code, same results); ``python -m bmctl.plant._compiled`` compiles in the foreground,
+    shows the whole error, and clears the record when it succeeds.
+    """
+    try:
+        with open(failure_path(), encoding="utf-8", errors="replace") as fh:
+            lines = [line.strip() for line in fh.read().splitlines() if line.strip()]
+    except OSError:
+        return None
+    return lines[-1] if lines else "(no message)"
+
+
+def _record_failure(text: str) -> None:
+    """Keep ``text`` (a traceback) as this install's compile failure; quietly nothing if the folder is unwritable."""
+    path = failure_path()
+    tmp = f"{path}.{os.getpid()}.tmp"
+    try:
+        os.makedirs(os.path.dirname(path), mode=0o700, exist_ok=True)
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except OSError:  # pragma: no cover
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+
+
+def _clear_failure() -> None:
+    try:
+        os.remove(failure_path())
+    except OSError:
+        pass
+
+
+_NOTED = {"failure": False}
+
+
+def _note_failure(line: str) -> None:
+    """One line on stderr, once per process: the compiled engine is off, and why."""
+    import sys
+
+    if _NOTED["failure"]:
+        return
+    _NOTED["failure"] = True
+    print(f"bmctl: note: the compiled plant engine could not be built ({line}); the plant runs the numpy code "
+          f"(same results, slower). Details: {failure_path()}; to retry: python -m bmctl.plant._compiled",
+          file=sys.stderr)
+
+
 def compile_in_background() -> bool:
     """Start one detached process that compiles the kernels into the cache (a lock file keeps it to one).
 
+    Not after a failed compile of this install (:func:`compile_failure`): a note on stderr says so instead.
     Returns whether a compile process was started now.
     """
     import subprocess
     import sys
     import time
 
+    failed = compile_failure()
+    if failed is not None:
+        _note_failure(failed)
+        return False
     lock = _lock_path()
     try:
         if time.time() - os.path.getmtime(lock) > _LOCK_STALE_S:
@@ -435,14 +526,55 @@ def compile_in_background() -> bool:
     return True
 
 
+def warmup_card():
+    """A small valid card, built in code, for the warm-up run.
+
+    The compiled code depends on the arguments' types only, which every card gives alike, so the
+    warm-up needs no card file (``models/`` is not part of an installed package).
+    """
+    from ..config import CardInfo, ModelCard, Process, Stochastic
+
+    return ModelCard(card=CardInfo(name="compile-warm-up"), process=Process(rpm=300.0),
+                     stochastic=Stochastic(alpha=2.1, beta=1.8, gamma_per_um2=1.82e-4, delta_per_um2=8.1e-4))
+
+
 def compile_now() -> None:
     """Compile (or load from the cache) the entry point, in this process, by running a small plant."""
     from . import plant as plant_module
-    from .plant import Plant, default_card
+    from .plant import Plant
 
     plant_module._READY["warm"] = True
-    plant = Plant(default_card(), np.random.default_rng(0), 64, engine="numba")
+    plant = Plant(warmup_card(), np.random.default_rng(0), 64, engine="numba")
     plant._run_compiled(_kin(plant), [(1.0, plant._step_params())])
+
+
+def _main(argv: list[str]) -> int:
+    """``python -m bmctl.plant._compiled [LOCKFILE]``: compile into the cache; the background compile passes its lock.
+
+    A failure is recorded (:func:`compile_failure`); a success clears the record. Returns the exit status.
+    """
+    import traceback
+
+    try:
+        compile_now()
+        if not cache_is_warm():
+            raise RuntimeError("compiled, but numba's on-disk cache stayed cold (is the package folder or "
+                               "$NUMBA_CACHE_DIR writable?)")
+    except Exception:  # not an interrupt: that is no reason to stop retrying
+        _record_failure(traceback.format_exc())
+        if not argv:  # in the foreground: show the error
+            raise
+        return 1
+    finally:
+        if argv:
+            try:
+                os.remove(argv[0])
+            except OSError:
+                pass
+    _clear_failure()
+    if not argv:
+        print("bmctl: the compiled plant engine is in the cache")
+    return 0
 
 
 def _kin(plant):
@@ -454,14 +586,8 @@ def _kin(plant):
 if __name__ == "__main__":  # the background compile: python -m bmctl.plant._compiled LOCKFILE
     import sys
 
-    from bmctl.plant._compiled import compile_now as _compile_now
-
     os.nice(5)  # a background job: leave the cores to the user's runs
-    try:
-        _compile_now()
-    finally:
-        if len(sys.argv) > 1:
-            try:
-                os.remove(sys.argv[1])
-            except OSError:
-                pass
+    # this file's kernels as bmctl.plant._compiled (numba caches them under the module's name, not __main__'s)
+    from bmctl.plant._compiled import _main
+
+    sys.exit(_main(sys.argv[1:]))
