@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from .. import io
-from ..config import ModelCard, load_card
+from ..config import TEXT_MAX_CHARS, ModelCard, load_card
 from .fit import Calibration
 from .history import History
 from .params import set_params
@@ -41,13 +42,94 @@ def card_toml(card: ModelCard, header: str = "") -> str:
     return "\n".join(lines)
 
 
+CALIBRATED_SUFFIX = "-calibrated"
+ELLIPSIS = "..."
+
+
+def fit_text(text: str, limit: int = TEXT_MAX_CHARS) -> str:
+    """``text``, or its start cut to ``limit`` characters with an ellipsis at the end.
+
+    Examples
+    --------
+    >>> fit_text("abcdef", 5)
+    'ab...'
+    >>> fit_text("abc", 5)
+    'abc'
+    """
+    return text if len(text) <= limit else text[:max(limit - len(ELLIPSIS), 0)] + ELLIPSIS
+
+
+def calibrated_name(name: str, limit: int = TEXT_MAX_CHARS) -> str:
+    """``<name>-calibrated`` (``name`` as it is when it ends so), the name cut with an ellipsis before
+    the suffix where the whole would pass ``limit`` characters (a card text field's limit).
+
+    Examples
+    --------
+    >>> calibrated_name("lab")
+    'lab-calibrated'
+    >>> calibrated_name("lab-calibrated")
+    'lab-calibrated'
+    >>> calibrated_name("abcdefghij", 16)
+    'ab...-calibrated'
+    """
+    if name.endswith(CALIBRATED_SUFFIX) and len(name) <= limit:
+        return name
+    if len(name) + len(CALIBRATED_SUFFIX) <= limit:
+        return name + CALIBRATED_SUFFIX
+    return fit_text(name, limit - len(CALIBRATED_SUFFIX)) + CALIBRATED_SUFFIX
+
+
+def calibration_note(seed: int, paths: Sequence[str], names: Sequence[str], limit: int = TEXT_MAX_CHARS) -> str:
+    """The calibrated card's ``card.sources`` entry of ``bmctl calibrate``: seed, history files, parameters.
+
+    Every path is named while the note fits ``limit`` characters (a card text field's limit);
+    otherwise the histories' common folder once and as many file names as fit, ``and N more``
+    (all of them are in calibration.json), down to the number of histories alone.
+
+    Examples
+    --------
+    >>> calibration_note(1, ["a/h1.toml", "a/h2.toml"], ["gamma", "delta"])
+    'calibrated by bmctl calibrate (seed 1) from a/h1.toml, a/h2.toml: gamma, delta'
+    >>> note = calibration_note(1, [f"notebook/run-{i}.toml" for i in range(1, 13)], ["gamma"], 130)
+    >>> note[44:]
+    '12 histories in notebook (run-1.toml, and 11 more, in calibration.json): gamma'
+    """
+    paths = [str(p) for p in paths]
+    head, tail = f"calibrated by bmctl calibrate (seed {seed}) from ", f": {', '.join(names)}"
+    note = head + ", ".join(paths) + tail
+    if len(note) <= limit:
+        return note
+    n = len(paths)
+    what = f"{n} histor{'y' if n == 1 else 'ies'}"
+    try:
+        folder = os.path.commonpath([os.path.dirname(p) for p in paths])
+    except ValueError:  # absolute and relative paths mixed, or none
+        folder = ""
+    names_only = [os.path.basename(p) for p in paths]
+    if folder:
+        tries = [(f"{what} in {folder}", [os.path.relpath(p, folder) for p in paths]), (what, names_only)]
+    else:
+        tries = [(what, paths), (what, names_only)]
+    for lead, items in tries:
+        for k in range(n, 0, -1):
+            listed = ", ".join(items[:k]) + (f", and {n - k} more, in calibration.json" if k < n else "")
+            note = f"{head}{lead} ({listed}){tail}"
+            if len(note) <= limit:
+                return note
+    return fit_text(f"{head}{what} (named in calibration.json){tail}", limit)
+
+
 def calibrated_card(card: ModelCard, names: Sequence[str], values: Sequence[float], note: str) -> ModelCard:
-    """``card`` with the named parameters set, renamed ``<name>-calibrated`` and the note in its sources."""
+    """``card`` with the named parameters set, renamed ``<name>-calibrated`` and the note in its sources.
+
+    Name and note are fitted to a card text's limit (:data:`bmctl.config.TEXT_MAX_CHARS`): a name
+    that would pass it is cut before the suffix with an ellipsis (:func:`calibrated_name`), a note cut
+    at its end (:func:`fit_text`).
+    """
     new = set_params(card, dict(zip(names, map(float, values))))
     d = new.model_dump()
-    if not d["card"]["name"].endswith("-calibrated"):
-        d["card"]["name"] += "-calibrated"
-    d["card"]["sources"] = list(d["card"]["sources"]) + [note]
+    d["card"]["name"] = calibrated_name(d["card"]["name"])
+    d["card"]["sources"] = list(d["card"]["sources"]) + [fit_text(note)]
     return type(card).model_validate(d)
 
 

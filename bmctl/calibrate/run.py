@@ -100,8 +100,8 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
     if out is not None:
         out = Path(out)
         stem = Path(card_path).stem
-        note = (f"calibrated by bmctl calibrate (seed {seed}) from " + ", ".join(h.path for h in histories)
-                + f": {', '.join(names)}")
+        # fitted to a card text's limit: many or long history paths are named by folder, or counted
+        note = outputs.calibration_note(seed, [h.path for h in histories], names)
         new = outputs.calibrated_card(card, names, cal.values, note)
         # the calibrated card's own moment coefficients (bmctl.moments.for_card refuses a card without them):
         # identified first, then card and coefficients written as one set
