@@ -5,12 +5,13 @@ each with the plant check.
 
 Cases (12 h, ``controllers/mpc-default.toml``, 80 °C ceiling, 5 min dwell limits, 36 switches):
 
-* ``s_mean_um=30``: reachable at a constant ~330 rpm; the global search against the local NLP
-  started from the card's rpm and the cool-burst corner, and the plant's result (3 plants, 5000
-  particles, seed 0);
+* ``s_mean_um=30``: reachable (300 rpm, then 330 rpm); the global search against the local NLP
+  started from the search's best schedules (and the card's rpm), and the plant's result (3 plants,
+  5000 particles, seed 0);
 * ``s_mean_um=400``: out of reach (milling makes the powder no coarser than the welding hump's
-  peak): the closest schedule, the binding limits, the best row per family;
-* ``d50_um=55:65 --objective min_time``: the shortest of 3, 6, 9, 12 h that ends in the window.
+  peak): the closest schedule, the binding limits, the best row per family (plant check: 1 plant);
+* ``d50_um=55:65 --objective min_time``: the shortest of 3, 6, 9, 12 h that ends in the window
+  (plant check: 1 plant).
 
 Writes ``results/design_reach.json`` (``bmctl.results``) with the search's and the local NLP's
 errors, the plant check, the search's size and its CPU time (``os.getloadavg()`` beside it).
