@@ -281,15 +281,46 @@ class ModelCard(Strict):
 
 
 class Segment(Strict):
+    """One ``[[segment]]`` of a schedule file: ``hours`` (1 s to 1000 h), ``rpm`` (0: a rest) and an
+    optional ``milling`` share (default 1) that leaves no milling or rest phase shorter than 6 s
+    (:func:`bmctl.schedule.short_phase`). :class:`bmctl.schedule.SegmentSpec` is this class."""
+
     hours: HOURS
     rpm: RPM
+    milling: float = Field(default=1.0, ge=0.0, le=1.0)
+
+    @field_validator("milling", mode="after")
+    @classmethod
+    def _phases_long_enough(cls, milling: float, info) -> float:
+        """Refuse a share that leaves a milling or rest phase shorter than :func:`bmctl.schedule.short_phase` allows."""
+        from .schedule import short_phase  # bmctl.schedule imports this module
+
+        hours, rpm = info.data.get("hours"), info.data.get("rpm")
+        if hours is not None and rpm is not None:
+            why = short_phase(hours, rpm, milling)
+            if why:
+                raise ValueError(why)
+        return milling
 
 
 class Schedule(Strict):
-    """A list of (hours, rpm) segments; rpm 0 is a rest."""
+    """A schedule file: a list of (hours, rpm, milling share) segments, rpm 0 a rest, whose hours add up
+    to at most :data:`~bmctl.limits.HOURS_MAX` (:func:`bmctl.schedule.long_total`).
+    :class:`bmctl.schedule.ScheduleFile` is this class; :meth:`bmctl.schedule.Schedule.load` reads one."""
 
     name: str = ""
     segment: list[Segment] = Field(min_length=1)
+
+    @field_validator("segment", mode="after")
+    @classmethod
+    def _total_within_a_batch(cls, segment: list[Segment]) -> list[Segment]:
+        """Refuse segments whose hours add up to more than :data:`~bmctl.limits.HOURS_MAX`."""
+        from .schedule import long_total  # bmctl.schedule imports this module
+
+        why = long_total(sum(s.hours for s in segment))
+        if why:
+            raise ValueError(why)
+        return segment
 
 
 _BARE_KEY = re.compile(r"[A-Za-z0-9_-]{1,60}")
@@ -414,7 +445,7 @@ def fields_at(model, loc: tuple) -> set[str]:
     Examples
     --------
     >>> sorted(fields_at(Schedule, ("segment", 0)))
-    ['hours', 'rpm']
+    ['hours', 'milling', 'rpm']
     """
     import typing
 
@@ -539,7 +570,9 @@ def load_card(path: str | Path) -> ModelCard:
 
 
 def load_schedule(path: str | Path) -> Schedule:
-    """Load a schedule TOML (``[[segment]]`` tables with ``hours`` and ``rpm``)."""
+    """Load a schedule TOML (``[[segment]]`` tables with ``hours``, ``rpm``, optional ``milling``), held to
+    the limits of :class:`Schedule`; :meth:`bmctl.schedule.Schedule.load` reads the same file into a
+    :class:`bmctl.schedule.Schedule`."""
     return load(Schedule, path)
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from .checkpoint import rng_state, set_rng_state
 from .errors import InputError, require_generator
-from .limits import HOURS_MIN, PHASE_MIN_MINUTES, is_rpm_milling
+from .limits import HOURS_MIN, INPUT_ROUNDING, PHASE_MIN_MINUTES, RPM_MAX, is_rpm_milling
 from .physics.constants import TIME_EPS_H
 
 #: finest plant step within a control interval: the vial temperature is watched at this spacing (h)
@@ -167,14 +167,33 @@ def checked_sample(out) -> tuple:
     return s_um, r
 
 
-def checked_plan(plan):
+#: what the loop reads of a plan's ``status`` (a :class:`bmctl.control.Status` has them all)
+STATUS_MEMBERS = ("success", "fallback", "solve_ms")
+
+
+def rpm_rounding(rpm_max: float) -> float:
+    """The rounding allowed on an rpm against the limit ``rpm_max``: :data:`~bmctl.limits.INPUT_ROUNDING`
+    of the limit (a solver works on rpm / rpm_max), at least INPUT_ROUNDING rpm.
+
+    >>> rpm_rounding(600.0), rpm_rounding(0.5)
+    (0.0006, 1e-06)
+    """
+    return INPUT_ROUNDING * max(1.0, float(rpm_max))
+
+
+def checked_plan(plan, rpm_max: float | None = None):
     """A controller's plan, unchanged, or a clear error: it needs ``u_apply`` = (rpm, milling),
-    finite, rpm >= 0 and milling in [0, 1], and a ``status``.
+    finite, rpm in [0, ``rpm_max``] and milling in [0, 1] (each within the rounding of a solver's
+    bound, :data:`~bmctl.limits.INPUT_ROUNDING`, :func:`rpm_rounding`), and a ``status``: a
+    :class:`bmctl.control.Status`, or an object with its ``success``, ``fallback`` and ``solve_ms``
+    (and ``line()`` when it reports a fallback or a failure).
 
     Parameters
     ----------
     plan : Plan
         What ``controller.plan(...)`` returned (:class:`bmctl.control.base.Plan`).
+    rpm_max : float, optional
+        The mill's top speed (default :data:`bmctl.limits.RPM_MAX`).
     """
     missing = [a for a in ("u_apply", "status") if not hasattr(plan, a)]
     if missing:
@@ -183,7 +202,40 @@ def checked_plan(plan):
     if not is_rpm_milling(plan.u_apply):  # a solver's bound violation (INPUT_ROUNDING) passes as it always has
         raise ValueError(f"controller.plan: u_apply must be (rpm, milling), finite, rpm >= 0 and milling in [0, 1] "
                          f"(got {plan.u_apply!r})")
+    top = RPM_MAX if rpm_max is None else float(rpm_max)
+    if float(plan.u_apply[0]) > top + rpm_rounding(top):
+        raise ValueError(f"controller.plan: u_apply rpm {float(plan.u_apply[0]):g} exceeds the mill's rpm_max "
+                         f"{top:g} (got {plan.u_apply!r})")
+    _check_status(plan.status)
     return plan
+
+
+def _check_status(st) -> None:
+    """Refuse a plan status the loop cannot read (it would fail later, in an AttributeError)."""
+    from .control.base import Status
+
+    if isinstance(st, Status):
+        return
+    lacks = [a for a in STATUS_MEMBERS if not hasattr(st, a)]
+    if not lacks and (getattr(st, "fallback") != "none" or not getattr(st, "success")) \
+            and not callable(getattr(st, "line", None)):
+        lacks = ["line()"]
+    if lacks:
+        raise TypeError(f"controller.plan: status must be a bmctl.control.Status (or have its "
+                        f"{', '.join(STATUS_MEMBERS)}); {type(st).__name__} lacks {', '.join(lacks)}")
+
+
+def within_range(value: float, lo: float, hi: float, tol: float, name: str) -> float:
+    """``value`` clipped to [lo, hi] when it lies outside by at most ``tol`` (a solver's rounding);
+    a value farther out is refused, naming ``name``.
+
+    >>> within_range(-1e-7, 0.0, 600.0, 1e-6, "rpm"), within_range(300.0, 0.0, 600.0, 1e-6, "rpm")
+    (0.0, 300.0)
+    """
+    v = float(value)
+    if not (lo - tol <= v <= hi + tol):
+        raise InputError(f"{name}: must be in [{lo:g}, {hi:g}] (got {v!r})")
+    return min(max(v, lo), hi)
 
 
 def estimate_vectors(est: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -210,7 +262,10 @@ class LoopConfig:
     temperature_reading : bool
         The estimator also gets the vial temperature with each sample.
     ceiling_c : float or None
-        Vial-temperature ceiling whose crossings are counted.
+        Vial-temperature ceiling. The loop counts the mill sub-steps (of at most :data:`SUBSTEP_H`,
+        3 min; :meth:`ClosedLoop.apply`) that end above it (``stats["violations"]``, a trial's
+        ``temperature_violations``): not crossings, so a run that rises past the ceiling once and
+        stays above it adds one for every sub-step it stays there.
     power_w : callable or None
         Mean mill power (W) at an rpm, for the energy tally.
     sample_feed : bool
@@ -277,7 +332,7 @@ class ClosedLoop:
     next_sample_h : float
         Batch time of the next sample (h); 0: ``cfg.sample_every_h``.
     stats : dict
-        Tallies (solver failures, fallbacks, energy in J, peak temperature, ceiling crossings).
+        Tallies (solver failures, fallbacks, energy in J, peak temperature, sub-steps ending above the ceiling).
     peak_c : float
         The highest vial temperature of the last applied interval (degC).
     """
@@ -311,6 +366,19 @@ class ClosedLoop:
                           "violations": 0, "solve_ms": []}
 
     @property
+    def rpm_max(self) -> float:
+        """The mill's top speed: its own ``rpm_max``, its card's ``mill.rpm_max`` (a
+        :class:`bmctl.plant.Plant`), else the controller's model's, else :data:`bmctl.limits.RPM_MAX`."""
+        for owner, path in ((self.mill, ("rpm_max",)), (self.mill, ("card", "mill", "rpm_max")),
+                            (self.controller, ("model", "rpm_max"))):
+            v = owner
+            for a in path:
+                v = getattr(v, a, None)
+            if isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v) and v > 0:
+                return float(v)
+        return RPM_MAX
+
+    @property
     def steps(self) -> int:
         """Number of control intervals of the batch."""
         return interval_count(self.cfg.hours, self.controller.interval_h)
@@ -338,7 +406,7 @@ class ClosedLoop:
                                         scenarios=filter_scenarios(self.est, self.controller.n_scen - 1))
         else:
             plan = self.controller.plan(x, t_h, p=p, u_prev=self.u_prev)
-        st = checked_plan(plan).status
+        st = checked_plan(plan, self.rpm_max).status
         extra = getattr(plan, "extra", None)  # a controller's own plan object may have none
         binding = extra.get("binding") if isinstance(extra, dict) else None
         if binding is not None:  # the limits the first and the latest plan run against (plans on operable schedules)
@@ -356,7 +424,12 @@ class ClosedLoop:
     def apply(self, rpm: float, milling: float, dt_h: float) -> None:
         """Run the mill for ``dt_h`` hours in sub-steps of at most :data:`SUBSTEP_H`, milling
         first (``milling * dt_h`` hours), watching the vial temperature (its highest value in
-        the interval is kept as ``peak_c``); propagate the estimator."""
+        the interval is kept as ``peak_c``); propagate the estimator.
+
+        An rpm or milling share outside [0, :attr:`rpm_max`] or [0, 1] by no more than a
+        solver's rounding (:data:`~bmctl.limits.INPUT_ROUNDING`, :func:`rpm_rounding`) is
+        applied at the bound; values in range are applied as given."""
+        rpm, milling = self._in_range(rpm, milling)
         n_sub = max(1, int(math.ceil(dt_h / SUBSTEP_H)))
         mill_h = dt_h * milling
         ceiling = self.cfg.ceiling_c
@@ -407,7 +480,7 @@ class ClosedLoop:
         t_h = self.k * interval
         dt = interval_length(t_h, self.cfg.hours, interval)
         plan, solve_ms = self.decide()
-        rpm, milling = (float(v) for v in plan.u_apply)
+        rpm, milling = self._in_range(*plan.u_apply, name="controller.plan: u_apply")
         milling = interval_share(milling, interval, dt)
         self.apply(rpm, milling, dt)
         t_new = t_h + dt
@@ -417,6 +490,20 @@ class ClosedLoop:
         rec = StepRecord(self.k, t_new, rpm, milling, truth, self.est, sampled, solve_ms, plan.status)
         self.k += 1
         return rec
+
+    def _in_range(self, rpm, milling, name: str = "") -> tuple[float, float]:
+        """(rpm, milling) as floats, clipped onto [0, rpm_max] x [0, 1] within a solver's rounding;
+        farther out refused (an rpm or milling that is not a finite number too), naming ``name``."""
+        lead = f"{name} " if name else ""
+        try:
+            rpm, milling = float(rpm), float(milling)
+        except (TypeError, ValueError):
+            raise InputError(f"{lead}rpm, milling: must be numbers (got {rpm!r}, {milling!r})") from None
+        if 0.0 <= milling <= 1.0 and 0.0 <= rpm <= self.rpm_max:  # the usual case: as given
+            return rpm, milling
+        top = self.rpm_max
+        return (within_range(rpm, 0.0, top, rpm_rounding(top), f"{lead}rpm"),
+                within_range(milling, 0.0, 1.0, INPUT_ROUNDING, f"{lead}milling"))
 
     # --- state --------------------------------------------------------------------------------
     def get_state(self) -> dict:
@@ -538,6 +625,26 @@ def record_times(total_h: float, every_h: float) -> np.ndarray:
     return times
 
 
+def check_open_loop(segments, record_every_h) -> None:
+    """Refuse a recording interval that is not a finite number of hours > 0, or a segment that is not
+    (hours, rpm) with hours a finite number >= 0, naming it (:func:`run_open_loop`,
+    :meth:`bmctl.plant.Plant.run_schedule`).
+
+    Parameters
+    ----------
+    segments : sequence of (hours, rpm)
+    record_every_h : float
+    """
+    positive_hours(record_every_h, "record_every_h")
+    for i, seg in enumerate(segments):
+        try:
+            pair = len(seg) == 2
+        except TypeError:
+            pair = False
+        if not pair or not (isinstance(seg[0], numbers.Real) and math.isfinite(seg[0]) and seg[0] >= 0):
+            raise InputError(f"segments[{i}]: must be (hours, rpm) with hours a finite number >= 0 (got {seg!r})")
+
+
 def run_open_loop(mill: Mill, segments: Sequence[tuple[float, float]], record_every_h: float,
                   on_record: Callable[[float, Mill], None]) -> np.ndarray:
     """Run (hours, rpm) segments on ``mill`` without feedback, calling ``on_record(t_h, mill)`` at
@@ -557,10 +664,7 @@ def run_open_loop(mill: Mill, segments: Sequence[tuple[float, float]], record_ev
     on_record : callable
         ``on_record(t_h, mill)`` at each recording time.
     """
-    positive_hours(record_every_h, "record_every_h")
-    for i, seg in enumerate(segments):
-        if len(seg) != 2 or not (isinstance(seg[0], numbers.Real) and math.isfinite(seg[0]) and seg[0] >= 0):
-            raise InputError(f"segments[{i}]: must be (hours, rpm) with hours a finite number >= 0 (got {seg!r})")
+    check_open_loop(segments, record_every_h)
     total = sum(h for h, _ in segments)
     times = record_times(total, record_every_h)
     bounds = np.cumsum([0.0] + [h for h, _ in segments])

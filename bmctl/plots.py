@@ -101,6 +101,8 @@ def size_densities(s_edges_um: np.ndarray, p_s: np.ndarray, per_decade: int = 20
         Raster edges (µm).
     p_s : ndarray, (..., n)
         Number fractions per raster bin.
+    per_decade : int, optional
+        Log bins per decade of size, at most (:func:`log_size_bins`: each is made of whole raster bins).
 
     Returns
     -------

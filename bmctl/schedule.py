@@ -34,38 +34,25 @@ Examples
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
 import numpy as np
-from pydantic import Field, ValidationInfo, field_validator
 
-from .config import HOURS, RPM, Strict, load
-from .limits import HOURS_MAX, PHASE_MIN_MINUTES
+# One ``[[segment]]`` table and a schedule file are the classes bmctl.config.load_schedule reads with, so
+# that every reader of a schedule file holds it to the same limits (their validators use short_phase
+# and long_total below).
+from .config import Schedule as ScheduleFile
+from .config import Segment as SegmentSpec  # noqa: F401  (bmctl.calibrate.history, the docs)
+from .config import card_schedule, load
+from .errors import InputError
+from .limits import HOURS_MAX, PHASE_MIN_MINUTES, RPM_MAX
 from .physics.constants import TIME_EPS_H
 
 #: pieces shorter than this (h) are dropped when a schedule is cut or merged
 PIECE_EPS_H = 1e-12
-
-
-class SegmentSpec(Strict):
-    """One ``[[segment]]`` table."""
-
-    hours: HOURS
-    rpm: RPM
-    milling: float = Field(default=1.0, ge=0.0, le=1.0)
-
-    @field_validator("milling", mode="after")
-    @classmethod
-    def _phases_long_enough(cls, milling: float, info: ValidationInfo) -> float:
-        """Refuse a share that leaves a milling or rest phase shorter than :func:`short_phase` allows."""
-        hours, rpm = info.data.get("hours"), info.data.get("rpm")
-        if hours is not None and rpm is not None:
-            why = short_phase(hours, rpm, milling)
-            if why:
-                raise ValueError(why)
-        return milling
 
 
 #: the shortest milling or rest phase a segment's share may leave (s): bmctl.limits.PHASE_MIN_MINUTES
@@ -111,22 +98,6 @@ def short_phase(hours: float, rpm: float, milling: float, piece: str = "segment"
             return (f"{what} {seconds:.2g} s of the {piece}'s {hours:g} h, shorter than the {PHASE_MIN_S:g} s a mill "
                     "or rest phase lasts at least (a share of 0 or 1 leaves none)")
     return ""
-
-
-class ScheduleFile(Strict):
-    """A schedule TOML file."""
-
-    name: str = ""
-    segment: list[SegmentSpec] = Field(min_length=1)
-
-    @field_validator("segment", mode="after")
-    @classmethod
-    def _total_within_a_batch(cls, segment: list[SegmentSpec]) -> list[SegmentSpec]:
-        """Refuse segments whose hours add up to more than :data:`~bmctl.limits.HOURS_MAX`."""
-        why = long_total(sum(s.hours for s in segment))
-        if why:
-            raise ValueError(why)
-        return segment
 
 
 def long_total(hours: float) -> str:
@@ -224,8 +195,34 @@ class Schedule:
     # --- constructors ---------------------------------------------------------------------------
     @classmethod
     def from_pairs(cls, pairs: Iterable[Sequence[float]], name: str = "") -> "Schedule":
-        """From (hours, rpm) or (hours, rpm, milling) tuples."""
-        return cls(tuple(Segment(float(p[0]), float(p[1]), float(p[2]) if len(p) > 2 else 1.0) for p in pairs), name)
+        """From (hours, rpm) or (hours, rpm, milling) tuples, held to a schedule file's ranges
+        (:func:`checked_segment`, :func:`long_total`).
+
+        Parameters
+        ----------
+        pairs : iterable of (hours, rpm) or (hours, rpm, milling)
+            The segments in order; ``milling`` defaults to 1.
+        name : str, optional
+            Label.
+
+        Raises
+        ------
+        bmctl.errors.InputError
+            A segment outside the ranges (``segment[i].FIELD: ...``) or a total over
+            :data:`~bmctl.limits.HOURS_MAX` (``segment: ...``).
+
+        Examples
+        --------
+        >>> Schedule.from_pairs([(1.0, 300.0, 2.0)])
+        Traceback (most recent call last):
+        ...
+        bmctl.errors.InputError: segment[0].milling: 2 is outside [0, 1]
+        """
+        segs = tuple(checked_segment(i, p) for i, p in enumerate(pairs))
+        why = long_total(sum(s.hours for s in segs))
+        if why:
+            raise InputError(f"segment: {why}")
+        return cls(segs, name)
 
     @classmethod
     def load(cls, path: str | Path) -> "Schedule":
@@ -236,24 +233,25 @@ class Schedule:
     @classmethod
     def from_card(cls, card, hours: float | None = None, rpm: float | None = None) -> "Schedule":
         """The card's recipe (continuous, or ``mill_min``/``rest_min`` cycles), optionally
-        overriding its hours and rpm."""
-        p = card.process
-        total = p.hours if hours is None else hours
-        speed = p.rpm if rpm is None else rpm
-        if p.mode == "continuous" or rpm is not None and rpm == 0:
-            return cls.from_pairs([(total, speed)], card.card.name)
-        mill_h, rest_h = p.mill_min / 60.0, p.rest_min / 60.0
-        segs: list[tuple[float, float]] = []
-        t = 0.0
-        while t < total - PIECE_EPS_H:
-            m = min(mill_h, total - t)
-            segs.append((m, speed))
-            t += m
-            if t < total - PIECE_EPS_H:
-                r = min(rest_h, total - t)
-                segs.append((r, 0.0))
-                t += r
-        return cls.from_pairs(segs, card.card.name)
+        overriding its hours and rpm: :func:`bmctl.config.card_schedule`, with its limits.
+
+        Parameters
+        ----------
+        card : ModelCard
+            Its ``process`` section gives the recipe; its name names the schedule.
+        hours : float, optional
+            Batch length (h), 1 s to :data:`~bmctl.limits.HOURS_MAX` (default: the card's).
+        rpm : float, optional
+            Speed, 0 to :data:`~bmctl.limits.RPM_MAX` (default: the card's; 0: one rest).
+
+        Raises
+        ------
+        bmctl.errors.InputError
+            ``hours: -5 h is outside [1 s, 1000 h], the longest batch``; ``rpm: ...`` likewise.
+        """
+        if rpm is not None and not 0.0 <= rpm <= RPM_MAX:  # NaN too
+            raise InputError(f"rpm: {rpm:g} is outside [0, {RPM_MAX:g}] rpm")
+        return cls.from_pairs(card_schedule(card, hours, rpm), card.card.name)
 
     @classmethod
     def from_inputs(cls, U, interval_h: float, rpm_decimals: int | None = 0, name: str = "") -> "Schedule":
@@ -360,10 +358,40 @@ class Schedule:
         return out
 
     def grid(self, dt_h: float) -> list[tuple[float, float]]:
-        """Per-interval (rpm, milling) on a ``dt_h`` grid (each segment a whole number of intervals)."""
-        out = []
+        """Per-interval (rpm, milling) on a ``dt_h`` grid.
+
+        Meant for schedules whose segments are whole numbers of intervals (the identification
+        experiments, :mod:`bmctl.moments.identify`); each such segment gives that many intervals.
+        Otherwise every segment boundary is moved to the nearest grid time (a tie to the even
+        interval count), so the grid lasts the schedule's hours rounded to whole intervals (at most
+        half an interval off in all, not per segment), and a segment that no grid time falls
+        within gets no interval: its time goes to its neighbours.
+
+        Parameters
+        ----------
+        dt_h : float
+            Interval length (h), > 0.
+
+        Returns
+        -------
+        list of (rpm, milling)
+            One pair per interval.
+
+        Examples
+        --------
+        >>> Schedule.from_pairs([(1.0, 300.0, 0.5), (0.5, 0.0)]).grid(0.5)
+        [(300.0, 0.5), (300.0, 0.5), (0.0, 1.0)]
+        >>> len(Schedule.from_pairs([(0.2, 300.0)] * 5).grid(0.5))  # 1 h: two intervals, not none
+        2
+        """
+        if not dt_h > 0.0:
+            raise ValueError(f"grid: the interval must be > 0 h (got {dt_h!r})")
+        out: list[tuple[float, float]] = []
+        end = 0.0
         for s in self.segments:
-            out += [(float(s.rpm), float(s.milling))] * int(round(s.hours / dt_h))
+            n = int(round((end + s.hours) / dt_h)) - len(out)
+            out += [(float(s.rpm), float(s.milling))] * max(n, 0)
+            end += s.hours
         return out
 
     def scaled(self, factor: float) -> "Schedule":
@@ -371,19 +399,137 @@ class Schedule:
         return Schedule(tuple(Segment(s.hours * factor, s.rpm, s.milling) for s in self.segments), self.name)
 
     def toml(self) -> str:
-        """TOML text of the schedule (the ``bmctl simulate --schedule`` format)."""
-        lines = [f'name = "{self.name}"'] if self.name else []
+        """TOML text of the schedule (the ``bmctl simulate --schedule`` format) that :meth:`load` reads
+        back to the same schedule: numbers as :func:`toml_number` writes them (``hours`` to 10
+        significant digits, ``rpm`` as ``%g``, more digits only where those would change the value),
+        the name as :func:`toml_string` quotes it.
+
+        Examples
+        --------
+        >>> print(Schedule.from_pairs([(0.5, 300.0), (1.0, 1234.56789, 0.75)], name='say "go"').toml())
+        name = "say \\"go\\""
+        <BLANKLINE>
+        [[segment]]
+        hours = 0.5   # 30 min
+        rpm = 300
+        <BLANKLINE>
+        [[segment]]
+        hours = 1   # 60 min
+        rpm = 1234.56789
+        milling = 0.75
+        <BLANKLINE>
+        """
+        lines = [f"name = {toml_string(self.name)}"] if self.name else []
         for s in self.segments:
-            lines += ["", "[[segment]]", f"hours = {s.hours:.10g}   # {minutes_text(s.hours)}", f"rpm = {s.rpm:g}"]
+            lines += ["", "[[segment]]", f"hours = {toml_number(s.hours, '.10g')}   # {minutes_text(s.hours)}",
+                      f"rpm = {toml_number(s.rpm)}"]
             if s.milling != 1.0:
-                lines.append(f"milling = {s.milling:.10g}")
+                lines.append(f"milling = {toml_number(s.milling, '.10g')}")
         return "\n".join(lines) + "\n"
 
 
+def checked_segment(i: int, values: Sequence[float]) -> Segment:
+    """Segment ``i`` from (hours, rpm) or (hours, rpm, milling), held to the ranges of a schedule
+    file's fields (:class:`SegmentSpec`): finite, ``hours`` at most :data:`~bmctl.limits.HOURS_MAX`,
+    ``rpm`` within [0, :data:`~bmctl.limits.RPM_MAX`], ``milling`` within [0, 1].
+
+    A piece shorter than a file's 1-s segment, or a share that leaves a phase under 6 s
+    (:func:`short_phase`), is kept: a card's recipe cut at the batch end, or a controller's plan,
+    can hold one; files and command-line values are refused them where they are read.
+
+    Parameters
+    ----------
+    i : int
+        Its index, as the message names it.
+    values : sequence of 2 or 3 floats
+        (hours, rpm[, milling]).
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        ``segment[i].FIELD: VALUE is outside [LO, HI]``.
+
+    Examples
+    --------
+    >>> checked_segment(0, (1.0, 300))
+    Segment(hours=1.0, rpm=300.0, milling=1.0)
+    >>> checked_segment(2, (-5.0, 300))
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: segment[2].hours: -5 h is outside [0, 1000 h], the longest batch
+    """
+    try:
+        n = len(values)
+        nums = [float(v) for v in values]
+    except (TypeError, ValueError):
+        raise InputError(f"segment[{i}]: not (hours, rpm[, milling]) numbers: {values!r:.80}") from None
+    if n not in (2, 3):
+        raise InputError(f"segment[{i}]: give (hours, rpm) or (hours, rpm, milling), not {n} values")
+    hours, rpm, milling = nums[0], nums[1], nums[2] if n == 3 else 1.0
+    if not 0.0 <= hours <= HOURS_MAX:  # NaN fails every comparison
+        raise InputError(f"segment[{i}].hours: {hours:g} h is outside [0, {HOURS_MAX:g} h], the longest batch")
+    if not 0.0 <= rpm <= RPM_MAX:
+        raise InputError(f"segment[{i}].rpm: {rpm:g} is outside [0, {RPM_MAX:g}] rpm")
+    if not 0.0 <= milling <= 1.0:
+        raise InputError(f"segment[{i}].milling: {milling:g} is outside [0, 1]")
+    return Segment(hours, rpm, milling)
+
+
+def toml_number(x: float, fmt: str = "g") -> str:
+    """``x`` as TOML text that reads back as exactly ``x``: formatted with ``fmt`` where that loses
+    nothing (``300``, ``0.5``), else with every digit it takes (``repr``).
+
+    Parameters
+    ----------
+    x : float
+        A finite number.
+    fmt : str, optional
+        The readable form tried first (a :func:`format` spec).
+
+    Examples
+    --------
+    >>> toml_number(300.0), toml_number(0.5), toml_number(1234.56789), toml_number(7 / 60, ".10g")
+    ('300', '0.5', '1234.56789', '0.11666666666666667')
+    """
+    x = float(x)
+    if not math.isfinite(x):
+        raise ValueError(f"a schedule number must be finite (got {x!r})")
+    text = format(x, fmt)
+    return text if float(text) == x else repr(x)
+
+
+#: the escapes of a TOML basic string (the other control characters are written \uXXXX)
+_TOML_ESCAPES = {'"': '\\"', "\\": "\\\\", "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}
+
+
+def toml_string(text: str) -> str:
+    """``text`` as a TOML basic string: quoted, with ``"``, ``\\`` and control characters escaped.
+
+    Parameters
+    ----------
+    text : str
+
+    Examples
+    --------
+    >>> print(toml_string('lab "A" \\\\ 2'))
+    "lab \\"A\\" \\\\ 2"
+    """
+    out = []
+    for ch in str(text):
+        if ch in _TOML_ESCAPES:
+            out.append(_TOML_ESCAPES[ch])
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
 def as_schedule(value) -> Schedule:
-    """A :class:`Schedule` from a schedule, a config schedule or (hours, rpm) pairs."""
+    """A :class:`Schedule` from a schedule, a schedule file's model (:class:`bmctl.config.Schedule`,
+    milling shares kept) or (hours, rpm[, milling]) tuples."""
     if isinstance(value, Schedule):
         return value
     if hasattr(value, "segment"):  # bmctl.config.Schedule (pydantic)
-        return Schedule.from_pairs([(s.hours, s.rpm) for s in value.segment], value.name)
+        return Schedule.from_pairs([(s.hours, s.rpm, getattr(s, "milling", 1.0)) for s in value.segment], value.name)
     return Schedule.from_pairs(value)

@@ -1,8 +1,15 @@
 """Every public entry point documents every argument (numpydoc 'Parameters'), as python-control's
-docstrings_test does: an undocumented argument fails the test."""
+docstrings_test does: an undocumented argument fails the test.
+
+The entry points are the ``__all__`` of :data:`PACKAGES` and the :data:`EXTRA` names. Beyond them, any
+public function, class or method anywhere in bmctl whose docstring has a Parameters (or Attributes)
+section must name all its arguments there (:func:`test_a_parameters_section_names_every_argument`): a
+section that lists some arguments reads as complete. Arguments named with a leading underscore are
+private and not counted."""
 
 import importlib
 import inspect
+import pkgutil
 import re
 
 import pytest
@@ -20,7 +27,13 @@ EXTRA = ["bmctl.simulate:simulate", "bmctl.trial:run_trial", "bmctl.whatif:run_s
          "bmctl.plant.kernels:PaperKernels", "bmctl.plant.kernels:PaperKernels.sample_cos2psi",
          "bmctl.plant.kernels:PaperKernels.sample_energies", "bmctl.plant.kernels:PaperKernels.sample_zeta_xi",
          "bmctl.stats:gaussian_smooth", "bmctl.loop:ClosedLoop", "bmctl.loop:LoopConfig", "bmctl.loop:run_interval",
-         "bmctl.loop:run_open_loop", "bmctl.schedule:Schedule"]
+         "bmctl.loop:run_open_loop", "bmctl.schedule:Schedule", "bmctl.schedule:Schedule.from_pairs",
+         "bmctl.schedule:Schedule.from_card", "bmctl.schedule:Schedule.grid", "bmctl.schedule:checked_segment",
+         "bmctl.schedule:toml_number", "bmctl.calibrate.history:load_history",
+         "bmctl.calibrate.synthetic:synthetic_history", "bmctl.campaign.band:propagate",
+         "bmctl.control.pattern:PatternDesigner", "bmctl.plots:size_densities",
+         "bmctl.campaign:Campaign", "bmctl.campaign:init", "bmctl.campaign:log", "bmctl.campaign:sample",
+         "bmctl.campaign:advise", "bmctl.campaign:decide"]
 
 
 def _targets():
@@ -51,7 +64,7 @@ def _params(obj):
         return []
     out = []
     for p in sig.parameters.values():
-        if p.name in ("self", "cls") or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
+        if p.name in ("self", "cls") or p.name.startswith("_") or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
             continue
         out.append(p.name)
     return out
@@ -85,3 +98,48 @@ def test_arguments_documented(name):
         doc = inspect.getdoc(obj.__init__) or ""
     missing = [p for p in params if p not in _documented(doc)]
     assert not missing, f"{name}: undocumented argument(s) {missing}"
+
+
+#: documented in part, outside this test's first reach; each entry is a gap to close, not a rule
+PARTLY_DOCUMENTED = {"bmctl.control.design:Design", "bmctl.control.search:Evaluation",
+                     "bmctl.control.search:power_bound", "bmctl.moments.coeffs:CoeffFile"}
+
+
+def _sectioned():
+    """Public functions, classes and methods defined in bmctl whose docstring has a Parameters or
+    Attributes section: ``{"module:name": obj}``."""
+    import bmctl
+
+    out = {}
+    for info in pkgutil.walk_packages(bmctl.__path__, "bmctl."):
+        if info.name.endswith("__main__"):  # runs the CLI
+            continue
+        mod = importlib.import_module(info.name)
+        for name, obj in vars(mod).items():
+            if name.startswith("_") or getattr(obj, "__module__", None) != mod.__name__:
+                continue
+            found = [(name, obj)]
+            if inspect.isclass(obj):
+                found += [(f"{name}.{k}", v) for k, v in vars(obj).items() if not k.startswith("_")
+                          and inspect.isfunction(v)]
+            for key, o in found:
+                if not (inspect.isfunction(o) or inspect.isclass(o)):
+                    continue
+                doc = inspect.getdoc(o) or ""
+                if inspect.isclass(o) and not any(s in doc for s in SECTIONS):
+                    doc = inspect.getdoc(o.__init__) or ""
+                if any(re.search(section + r"\n\s*-{3,}\n", doc) for section in SECTIONS):
+                    out[f"{mod.__name__}:{key}"] = (o, doc)
+    return out
+
+
+def test_a_parameters_section_names_every_argument():
+    """synthetic_history (``name``), propagate (``substeps``), PatternDesigner (``energy_weight``) and
+    size_densities (``per_decade``) had a Parameters section that left an argument out, outside the
+    packages the test above reads."""
+    gaps = []
+    for key, (obj, doc) in sorted(_sectioned().items()):
+        missing = [p for p in _params(obj) if p not in _documented(doc)]
+        if missing and key not in PARTLY_DOCUMENTED:
+            gaps.append(f"{key}: {missing}")
+    assert not gaps, "undocumented argument(s): " + "; ".join(gaps)

@@ -152,7 +152,7 @@ def test_moment_model_and_filter_report_the_same_dvalues():
     from bmctl.moments.model import make_moment_model
     from bmctl.plant import default_card
 
-    model = make_moment_model(default_card())
+    model = make_moment_model(default_card(), coeffs="defaults")
     x = np.array([65.0, 40.0, 0.16, 0.16, 40.0, 0.1])
     out = model.outputs(x)
     want = st.law_size_stats(np.array(65.0), np.array(40.0))

@@ -1,15 +1,16 @@
 """History files: what a mill ran and what was measured at which times.
 
-A history (TOML) names the schedule the mill ran (a schedule file, or inline
-``[[segment]]`` tables with ``hours``, ``rpm``, optional ``milling`` share, held to a schedule
-file's limits, :class:`bmctl.schedule.SegmentSpec`: a share leaves no phase under 6 s) and the samples
-taken (``[[sample]]`` with ``t_h`` and either ``table`` = a particle table CSV or ``image``
-= a micrograph measured as ``bmctl measure`` does, with ``um_per_px``). Paths are relative
-to the history file and stay inside its folder (:func:`bmctl.io.inside`: an absolute path or
-one leading out of the folder is refused, and nothing outside it is read). Every problem is
+A history (TOML) names the schedule the mill ran (a schedule file, read as
+:meth:`bmctl.schedule.Schedule.load` reads one, or inline ``[[segment]]`` tables; either way
+``hours``, ``rpm`` and an optional ``milling`` share, held to a schedule file's limits,
+:class:`bmctl.schedule.SegmentSpec`: a share leaves no phase under 6 s, and the hours add up to at
+most 1000 h) and the samples taken (``[[sample]]`` with ``t_h`` and either ``table`` = a particle
+table CSV or ``image`` = a micrograph measured as ``bmctl measure`` does, with ``um_per_px``). Paths
+are relative to the history file and stay inside its folder (:func:`bmctl.io.inside`: an absolute
+path or one leading out of the folder is refused, and nothing outside it is read). Every problem is
 one line naming the file and the field. An image is measured as ``bmctl measure`` measures it
-(:func:`bmctl.measure.micrograph.measure_micrograph`: data bar excluded, automatic speck limit)
-and its verdict checked as ``bmctl estimate`` checks it: an ``unusable`` image is refused, a
+(:func:`bmctl.measure.micrograph.measure_micrograph`: data bar excluded, automatic speck limit) and
+its verdict checked as ``bmctl estimate`` checks it: an ``unusable`` image is refused, a
 ``doubtful`` one noted in :attr:`History.warnings`.
 """
 
@@ -19,13 +20,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from .. import io
-from ..config import ModelCard, Range, Strict, load_schedule, read_toml, validate
+from ..config import ModelCard, Range, Strict, read_toml, validate
 from ..limits import HOURS_MAX
 from ..errors import InputError
-from ..schedule import SegmentSpec
+from ..schedule import Schedule, SegmentSpec, long_total
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 MIN_PARTICLES = 10
@@ -51,6 +52,16 @@ class HistoryFile(Strict):
     schedule: str | None = None
     segment: list[HistorySegment] | None = None
     sample: list[SampleSpec] = Field(min_length=1)
+
+    @field_validator("segment", mode="after")
+    @classmethod
+    def _total_within_a_batch(cls, segment: list[HistorySegment] | None) -> list[HistorySegment] | None:
+        """Refuse inline segments whose hours add up to more than a schedule file's may
+        (:func:`bmctl.schedule.long_total`)."""
+        why = long_total(sum(s.hours for s in segment)) if segment else ""
+        if why:
+            raise ValueError(why)
+        return segment
 
 
 @dataclass
@@ -152,8 +163,8 @@ def load_history(path: str | Path, card: ModelCard | None = None, accept_unusabl
     if (h.schedule is None) == (h.segment is None):
         raise InputError(f"{src}: schedule: give exactly one of schedule = \"FILE.toml\" or [[segment]] tables")
     if h.schedule is not None:
-        sched = load_schedule(io.inside(base, h.schedule, f"{src}: schedule"))
-        segments = [(s.hours, s.rpm, 1.0) for s in sched.segment]
+        sched = Schedule.load(io.inside(base, h.schedule, f"{src}: schedule"))  # a schedule file's limits
+        segments = [(s.hours, s.rpm, s.milling) for s in sched.segments]
         seg_src = f"{base / h.schedule}: segment"
     else:
         if not h.segment:

@@ -49,7 +49,7 @@ def moment_start(card_path: str | Path, histories: Sequence[History], names: Seq
         return u0, {}
     card = load_card(card_path)
     own = status(card, card_path).ok  # never the coefficients of another card: then the built-in defaults
-    model = make_moment_model(card_path) if own else make_moment_model(card)
+    model = make_moment_model(card_path) if own else make_moment_model(card, coeffs="defaults")
     g = np.linspace(-SPAN, SPAN, n_grid)
     G, D = np.meshgrid(g if "gamma" in names else [0.0], g if "delta" in names else [0.0], indexing="ij")
     P = np.exp(np.stack([G.ravel(), D.ravel()], axis=1))

@@ -27,6 +27,8 @@ def synthetic_history(card: ModelCard, segments: Sequence[tuple[float, float, fl
     particles : int
         Simulated particles of the true plant (>= n).
     rng : numpy.random.Generator
+    name : str, optional
+        The history's name and path, and the prefix of each sample's source (``NAME@2h``).
 
     Returns
     -------
@@ -44,15 +46,16 @@ def write_history(history: History, folder: str | Path) -> Path:
     """Write a history as TOML + one particle table per sample (``s_um,r``) into ``folder``."""
     from ..io import write_text
     from ..measure.tables import ParticleTable, write_table
+    from ..schedule import toml_string
 
     folder = Path(folder)
-    lines = [f'name = "{history.name}"', ""]
+    lines = [f"name = {toml_string(history.name)}", ""]
     for h, rpm, milling in history.segments:
         lines += ["[[segment]]", f"hours = {h!r}", f"rpm = {rpm!r}", f"milling = {milling!r}", ""]
     for k, smp in enumerate(history.samples):
         tab = f"{history.name}-t{k}.csv"
         write_table(folder / tab, ParticleTable.from_size_aspect(smp.s_um, smp.r))
-        lines += ["[[sample]]", f"t_h = {smp.t_h!r}", f'table = "{tab}"', ""]
+        lines += ["[[sample]]", f"t_h = {smp.t_h!r}", f"table = {toml_string(tab)}", ""]
     path = folder / f"{history.name}.toml"
     write_text(path, "\n".join(lines))
     return path

@@ -45,6 +45,9 @@ def propagate(model, X: np.ndarray, P: np.ndarray, schedule: list[dict], substep
         takes the first two only).
     schedule : list of dict
         Rows with ``t0_h, t1_h, rpm, milling`` (:func:`bmctl.campaign.advice._schedule`).
+    substeps : int, optional
+        RKC substeps per row of the numpy step (:func:`bmctl.control.search.interval_step`), as the
+        plan's search predicted with; None: the compiled step when cached, else the numpy step.
 
     Returns
     -------

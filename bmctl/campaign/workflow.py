@@ -627,6 +627,23 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
     vial-temperature reading at its end enters the estimator. Overlaps (time going backwards) and
     gaps are refused.
 
+    Parameters
+    ----------
+    folder : path-like
+        The campaign folder.
+    rpm : float
+        The speed milled at (0: a rest), at most the card's ``mill.rpm_max``.
+    hours : float
+        The interval's length (h): one second at least, ending at or before the batch end.
+    milling : float, optional
+        The share of ``hours`` milled, first (0 to 1; default 1).
+    temperature_c : float, optional
+        The vial temperature read at the interval's end (°C, -50 to 400).
+    from_h : float, optional
+        Where the interval starts (h); must be the end of the last logged interval (default).
+    campaign : Campaign, optional
+        An open campaign to use (and leave open); default: ``folder`` is opened and closed.
+
     Returns
     -------
     dict
@@ -685,6 +702,22 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
     ``bmctl measure``), store its particles and update the estimator (now if ``at_h`` is
     logged, else when the log reaches it). An image whose measurement verdict is ``unusable``
     is refused unless ``accept_unusable``; doubtful images are listed in ``warnings``.
+
+    Parameters
+    ----------
+    folder : path-like
+        The campaign folder.
+    at_h : float
+        Batch time the sample was taken at (h, at most the batch end).
+    inputs : sequence of path-like or ParticleTable
+        Micrographs and/or particle tables (CSV as ``bmctl measure`` writes, or in memory), pooled.
+    um_per_px : float, optional
+        The images' pixel size (µm; default: read from each image, as ``bmctl measure``); tables are
+        not rescaled.
+    campaign : Campaign, optional
+        An open campaign to use (and leave open); default: ``folder`` is opened and closed.
+    accept_unusable : bool, optional
+        Keep an image (or a table's image) whose verdict is ``unusable`` (as ``--accept-unusable``).
 
     Returns
     -------
@@ -904,7 +937,15 @@ def ensure_coefficients(folder, identify: bool = False, progress=None):
 def advise(folder, campaign: Campaign | None = None, progress=None) -> dict:
     """Recommend the next action from the current estimate.
 
-    ``progress``: called with one line per step (the command prints them on stderr).
+    Parameters
+    ----------
+    folder : path-like
+        The campaign folder.
+    campaign : Campaign, optional
+        An open campaign to use (and leave open, its compiled solvers kept); default: ``folder`` is
+        opened and closed.
+    progress : callable, optional
+        Called with one line per step (the command prints them on stderr).
 
     Returns
     -------
@@ -1108,6 +1149,28 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
 
     Rejecting may state what will be run instead (``rpm``, ``milling``); what the mill then
     ran is what :func:`log` records, and a deviation is reported there, not refused.
+
+    Parameters
+    ----------
+    folder : path-like
+        The campaign folder.
+    accept : bool
+        True: the advice is run as recommended; False: it is rejected.
+    rpm : float, optional
+        With a rejection: the speed that will be run instead (at most the card's ``mill.rpm_max``).
+    milling : float, optional
+        With a rejection: the milling share that will be run instead (0 to 1).
+    note : str, optional
+        The operator's note, stored with the decision.
+    campaign : Campaign, optional
+        An open campaign to use (and leave open); default: ``folder`` is opened and closed.
+
+    Returns
+    -------
+    dict
+        ``plan_id``, ``t_h``, ``accepted``, the ``recommended_*`` input (rpm, milling, mill minutes,
+        interval), the ``rpm`` and ``milling`` that will be run, and ``replaces`` (earlier decisions
+        on the same advice, which this one replaces).
     """
     if accept and (rpm is not None or milling is not None):
         raise InputError("decide: --rpm/--milling go with --reject (an accepted advice is run as recommended)")

@@ -689,13 +689,15 @@ def schedule_toml(d: Design) -> str:
     Each segment's comment gives its length in minutes (:func:`bmctl.schedule.minutes_text`); the
     header says that the times are whole minutes only where every one is: a segment that fills out
     a control interval of a fractional number of minutes (a batch that is not a whole number of
-    minutes, or ``interval_h = 0.33``) is written with its decimals and counted in the header.
+    minutes, or ``interval_h = 0.33``) is written with its decimals and counted in the header. The name
+    and segments are written as :meth:`bmctl.schedule.Schedule.toml` writes them, so that the file reads
+    back to the same lengths and speeds.
 
     Parameters
     ----------
     d : Design
     """
-    from ..schedule import is_whole_minutes, minutes_text
+    from ..schedule import Schedule, is_whole_minutes
 
     tgt = ", ".join(f"{k} = {format_target(v)}" for k, v in d.target.items())
     last = d.X[-1]
@@ -717,12 +719,8 @@ def schedule_toml(d: Design) -> str:
         lines.append(f"# plant check ({pc['seeds']} plants of {pc['particles']} particles): "
                      + ", ".join(f"{k} {pc[k]['mean']:.4g} [{pc[k]['min']:.4g}, {pc[k]['max']:.4g}]" for k in d.target)
                      + f"; peak vial T {pc['temperature_peak_c']:.1f} °C")
-    lines += [
-        f'name = "design-{d.card_name}"',
-    ]
-    for h, r in d.segments:
-        lines += ["", "[[segment]]", f"hours = {h:.10g}   # {minutes_text(h)}", f"rpm = {r:g}"]
-    return "\n".join(lines) + "\n"
+    # name and segments as Schedule.toml writes them: numbers that read back exactly, the name quoted
+    return "\n".join(lines) + "\n" + Schedule.from_pairs(d.segments, f"design-{d.card_name}").toml()
 
 
 def _minutes_note(hours, is_whole) -> str:

@@ -94,6 +94,9 @@ class PatternDesigner:
         {key: point or (lo, hi)}.
     p : array_like, optional
         (gamma_mult, delta_mult).
+    energy_weight : float, optional
+        Weight of the milling energy (per kWh) in the objective (default: the controller's
+        ``weights.energy_per_kWh``).
     """
 
     def __init__(self, model, hours: float, cfg, target: dict, p=None, energy_weight: float | None = None):

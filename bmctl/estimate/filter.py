@@ -63,7 +63,8 @@ from pydantic import Field, field_validator
 from ..config import Strict
 from ..errors import InputError, require_generator
 from ..moments.model import ENERGY_NAME
-from ..limits import INPUT_ROUNDING, is_rpm_milling
+from ..limits import INPUT_ROUNDING, RPM_MAX, is_rpm_milling
+from ..loop import rpm_rounding
 from .likelihood import LawSettings, Raster, fit_sample, loglik_raster
 from .resampling import SCHEMES, effective_sample_size, resample
 
@@ -293,10 +294,11 @@ def _logsumexp(a: np.ndarray) -> float:
     return m + math.log(float(np.sum(np.exp(a - m))))
 
 
-def check_predict(u, dt_h) -> float:
-    """Refuse an estimator's ``predict`` input that is not (rpm >= 0, milling in [0, 1]) for a
-    finite ``dt_h`` >= 0 hours, naming the argument; returns ``dt_h`` as a float (0 for a ``dt_h``
-    within :data:`INPUT_ROUNDING` below 0).
+def check_predict(u, dt_h, rpm_max: float | None = None) -> float:
+    """Refuse an estimator's ``predict`` input that is not (rpm in [0, ``rpm_max``], milling in [0, 1])
+    for a finite ``dt_h`` >= 0 hours, naming the argument; returns ``dt_h`` as a float (0 for a ``dt_h``
+    within :data:`INPUT_ROUNDING` below 0). Each bound allows a solver's rounding (:data:`INPUT_ROUNDING`;
+    for the top speed :func:`bmctl.loop.rpm_rounding`).
 
     Parameters
     ----------
@@ -304,6 +306,8 @@ def check_predict(u, dt_h) -> float:
         (rpm, milling).
     dt_h : float
         Interval (h).
+    rpm_max : float, optional
+        The model's top speed (default :data:`bmctl.limits.RPM_MAX`, the kinematics' ceiling).
     """
     try:
         dt = float(dt_h)
@@ -313,6 +317,9 @@ def check_predict(u, dt_h) -> float:
         raise InputError(f"dt_h: must be a finite number of hours >= 0 (got {dt_h!r})")
     if not is_rpm_milling(u):
         raise InputError(f"u: must be (rpm, milling), finite, rpm >= 0 and milling in [0, 1] (got {u!r})")
+    top = RPM_MAX if rpm_max is None else float(rpm_max)
+    if float(u[0]) > top + rpm_rounding(top):
+        raise InputError(f"u: rpm {float(u[0]):g} exceeds the model's rpm_max {top:g} (got {u!r})")
     return max(dt, 0.0)
 
 
@@ -442,7 +449,7 @@ class ParticleFilter:
         dt_h : float
             Interval (h); 0 does nothing, a negative or non-finite one is refused.
         """
-        if check_predict(u, dt_h) <= 0:
+        if check_predict(u, dt_h, getattr(self.model, "rpm_max", None)) <= 0:
             return
         st, rng = self.settings, self.rng
         X_law = self.X.copy()

@@ -6,6 +6,7 @@ Shared by ``bmctl estimate`` and the evidence study (:mod:`bmctl.validation.stud
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -161,7 +162,7 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
     model : MomentModel
         The filter's model.
     samples : sequence of Sample
-        In increasing time.
+        In increasing time, from 0 h (or from the time ``pf`` has reached); else refused.
     segments : sequence of (hours, rpm)
         The schedule from t = 0 (rpm 0: rest; beyond its end: rest).
     settings : FilterSettings or UKFSettings, optional
@@ -169,7 +170,7 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
     seed : int, optional
         Seed of the filter's generator (ignored when ``pf`` is given).
     max_step_h : float, optional
-        Longest single predict step.
+        Longest single predict step (h), a finite number > 0.
     pf : ParticleFilter or UKFEstimator, optional
         Continue this filter instead of starting a new one.
     progress : callable, optional
@@ -178,7 +179,28 @@ def run_filter(model, samples: Sequence[Sample], segments: Sequence[tuple[float,
     Returns
     -------
     (ParticleFilter or UKFEstimator, list of Estimate)
+
+    Raises
+    ------
+    InputError
+        A sample out of time order or before the filter's time, a bad sample or reading, or a
+        ``max_step_h`` that is not a finite number of hours > 0: before any work.
     """
+    from ..errors import InputError
+    from ..loop import positive_hours
+    from ..physics.constants import TIME_EPS_H
+
+    positive_hours(max_step_h, "max_step_h")
+    t_prev = None if pf is None else float(pf.t_h)
+    for k, smp in enumerate(samples):
+        where = smp.source or f"sample[{k}]"
+        t = smp.t_h
+        if isinstance(t, bool) or not isinstance(t, numbers.Real) or not math.isfinite(t) or t < 0:
+            raise InputError(f"{where}: t_h must be a finite number of hours >= 0 (got {t!r})")
+        if t_prev is not None and (t < t_prev - TIME_EPS_H if k == 0 else t <= t_prev):
+            raise InputError(f"{where}: t_h: sample times must increase (got {t_prev:g} then {t:g})"
+                             if k else f"{where}: t_h: {t:g} h is before the filter's time, {t_prev:g} h")
+        t_prev = float(t)
     if pf is None:
         from .ukf import UKFSettings
 

@@ -308,7 +308,7 @@ class UKFEstimator:
         dt_h : float
             Interval (h); 0 does nothing, a negative or non-finite one is refused.
         """
-        if check_predict(u, dt_h) <= 0:
+        if check_predict(u, dt_h, getattr(self.model, "rpm_max", None)) <= 0:
             return
         st = self.settings
         q = np.zeros(NZ)

@@ -146,6 +146,32 @@ def refusal(where: str, st: Status, fix: str) -> InputError:
     return InputError(f"{where}: moment coefficients: {what}; fix: {fix}")
 
 
+def check_own(card, card_path: str | Path, where: str | None = None) -> Status:
+    """The :func:`status` of the coefficient file next to ``card_path``, or :func:`refusal` when it
+    exists but is not this card's (other values, no fingerprint, coefficients missing): the check of
+    :func:`for_card`, for :func:`bmctl.moments.make_moment_model`.
+
+    Parameters
+    ----------
+    card : ModelCard
+        The card read from ``card_path``.
+    card_path : path-like
+        The card's file.
+    where : str, optional
+        The caller, named in the fix.
+
+    Returns
+    -------
+    Status
+        ``"match"`` or ``"missing"``.
+    """
+    st = status(card, card_path)
+    if st.state not in ("match", "missing"):
+        also = f", or pass coeffs= to {where}" if where else ""
+        raise refusal(str(card_path), st, f"bmctl identify {card_path} (about a minute){also}")
+    return st
+
+
 def _names(names, n: int = 3) -> str:
     return ", ".join(names[:n]) + (f" and {len(names) - n} more" if len(names) > n else "")
 

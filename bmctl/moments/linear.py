@@ -124,8 +124,8 @@ def analyse(model, x, u, p=None, horizon_h: float = 2.0) -> dict:
 def step_figure(model, x, u, p=None, hours: float = 4.0, frac: float = 0.1):
     """Figure: linear (continuous) and nonlinear responses of the 4 moments to input steps.
 
-    Steps: +``frac`` rpm_max on rpm, and -``frac`` on milling (from the operating point).
-    Responses are deviations from the unforced nonlinear trajectory.
+    Steps: +``frac`` rpm_max on rpm (-``frac`` rpm_max where + would pass rpm_max), and -``frac`` on
+    milling (from the operating point). Responses are deviations from the unforced nonlinear trajectory.
     """
     import control
     from ..io import pyplot
@@ -136,7 +136,8 @@ def step_figure(model, x, u, p=None, hours: float = 4.0, frac: float = 0.1):
 
     sys_ = linearize(model, x, u, p)
     t = np.linspace(0.0, hours, 161)
-    steps = [(0, frac * model.rpm_max, f"rpm +{frac * model.rpm_max:g}"), (1, -frac, f"milling -{frac:g}")]
+    d_rpm = frac * model.rpm_max if u[0] + frac * model.rpm_max <= model.rpm_max else -frac * model.rpm_max
+    steps = [(0, d_rpm, f"rpm {d_rpm:+g}"), (1, -frac, f"milling -{frac:g}")]
     dt = t[1] - t[0]
     base = model.simulate(x, np.tile(u, (t.size - 1, 1)), dt, p)
     fig, axes = plt.subplots(len(OUTPUT_IDX), 2, figsize=(9, 8), sharex=True)

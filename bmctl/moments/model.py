@@ -18,6 +18,8 @@ import numpy as np
 
 from ..config import ModelCard, load_card
 from ..errors import InputError
+from ..limits import INPUT_ROUNDING
+from ..loop import rpm_rounding
 from . import coeffs as cf
 from . import equations as eq
 from ..stats import law_size_stats
@@ -115,7 +117,8 @@ class MomentModel:
         ----------
         x : array_like, (..., 6)
         u : array_like, (..., 2)
-            (rpm, milling); rpm in [0, rpm_max], milling in [0, 1].
+            (rpm, milling); rpm in [0, rpm_max], milling in [0, 1] (each within a solver's rounding,
+            :data:`bmctl.limits.INPUT_ROUNDING`; farther out, or another shape, is refused).
         dt_h : float
             Interval length (h), > 0.
         p : array_like, (..., 2), optional
@@ -124,8 +127,15 @@ class MomentModel:
             RKC substeps of the milling phase (default: substeps of <= 1/16 h over ``dt_h``); the
             stages follow from the stiffness.
         """
+        x, u = _arr(x), _arr(u)
+        self._check_state(x, "x")
+        self._check_inputs(u, "u")
+        return self._step(x, u, dt_h, p, substeps)
+
+    def _step(self, x: np.ndarray, u: np.ndarray, dt_h: float, p=None, substeps: int | None = None) -> np.ndarray:
+        """:meth:`step` of checked arrays."""
         dt_h = float(dt_h)
-        x, u, p = _arr(x), _arr(u), _arr(self._p(p))
+        p = _arr(self._p(p))
         n, st = self._integration(dt_h)
         if substeps is not None and int(substeps) != n:
             n = int(substeps)
@@ -142,7 +152,9 @@ class MomentModel:
         ----------
         x0 : array_like, (6,)
         U : array_like, (K, 2)
-            (rpm, milling) per interval.
+            (rpm, milling) per interval; rpm in [0, rpm_max], milling in [0, 1] (each within a
+            solver's rounding, :data:`bmctl.limits.INPUT_ROUNDING`; farther out, or another shape,
+            is refused).
         dt_h : float
             Interval length (h).
         p : array_like, (2,), optional
@@ -154,6 +166,12 @@ class MomentModel:
         """
         U = np.atleast_2d(np.asarray(U, dtype=float))
         x0 = np.asarray(x0, dtype=float)
+        self._check_state(x0, "x0")
+        if U.ndim != 2 or U.shape[1] != 2:
+            raise InputError(f"U: must be (rpm, milling) per interval, shape (K, 2) (got shape {U.shape})")
+        self._check_inputs(U, "U")
+        if U.shape[0] == 0:
+            return x0[None].copy()
         pp = self._p(p)
         if x0.ndim == 1 and pp.ndim == 1 and pp.shape[0] == 2:
             F = self._casadi_sim(float(dt_h), U.shape[0])
@@ -161,8 +179,38 @@ class MomentModel:
             return np.vstack([x0[None, :], X])
         out = [x0]
         for k in range(U.shape[0]):
-            out.append(self.step(out[-1], U[k], dt_h, pp))
+            out.append(self._step(out[-1], U[k], dt_h, pp))
         return np.stack(out)
+
+    def _check_state(self, x: np.ndarray, name: str) -> None:
+        """Refuse a state array that is not ``(..., 6)``, naming it."""
+        if x.ndim == 0 or x.shape[-1] != self.nx:
+            raise InputError(f"{name}: must be a state {STATE_NAMES} of shape (..., {self.nx}) (got shape {x.shape})")
+
+    def _check_inputs(self, u: np.ndarray, name: str) -> None:
+        """Refuse inputs that are not ``(..., 2)`` or have rpm outside [0, rpm_max] or milling
+        outside [0, 1] by more than a solver's rounding (plain float comparisons for one input)."""
+        if u.ndim == 0 or u.shape[-1] != self.nu:
+            raise InputError(f"{name}: must be (rpm, milling) of shape (..., {self.nu}) (got shape {u.shape})")
+        if u.size == 0:
+            return
+        top = self.const.rpm_max
+        tol = rpm_rounding(top)
+        if u.ndim == 1:
+            lo_r, lo_m = hi_r, hi_m = float(u[0]), float(u[1])
+        else:
+            (lo_r, lo_m), (hi_r, hi_m) = u.min(axis=tuple(range(u.ndim - 1))), u.max(axis=tuple(range(u.ndim - 1)))
+        if -tol <= lo_r and hi_r <= top + tol and -INPUT_ROUNDING <= lo_m and hi_m <= 1.0 + INPUT_ROUNDING:
+            return
+        rpm, m = u[..., 0], u[..., 1]
+        bad_r = ~((rpm >= -tol) & (rpm <= top + tol))
+        bad_m = ~((m >= -INPUT_ROUNDING) & (m <= 1.0 + INPUT_ROUNDING))
+        for bad, what, rng, v in ((bad_r, "rpm", f"[0, {top:g}] (the card's mill.rpm_max)", rpm),
+                                  (bad_m, "milling", "[0, 1]", m)):
+            if np.any(bad):
+                idx = np.unravel_index(int(np.argmax(bad)), bad.shape) if bad.ndim else ()
+                where = f"{name}[{', '.join(str(int(i)) for i in idx)}]" if idx else name
+                raise InputError(f"{where}: {what} must be a number in {rng} (got {float(v[idx]):g})")
 
     def event_counts(self, x0, U, dt_h: float, p=None) -> np.ndarray:
         """Bonding and fracture events per particle in each interval of a simulated trajectory.
@@ -426,14 +474,23 @@ def make_moment_model(card_or_path, coeffs: dict | str | Path | None = None) -> 
     ----------
     card_or_path : ModelCard or path-like
         The card (``models/*.toml``).
-    coeffs : dict or path-like, optional
-        Coefficients (a dict, or a ``*.moments.toml`` file). Default: the identified file
-        next to the card (``models/<name>.moments.toml``) when the card is given as a path
-        and the file exists, else the built-in defaults; missing names take the defaults.
+    coeffs : dict, path-like or "defaults", optional
+        Coefficients: a dict, a ``*.moments.toml`` file (used as given: missing names take the
+        defaults), or ``"defaults"`` for the built-in defaults. Default: the identified file next
+        to the card (``models/<name>.moments.toml``) when the card is given as a path, used only
+        when it records this card's values (the check of :func:`bmctl.moments.for_card`;
+        otherwise refused), or the built-in defaults when there is none. A card object needs
+        ``coeffs``: its file is not known.
 
     Returns
     -------
     MomentModel
+
+    Raises
+    ------
+    InputError
+        The file next to the card was identified for other card values (or records none, or lacks
+        coefficients), or a card object was given without ``coeffs``.
 
     Examples
     --------
@@ -449,16 +506,26 @@ def make_moment_model(card_or_path, coeffs: dict | str | Path | None = None) -> 
     source = "defaults"
     if isinstance(card_or_path, ModelCard):
         card, card_path = card_or_path, None
+        if coeffs is None:
+            raise InputError(f"card {card.card.name}: make_moment_model: a card object does not say which card file, "
+                             "and so which coefficients, it belongs to; pass the card's path (its "
+                             "<card>.moments.toml is used) or coeffs= (a coefficient file, a dict or \"defaults\")")
     else:
         card_path = Path(card_or_path)
         card = load_card(card_path)
+    if isinstance(coeffs, str) and coeffs == "defaults":
+        coeffs = None
+    elif coeffs is None and card_path is not None and cf.coeffs_path(card_path).exists():
+        from .forcard import check_own
+
+        coeffs = check_own(card, card_path, "make_moment_model").path
     table = default_coeffs(card)
-    if coeffs is None and card_path is not None and cf.coeffs_path(card_path).exists():
-        coeffs = cf.coeffs_path(card_path)
     if isinstance(coeffs, (str, Path)):
         table.update(cf.load_coeffs(coeffs))
         source = str(coeffs)
     elif isinstance(coeffs, dict):
         table.update(cf.check(coeffs, "coeffs"))
         source = "dict"
+    elif coeffs is not None:
+        raise InputError(f"coeffs: must be a dict, a coefficient file or \"defaults\" (got {type(coeffs).__name__})")
     return MomentModel(card, table, source)

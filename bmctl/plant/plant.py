@@ -223,7 +223,13 @@ class Plant:
         """Run (hours, rpm) segments, recording every ``record_every_h`` hours (t = 0 included).
 
         ``on_record(plant)`` is called at each recorded time (t = 0 included), e.g. to keep samples.
+        Segments that are not (hours, rpm) with hours a finite number >= 0, and a ``record_every_h``
+        that is not a finite number of hours > 0, are refused (:class:`~bmctl.errors.InputError`) as
+        by :func:`bmctl.loop.run_open_loop`.
         """
+        from ..loop import check_open_loop
+
+        check_open_loop(segments, record_every_h)
         total = sum(h for h, _ in segments)
         times = np.arange(0.0, total + 1e-9, record_every_h)
         if total - times[-1] > 1e-9:
@@ -446,7 +452,7 @@ class Plant:
         Parameters
         ----------
         n : int
-            Number of particles (with replacement if n > M).
+            Number of particles; ``n`` are returned, drawn with replacement when n > M.
         rng : numpy.random.Generator, optional
             Generator to draw with (default: the plant's own).
 
@@ -461,7 +467,7 @@ class Plant:
         if rng is not None and not isinstance(rng, np.random.Generator):
             raise TypeError(f"sample: rng must be a numpy.random.Generator or None (got {type(rng).__name__})")
         g = self.rng if rng is None else rng
-        k = g.choice(self.M, size=min(n, self.M), replace=n > self.M)
+        k = g.choice(self.M, size=n, replace=n > self.M)
         return self.s[k] / UM, self.r[k].copy()
 
     def snapshot(self) -> dict:

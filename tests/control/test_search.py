@@ -239,7 +239,7 @@ def test_a_hotter_mill_than_the_card_stays_under_the_ceiling(model, cfg):
 
     d = load_card(CARD).model_dump()
     d["mill"]["ball_count"] = 12
-    hot = make_moment_model(type(load_card(CARD)).model_validate(d))
+    hot = make_moment_model(type(load_card(CARD)).model_validate(d), coeffs="defaults")
     assert hot.const.power_max_W > 1.1 * model.const.power_max_W
     target = float(model.simulate(model.x0(), [[330.0, 1.0]] * 12, 0.5)[-1, 0])
     d = cfg.model_dump()
