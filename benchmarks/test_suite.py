@@ -5,7 +5,7 @@
 
 quick: ``python -m pytest -m "not slow" -n auto``; full: ``python -m pytest -n auto`` (pytest-xdist,
 one worker per core). For each: the tests run (passed, skipped, failed), wall seconds, CPU seconds
-of the pytest processes (user + system of the children) and the load average before and after,
+of the pytest processes (user + system of the children), the names of failed tests (at most 20) and the load average before and after,
 since timings on a shared machine are inflated by the others' load.
 """
 
@@ -56,8 +56,9 @@ def run_suite(name: str) -> dict:
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     summary = [ln for ln in (proc.stdout + proc.stderr).splitlines() if re.search(r"\d+ (passed|failed)", ln)]
     tail = summary[-1:] or [""]
+    failures = [ln.strip() for ln in proc.stdout.splitlines() if ln.startswith(("FAILED ", "ERROR "))][:20]
     return {"command": SHOWN[name],
-            "returncode": proc.returncode, **counts(tail[0]), "wall_s": round(wall, 1),
+            "returncode": proc.returncode, **counts(tail[0]), "failures": failures, "wall_s": round(wall, 1),
             "cpu_s": round((r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime), 1),
             "wall_min": round(wall / 60, 1), "cpus": os.cpu_count(), "load_before": list(load0),
             "load_after": list(os.getloadavg())}
