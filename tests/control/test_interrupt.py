@@ -8,6 +8,15 @@ import pytest
 from bmctl.control.interrupt import keep_interrupts
 
 
+@pytest.fixture(autouse=True)
+def python_sigint():
+    """Python's own SIGINT handler for each test, whatever the test runner's worker left (an xdist
+    worker may ignore SIGINT, or inherit what an earlier test set); put back afterwards."""
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)
+
+
 def test_an_interrupt_the_solver_swallows_is_raised_after_it():
     with pytest.raises(KeyboardInterrupt):
         with keep_interrupts():
