@@ -29,7 +29,7 @@ import numpy as np
 
 from .checkpoint import rng_state, set_rng_state
 from .errors import InputError, require_generator
-from .limits import HOURS_MIN, INPUT_ROUNDING, PHASE_MIN_MINUTES, RPM_MAX, is_rpm_milling
+from .limits import HOURS_MAX, HOURS_MIN, INPUT_ROUNDING, PHASE_MIN_MINUTES, RPM_MAX, is_rpm_milling
 from .physics.constants import TIME_EPS_H
 
 #: finest plant step within a control interval: the vial temperature is watched at this spacing (h)
@@ -282,6 +282,8 @@ class LoopConfig:
     def __post_init__(self):
         positive_hours(self.hours, "hours")
         positive_hours(self.sample_every_h, "sample_every_h")
+        if self.hours > HOURS_MAX + TIME_EPS_H:  # as every batch (bmctl.limits)
+            raise InputError(f"hours: {self.hours:g} h is more than the longest batch ({HOURS_MAX:g} h)")
 
 
 @dataclass

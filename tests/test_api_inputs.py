@@ -308,3 +308,34 @@ def test_run_filter_refuses_a_sample_before_the_filters_time(model):
     pf, _ = run_filter(model, _samples([1.0]), [(4.0, 300.0)], FilterSettings(n_particles=50))
     with pytest.raises(InputError, match=re.escape("s0: t_h: 0.5 h is before the filter's time, 1 h")):
         run_filter(model, _samples([0.5]), [(4.0, 300.0)], pf=pf)
+
+
+def test_make_estimator_names_a_bad_kind_count_or_generator():
+    import numpy as np
+
+    from bmctl.errors import InputError
+    from bmctl.estimate.run import make_estimator
+    from bmctl.moments import make_moment_model
+
+    m = make_moment_model(ROOT / "models" / "alni-1to1-300rpm-lab.toml")
+    with pytest.raises(InputError, match="kind: the estimator is one of pf, ukf"):
+        make_estimator("PF", m, np.random.default_rng(0))
+    for n in (15.7, True, "300"):
+        with pytest.raises(InputError, match="n_particles: a whole number"):
+            make_estimator("pf", m, np.random.default_rng(0), n_particles=n)
+    with pytest.raises(TypeError, match="rng: must be a numpy.random.Generator"):
+        make_estimator("ukf", m, 0)  # as the particle filter refuses it
+    assert make_estimator("pf", m, np.random.default_rng(0), n_particles=300.0).settings.n_particles == 300
+
+
+def test_a_loop_longer_than_the_longest_batch_and_a_boolean_target_are_refused():
+    from bmctl.control.config import target_value
+    from bmctl.errors import InputError
+    from bmctl.loop import LoopConfig
+
+    assert LoopConfig(hours=1000.0, sample_every_h=1.0).hours == 1000.0
+    with pytest.raises(InputError, match="hours: 1e\\+06 h is more than the longest batch"):
+        LoopConfig(hours=1e6, sample_every_h=1.0)
+    for v in (True, [30.0, True]):
+        with pytest.raises(InputError, match="s_mean_um: not a number: True"):
+            target_value("s_mean_um", v, "target")

@@ -1205,7 +1205,20 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
 def status(folder, campaign: Campaign | None = None) -> dict:
     """Where the campaign stands: clock, counts, the current estimate, the latest advice and the
     decision that stands for it (:func:`standing_decision`; ``advice_id`` the advice it was recorded
-    on), the deviations, and the temperature warnings since the latest advice."""
+    on), the deviations, and the temperature warnings since the latest advice.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The campaign folder (``campaign init``'s DIR); opened read-only.
+    campaign : Campaign, optional
+        An open campaign to read instead (the caller keeps it open).
+
+    Returns
+    -------
+    dict
+        What ``campaign status --json`` prints.
+    """
     c = campaign or Campaign(folder, read_only=True)
     try:
         with db.transaction(c.con, write=False, where=str(folder)):
@@ -1259,7 +1272,21 @@ def _not_a_campaign_file(folder, dest: Path, flag: str) -> None:
 
 
 def report(folder, out=None, campaign: Campaign | None = None) -> Path:
-    """Write the self-contained HTML report (default ``DIR/report.html``); returns its path."""
+    """Write the self-contained HTML report (default ``DIR/report.html``); returns its path.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The campaign folder (``campaign init``'s DIR); opened read-only.
+    out : str or Path, optional
+        Where to write the report (not one of the campaign's own files); default ``DIR/report.html``.
+    campaign : Campaign, optional
+        An open campaign to read instead (the caller keeps it open).
+
+    Returns
+    -------
+    Path
+    """
     from .html_report import write_report
 
     dest = Path(out) if out else Path(folder) / "report.html"

@@ -54,6 +54,8 @@ def target_value(key: str, value, source: str):
     lo_ok, hi_ok = TARGET_RANGE[key]
 
     def one(v):
+        if isinstance(v, bool):  # float(True) is 1.0: a flag, not a size
+            raise InputError(f"{source}: {key}: not a number: {v!r}")
         x = finite_float(v, f"{source}: {key}")
         if not (lo_ok < x < hi_ok):
             raise InputError(f"{source}: {key}: must be in ({lo_ok:g}, {hi_ok:g}) (got {x:g})")

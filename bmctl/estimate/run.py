@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..errors import InputError, require_generator
 from .filter import Estimate, FilterSettings, ParticleFilter
 
 ESTIMATORS = ("pf", "ukf")
@@ -42,7 +43,11 @@ def make_estimator(kind: str, model, rng: np.random.Generator, n_particles: int 
     ParticleFilter or UKFEstimator
     """
     if kind not in ESTIMATORS:
-        raise ValueError(f"estimator kind must be one of {ESTIMATORS} (got {kind!r})")
+        raise InputError(f"kind: the estimator is one of {', '.join(ESTIMATORS)} (got {kind!r})")
+    require_generator(rng, "rng")  # the UKF draws nothing, but takes the generator it is given alike
+    if n_particles is not None and (isinstance(n_particles, bool) or not isinstance(n_particles, numbers.Real)
+                                    or not float(n_particles).is_integer()):
+        raise InputError(f"n_particles: a whole number of particles (got {n_particles!r})")
     if kind == "ukf":
         from .ukf import UKFEstimator, UKFSettings  # filterpy (scipy.stats) only when a UKF is asked for
 

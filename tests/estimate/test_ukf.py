@@ -269,7 +269,7 @@ def test_make_estimator_kinds(model):
     assert isinstance(make_estimator("ukf", model, np.random.default_rng(0)), UKFEstimator)
     pf = make_estimator("pf", model, np.random.default_rng(0), n_particles=123)
     assert isinstance(pf, ParticleFilter) and pf.X.shape[0] == 123
-    with pytest.raises(ValueError):
+    with pytest.raises(InputError, match="kind: the estimator is one of pf, ukf"):
         make_estimator("ekf", model, np.random.default_rng(0))
 
 
