@@ -496,3 +496,30 @@ def savefig(fig, path: str | os.PathLike, **kwargs) -> None:
     with atomic_path(path, suffix=Path(path).suffix) as tmp:
         fig.savefig(tmp, **kwargs)
     plt.close(fig)
+
+
+#: the escapes of a TOML basic string (the other control characters are written \uXXXX)
+_TOML_ESCAPES = {'"': '\\"', "\\": "\\\\", "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}
+
+
+def toml_string(text: str) -> str:
+    """``text`` as a TOML basic string: quoted, with ``"``, ``\\`` and control characters escaped.
+
+    Parameters
+    ----------
+    text : str
+
+    Examples
+    --------
+    >>> print(toml_string('lab "A" \\\\ 2'))
+    "lab \\"A\\" \\\\ 2"
+    """
+    out = []
+    for ch in str(text):
+        if ch in _TOML_ESCAPES:
+            out.append(_TOML_ESCAPES[ch])
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'

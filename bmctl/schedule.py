@@ -48,6 +48,7 @@ from .config import Schedule as ScheduleFile
 from .config import Segment as SegmentSpec  # noqa: F401  (bmctl.calibrate.history, the docs)
 from .config import card_schedule, load
 from .errors import InputError
+from .io import toml_string
 from .limits import HOURS_MAX, PHASE_MIN_MINUTES, RPM_MAX
 from .physics.constants import TIME_EPS_H
 
@@ -402,7 +403,7 @@ class Schedule:
         """TOML text of the schedule (the ``bmctl simulate --schedule`` format) that :meth:`load` reads
         back to the same schedule: numbers as :func:`toml_number` writes them (``hours`` to 10
         significant digits, ``rpm`` as ``%g``, more digits only where those would change the value),
-        the name as :func:`toml_string` quotes it.
+        the name as :func:`bmctl.io.toml_string` quotes it.
 
         Examples
         --------
@@ -496,33 +497,6 @@ def toml_number(x: float, fmt: str = "g") -> str:
         raise ValueError(f"a schedule number must be finite (got {x!r})")
     text = format(x, fmt)
     return text if float(text) == x else repr(x)
-
-
-#: the escapes of a TOML basic string (the other control characters are written \uXXXX)
-_TOML_ESCAPES = {'"': '\\"', "\\": "\\\\", "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}
-
-
-def toml_string(text: str) -> str:
-    """``text`` as a TOML basic string: quoted, with ``"``, ``\\`` and control characters escaped.
-
-    Parameters
-    ----------
-    text : str
-
-    Examples
-    --------
-    >>> print(toml_string('lab "A" \\\\ 2'))
-    "lab \\"A\\" \\\\ 2"
-    """
-    out = []
-    for ch in str(text):
-        if ch in _TOML_ESCAPES:
-            out.append(_TOML_ESCAPES[ch])
-        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
-            out.append(f"\\u{ord(ch):04X}")
-        else:
-            out.append(ch)
-    return '"' + "".join(out) + '"'
 
 
 def as_schedule(value) -> Schedule:

@@ -46,7 +46,7 @@ def write_history(history: History, folder: str | Path) -> Path:
     """Write a history as TOML + one particle table per sample (``s_um,r``) into ``folder``."""
     from ..io import write_text
     from ..measure.tables import ParticleTable, write_table
-    from ..schedule import toml_string
+    from ..io import toml_string
 
     folder = Path(folder)
     lines = [f"name = {toml_string(history.name)}", ""]

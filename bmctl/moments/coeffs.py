@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..config import read_toml
+from ..io import toml_string
 from ..errors import InputError
 
 #: name -> (default, lower, upper, meaning). Slopes/offsets default to the derived laws of
@@ -226,7 +227,7 @@ def _fmt(v) -> str:
         return repr(float(v)) if isinstance(v, float) else str(v)
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    return '"' + str(v).replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return toml_string(str(v))
 
 
 def _key(k: str) -> str:
@@ -234,7 +235,7 @@ def _key(k: str) -> str:
     k = str(k)
     if k and all(ch.isalnum() or ch in "_-" for ch in k) and k.isascii():
         return k
-    return '"' + k.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return toml_string(k)
 
 
 def toml_text(coeffs: dict[str, float], sections: dict[str, dict] | None = None, header: str = "") -> str:
