@@ -25,6 +25,16 @@ BALL_TO_POWDER_RANGE = (1.0, 100.0)
 INPUT_ROUNDING = 1e-6
 
 
+def rpm_rounding(rpm_max: float) -> float:
+    """The rounding allowed on an rpm against the limit ``rpm_max``: :data:`INPUT_ROUNDING`
+    of the limit (a solver works on rpm / rpm_max), at least INPUT_ROUNDING rpm.
+
+    >>> rpm_rounding(600.0), rpm_rounding(0.5)
+    (0.0006, 1e-06)
+    """
+    return INPUT_ROUNDING * max(1.0, float(rpm_max))
+
+
 def is_rpm_milling(u) -> bool:
     """Whether ``u`` is one control input (rpm, milling): finite, rpm >= 0 and milling in [0, 1], each
     within :data:`INPUT_ROUNDING`.

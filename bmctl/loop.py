@@ -29,7 +29,7 @@ import numpy as np
 
 from .checkpoint import rng_state, set_rng_state
 from .errors import InputError, require_generator
-from .limits import HOURS_MAX, HOURS_MIN, INPUT_ROUNDING, PHASE_MIN_MINUTES, RPM_MAX, is_rpm_milling
+from .limits import HOURS_MAX, HOURS_MIN, INPUT_ROUNDING, PHASE_MIN_MINUTES, RPM_MAX, is_rpm_milling, rpm_rounding
 from .physics.constants import TIME_EPS_H
 
 #: finest plant step within a control interval: the vial temperature is watched at this spacing (h)
@@ -171,20 +171,10 @@ def checked_sample(out) -> tuple:
 STATUS_MEMBERS = ("success", "fallback", "solve_ms")
 
 
-def rpm_rounding(rpm_max: float) -> float:
-    """The rounding allowed on an rpm against the limit ``rpm_max``: :data:`~bmctl.limits.INPUT_ROUNDING`
-    of the limit (a solver works on rpm / rpm_max), at least INPUT_ROUNDING rpm.
-
-    >>> rpm_rounding(600.0), rpm_rounding(0.5)
-    (0.0006, 1e-06)
-    """
-    return INPUT_ROUNDING * max(1.0, float(rpm_max))
-
-
 def checked_plan(plan, rpm_max: float | None = None):
     """A controller's plan, unchanged, or a clear error: it needs ``u_apply`` = (rpm, milling),
     finite, rpm in [0, ``rpm_max``] and milling in [0, 1] (each within the rounding of a solver's
-    bound, :data:`~bmctl.limits.INPUT_ROUNDING`, :func:`rpm_rounding`), and a ``status``: a
+    bound, :data:`~bmctl.limits.INPUT_ROUNDING`, :func:`~bmctl.limits.rpm_rounding`), and a ``status``: a
     :class:`bmctl.control.Status`, or an object with its ``success``, ``fallback`` and ``solve_ms``
     (and ``line()`` when it reports a fallback or a failure).
 
@@ -429,7 +419,7 @@ class ClosedLoop:
         the interval is kept as ``peak_c``); propagate the estimator.
 
         An rpm or milling share outside [0, :attr:`rpm_max`] or [0, 1] by no more than a
-        solver's rounding (:data:`~bmctl.limits.INPUT_ROUNDING`, :func:`rpm_rounding`) is
+        solver's rounding (:data:`~bmctl.limits.INPUT_ROUNDING`, :func:`~bmctl.limits.rpm_rounding`) is
         applied at the bound; values in range are applied as given."""
         rpm, milling = self._in_range(rpm, milling)
         n_sub = max(1, int(math.ceil(dt_h / SUBSTEP_H)))
@@ -501,9 +491,9 @@ class ClosedLoop:
             rpm, milling = float(rpm), float(milling)
         except (TypeError, ValueError):
             raise InputError(f"{lead}rpm, milling: must be numbers (got {rpm!r}, {milling!r})") from None
-        if 0.0 <= milling <= 1.0 and 0.0 <= rpm <= self.rpm_max:  # the usual case: as given
-            return rpm, milling
         top = self.rpm_max
+        if 0.0 <= milling <= 1.0 and 0.0 <= rpm <= top:  # the usual case: as given
+            return rpm, milling
         return (within_range(rpm, 0.0, top, rpm_rounding(top), f"{lead}rpm"),
                 within_range(milling, 0.0, 1.0, INPUT_ROUNDING, f"{lead}milling"))
 

@@ -63,8 +63,7 @@ from pydantic import Field, field_validator
 from ..config import Strict
 from ..errors import InputError, require_generator
 from ..moments.model import ENERGY_NAME
-from ..limits import INPUT_ROUNDING, RPM_MAX, is_rpm_milling
-from ..loop import rpm_rounding
+from ..limits import INPUT_ROUNDING, RPM_MAX, is_rpm_milling, rpm_rounding
 from .likelihood import LawSettings, Raster, fit_sample, loglik_raster
 from .resampling import SCHEMES, effective_sample_size, resample
 
@@ -298,7 +297,7 @@ def check_predict(u, dt_h, rpm_max: float | None = None) -> float:
     """Refuse an estimator's ``predict`` input that is not (rpm in [0, ``rpm_max``], milling in [0, 1])
     for a finite ``dt_h`` >= 0 hours, naming the argument; returns ``dt_h`` as a float (0 for a ``dt_h``
     within :data:`INPUT_ROUNDING` below 0). Each bound allows a solver's rounding (:data:`INPUT_ROUNDING`;
-    for the top speed :func:`bmctl.loop.rpm_rounding`).
+    for the top speed :func:`bmctl.limits.rpm_rounding`).
 
     Parameters
     ----------

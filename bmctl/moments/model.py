@@ -18,8 +18,7 @@ import numpy as np
 
 from ..config import ModelCard, load_card
 from ..errors import InputError
-from ..limits import INPUT_ROUNDING
-from ..loop import rpm_rounding
+from ..limits import INPUT_ROUNDING, rpm_rounding
 from . import coeffs as cf
 from . import equations as eq
 from ..stats import law_size_stats
