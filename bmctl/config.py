@@ -315,12 +315,19 @@ class Schedule(Strict):
     @classmethod
     def _total_within_a_batch(cls, segment: list[Segment]) -> list[Segment]:
         """Refuse segments whose hours add up to more than :data:`~bmctl.limits.HOURS_MAX`."""
-        from .schedule import long_total  # bmctl.schedule imports this module
+        return segments_within_a_batch(segment)
 
-        why = long_total(sum(s.hours for s in segment))
-        if why:
-            raise ValueError(why)
-        return segment
+
+def segments_within_a_batch(segment):
+    """``segment`` (``[[segment]]`` tables, or None), or a ValueError (for a pydantic validator) when
+    their hours add up to more than the longest batch, :data:`~bmctl.limits.HOURS_MAX`
+    (:func:`bmctl.schedule.long_total`)."""
+    from .schedule import long_total  # bmctl.schedule imports this module
+
+    why = long_total(sum(s.hours for s in segment)) if segment else ""
+    if why:
+        raise ValueError(why)
+    return segment
 
 
 _BARE_KEY = re.compile(r"[A-Za-z0-9_-]{1,60}")

@@ -23,10 +23,10 @@ import numpy as np
 from pydantic import Field, field_validator
 
 from .. import io
-from ..config import ModelCard, Range, Strict, read_toml, validate
+from ..config import ModelCard, Range, Strict, read_toml, segments_within_a_batch, validate
 from ..limits import HOURS_MAX
 from ..errors import InputError
-from ..schedule import Schedule, SegmentSpec, long_total
+from ..schedule import Schedule, SegmentSpec
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
 MIN_PARTICLES = 10
@@ -56,12 +56,8 @@ class HistoryFile(Strict):
     @field_validator("segment", mode="after")
     @classmethod
     def _total_within_a_batch(cls, segment: list[HistorySegment] | None) -> list[HistorySegment] | None:
-        """Refuse inline segments whose hours add up to more than a schedule file's may
-        (:func:`bmctl.schedule.long_total`)."""
-        why = long_total(sum(s.hours for s in segment)) if segment else ""
-        if why:
-            raise ValueError(why)
-        return segment
+        """Refuse inline segments whose hours add up to more than a schedule file's may."""
+        return segments_within_a_batch(segment)
 
 
 @dataclass
