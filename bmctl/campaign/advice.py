@@ -38,39 +38,7 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False):
     """
     from ..measure.micrograph import check_verdicts, measure_micrograph, table_reports
     from ..measure.scale import check_scale
-    from ..measure.tables import ParticleTable, read_table
-
-    def locations(path, n: int):
-        """``(images, x_um, y_um)`` per row of a particle table with the columns ``bmctl measure``
-        writes before the particles' (``image``, ``x_um``, ``y_um``, :data:`bmctl.measure.tables.LOCATION_COLUMNS`;
-        rows as :func:`~bmctl.measure.tables.read_table` reads them), or None for a table with none of
-        them. An empty image is the table's path; an empty or unreadable centroid is NaN (stored NULL)."""
-        import csv
-
-        from ..io import read_input_bytes
-        from ..measure.tables import TABLE_MAX_BYTES
-
-        text = read_input_bytes(path, max_bytes=TABLE_MAX_BYTES).decode("utf-8-sig")  # read_table read it
-        lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-        rows = list(csv.reader(lines))
-        header = [h.strip() for h in rows[0]]
-        if not {"image", "x_um", "y_um"} & set(header) or len(rows) - 1 != n:
-            return None
-
-        def col(key, conv, missing):
-            if key not in header:
-                return [missing] * n
-            j = header.index(key)
-            return [conv(r[j].strip()) if j < len(r) and r[j].strip() else missing for r in rows[1:]]
-
-        def num(v: str) -> float:
-            try:
-                return float(v)
-            except ValueError:
-                return math.nan
-
-        return (col("image", str, str(path)), np.array(col("x_um", num, math.nan), dtype=float),
-                np.array(col("y_um", num, math.nan), dtype=float))
+    from ..measure.tables import ParticleTable, read_locations, read_table
 
     scale = check_scale(um_per_px) if um_per_px is not None else None
     tables, images, xs, ys, reports, counts = [], [], [], [], [], []
@@ -82,7 +50,7 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False):
         elif Path(item).suffix.lower() == ".csv":
             t, name = read_table(item), str(item)
             x = y = np.full(len(t), np.nan)
-            where = locations(item, len(t))  # a table `bmctl measure` wrote: each particle's image and centroid
+            where = read_locations(item, len(t))  # a table `bmctl measure` wrote: each particle's image and centroid
             side = table_reports(item)
             reports.append({"table": name, "count": len(t),
                             "verdict_warnings": check_verdicts(side, accept_unusable, "--accept-unusable")})

@@ -14,6 +14,7 @@ particles) is raised to it (r = 0); one more than ``ISOPERIMETRIC_TOL`` below it
 from __future__ import annotations
 
 import csv
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -228,6 +229,36 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
     if cols == ("s_um", "r"):
         return ParticleTable.from_size_aspect(arr[:, 0], arr[:, 1])
     return ParticleTable.from_area_perimeter(arr[:, 0], arr[:, 1])
+
+
+def read_locations(path: str | os.PathLike, n: int) -> tuple[list[str], np.ndarray, np.ndarray] | None:
+    """``(images, x_um, y_um)`` per row of a particle table with the columns ``bmctl measure``
+    writes before the particles' (``image``, ``x_um``, ``y_um``, :data:`LOCATION_COLUMNS`;
+    rows as :func:`read_table` reads them), or None for a table with none of
+    them. An empty image is the table's path; an empty or unreadable centroid is NaN (stored NULL)."""
+    from ..io import read_input_bytes
+
+    text = read_input_bytes(path, max_bytes=TABLE_MAX_BYTES).decode("utf-8-sig")  # read_table read it
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    rows = list(csv.reader(lines))
+    header = [h.strip() for h in rows[0]]
+    if not {"image", "x_um", "y_um"} & set(header) or len(rows) - 1 != n:
+        return None
+
+    def col(key, conv, missing):
+        if key not in header:
+            return [missing] * n
+        j = header.index(key)
+        return [conv(r[j].strip()) if j < len(r) and r[j].strip() else missing for r in rows[1:]]
+
+    def num(v: str) -> float:
+        try:
+            return float(v)
+        except ValueError:
+            return math.nan
+
+    return (col("image", str, str(path)), np.array(col("x_um", num, math.nan), dtype=float),
+            np.array(col("y_um", num, math.nan), dtype=float))
 
 
 def check_table(table: ParticleTable, source: str) -> ParticleTable:
