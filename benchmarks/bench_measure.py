@@ -8,7 +8,8 @@ Prints one Markdown table (median wall time of ``--repeat`` runs, single process
 ``results/bench_measure.json`` (wall and CPU seconds, load average). With ``--against DIR``
 (another checkout of bmctl, e.g. ``git worktree add --detach /tmp/base <commit>``) the same
 cases run on that checkout's code in a subprocess, interleaved case by case with this one's,
-and the table shows both and their ratio (this / that).
+and the table shows both and their ratio (this / that). Where DIR is a git checkout, the
+recorded command begins with the ``git worktree add --detach DIR <commit>`` that makes it again.
 """
 
 from __future__ import annotations
@@ -63,6 +64,16 @@ def cases():
     return out
 
 
+def _checkout_commit(folder: Path) -> str | None:
+    """The short commit a git checkout at ``folder`` is on, or None where it is not one."""
+    try:
+        out = subprocess.run(["git", "-C", str(folder), "rev-parse", "--short=7", "HEAD"],
+                             capture_output=True, text=True, check=True)
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return out.stdout.strip() or None
+
+
 def _one(index: int, repeat: int) -> None:
     """Subprocess mode: time case ``index`` and print JSON."""
     name, fn = cases()[index]
@@ -104,6 +115,10 @@ def main() -> int:
 
     cmd = "python benchmarks/bench_measure.py" + (f" --repeat {args.repeat}" if args.repeat != 3 else "") + (
         f" --against {args.against}" if args.against is not None else "")
+    commit = _checkout_commit(args.against) if args.against is not None else None
+    if commit is not None:
+        # the baseline folder is gone after the run: record how to make it again
+        cmd = f"git worktree add --detach {args.against} {commit} && {cmd}"
     path = write_results("bench_measure", {"cases": rows, "loadavg_start": list(load), "loadavg_end": list(os.getloadavg())},
                          settings={"repeat": args.repeat, "against": str(args.against) if args.against else None}, command=cmd)
     print(f"wrote {path}")
