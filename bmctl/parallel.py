@@ -110,6 +110,29 @@ def auto_workers(members: int, cpu_s: float, workers: int | None = None, schedul
     return min(default_workers(), members)
 
 
+def check_engine_args(workers: int | None, scheduler: str | None) -> None:
+    """Refuse ``--workers`` given together with ``--scheduler``: the scheduler's own workers run the
+    tasks, so a local worker count would do nothing.
+
+    Parameters
+    ----------
+    workers : int or None
+        ``--workers`` as given (None: not given).
+    scheduler : str or None
+        ``--scheduler`` as given (None: not given).
+
+    Examples
+    --------
+    >>> check_engine_args(4, None); check_engine_args(None, "tcp://host:8786")
+    >>> check_engine_args(0, "tcp://host:8786")
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: --workers: sets the local Dask workers, which --scheduler replaces
+    """
+    if workers is not None and scheduler is not None:
+        raise InputError("--workers: sets the local Dask workers, which --scheduler replaces")
+
+
 def client_for(scheduler: str | None = None, workers: int | None = None, processes: bool = True):
     """The engine for ensemble work.
 

@@ -27,7 +27,8 @@ def configure(p):
     p.add_argument("--out", default="out/calibrate", metavar="DIR", help="output folder (default out/calibrate)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,
-                   help="local Dask worker processes (default: the machine's CPUs; 0 or 1: serial, no Dask)")
+                   help="local Dask worker processes (default: the machine's CPUs; 0 or 1: serial, no Dask; not with "
+                        "--scheduler, whose workers run the plants)")
     p.add_argument("--particles", type=int_arg("--particles", 100, 10**6), default=2000,
                    help="simulated particles per plant run (default 2000)")
     p.add_argument("--replicates", type=int_arg("--replicates", 2, 64), default=2,
@@ -46,8 +47,9 @@ def run(args) -> int:
     from ..calibrate.run import run_calibration
     from ..config import load_card
     from ..io import name_part
-    from ..parallel import cap_workers, client_for, close_client
+    from ..parallel import cap_workers, check_engine_args, client_for, close_client
 
+    check_engine_args(args.workers, args.scheduler)
     out = output_path(args.out)
     card = load_card(args.model)
     names = parse_params(args.params, card)
@@ -71,7 +73,7 @@ def run(args) -> int:
                    identify_work(card, args.seed)), "--particles/--replicates/HISTORY.toml (and the calibrated "
                "card's identification)")
     runs_at_once = (2 * len(names) + 1) * args.replicates * len(histories)  # a central-difference Jacobian's runs
-    workers = args.workers if args.workers is None or args.scheduler else cap_workers(args.workers, runs_at_once)
+    workers = args.workers if args.workers is None else cap_workers(args.workers, runs_at_once)
     client = client_for(args.scheduler, workers)
     bar = progress_bar(desc="plant runs", unit="run", total=None)
     t0 = time.perf_counter()

@@ -56,6 +56,8 @@ def run(args) -> int:
         raise InputError(f"{args.sample}: a micrograph, not a particle table (.csv); measure it first "
                          "(bmctl measure IMAGE --out TABLE.csv) and compare the table")
     table = read_table(args.sample)
+    if len(table) < 2:  # the two-sample tests need two values a side: say so before the plant runs
+        raise InputError(f"{args.sample}: need at least 2 particles (got {len(table)})")
     card = load_card(args.model)
     if args.schedule is not None:
         sched = Schedule.load(args.schedule)

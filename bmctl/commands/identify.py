@@ -50,8 +50,8 @@ def configure(p):
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,
                    help="local Dask worker processes for the plant runs (default: serial for a small ensemble, else "
-                        "one per CPU, bmctl.parallel.auto_workers; 0 or 1: serial, no Dask); same seed, same "
-                        "coefficients either way")
+                        "one per CPU, bmctl.parallel.auto_workers; 0 or 1: serial, no Dask; not with --scheduler, "
+                        "whose workers run the plants); same seed, same coefficients either way")
     p.add_argument("--figures", default=None, metavar="DIR",
                    help="also write validation.png (model vs plant on held-out schedules) and nrmse.png here")
 
@@ -78,7 +78,9 @@ def run(args) -> int:
     from ..io import write_text
     from ..moments import identify as ident
     from ..moments.forcard import identification
+    from ..parallel import check_engine_args
 
+    check_engine_args(args.workers, args.scheduler)
     card = load_card(args.model)
     out = _out_path(args)
     figs = output_path(args.figures, "--figures") if args.figures is not None else None

@@ -65,10 +65,11 @@ def run(args) -> int:
     failed = [r for r in tests if r[-1] == "FAIL"]
     summary = (f"{len(tests) - len(failed)} of {len(tests)} checks passed"
                f" ({'quick' if args.quick else 'full'}, seed {args.seed}, {time.time() - t0:.0f} s)")
-    io.write_text(out / "verification.txt", text + "\n\n" + summary + "\n")
-    io.write_csv(out / "verification.csv", V.HEADER, table)
-    V.analytic_figure(report, out / "analytic.png")
-    V.reference_figure(report, out / "reference.png")
+    with io.output_set():  # the table and the figures, or none of them
+        io.write_text(out / "verification.txt", text + "\n\n" + summary + "\n")
+        io.write_csv(out / "verification.csv", V.HEADER, table)
+        V.analytic_figure(report, out / "analytic.png")
+        V.reference_figure(report, out / "reference.png")
     print(text)
     print()
     print(summary)

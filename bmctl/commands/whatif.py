@@ -19,15 +19,17 @@ def configure(p):
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running dask scheduler (tcp://host:8786)")
     p.add_argument("--workers", type=int_arg("--workers", 0, 4096), default=None,
                    help="local Dask worker processes (default: the machine's CPUs for a large ensemble, serial "
-                        "for a small one; 0 or 1: serial, no Dask; at most one per seed and 4 per CPU); same seed, "
-                        "same numbers either way")
+                        "for a small one; 0 or 1: serial, no Dask; at most one per seed and 4 per CPU; not with "
+                        "--scheduler, whose workers run the plants); same seed, same numbers either way")
 
 
 def run(args) -> int:
     from ..config import load_card
+    from ..parallel import check_engine_args
     from ..schedule import Schedule
     from ..whatif import run_schedule_ensemble, table_rows, unique_labels, write_outputs
 
+    check_engine_args(args.workers, args.scheduler)
     out = output_path(args.out)
     card = load_card(args.model)
     scheds = []

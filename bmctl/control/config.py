@@ -527,6 +527,12 @@ def validate_controller(data: dict[str, Any], source: str) -> ControllerConfig:
     if bounds is not None and cfg.mill.rpm_min_milling > bounds.rpm_max:  # the mill could never mill
         raise InputError(f"{source}: mill.rpm_min_milling: {cfg.mill.rpm_min_milling:g} rpm is above "
                          f"bounds.rpm_max ({bounds.rpm_max:g} rpm): no rpm is allowed while milling")
+    step = cfg.mill.rpm_step
+    # the dial's first speed above 0 past the top (as check_rpm_range rounds): only 0 rpm, a rest, is left
+    if bounds is not None and step is not None and bounds.rpm_max / step < 1 - 1e-9:
+        raise InputError(f"{source}: mill.rpm_step: {step:g} rpm is above bounds.rpm_max ({bounds.rpm_max:g} rpm): "
+                         f"the dial is too coarse, no speed on it is allowed while milling; set mill.rpm_step to "
+                         f"at most {bounds.rpm_max:g} rpm")
     if cfg.kind == "lqr" and not bounds.milling_min <= cfg.lqr.milling <= bounds.milling_max:
         raise InputError(f"{source}: lqr.milling: {cfg.lqr.milling:g} is outside [bounds.milling_min, "
                          f"bounds.milling_max] = [{bounds.milling_min:g}, {bounds.milling_max:g}]")

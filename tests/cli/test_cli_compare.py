@@ -93,3 +93,20 @@ def test_compare_names_the_schedule_segment_faster_than_the_mill(tmp_path, capsy
     out = tmp_path / "o"
     line = _refused(*_compare(capsys, LAB, str(sched), at_h, out), out)
     assert line == f"bmctl: error: {sched}: segment[1].rpm: 1500 exceeds the mill's rpm_max 600", line
+
+
+def test_compare_refuses_a_one_particle_table_before_the_plant_runs(tmp_path, capsys, monkeypatch):
+    """A one-row table ran the plant (seconds) and then said "compare: need at least 2 particles on each
+    side (got 1 and 20000)", naming neither the file nor which side was short."""
+    import bmctl.measure.compare
+
+    def no_plant(*_args, **_kwargs):
+        raise AssertionError("the plant ran")
+
+    monkeypatch.setattr(bmctl.measure.compare, "predicted_population", no_plant)
+    one = tmp_path / "one.csv"
+    one.write_text("s_um,r\n50,0.1\n")
+    out = tmp_path / "o"
+    rc = main(["compare", str(one), "--model", str(LAB), "--at-h", "12", "--out", str(out)])
+    line = _refused(rc, capsys.readouterr().err, out)
+    assert line == f"bmctl: error: {one}: need at least 2 particles (got 1)"

@@ -4,6 +4,8 @@ line naming the field: the plan on operable schedules milled below ``mill.rpm_mi
 without a word, and the LQR and the NLP MPC advised 100 rpm to a 90 rpm mill, which the plant
 refused in the middle of a trial."""
 
+import re
+
 import pytest
 
 from bmctl.control import load_controller, make_controller
@@ -71,3 +73,47 @@ def test_campaign_init_refuses_a_mill_slower_than_the_lowest_milling_speed(tmp_p
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "mill.rpm_min_milling" in err and "90 rpm" in err
     assert not d.exists()
+
+
+def _with_rpm_step(tmp_path, step, name="c7.toml"):
+    text = (ROOT / "controllers" / "mpc-fast.toml").read_text()
+    assert "\nrpm_step = 10.0 " in text
+    path = tmp_path / name
+    path.write_text(text.replace("\nrpm_step = 10.0 ", f"\nrpm_step = {step} "))
+    return path
+
+
+def test_a_dial_step_above_the_top_speed_is_refused_naming_the_file(tmp_path):
+    """mill.rpm_step = 1000 under bounds.rpm_max = 500 leaves only 0 rpm (a rest) on the dial: it was
+    refused only when the controller was built, naming bounds.rpm_min and advising "at most 0 rpm"."""
+    path = _with_rpm_step(tmp_path, 1000.0)
+    with pytest.raises(InputError, match=rf"^{re.escape(str(path))}: mill\.rpm_step: 1000 rpm is above "
+                                         r"bounds\.rpm_max \(500 rpm\): the dial is too coarse.*set mill\.rpm_step "
+                                         r"to at most 500 rpm$"):
+        load_controller(path)
+    assert load_controller(_with_rpm_step(tmp_path, 500.0, "top.toml")).mill.rpm_step == 500.0  # 500 rpm is on it
+
+
+def test_design_refuses_the_coarse_dial_in_one_line(tmp_path, capsys):
+    from bmctl.cli import main
+
+    path = _with_rpm_step(tmp_path, 1000.0)
+    out = tmp_path / "d"
+    rc = main(["design", str(ROOT / "models" / "alni-1to1-300rpm-lab.toml"), "--target", "d50_um=45",
+               "--controller", str(path), "--hours", "0.5", "--plant-seeds", "0", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and err.startswith(f"bmctl: error: {path}: mill.rpm_step: "), err
+    assert not out.exists()
+
+
+def test_a_dial_step_above_the_cards_top_speed_is_not_told_to_lower_the_bounds_to_0():
+    """A 400 rpm dial on a 350 rpm mill: check_rpm_range advised "set bounds.rpm_min and
+    mill.rpm_min_milling to at most 0 rpm", which no milling speed satisfies; the step is what is wrong."""
+    cfg = load_controller(ROOT / "controllers" / "mpc-fast.toml")
+    cfg = cfg.model_copy(update={"mill": cfg.mill.model_copy(update={"rpm_step": 400.0})})
+    with pytest.raises(InputError) as exc:
+        check_rpm_range(cfg, 350.0)
+    msg = str(exc.value)
+    assert msg.startswith("controller mpc-fast: mill.rpm_step: the 400 rpm dial is too coarse for this mill"), msg
+    assert "the card's mill.rpm_max (350 rpm)" in msg and msg.endswith("set mill.rpm_step to at most 350 rpm")
+    assert "at most 0 rpm" not in msg
