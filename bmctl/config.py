@@ -486,11 +486,79 @@ def _unknown_field_msg(e: dict, errors: list[dict], model) -> tuple[str, int]:
     return msg, int(close_key(key, missing) is not None)
 
 
+#: a location part pydantic adds for the member of a union that failed (``constrained-float``,
+#: ``list[constrained-float]``, ``tuple[float, float]``, ``float``): not a key of the file
+_UNION_MEMBER = re.compile(r"constrained-[a-z-]+|[a-z][a-z-]*\[.*\]|int|float|str|bool")
+
+
+def _member_at(loc: tuple) -> int | None:
+    """Where in ``loc`` the union member's name is (the last part named like one; not the first,
+    a field), or None."""
+    at = [i for i, part in enumerate(loc) if i and isinstance(part, str) and _UNION_MEMBER.fullmatch(part)]
+    return at[-1] if at else None
+
+
+def _type_mismatch(error: dict) -> bool:
+    return error["type"].endswith(("_type", "_parsing"))
+
+
+def merge_union_errors(errors: list[dict]) -> list[dict]:
+    """``errors`` with each failed union reported once, at the value's own location.
+
+    pydantic reports a value that fits no member of a union once per member, each under the
+    member's name (``target.s_mean_um.constrained-float``, ``target.s_mean_um.list[constrained-float]``).
+    Of those the errors of the first member whose type the value has are kept (a number's range,
+    a window's entries); where the value has none of the types, one error names them all. The
+    member's name is dropped from the location; every other error is kept as it is.
+
+    Parameters
+    ----------
+    errors : list of dict
+        ``pydantic.ValidationError.errors()``.
+
+    Examples
+    --------
+    >>> e = [{"type": "greater_than", "loc": ("target", "d50_um", "constrained-float"), "msg": "Input should be "
+    ...       "greater than 0", "input": 0.0}, {"type": "list_type", "loc": ("target", "d50_um", "list[float]"),
+    ...       "msg": "Input should be a valid list", "input": 0.0}]
+    >>> [(x["loc"], x["msg"]) for x in merge_union_errors(e)]
+    [(('target', 'd50_um'), 'Input should be greater than 0')]
+    """
+    groups: dict[tuple, dict[str, list[dict]]] = {}
+    for e in errors:
+        i = _member_at(tuple(e["loc"]))
+        if i is not None:
+            groups.setdefault(tuple(e["loc"][:i]), {}).setdefault(e["loc"][i], []).append(e)
+    out, done = [], set()
+    for e in errors:
+        i = _member_at(tuple(e["loc"]))
+        if i is None:
+            out.append(e)
+            continue
+        where = tuple(e["loc"][:i])
+        if where in done:
+            continue
+        done.add(where)
+        members = groups[where]
+        fitting = [errs for errs in members.values() if not all(_type_mismatch(x) for x in errs)]
+        if fitting:
+            kept = fitting[0]
+        else:  # none of the types: one error that names each of them
+            first, *rest = (errs[0]["msg"] for errs in members.values())
+            kept = [dict(members[e["loc"][i]][0], msg=" or ".join([first] + [m.removeprefix("Input should be ")
+                                                                            for m in rest]))]
+        for x in kept:
+            j = _member_at(tuple(x["loc"]))
+            out.append(dict(x, loc=tuple(x["loc"][:j]) + tuple(x["loc"][j + 1:])))
+    return out
+
+
 def format_validation_error(source: str, err: ValidationError, model=None) -> str:
     """One line: ``source: field: message (got value)`` for the first error.
 
     An unknown key is reported before any other problem, with the known key it most likely
-    mistypes (``segment[0].rmp: unknown field (did you mean rpm?)``).
+    mistypes (``segment[0].rmp: unknown field (did you mean rpm?)``); a value that fits no member
+    of a union is reported once, at its own key (:func:`merge_union_errors`).
 
     Parameters
     ----------
@@ -500,7 +568,7 @@ def format_validation_error(source: str, err: ValidationError, model=None) -> st
     model : type of BaseModel, optional
         The model validated: its field names are the hints for an unknown key.
     """
-    errors = err.errors()
+    errors = merge_union_errors(err.errors())
     e = _first_error(errors)
     loc = _fmt_loc(tuple(p for p in e["loc"] if not (isinstance(p, str) and p.startswith("function-"))))
     msg = e["msg"]

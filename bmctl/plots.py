@@ -215,6 +215,8 @@ def size_heatmap(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, times_h: S
     t = np.asarray(times_h, dtype=float)
     dt = np.diff(t).min() if t.size > 1 else 1.0
     t_edges = np.concatenate([[t[0] - dt / 2], 0.5 * (t[1:] + t[:-1]), [t[-1] + dt / 2]])
+    if t.size > 1:  # cells centred on the records, the first and last cut at the batch's start and end
+        t_edges[0], t_edges[-1] = t[0], t[-1]
     nz = np.nonzero(q0.max(axis=0) + q3.max(axis=0) > 1e-2 * max(q0.max(), q3.max()))[0]
     ylo, yhi = edges[max(nz[0] - 1, 0)], edges[min(nz[-1] + 2, edges.size - 1)]
     fig, axes = plt.subplots(1, 2, figsize=(12.5, 4.6), sharey=True)
@@ -228,7 +230,7 @@ def size_heatmap(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, times_h: S
         for key, name, c, ls in lines:
             if key in cols:
                 ax.plot(t, cols[key], color=c, ls=ls, lw=1.4, label=name)
-        ax.set_yscale("log"), ax.set_ylim(ylo, yhi)
+        ax.set_yscale("log"), ax.set_ylim(ylo, yhi), ax.set_xlim(t_edges[0], t_edges[-1])
         log_size_axis(ax, "y")
         ax.set_xlabel("batch time t (h)")
         ax.set_title(f"size distribution {lab}")

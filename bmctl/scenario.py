@@ -35,8 +35,8 @@ class SamplingSpec(Strict):
     every_h: Range(1 / 60, 1000.0) = 1.0
     particles: Annotated[int, Field(ge=5, le=100_000)] = 300
     um_per_px: Range(1e-4, 1e3) | None = 1.0  # as --um-per-px (bmctl.measure.scale.check_scale)
-    noise: Range(0.0, 1.0) = 0.03  # relative measurement noise
-    render: bool = False
+    noise: Range(0.0, 1.0) = 0.03  # relative measurement noise (fast path only: refused with render = true)
+    render: bool = False  # the renderer and the real segmentation (their own noise) instead of the fast path
     temperature_reading: bool = True
     feed: bool = False  # also sample the feed at 0 h, before the first decision (campaign: sample --at-h 0)
 
@@ -112,6 +112,10 @@ class Scenario(Strict):
     def _check(self):
         from .control.config import check_dvalue_order, target_value_problem
 
+        if self.sampling.render and "noise" in self.sampling.model_fields_set:  # the rendered path has no noise knob
+            raise ValueError("sampling.noise: used only without render (the fast path's segmentation noise); "
+                             "with render = true the rendered micrograph's segmentation sets the scatter: "
+                             "leave noise out or set render = false")
         for k in self.target:
             if k not in TARGET_KEYS:
                 from .config import did_you_mean

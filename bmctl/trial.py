@@ -439,7 +439,9 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
         ax.set_title(quantity_label(k)), ax.set_xlabel("batch time (h)"), ax.set_ylabel(quantity_label(k)), ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)
     ax = axes[1][0]
-    ax.step(t, data["rpm"], where="pre", color="C2")
+    t0 = np.concatenate([[0.0], t[:-1]])  # each interval's start (rows are written at interval ends)
+    rpm = np.atleast_1d(data["rpm"])
+    ax.step(np.append(t0, t[-1]), np.append(rpm, rpm[-1]), where="post", color="C2")  # each speed over its interval
     ax.set_ylabel("rpm"), ax.set_xlabel("batch time (h)"), ax.set_title("rpm (bars: rest share)"), ax.grid(alpha=0.3)
     ax.set_ylim(0, max(float(np.max(data["rpm"])), 1.0) * 1.1)
     ax2 = ax.twinx()
@@ -447,7 +449,6 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
     ax2.bar(t - width / 2, 1 - data["milling"], width=width * 0.9, color="C7", alpha=0.4)
     ax2.set_ylim(0, 1), ax2.set_ylabel("rest fraction")
     ax = axes[1][1]
-    t0 = np.concatenate([[0.0], t[:-1]])
     peak = data["true_peak_temperature_c"]
     ax.hlines(peak, t0, t, color="C3", lw=2, label="plant, peak in each interval")
     ax.plot(t, data["true_temperature_c"], "C3o", ms=3, alpha=0.6, label="plant at interval ends")

@@ -103,7 +103,8 @@ def run(args) -> int:
     if args.plant_seeds:
         from ..control.design import plant_check
 
-        progress(f"checking the schedule on {args.plant_seeds} plants of {args.plant_particles} particles")
+        progress(f"checking the schedule on {args.plant_seeds} plant{'s' if args.plant_seeds != 1 else ''} of "
+                 f"{args.plant_particles} particles")
         d.plant = plant_check(model.card, d.segments, target, args.plant_seeds, args.plant_particles, args.seed,
                               args.workers)
     paths = write_design(d, out)

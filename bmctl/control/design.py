@@ -716,7 +716,8 @@ def schedule_toml(d: Design) -> str:
     ]
     if d.plant:
         pc = d.plant
-        lines.append(f"# plant check ({pc['seeds']} plants of {pc['particles']} particles): "
+        plants = f"{pc['seeds']} plant{'s' if pc['seeds'] != 1 else ''}"
+        lines.append(f"# plant check ({plants} of {pc['particles']} particles): "
                      + ", ".join(f"{k} {pc[k]['mean']:.4g} [{pc[k]['min']:.4g}, {pc[k]['max']:.4g}]" for k in d.target)
                      + f"; peak vial T {pc['temperature_peak_c']:.1f} °C")
     # name and segments as Schedule.toml writes them: numbers that read back exactly, the name quoted
