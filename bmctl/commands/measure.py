@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import sys
 from pathlib import Path
 
@@ -78,16 +80,71 @@ def _is_table(path: str) -> bool:
     return Path(path).suffix.lower() == ".csv"
 
 
-def _overlay_names(results, folder: Path) -> list[Path]:
+def _overlay_names(images, folder: Path) -> list[Path]:
+    """The overlay written in ``folder`` for each of ``images`` (paths, in order): ``STEM.overlay.png``,
+    numbered from the second image of the same stem on."""
     names, seen = [], set()
-    for res in results:
-        stem = Path(res.name).stem
+    for image in images:
+        stem = Path(image).stem
         cand, k = f"{stem}.overlay.png", 2
         while cand in seen:
             cand, k = f"{stem}-{k}.overlay.png", k + 1
         seen.add(cand)
         names.append(folder / cand)
     return names
+
+
+def _same_file(a: str, b: str) -> bool:
+    """Whether paths ``a`` and ``b`` name one file: the same resolved path (symbolic links
+    followed), or, where both exist, the same inode (a hard link)."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):  # one of them does not exist (yet), or a name the system cannot take
+        return False
+
+
+def _check_output_names(args) -> None:
+    """Refuse, before any work, an output set whose files would overwrite an input or each other: the
+    table ``--out``, ``measure.json`` beside it and each image's overlay (unless ``--no-overlay``)."""
+    from ..measure.names import path_text
+
+    out = os.fspath(args.out)
+    for inp in args.inputs:
+        if _same_file(out, inp):
+            also = "" if os.path.normpath(out) == os.path.normpath(inp) else f" ({path_text(inp)})"
+            raise InputError(f"--out: {path_text(out)} is one of the inputs{also}")
+    folder = Path(out).parent
+    beside = [(os.fspath(folder / "measure.json"), "the measure.json written beside it", "")]  # (path, what, hint)
+    if not args.no_overlay:
+        images = [p for p in args.inputs if not _is_table(p)]
+        beside += [(os.fspath(png), f"the overlay of {path_text(img)}", " or pass --no-overlay")
+                   for img, png in zip(images, _overlay_names(images, folder))]
+    for path, what, hint in beside:
+        if os.path.realpath(path) == os.path.realpath(out):
+            raise InputError(f"--out: {path_text(out)} would be overwritten by {what}; choose another name{hint}")
+        for inp in args.inputs:
+            if _same_file(path, inp):
+                raise InputError(f"--out: {what} ({path_text(path)}) would overwrite the input {path_text(inp)}; "
+                                 f"choose another folder for --out{hint}")
+    for k, (path, what, hint) in enumerate(beside):
+        for other, other_what, _ in beside[k + 1:]:
+            if os.path.realpath(path) == os.path.realpath(other):
+                raise InputError(f"--out: {what} ({path_text(path)}) and {other_what} ({path_text(other)}) are the "
+                                 f"same file; choose another folder for --out{hint}")
+
+
+def _finite(value):
+    """``value`` (a ``measure.json`` document) with every float that is not finite (the median of
+    no particles) as ``None``: JSON has no NaN, and a strict reader refuses one."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
 
 #: progress lines on stderr when the images' estimated CPU time (:func:`bmctl.work.measure_work`) is over this
@@ -135,8 +192,11 @@ def run(args: argparse.Namespace) -> int:
 
     scale = check_scale(args.um_per_px) if args.um_per_px is not None else None
     bar_um = check_scale(args.scale_bar_um, "--scale-bar-um") if args.scale_bar_um is not None else None
-    if args.out:
+    if args.out is not None:
+        if args.out == "":
+            raise InputError("--out: empty path")
         output_path(args.out, folder=False)
+        _check_output_names(args)
     tables, locs, lines, results, reports, warned = [], [], [], [], [], []
     next_id = 1
     refuse_repeats(args.inputs)  # one image twice would be counted twice
@@ -230,7 +290,7 @@ def _write_set(args, results, locs, reports, table, loc) -> list[str]:
     folder, written = Path(args.out).parent, []
     if not args.no_overlay:
         img_index = [i for i, p in enumerate(args.inputs) if not _is_table(p)]
-        for res, out_png, i in zip(results, _overlay_names(results, folder), img_index):
+        for res, out_png, i in zip(results, _overlay_names([res.name for res in results], folder), img_index):
             write_overlay(out_png, res.image, res.segmentation.labels, res.segmentation.offset, locs[i].particle_id,
                           excluded_from_row=res.info_bar_row, excluded_to_row=res.info_bar_top_last_row, scale_bar=res.scale_bar,
                           title=f"{path_text(Path(res.name).name)}: {len(res.table)} particles, {res.scale.um_per_px:.4g} µm/px, "
@@ -240,6 +300,6 @@ def _write_set(args, results, locs, reports, table, loc) -> list[str]:
     summ = table.summary()
     doc = {"table": str(args.out), "count": summ["count"], "s_median_um": summ["s_median_um"],
            "r_median": summ["r_median"], "inputs": reports}
-    write_text(folder / "measure.json", json.dumps(doc, indent=2) + "\n")
+    write_text(folder / "measure.json", json.dumps(_finite(doc), indent=2, allow_nan=False) + "\n")
     write_table(args.out, table, loc)
     return written

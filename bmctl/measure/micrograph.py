@@ -89,14 +89,19 @@ class MicrographResult:
             "info_bar_top_last_row": self.info_bar_top_last_row,
             "min_area_px": self.min_area_px,
             "count": summ["count"],
-            "s_median_um": summ["s_median_um"],
-            "r_median": summ["r_median"],
+            "s_median_um": _finite_or_none(summ["s_median_um"]),  # no particles: no median (JSON has no NaN)
+            "r_median": _finite_or_none(summ["r_median"]),
             "warnings": [w.as_dict() for w in self.warnings],
             "verdict": {"value": self.verdict, "reasons": list(self.verdict_reasons)},
             "polarity": {"value": self.segmentation.polarity, "source": self.segmentation.polarity_source,
                          "vote": None if self.segmentation.polarity_vote is None else round(self.segmentation.polarity_vote, 4)},
             "evidence": None if self.evidence is None else {k: (round(v, 4) if isinstance(v, float) else v) for k, v in self.evidence.items()},
         }
+
+
+def _finite_or_none(value):
+    """``value``, or ``None`` when it is a float that is not finite."""
+    return None if isinstance(value, float) and not np.isfinite(value) else value
 
 
 def _scale_bar_check(scale: Scale, bar: ScaleBar | None) -> QualityWarning | None:

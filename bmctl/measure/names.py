@@ -2,8 +2,9 @@
 
 A file name on Linux is bytes; Python holds bytes that are not UTF-8 as lone surrogates
 (``'\\udcff'``), which a UTF-8 file, a strict terminal and matplotlib's text cannot take.
-:func:`path_text` writes each such byte as its escape (``\\xff``); every other path is
-returned as it is.
+:func:`path_text` writes each such byte as its escape (``\\xff``), and each control character
+(a newline, a tab, an escape) as its escape (``\\n``), as error messages do; every other path
+is returned as it is.
 """
 
 from __future__ import annotations
@@ -12,7 +13,8 @@ import os
 
 
 def path_text(path: str | os.PathLike) -> str:
-    """``path`` as printable text: bytes that are not UTF-8 as ``\\xNN`` escapes.
+    """``path`` as printable text on one line: bytes that are not UTF-8 as ``\\xNN`` escapes,
+    control characters as theirs (``\\n``).
 
     Parameters
     ----------
@@ -22,7 +24,7 @@ def path_text(path: str | os.PathLike) -> str:
     Returns
     -------
     str
-        The path, unchanged unless it holds bytes that are not UTF-8.
+        The path, unchanged unless it holds bytes that are not UTF-8 or control characters.
 
     Examples
     --------
@@ -30,14 +32,21 @@ def path_text(path: str | os.PathLike) -> str:
     'a/b.png'
     >>> path_text(b"bad\\xff.png".decode("utf-8", "surrogateescape"))
     'bad\\\\xff.png'
+    >>> path_text("two\\nlines.png")
+    'two\\\\nlines.png'
     """
+    from ..errors import _CONTROL
+
     text = os.fspath(path)
     if isinstance(text, bytes):
         text = os.fsdecode(text)
     try:
-        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        text = text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
     except UnicodeEncodeError:  # a surrogate that stands for no byte (not from a file name)
-        return text.encode("utf-8", "backslashreplace").decode("utf-8")
+        text = text.encode("utf-8", "backslashreplace").decode("utf-8")
+    # a newline or escape in a name would split or garble the line it is printed on: escaped as
+    # an error message escapes it (bmctl.errors.one_line)
+    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], text)
 
 
 def refuse_repeats(paths, prefix: str = "") -> None:
