@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import re
 import stat
@@ -23,6 +24,20 @@ MAX_PIXELS = 100_000_000
 CONVERTED_MODES = ("CMYK", "YCbCr", "LAB", "HSV")
 #: numpy dtype kinds that are pixel values: bool, signed and unsigned integer, real float
 PIXEL_KINDS = "biuf"
+#: own-range scaling (wider integers, a file's reals) spans the image's darkest to brightest value, but
+#: not a handful of pixels far outside the rest (a hot or dead pixel, a stray value in a float
+#: export): the core range lies between the k-th darkest and the k-th brightest value, k the larger
+#: of ``OUTLIER_PIXELS`` and ``OUTLIER_SHARE`` of the values ...
+OUTLIER_PIXELS = 10
+OUTLIER_SHARE = 1e-4
+#: ... and values further than this share of the core range beyond either end of it are outliers:
+#: the range spans the others, the outliers are clipped to its ends (an image without outliers is
+#: scaled by its darkest and brightest values as they are)
+OUTLIER_REACH = 0.25
+#: the EXIF tag of the orientation a camera stored its picture in (applied by :func:`_orient`)
+EXIF_ORIENTATION = 0x0112
+#: why an image with transparent pixels (an alpha channel, or a colour the file declares transparent) is refused
+TRANSPARENT = "has transparent pixels (alpha); flatten it first"
 
 
 @dataclass(frozen=True)
@@ -39,11 +54,15 @@ class ImageHeader:
         multi-picture JPEG (None: unknown).
     mode : str or None
         Pillow's colour mode; for a TIFF, ``"CMYK"`` for inks (photometric separated), else None.
+    orientation : int or None
+        The EXIF orientation (2-8: the stored pixels are shown flipped or rotated; 1 or None: as
+        stored) of a file read through Pillow; the pixel count is the same either way.
     """
 
     pixels: int | None = None
     images: int | None = None
     mode: str | None = None
+    orientation: int | None = None
 
 
 @contextlib.contextmanager
@@ -61,6 +80,8 @@ def quiet_tifffile():
 
 #: the first bytes of a TIFF file (classic and BigTIFF, little- and big-endian)
 TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+#: the first bytes of a PNG file
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 def _named_tiff(path: str) -> bool:
@@ -90,19 +111,69 @@ def _tiff_header(path: str) -> ImageHeader:
         pixels = sum(int(np.prod(pages[i].shape)) for i in range(len(pages)))
         if not tif.series:
             return ImageHeader(pixels, 0)
+        # every series is an image (pages written one by one are a series each), but a reduced-resolution
+        # preview: tifffile keeps one as a level of the series it belongs to, or flags it (subfiletype 1)
+        full = [s for s in tif.series if not int(s.keyframe.subfiletype or 0) & 1] or tif.series[:1]
+        images = sum(int(np.prod([n for n, ax in zip(s.shape, s.axes) if ax not in "YXS"])) for s in full)
         first = tif.series[0]
-        images = int(np.prod([n for n, ax in zip(first.shape, first.axes) if ax not in "YXS"]))
         cmyk = first.keyframe.photometric == tifffile.PHOTOMETRIC.SEPARATED  # tifffile hands over the raw inks
         return ImageHeader(pixels, images, "CMYK" if cmyk else None)
+
+
+def _bomb_pixels(exc: Exception) -> int | None:
+    """The pixel count in Pillow's DecompressionBombError ("Image size (N pixels) exceeds limit ..."), if given."""
+    m = re.search(r"\((\d+) pixels\)", str(exc))
+    return int(m.group(1)) if m else None
+
+
+def _too_large(name: str, pixels: int | None) -> InputError:
+    got = f"{pixels:,} pixels" if pixels is not None else "more pixels than Pillow opens"
+    return InputError(f"{name}: image too large ({got}, limit {MAX_PIXELS:,}); crop or downsample it first")
+
+
+def _exif_orientation(im) -> int | None:
+    """The EXIF orientation the file stores (from the EXIF block read with the header: a PNG is not
+    decoded for it), or None."""
+    from PIL import Image
+
+    raw = im.info.get("exif")
+    if not raw:
+        return None
+    try:
+        exif = Image.Exif()
+        exif.load(raw)
+        value = int(exif.get(EXIF_ORIENTATION, 1))
+    except Exception:  # noqa: BLE001 - a damaged EXIF block: the pixels are shown as stored
+        return None
+    return value if 2 <= value <= 8 else None
+
+
+@contextlib.contextmanager
+def _pillow_quiet():
+    """Pillow's DecompressionBombWarning silenced inside the block: an image over Pillow's warning
+    limit (89 Mpx) is refused or read by bmctl's own limits, in one line."""
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+        yield
 
 
 def _pillow_header(path: str) -> ImageHeader:
     from PIL import Image
 
-    with Image.open(path) as im:
-        frames = max(1, int(getattr(im, "n_frames", 1)))
-        images = 1 if im.format == "MPO" else frames  # a camera JPEG's further pictures are previews: its first is read
-        return ImageHeader(int(im.size[0]) * int(im.size[1]) * frames, images, im.mode)
+    with _pillow_quiet():
+        try:
+            im = Image.open(path)
+        except Image.DecompressionBombError as exc:  # over twice Pillow's limit: far over bmctl's own
+            pixels = _bomb_pixels(exc)
+            if pixels is None:
+                raise
+            return ImageHeader(pixels)
+        with im:
+            frames = max(1, int(getattr(im, "n_frames", 1)))
+            images = 1 if im.format == "MPO" else frames  # a camera JPEG's further pictures are previews: its first is read
+            return ImageHeader(int(im.size[0]) * int(im.size[1]) * frames, images, im.mode, _exif_orientation(im))
 
 
 def image_header(path: str) -> ImageHeader:
@@ -129,7 +200,7 @@ def image_pixels(path: str) -> int | None:
 def check_header(head: ImageHeader, name: str) -> None:
     """Refuse an image whose header alone rules it out (too many pixels, no image, several pages), naming it."""
     if head.pixels is not None and head.pixels > MAX_PIXELS:
-        raise InputError(f"{name}: image too large ({head.pixels:,} pixels, limit {MAX_PIXELS:,}); crop or downsample it first")
+        raise _too_large(name, head.pixels)
     if head.images == 0:
         raise InputError(f"{name}: cannot read image (the file holds no image)")
     if head.images is not None and head.images > 1:
@@ -139,21 +210,63 @@ def check_header(head: ImageHeader, name: str) -> None:
 
 def verify_image(path: str | os.PathLike, name: str) -> None:
     """Refuse a PNG whose chunks do not check out (a truncated or damaged file) without decoding it
-    (Pillow's ``verify``: the chunk checksums), so a bad file among several is named before any is
-    measured; other formats are left to the reader."""
+    (Pillow's ``verify``: the chunk checksums), and a file Pillow cannot open (not an image, too
+    large), so a bad file among several is named before any is measured; other formats are left to
+    the reader."""
     from PIL import Image
 
     p = os.fspath(path)
     if is_tiff(p):
         return
-    try:
-        with Image.open(p) as im:
+    with _pillow_quiet():
+        try:
+            im = Image.open(p)
+        except Image.DecompressionBombError as exc:
+            raise _too_large(name, _bomb_pixels(exc)) from None
+        except Image.UnidentifiedImageError:
+            raise InputError(f"{name}: cannot read image (not an image file Pillow can read)") from None
+        except Exception as exc:  # noqa: BLE001 - Pillow raises OSError, SyntaxError, ValueError ...
+            raise InputError(f"{name}: cannot read image ({_damaged(p, exc)})") from None
+        with im:
             if im.format != "PNG":
                 return
-            im.verify()
-    except Exception as exc:  # noqa: BLE001 - Pillow raises OSError, SyntaxError, ValueError ...
-        why = exc or type(exc).__name__
-        raise InputError(f"{name}: cannot read image (a damaged or truncated PNG: {why})") from None
+            try:
+                im.verify()
+            except Exception as exc:  # noqa: BLE001
+                raise InputError(f"{name}: cannot read image ({_damaged(p, exc)})") from None
+
+
+def _damaged(path: str, exc: Exception) -> str:
+    """What is wrong with a file Pillow identified but could not read: a PNG is named as one."""
+    try:
+        with open(path, "rb") as fh:
+            png = fh.read(len(PNG_MAGIC)) == PNG_MAGIC
+    except OSError:
+        png = False
+    return f"a damaged or truncated {'PNG' if png else 'file'}: {exc or type(exc).__name__}"
+
+
+def _transparent_colour(path: str) -> bool:
+    """Whether a file read through Pillow has pixels of a colour it declares transparent (PNG's
+    tRNS chunk, GIF's transparent index: no alpha channel in the decoded pixels, so
+    :func:`_opaque` cannot see them); an alpha channel is checked on the decoded pixels."""
+    from PIL import Image
+
+    with _pillow_quiet():
+        try:
+            im = Image.open(path)
+        except Image.UnidentifiedImageError:  # read by another of imageio's plugins: no colour declared transparent
+            return False
+    with _pillow_quiet(), im:
+        key = im.info.get("transparency")
+        if key is None or "A" in im.mode or "a" in im.mode:
+            return False
+        if im.mode == "P" or isinstance(key, bytes):  # an index, or an alpha per palette entry
+            return bool(np.any(np.asarray(im.convert("RGBA"))[..., 3] != 255))
+        px = np.asarray(im)
+        if isinstance(key, tuple):  # an RGB colour
+            return bool(np.any(np.all(px.reshape(px.shape[:2] + (-1,))[..., :len(key)] == np.asarray(key), axis=-1)))
+        return bool(np.any(px == key))
 
 
 def _decode(path: str, head: ImageHeader) -> np.ndarray:
@@ -180,11 +293,27 @@ def _decode(path: str, head: ImageHeader) -> np.ndarray:
         return np.asarray(iio.imread(path, plugin="pillow"))
 
 
+def _orient(img: np.ndarray, orientation: int | None) -> np.ndarray:
+    """``img`` (H, W) as displayed under its EXIF orientation (``PIL.ImageOps.exif_transpose``)."""
+    steps = {
+        2: lambda a: a[:, ::-1],  # mirrored
+        3: lambda a: a[::-1, ::-1],  # upside down
+        4: lambda a: a[::-1],  # mirrored upside down
+        5: lambda a: a.T,  # transposed
+        6: lambda a: np.rot90(a, -1),  # stored turned 90° anticlockwise: shown turned back clockwise
+        7: lambda a: a[::-1, ::-1].T,  # transversed
+        8: lambda a: np.rot90(a, 1),
+    }
+    step = steps.get(orientation)
+    return img if step is None else np.ascontiguousarray(step(img))
+
+
 def load_image(path: str | os.PathLike) -> np.ndarray:
     """Read a micrograph as a 2-D float array in [0, 1] (colour is averaged to gray).
 
     A palette image is read as its colours; a CMYK (or other Pillow colour space) image is
-    converted to RGB by Pillow first; a single-frame GIF is one image.
+    converted to RGB by Pillow first; a single-frame GIF is one image. An EXIF orientation (a
+    camera picture stored turned) is applied: the image is measured as it is displayed.
 
     Parameters
     ----------
@@ -197,10 +326,12 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     Raises
     ------
     bmctl.errors.InputError
-        The file is missing, not an image, a stack of several images (pages or frames), an image
-        with transparent pixels, of a pixel type that is not a number (complex), or not a 2-D
-        (gray or colour) image.
+        The file is missing, not an image, a stack of several images (pages, frames or TIFF
+        series), an image with transparent pixels (an alpha channel or a transparent colour), of a
+        pixel type that is not a number (complex), or not a 2-D (gray or colour) image.
     """
+    from PIL import Image
+
     from ..io import check_input_file
     from .names import path_text
 
@@ -209,11 +340,17 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     check_input_file(p)  # a regular file of a sane size (no FIFO, no device)
     head = image_header(p)
     check_header(head, name)
+    tiff = is_tiff(p)
     try:
         img = _decode(p, head)
+        keyed = not tiff and _transparent_colour(p)
+    except Image.DecompressionBombError as exc:
+        raise _too_large(name, _bomb_pixels(exc)) from None
     except Exception as exc:  # imageio/PIL/tifffile raise many types
         raise InputError(f"{name}: cannot read image ({type(exc).__name__})") from None
-    return as_gray_float(img, name, own_range=True)
+    if keyed:
+        raise InputError(f"{name}: {TRANSPARENT}")
+    return _orient(as_gray_float(img, name, own_range=True), head.orientation)
 
 
 def as_gray_float(img, name: str = "image", own_range: bool = False) -> np.ndarray:
@@ -268,29 +405,61 @@ def _opaque(img: np.ndarray, name: str) -> np.ndarray:
     alpha = img[..., -1]
     full = True if img.dtype.kind == "b" else 1.0 if img.dtype.kind == "f" else np.iinfo(img.dtype).max
     if np.any(alpha != full):
-        raise InputError(f"{name}: has transparent pixels (alpha); flatten it first")
+        raise InputError(f"{name}: {TRANSPARENT}")
     return img[..., :-1]
+
+
+def _own_range(img: np.ndarray) -> tuple[float, float]:
+    """The range ``img`` (non-empty, finite) is scaled over: its darkest and brightest values
+    leaving out the outliers, those further than ``OUTLIER_REACH`` of the core range (between the
+    k-th darkest and the k-th brightest value, :data:`OUTLIER_PIXELS`, :data:`OUTLIER_SHARE`) beyond
+    either end of it; so one hot pixel does not change how the rest is scaled."""
+    flat = img.ravel()
+    n = flat.size
+    lo, hi = float(flat.min()), float(flat.max())
+    k = min(max(OUTLIER_PIXELS, math.ceil(OUTLIER_SHARE * n)), (n + 1) // 2)
+    part = np.partition(flat, (k - 1, n - k))
+    core_lo, core_hi = float(part[k - 1]), float(part[n - k])
+    reach = OUTLIER_REACH * (core_hi - core_lo)
+    if reach <= 0:  # a flat image with a few other pixels: they are its range
+        return lo, hi
+    if lo < core_lo - reach:
+        lo = float(flat[flat >= core_lo - reach].min())
+    if hi > core_hi + reach:
+        hi = float(flat[flat <= core_hi + reach].max())
+    return lo, hi
+
+
+def _over(img: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """``img`` mapped from [lo, hi] (hi > lo) to [0, 1], values outside clipped."""
+    out = (img.astype(float) - lo) / (hi - lo)
+    if float(img.min()) < lo or float(img.max()) > hi:
+        np.clip(out, 0.0, 1.0, out=out)
+    return out
 
 
 def _scale(img: np.ndarray, own_range: bool = False) -> np.ndarray:
     """8-bit (and bool) pixels over their dtype's range; wider integers (and, with ``own_range``,
-    reals) over their own range; reals otherwise as they are.
+    reals) over their own range (:func:`_own_range`); reals otherwise as they are.
 
     The segmentation's saturation floor is 1.5 grey levels of an 8-bit image: a 16-bit frame of a
     10- or 12-bit detector (or any narrow-range 16-bit frame) scaled by 65,535 spans a few 8-bit
     levels and fell below it (a 10-bit frame of a clean powder came out ``unusable``); a float export
-    of a narrow range (0.40-0.45) lost a sixth of its particles the same way."""
+    of a narrow range (0.40-0.45) lost a sixth of its particles the same way. Scaled over its plain
+    minimum and maximum, one hot pixel (65,535 in a 10-bit frame, 1e6 in a float export) squeezed
+    the whole image into a few grey levels the same way, while the verdict said ``ok``: the range
+    leaves out a handful of pixels far outside the rest."""
     if img.dtype.kind == "b":
         return img.astype(float)
     if img.dtype.kind == "f":
         if not own_range or not np.all(np.isfinite(img)):
             return img.astype(float)  # refused by the caller, naming the bad pixels
-        lo, hi = (float(img.min()), float(img.max())) if img.size else (0.0, 0.0)
-        return (img.astype(float) - lo) / (hi - lo) if hi > lo else np.clip(img.astype(float), 0.0, 1.0)
+        lo, hi = _own_range(img) if img.size else (0.0, 0.0)
+        return _over(img, lo, hi) if hi > lo else np.clip(img.astype(float), 0.0, 1.0)
     if img.dtype.itemsize > 1 and img.size:
-        lo, hi = img.min(), img.max()
+        lo, hi = _own_range(img)
         if hi > lo:
-            return (img.astype(float) - float(lo)) / (float(hi) - float(lo))
+            return _over(img, lo, hi)
     info = np.iinfo(img.dtype)
     return (img.astype(float) - info.min) / (info.max - info.min)
 

@@ -462,21 +462,35 @@ def resolve_scale(path, img: np.ndarray, *, um_per_px=None, scale_bar_um=None, i
     Raises
     ------
     bmctl.errors.InputError
-        No scale can be found; the message says how to give one.
+        No scale can be found, or the one found in the metadata or from the scale bar is outside
+        :data:`UM_PER_PX_RANGE`; the message says where it came from and how to give one.
     """
     bar = find_scale_bar(img, info_top, info_banner)
     if um_per_px is not None:
         return Scale(float(um_per_px), "user", "--um-per-px"), bar
+    name = str(path) if path is not None else "image"
     meta = scale_from_metadata(path) if path is not None else None
     if meta is not None:
-        return meta, bar
-    name = str(path) if path is not None else "image"
+        return _sane(meta, name, "the image metadata", "give the scale with --um-per-px X"), bar
     if scale_bar_um is not None:
         if bar is None:
             raise InputError(f"{name}: --scale-bar-um given but no scale bar found; {SCALE_HELP.split(', or')[0]}")
-        return Scale(float(scale_bar_um) / bar.length_px, "scale-bar",
-                     f"scale bar {bar.length_px:g} px at row {bar.row} = {float(scale_bar_um):g} µm (--scale-bar-um)"), bar
+        found = Scale(float(scale_bar_um) / bar.length_px, "scale-bar",
+                      f"scale bar {bar.length_px:g} px at row {bar.row} = {float(scale_bar_um):g} µm (--scale-bar-um)")
+        return _sane(found, name, "the scale bar", "check --scale-bar-um, or give the scale with --um-per-px X"), bar
     raise InputError(f"{name}: no pixel size in the image metadata; {SCALE_HELP}")
+
+
+def _sane(scale: Scale, name: str, source: str, remedy: str) -> Scale:
+    """``scale`` if its pixel size lies in :data:`UM_PER_PX_RANGE` (the range ``--um-per-px`` is held
+    to), else :class:`InputError` naming where it came from: a metadata unit or a bar length read wrong
+    gave particle sizes of kilometres, refused only later as a particle outside its range, with the
+    advice to check flags the user never gave."""
+    lo, hi = UM_PER_PX_RANGE
+    if not lo <= scale.um_per_px <= hi:
+        raise InputError(f"{name}: pixel size from {source}, {scale.um_per_px:g} µm/px, outside [{lo:g}, {hi:g}] µm/px "
+                         f"({scale.detail}); {remedy}")
+    return scale
 
 
 def check_scale(um_per_px, name: str = "--um-per-px") -> float:
