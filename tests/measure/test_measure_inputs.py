@@ -17,25 +17,10 @@ from bmctl.cli import main
 from bmctl.errors import InputError
 from bmctl.measure.loading import load_image
 from bmctl.measure.tables import ParticleTable, write_table
+from .shapes import discs as _discs, cli as _cli
 
 MODEL = Path(__file__).resolve().parents[2] / "models" / "alni-1to1-300rpm-lab.toml"
 BAD_NAME = os.fsdecode(b"bad\xff\xfename")  # a folder name whose bytes are not UTF-8
-
-
-def _discs(size: int = 128) -> np.ndarray:
-    """A gray uint8 image: nine bright discs (radius 7 px) on a dark background."""
-    img = np.full((size, size), 30, np.uint8)
-    yy, xx = np.mgrid[:size, :size]
-    for cy in (24, 64, 104):
-        for cx in (24, 64, 104):
-            img[(yy - cy) ** 2 + (xx - cx) ** 2 <= 49] = 220
-    return img
-
-
-def _cli(capsys, argv):
-    rc = main(argv)
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
 def _one_error_line(err: str, name: str) -> str:

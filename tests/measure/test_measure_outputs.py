@@ -17,16 +17,7 @@ from bmctl.cli import main
 from bmctl.errors import one_line
 from bmctl.measure.micrograph import check_verdicts, table_reports
 from bmctl.measure.names import path_text
-
-
-def _discs(size: int = 128) -> np.ndarray:
-    """A gray uint8 image: nine bright discs (radius 7 px) on a dark background."""
-    img = np.full((size, size), 30, np.uint8)
-    yy, xx = np.mgrid[:size, :size]
-    for cy in (24, 64, 104):
-        for cx in (24, 64, 104):
-            img[(yy - cy) ** 2 + (xx - cx) ** 2 <= 49] = 220
-    return img
+from .shapes import discs as _discs
 
 
 def _noise(size: int = 20) -> np.ndarray:

@@ -18,6 +18,7 @@ from bmctl.cli import main
 from bmctl.errors import InputError
 from bmctl.measure.loading import load_image
 from bmctl.measure.micrograph import measure_micrograph
+from .shapes import discs as _discs, cli as _cli
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 TEM = DATA / "065d8e352c.png"  # dark nanoparticles (TEM), 512 x 525 px
@@ -25,22 +26,6 @@ TEM = DATA / "065d8e352c.png"  # dark nanoparticles (TEM), 512 x 525 px
 
 def _gray() -> np.ndarray:
     return np.asarray(Image.open(TEM).convert("L"))
-
-
-def _discs(size: int = 128) -> np.ndarray:
-    """A gray uint8 image: nine bright discs (radius 7 px) on a dark background."""
-    img = np.full((size, size), 30, np.uint8)
-    yy, xx = np.mgrid[:size, :size]
-    for cy in (24, 64, 104):
-        for cx in (24, 64, 104):
-            img[(yy - cy) ** 2 + (xx - cx) ** 2 <= 49] = 220
-    return img
-
-
-def _cli(capsys, argv):
-    rc = main(argv)
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
 def _one_error_line(err: str, name) -> str:
