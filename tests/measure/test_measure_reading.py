@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 from PIL import Image, ImageOps
 
-from bmctl.cli import main
 from bmctl.errors import InputError
 from bmctl.measure.loading import load_image
 from bmctl.measure.micrograph import measure_micrograph
