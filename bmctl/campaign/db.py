@@ -28,12 +28,14 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import errno
 import hashlib
 import io
 import json
 import math
 import os
 import sqlite3
+import stat
 from pathlib import Path
 from typing import Annotated
 
@@ -108,22 +110,53 @@ def db_path(folder: str | Path) -> Path:
 
 
 def _connect(path: Path) -> sqlite3.Connection:
+    """A read-write connection. It writes nothing by itself: the journal mode is left as the file
+    has it (a verb that records sets WAL after its commit, :func:`transaction`), so that a file
+    opened and then refused (another application's database) or only read is left as it was."""
     con = sqlite3.connect(str(path), timeout=LOCK_TIMEOUT_S, isolation_level=None)
-    con.execute("PRAGMA journal_mode=WAL")
     con.execute("PRAGMA synchronous=FULL")
     con.execute("PRAGMA foreign_keys=ON")
     con.execute(f"PRAGMA busy_timeout={int(LOCK_TIMEOUT_S * 1000)}")
     return con
 
 
-def create(folder: str | Path) -> sqlite3.Connection:
-    """Create a new campaign database (refused when ``folder`` already holds one)."""
+#: what SQLite keeps beside a database: the write-ahead log and its index, the rollback journal
+SIDECARS = ("-wal", "-shm", "-journal")
+
+
+def _sidecars(path: Path) -> list[Path]:
+    return [path.with_name(path.name + x) for x in SIDECARS]
+
+
+def _kind(p: Path) -> str:
+    """What is at ``p`` (which exists), in words."""
+    if p.is_symlink():
+        return "a symlink"
+    return "a folder" if p.is_dir() else "a file" if p.is_file() else "not a regular file"
+
+
+def create(folder: str | Path, made: list | None = None) -> sqlite3.Connection:
+    """Create a new campaign database (refused when ``folder`` already holds one, or when a file or
+    folder is where SQLite keeps its journal). Nothing is made before a refusal; what it made is
+    removed when it fails (the database file is appended to ``made`` as soon as it exists, for
+    the caller to remove should it fail later)."""
     folder = Path(folder)
     path = db_path(folder)
     taken = InputError(f"{folder}: already holds a campaign ({path.name}); choose another folder")
-    if path.exists():
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder}: is a file, not a folder (campaign init makes a campaign folder)")
+    if os.path.lexists(path):
+        if path.is_dir() or not path.exists():  # a folder, a symlink that cannot be resolved
+            raise InputError(f"{path}: is in the way ({_kind(path)}); campaign init makes its database there")
         raise taken
-    folder.mkdir(parents=True, exist_ok=True)
+    for side in _sidecars(path):
+        if os.path.lexists(side):
+            raise InputError(f"{side}: is in the way ({_kind(side)}): SQLite keeps the journal of {path.name} there; "
+                             "move it or choose another folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{folder}: cannot make the campaign folder ({exc.strerror or exc})") from None
     # The file is made here, not by SQLite (which makes it 0644 whatever the umask; its -wal and
     # -shm files take the database's mode): the user's umask decides, as for every output. O_EXCL:
     # of two `init`s on one folder at once, one starts the campaign, the other is refused.
@@ -131,63 +164,213 @@ def create(folder: str | Path) -> sqlite3.Connection:
         os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
     except FileExistsError:
         raise taken from None
-    return _connect(path)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be made ({exc.strerror or exc})") from None
+    if made is not None:
+        made.append(path)
+    try:
+        return _connect(path)
+    except BaseException:  # Ctrl-C, a file SQLite cannot open: no half-made database is left behind
+        for p in [path] + _sidecars(path):
+            if p.is_file() and not p.is_symlink():
+                with contextlib.suppress(OSError):
+                    p.unlink()
+        raise
 
 
-def _connect_read_only(path: Path) -> sqlite3.Connection:
+def _wal_mode(path: Path) -> bool:
+    """Whether the SQLite file is in WAL mode (its header's read/write versions, bytes 18-19, are 2)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(100)
+    except OSError:
+        return False
+    return head[:16] == b"SQLite format 3\x00" and len(head) >= 20 and 2 in (head[18], head[19])
+
+
+def _busy(exc: Exception) -> bool:
+    return "locked" in str(exc) or "busy" in str(exc)
+
+
+def _connect_read_only(path: Path, fallback: bool = True) -> sqlite3.Connection:
     """A read-only connection (``mode=ro``), for a campaign the user may not write (an archive, a
-    share mounted read-only); ``immutable`` where SQLite cannot even keep its shared-memory file
-    beside it (nobody can write it then either). ``immutable`` reads the database file alone: a
-    write-ahead log beside it (commits not yet copied into the file) is refused, not left out."""
+    share mounted read-only) and to recognise a file before anything writes to it; ``immutable``
+    where SQLite would otherwise make a write-ahead log and its index beside a WAL-mode file that
+    nobody has open (a read-only connection cannot remove them again: they were left behind, with
+    the database's mode), or where it cannot even keep its shared-memory file beside it (nobody can
+    write it then either). ``immutable`` reads the database file alone: a write-ahead log beside
+    it (commits not yet copied into the file) is refused, not left out; so is a rollback journal
+    of a transaction that did not finish (SQLite must roll it back first). ``fallback`` False (a
+    campaign the user may write): SQLite's error is raised as it is."""
     from urllib.parse import quote
 
-    uri = f"file:{quote(str(path.resolve()))}?mode=ro"
+    real = path.resolve()
+    uri = f"file:{quote(str(real))}?mode=ro"
+    wal, shm, journal = _sidecars(real)
+    if _wal_mode(real) and not os.path.lexists(wal) and not os.path.lexists(shm):
+        # every connection to a WAL-mode file keeps its log open: none has, and no log is left
+        return sqlite3.connect(uri + "&immutable=1", uri=True, timeout=LOCK_TIMEOUT_S, isolation_level=None)
     try:
         con = sqlite3.connect(uri, uri=True, timeout=LOCK_TIMEOUT_S, isolation_level=None)
-        con.execute("SELECT version FROM schema_version").fetchone()
+        con.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
         return con
-    except sqlite3.OperationalError:
-        wal = path.with_name(path.name + "-wal")
+    except sqlite3.OperationalError as exc:
+        if _busy(exc) or not fallback:
+            raise
+        if getattr(exc, "sqlite_errorname", "") == "SQLITE_READONLY_ROLLBACK" or journal.is_file() \
+                and journal.stat().st_size > 0:
+            raise InputError(f"{path}: its rollback journal {journal.name} holds a transaction that did not finish; "
+                             "SQLite rolls it back only where this user may write the campaign") from None
         if wal.is_file() and wal.stat().st_size > 0:
             raise InputError(f"{path}: its write-ahead log {wal.name} holds commits SQLite cannot read in a folder "
                              "this user may not write; read a copy of the campaign folder in one you may write") from None
         return sqlite3.connect(uri + "&immutable=1", uri=True, timeout=LOCK_TIMEOUT_S, isolation_level=None)
 
 
-def open_db(folder: str | Path, read_only: bool = False) -> sqlite3.Connection:
-    """Open an existing campaign; a missing, foreign or newer database is a one-line InputError.
-    ``read_only`` (the verbs that only read): a database the user may not write is opened
-    read-only instead of refused."""
-    path = db_path(folder)
-    if not path.exists():
-        raise InputError(f"{folder}: no campaign here ({path.name} not found; start one with `bmctl campaign init`)")
-    wal = path.with_name(path.name + "-wal")
-    if path.is_file() and path.stat().st_size == 0 and not (wal.is_file() and wal.stat().st_size):
+def _refuse_unusable(folder: Path, path: Path) -> None:
+    """Refuse what is not a database file at ``path`` (missing, a folder, a symlink that cannot be
+    resolved, not a regular file, empty) or a folder where SQLite keeps its journal, each in one line,
+    before SQLite opens anything."""
+    try:
+        os.lstat(path)
+    except FileNotFoundError:
+        raise InputError(f"{folder}: no campaign here ({path.name} not found; start one with "
+                         "`bmctl campaign init`)") from None
+    except NotADirectoryError:
+        raise InputError(f"{folder}: is a file, not a campaign folder") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise InputError(f"{path}: is a symlink loop (it cannot be resolved), not a campaign database") from None
+        if exc.errno == errno.ENOENT:
+            raise InputError(f"{path}: is a symlink to {os.readlink(path)!r}, which does not exist") from None
+        raise InputError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{path}: is a folder, not a campaign database")
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{path}: not a regular file, not a campaign database")
+    real = path.resolve()
+    wal = _sidecars(real)[0]
+    if st.st_size == 0 and not (wal.is_file() and wal.stat().st_size):
         # refused before SQLite opens it: opening would write a header into the user's file
         raise InputError(f"{path}: empty (0 bytes), not a campaign database (a `campaign init` that did not "
                          "finish, or a damaged copy)")
+    for side in _sidecars(real):
+        if os.path.lexists(side) and _kind(side) != "a file":
+            raise InputError(f"{side}: is in the way ({_kind(side)}): SQLite keeps the journal of {path.name} "
+                             "there; move it")
+
+
+def _not_writable(path: Path) -> Path | None:
+    """The first of the database, its folder and the journal files beside it that this user may
+    not write (SQLite needs them all to record), or None."""
+    real = path.resolve()
+    # named as the user gave them, where the database is no symlink into another folder
+    base = path.parent if real.parent == path.parent.resolve() else real.parent
+    if not os.access(real, os.W_OK):
+        return path
+    if not os.access(real.parent, os.W_OK | os.X_OK):
+        return base
+    for side in _sidecars(real):
+        if os.path.lexists(side) and not os.access(side, os.W_OK):
+            return base / side.name
+    return None
+
+
+def _read_only(p: Path) -> InputError:
+    where = "" if p.name.startswith(DB_NAME) else f" (SQLite keeps the journal of {DB_NAME} in this folder)"
+    return InputError(f"{p}: read-only for this user{where}: this command records to the campaign "
+                      "(`status` and `report` read it as it is)")
+
+
+def refuse_read_only(folder: str | Path) -> None:
+    """Refuse, before any work, a verb that records to a campaign whose database this user may not
+    write (or that is no database file): what :func:`open_db` refuses first, for a verb with work
+    to do before it opens the campaign (``sample`` measures its images)."""
+    folder = Path(folder)
+    path = db_path(folder)
+    _refuse_unusable(folder, path)
+    blocked = _not_writable(path)
+    if blocked is not None:
+        raise _read_only(blocked)
+
+
+def _version_row(con: sqlite3.Connection):
+    return con.execute("SELECT version FROM schema_version").fetchone()
+
+
+def _check_version(path: Path, row) -> None:
+    if row is None:
+        raise InputError(f"{path}: schema_version: empty (damaged, or not a bmctl campaign database)")
+    if not isinstance(row[0], int) or isinstance(row[0], bool):
+        raise InputError(f"{path}: schema_version {str(row[0])[:40]!r}: not an integer (damaged or edited)")
+    if not _known_version(row[0]):
+        raise InputError(f"{path}: campaign schema version {row[0]}, this bmctl reads "
+                         f"{' and '.join(map(str, READ_VERSIONS))}")
+
+
+def open_db(folder: str | Path, read_only: bool = False) -> sqlite3.Connection:
+    """Open an existing campaign; a missing, foreign or newer database is a one-line InputError.
+    ``read_only`` (the verbs that only read): a database the user may not write is opened
+    read-only instead of refused. A verb that records is refused at once when the user may not
+    write the database, its folder or its journal files. The file is recognised as a campaign
+    (its schema version) through a read-only connection first: a file refused, or only read, is
+    left byte for byte as it was, with no journal files beside it."""
+    folder = Path(folder)
+    path = db_path(folder)
+    _refuse_unusable(folder, path)
+    blocked = _not_writable(path)
+    if blocked is not None and not read_only:
+        raise _read_only(blocked)
+    con = None
     try:
         try:
-            con = _connect(path)
-            row = con.execute("SELECT version FROM schema_version").fetchone()
+            if blocked is not None:  # read as it is: a read-only connection, nothing made beside it
+                con = _connect_read_only(path)
+                _check_version(path, _version_row(con))
+                return con
+            try:  # recognised before anything may write to it (SQLite rolls a journal back, checkpoints a log)
+                first = _connect_read_only(path, fallback=False)
+            except sqlite3.OperationalError as exc:
+                if _busy(exc):
+                    raise
+                first = None  # a rollback journal to roll back first: the read-write connection does
+            if first is not None:
+                try:
+                    _check_version(path, _version_row(first))
+                finally:
+                    first.close()
+            try:  # read-write: SQLite removes the log and its index it made when it closes
+                con = _connect(path)
+                row = _version_row(con)
+            except sqlite3.OperationalError as exc:
+                if con is not None:
+                    con.close()
+                    con = None
+                locked_out = not _busy(exc) and ("readonly" in str(exc) or "unable to open" in str(exc))
+                if locked_out and not read_only:
+                    raise _read_only(path) from None
+                if not locked_out:
+                    raise
+                con = _connect_read_only(path)
+                row = _version_row(con)
+            _check_version(path, row)
         except sqlite3.OperationalError as exc:
-            if "locked" in str(exc) or "busy" in str(exc):  # another process holds it past the busy timeout
+            if _busy(exc):  # another process holds it past the busy timeout
                 raise InputError(f"{path}: busy: locked by another process (waited {LOCK_TIMEOUT_S:g} s); "
                                  "try again when it has finished") from None
-            locked_out = "readonly" in str(exc) or "unable to open" in str(exc)
-            if locked_out and not read_only:
-                raise InputError(f"{path}: read-only for this user: this command records to the campaign "
-                                 "(`status` and `report` read it as it is)") from None
-            if not locked_out:
-                raise
-            con = _connect_read_only(path)
-            row = con.execute("SELECT version FROM schema_version").fetchone()
+            raise
     except sqlite3.DatabaseError as exc:
+        if con is not None:
+            con.close()
         raise InputError(f"{path}: cannot be read as a bmctl campaign database ({exc})") from None
-    if row is None or not _known_version(row[0]):
-        con.close()
-        raise InputError(f"{path}: campaign schema version {row and row[0]}, this bmctl reads "
-                         f"{' and '.join(map(str, READ_VERSIONS))}")
+    except BaseException:
+        if con is not None:
+            con.close()
+        raise
     return con
 
 
@@ -233,6 +416,22 @@ def transaction(con: sqlite3.Connection, write: bool = True, where: str = "campa
         raise
     else:
         con.execute("COMMIT")
+        if write:
+            _wal(con)
+
+
+def _wal(con: sqlite3.Connection) -> None:
+    """Put the campaign in WAL mode (readers are not blocked by a writer) after a verb's commit:
+    a campaign is switched by the verbs that record to it, once they have, never by one that only
+    reads or is refused. Where it cannot be switched now (a reader of a rollback-journal campaign
+    holds it), the next verb that records switches it."""
+    with contextlib.suppress(sqlite3.OperationalError):
+        if str(con.execute("PRAGMA journal_mode").fetchone()[0]).lower() != "wal":
+            con.execute("PRAGMA busy_timeout=0")  # not now: the verb has recorded what it did
+            try:
+                con.execute("PRAGMA journal_mode=WAL")
+            finally:
+                con.execute(f"PRAGMA busy_timeout={int(LOCK_TIMEOUT_S * 1000)}")
 
 
 def init_schema(con: sqlite3.Connection) -> None:
@@ -475,6 +674,38 @@ def _check_links(con: sqlite3.Connection, path, prior: bool = True, inputs: bool
                           "LIMIT 1").fetchone()
         if row is not None:
             raise InputError(f"{path}: sample_inputs row {row[0]}: sample_id {row[1]} is no sample (damaged or edited)")
+    _check_timeline(con, path)
+
+
+#: hours within which two batch times are one (``bmctl.campaign.workflow.EPS_H``: the log's own tolerance)
+TIME_TOL_H = 1e-9
+
+
+def _check_timeline(con: sqlite3.Connection, path) -> None:
+    """What ``log`` and ``sample`` keep across rows: each logged interval starts where the one before
+    it ended or later (never inside it), its ``hours`` are its ``t1_h - t0_h``, no estimator node is
+    after the logged clock (the end of the last interval; 0 before any), and each sample's ``n``
+    is the number of its stored particles."""
+    row = con.execute("SELECT id, t0_h, prev FROM (SELECT id, t0_h, LAG(t1_h) OVER (ORDER BY t0_h, id) AS prev "
+                      "FROM actions) WHERE t0_h < prev - ? LIMIT 1", (TIME_TOL_H,)).fetchone()
+    if row is not None:
+        raise InputError(f"{path}: actions row {row[0]}: t0_h = {row[1]:.12g} is inside the interval before it "
+                         f"(which ends at {row[2]:.12g} h): the log is append-only (damaged or edited)")
+    row = con.execute("SELECT id, hours, t1_h - t0_h FROM actions WHERE abs(hours - (t1_h - t0_h)) > ? LIMIT 1",
+                      (TIME_TOL_H,)).fetchone()
+    if row is not None:
+        raise InputError(f"{path}: actions row {row[0]}: hours = {row[1]:.12g}, not t1_h - t0_h = {row[2]:.12g} "
+                         "(damaged or edited)")
+    row = con.execute("SELECT id, t_h, clock FROM estimator_states, (SELECT COALESCE(MAX(t1_h), 0.0) AS clock "
+                      "FROM actions) WHERE t_h > clock + ? ORDER BY t_h LIMIT 1", (TIME_TOL_H,)).fetchone()
+    if row is not None:
+        raise InputError(f"{path}: estimator_states row {row[0]}: t_h = {row[1]:.12g} is after the logged clock "
+                         f"({row[2]:.12g} h; the estimate reaches no further than the log) (damaged or edited)")
+    row = con.execute("SELECT s.id, s.n, COUNT(p.sample_id) FROM samples AS s LEFT JOIN particles AS p "
+                      "ON p.sample_id = s.id GROUP BY s.id HAVING s.n != COUNT(p.sample_id) LIMIT 1").fetchone()
+    if row is not None:
+        raise InputError(f"{path}: samples row {row[0]}: n = {row[1]}, but {row[2]} particles are stored for it "
+                         "(damaged or edited)")
 
 
 def check_inputs(folder: str | Path, inputs: dict, where: str) -> None:
@@ -523,5 +754,5 @@ def unpack(blob: bytes, where: str = "state") -> dict:
 
 
 __all__ = ["ARRAY_TAG", "DB_NAME", "SCHEMA_VERSION", "READ_VERSIONS", "LOCK_TIMEOUT_S", "create", "open_db",
-           "transaction", "version", "upgrade", "init_schema", "set_meta", "get_meta", "check", "check_inputs",
-           "pack", "unpack", "now", "db_path"]
+           "refuse_read_only", "transaction", "version", "upgrade", "init_schema", "set_meta", "get_meta", "check",
+           "check_inputs", "pack", "unpack", "now", "db_path"]

@@ -507,9 +507,10 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         for _, dst in files.values():
             if os.path.lexists(dst):
                 raise _input_exists(dst)
-    con = db.create(folder)
     copied: list[Path] = []
+    created: list[Path] = []  # the database, once db.create has made it (a refusal makes nothing)
     try:
+        con = db.create(folder, made=created)
         try:
             inp.mkdir(exist_ok=True)
             for src, dst in files.values():
@@ -533,18 +534,20 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
         with Campaign(folder, _new=True) as c, db.transaction(c.con, where=str(folder)):
             c._write_node(-1.0)  # the prior
     except BaseException:  # Ctrl-C, a full disk: no campaign without its prior is left behind
-        _undo_init(folder, made, copied)
+        _undo_init(folder, made, copied, created)
         raise
     return meta
 
 
-def _undo_init(folder: Path, made: list[Path], copied: list[Path]) -> None:
-    """Remove what a failed :func:`init` wrote: its database, the input copies and the folders it made
+def _undo_init(folder: Path, made: list[Path], copied: list[Path], created: list[Path]) -> None:
+    """Remove what a failed :func:`init` wrote: its database (``created``: none when ``db.create``
+    refused, as for a folder that already holds a campaign), the input copies and the folders it made
     (``copied`` names only the files it created: a file of the user's in ``inputs/`` is never one)."""
-    path = db.db_path(folder)
-    for p in [path.with_name(path.name + x) for x in ("", "-wal", "-shm", "-journal")] + copied:
-        with contextlib.suppress(OSError):
-            p.unlink()
+    dbs = [p.with_name(p.name + x) for p in created for x in ("", "-wal", "-shm", "-journal")]
+    for p in dbs + copied:
+        if p.is_file() and not p.is_symlink():
+            with contextlib.suppress(OSError):
+                p.unlink()
     for d in reversed(made):  # inputs/ first, then the campaign folder; only when empty
         with contextlib.suppress(OSError):
             d.rmdir()
@@ -737,6 +740,8 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
     refuse_repeats(inputs, "sample: ")
     digests = [_digest(i) for i in inputs]
     _refuse_same_bytes(inputs, digests)
+    if campaign is None:  # a campaign this user may not record to: refused before the images are measured
+        db.refuse_read_only(folder)
     # before the lock: may take seconds
     table, images, x, y, reports, counts = _measure(inputs, um_per_px, accept_unusable)
     c = campaign or Campaign(folder)

@@ -142,7 +142,8 @@ def _print_advice(a: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Dispatch the sub-verb; print what it did. An SQLite error the checks did not foresee
-    (a file damaged under a running command) is one line naming the database."""
+    (a file damaged under a running command; an ``init`` whose new database SQLite cannot write)
+    is one line naming the database."""
     import sqlite3
 
     from ..campaign.db import db_path
@@ -151,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         return _run(args)
     except sqlite3.DatabaseError as exc:
+        if args.verb == "init":  # a new database (init removed what it made): nothing was damaged
+            raise InputError(f"{db_path(args.dir)}: cannot be written as a campaign database ({exc})") from None
         raise InputError(f"{db_path(args.dir)}: damaged campaign database ({exc})") from None
 
 

@@ -113,8 +113,8 @@ def test_a_failed_init_keeps_a_file_made_in_inputs_meanwhile(tmp_path, capsys, m
     mine = d / "inputs" / CARD.name
     create = db.create
 
-    def create_then_user_writes(folder):
-        con = create(folder)
+    def create_then_user_writes(folder, **kw):
+        con = create(folder, **kw)
         mine.parent.mkdir()
         mine.write_text("mine\n")
         return con
