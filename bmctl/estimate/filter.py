@@ -62,12 +62,15 @@ from pydantic import Field, field_validator
 
 from ..config import Strict
 from ..errors import InputError, require_generator
-from ..moments.model import ENERGY_NAME
+from ..moments.model import ENERGY_NAME, MomentModel
 from ..limits import INPUT_ROUNDING, RPM_MAX, is_rpm_milling, rpm_rounding
-from .likelihood import LawSettings, Raster, fit_sample, loglik_raster
+from .likelihood import LOG_P_FLOOR, LawSettings, Raster, check_particles, fit_sample, loglik_raster
 from .resampling import SCHEMES, effective_sample_size, resample
 
 N_MOMENTS = 4  # s_mean, s_std, r_mean, r_std: the log-moment block z
+N_PARTICLES_MIN = 10  # the fewest filter particles
+#: the lowest vial-temperature reading accepted (C)
+READING_MIN_C = -50.0
 GAIN_MIN = 0.05  # the smallest vial heating gain over the card's thermal law
 FEED_VAR_FLOOR = 1e-10  # the variance of a log moment the feed's sample does not fit (its prior is the card's)
 
@@ -148,7 +151,7 @@ class FilterSettings(Strict):
         Noise (std) of a vial-temperature reading (degC).
     """
 
-    n_particles: Annotated[int, Field(ge=10)] = 2000
+    n_particles: Annotated[int, Field(ge=N_PARTICLES_MIN)] = 2000
     ess_fraction: Annotated[float, Field(gt=0, le=1)] = 0.5
     scheme: str = "systematic"
     process_noise_per_sqrt_h: tuple[float, float, float, float] = (0.15, 0.15, 0.8, 0.8)
@@ -322,6 +325,97 @@ def check_predict(u, dt_h, rpm_max: float | None = None) -> float:
     return max(dt, 0.0)
 
 
+def model_step(model, X: np.ndarray, u: np.ndarray, dt_h: float, P: np.ndarray) -> np.ndarray:
+    """One step of a filter's particles (or sigma points): ``model.step(X, u, dt_h, P)``, for a
+    :class:`MomentModel` without the argument checks of its public entry (the estimator checked ``u`` and
+    ``dt_h``; its own states and multipliers are what it made them, and a failed step, non-finite, is
+    kept where it was rather than refused), the same numbers."""
+    if isinstance(model, MomentModel):
+        return model._step(X, u, dt_h, P)
+    return model.step(X, u, dt_h, P)
+
+
+def check_reading(card, temperature_c: float | None, where: str) -> float | None:
+    """Refuse a vial-temperature reading outside [READING_MIN_C, the card's melting limit].
+
+    Parameters
+    ----------
+    card : ModelCard or None
+        The card whose powder's melting point caps a reading (None: no card, then the highest
+        melting point of any powder bmctl models, :data:`bmctl.cards.TEMPERATURE_CEILING_C`).
+    temperature_c : float or None
+        The reading (None: no reading).
+    where : str
+        The flag or file named in the message.
+    """
+    if temperature_c is None:
+        return None
+    hi, reason = _reading_limit(card)
+    if not (math.isfinite(temperature_c) and READING_MIN_C <= temperature_c <= hi):
+        raise InputError(f"{where}: reading {temperature_c:g} °C outside [{READING_MIN_C:g}, {hi:g}] °C "
+                         f"(-50 °C to {reason})")
+    return temperature_c
+
+
+def check_update(model, s_um, r, temperature_c) -> float | None:
+    """What an estimator's ``update`` refuses, before anything changes: the checks of ``run_filter``
+    (:func:`bmctl.estimate.run.check_sample` and :func:`check_reading`); returns the reading as a float.
+
+    Parameters
+    ----------
+    model : MomentModel
+        The estimator's model (its ``card`` caps a reading).
+    s_um, r : array_like or None
+        Measured sizes (um) and aspect ratios of one sample (``s_um`` None: no sample).
+    temperature_c : float or None
+        Vial-temperature reading (degC).
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        No particles, unequal numbers of s and r, a size outside 1e-3 .. 1e4 um, r outside [0, 1),
+        a reading that is not finite or outside [-50 degC, the card's melting limit].
+    TypeError
+        A sample or reading that is not numbers.
+    """
+    if s_um is not None:
+        try:
+            s = np.asarray(s_um, dtype=float).ravel()
+            rr = np.asarray(r, dtype=float).ravel()
+        except (TypeError, ValueError):
+            raise TypeError(f"s_um, r: a sample is two arrays of numbers (got {type(s_um).__name__} and "
+                            f"{type(r).__name__})") from None
+        check_particles(s, rr, "s_um, r")
+    if temperature_c is None:
+        return None
+    if isinstance(temperature_c, (bool, str, bytes)):
+        raise TypeError(f"temperature_c: a reading is a number of degC (got {type(temperature_c).__name__})")
+    try:
+        t = float(temperature_c)
+    except (TypeError, ValueError):
+        raise TypeError(f"temperature_c: a reading is a number of degC (got {type(temperature_c).__name__})") from None
+    return check_reading(getattr(model, "card", None), t, "temperature_c")
+
+
+#: the (card, its powder, its validity) a reading was last checked against, and the limit
+_READING_LIMIT: list = [None]
+
+
+def _reading_limit(card) -> tuple[float, str]:
+    """The highest reading accepted under ``card`` (None: no card) and the reason (:func:`check_reading`);
+    kept for the last card (the powder's melting point costs ~20 us, an estimator's update checks it)."""
+    key = (card, getattr(card, "powder", None), getattr(card, "validity", None))
+    cached = _READING_LIMIT[0]
+    if cached is not None and all(a is b for a, b in zip(cached[0], key)):
+        return cached[1]
+    from ..cards import TEMPERATURE_CEILING_C, melting_limit
+
+    limit = (TEMPERATURE_CEILING_C, "the highest melting point of any powder bmctl models") if card is None \
+        else melting_limit(card)
+    _READING_LIMIT[0] = (key, limit)
+    return limit
+
+
 class ParticleFilter:
     """Particle filter on a moment model with guided, tempered updates.
 
@@ -453,7 +547,7 @@ class ParticleFilter:
         st, rng = self.settings, self.rng
         X_law = self.X.copy()
         X_law[:, 4] = self.ambient_c + self._excess()  # the card's thermal law runs on T_amb + (T - T_amb) / g
-        X = np.asarray(self.model.step(X_law, np.asarray(u, dtype=float), dt_h, self.P), dtype=float)
+        X = np.asarray(model_step(self.model, X_law, np.asarray(u, dtype=float), dt_h, self.P), dtype=float)
         X[:, 4] = self.ambient_c + self.gain * (X[:, 4] - self.ambient_c)
         bad = ~np.all(np.isfinite(X), axis=1)
         if np.any(bad):  # a failed model step keeps the particle where it was (and reports nothing)
@@ -518,28 +612,35 @@ class ParticleFilter:
             Measured sizes (um, > 0) and aspect ratios ([0, 1)) of one sample.
         temperature_c : float, optional
             Vial-temperature reading (degC).
+
+        Raises
+        ------
+        bmctl.errors.InputError
+            What ``run_filter`` refuses (:func:`bmctl.estimate.filter.check_update`): no particles,
+            unequal numbers of s and r, a size outside 1e-3 .. 1e4 um, r outside [0, 1), a reading
+            outside [-50 degC, the card's melting limit]; nothing is changed then.
         """
+        reading = check_update(self.model, s_um, r, temperature_c)
         st, rng = self.settings, self.rng
         N = self.X.shape[0]
         tau, tau_m = self.pending_h, self.pending_model_h
         logw = self.logw.copy()
         eta = np.array([np.nan, np.nan])
         n_meas = 0
+        impossible = False  # the sample at the likelihood's floor under every particle
 
         # vial temperature: the heating gain's change (walk, its prior at the first reading, or a
         # jump) x the Gaussian reading, linear in the change -> its exact posterior as proposal
         v_walk = st.thermal_gain_walk_per_sqrt_h**2 * tau
-        if temperature_c is not None:
-            if not math.isfinite(temperature_c):
-                raise ValueError("temperature_c must be finite")
-            logw += self._reading_update(float(temperature_c), v_walk)
+        if reading is not None:
+            logw += self._reading_update(reading, v_walk)
         elif v_walk > 0:
             self._set_gain(self.gain + math.sqrt(v_walk) * rng.standard_normal(N))
 
         if s_um is not None:
             raster = Raster.from_particles(s_um, r, st.law)
             n_meas = raster.n
-            logw_s, eta = self._sample_update(raster, tau_m)
+            logw_s, eta, impossible = self._sample_update(raster, tau_m)
             logw += logw_s
             self.feed_open = False
         elif tau_m > 0:
@@ -548,7 +649,7 @@ class ParticleFilter:
         self.pending_h = self.pending_model_h = 0.0
 
         degenerate = False
-        if not np.any(np.isfinite(logw)):
+        if impossible or not np.any(np.isfinite(logw)):
             degenerate = True  # every particle impossible: keep the prior weights, report it
             self.n_degenerate += 1
             logw = self.logw.copy()
@@ -645,7 +746,11 @@ class ParticleFilter:
         X = self._feasible(X)
         ls, lr = loglik_raster(raster, X[:, 0], X[:, 1], X[:, 2], X[:, 3], st.law)
         self.X = X
-        return eta[0] * ls + eta[1] * lr + corr, eta
+        # every measured size (or every r) in a cell of probability 0 (the floor) under every particle:
+        # no particle explains the sample, the floored weights would carry the proposal alone
+        floor = raster.n * LOG_P_FLOOR * (1.0 - 1e-9)
+        impossible = bool(np.all((ls <= floor) | (lr <= floor)))
+        return eta[0] * ls + eta[1] * lr + corr, eta, impossible
 
     def _adapt(self, fit, M: np.ndarray, tau: float, eta_vec: np.ndarray) -> None:
         """Innovation-based update of the discrepancy noise (one scalar per log moment)."""

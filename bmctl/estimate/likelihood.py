@@ -56,6 +56,8 @@ special = _Special()
 R_FLOOR = 0.005  # continuous form: measured r clipped to [R_FLOOR, 1 - R_FLOOR]
 BETA_VAR_MARGIN = 0.98  # keep v < 0.98 m (1 - m) so that Beta a, b > 0
 LOG_P_FLOOR = -700.0  # log-probability of an impossible cell (finite: no NaN weights)
+#: physical range of a measured size (um): 1 nm to 10 mm
+S_RANGE_UM = (1e-3, 1e4)
 SIZE_LAWS = ("weibull", "lognormal")
 #: relative misfit of each law's (s_mean, s_std, r_mean, r_std) against the plant's populations:
 #: the largest |ln(pseudo-true / true)| of 20,000-particle micrograph samples, 3 factor scenarios
@@ -171,6 +173,36 @@ def loglik_sample(stats: SampleStats, s_mean_um, s_std_um, r_mean, r_std, sigma_
         Log-likelihood per state.
     """
     return loglik_size(stats, s_mean_um, s_std_um, sigma_log_s) + loglik_aspect(stats, r_mean, r_std, sigma_r)
+
+
+def check_particles(s_um, r, where: str) -> None:
+    """Refuse measured particles that are no sample: none, unequal numbers of s and r, a size
+    outside :data:`S_RANGE_UM` (NaN included) or r outside [0, 1), naming ``where`` and the particle.
+
+    Parameters
+    ----------
+    s_um, r : ndarray
+        Sizes (um) and aspect ratios, float arrays of one shape.
+    where : str
+        What the message names first (a file, ``sample at 2 h``, ``s_um, r``).
+
+    Raises
+    ------
+    bmctl.errors.InputError
+    """
+    from ..errors import InputError
+
+    if s_um.size == 0 or s_um.shape != r.shape:
+        raise InputError(f"{where}: a sample needs one or more particles with one s and one r each")
+    lo, hi = float(s_um.min()), float(s_um.max())
+    if not (S_RANGE_UM[0] <= lo and hi <= S_RANGE_UM[1]):  # NaN fails too
+        k = int(np.argmax(~((s_um >= S_RANGE_UM[0]) & (s_um <= S_RANGE_UM[1]))))
+        raise InputError(f"{where}: particle {k + 1}: s_um = {s_um.flat[k]:.4g} outside [{S_RANGE_UM[0]:g}, "
+                         f"{S_RANGE_UM[1]:g}] µm")
+    lo, hi = float(r.min()), float(r.max())
+    if not (0.0 <= lo and hi < 1.0):
+        k = int(np.argmax(~((r >= 0) & (r < 1))))
+        raise InputError(f"{where}: particle {k + 1}: r = {r.flat[k]:.4g} outside [0, 1)")
 
 
 # --- rastered form (the filter's likelihood) -------------------------------------------------

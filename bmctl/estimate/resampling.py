@@ -23,7 +23,22 @@ All four are unbiased: E[count_i] = N w_i.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from ..errors import InputError, require_generator
+
+
+def _weights(weights) -> np.ndarray:
+    """``weights`` as a float array, or an :class:`InputError`: one or more, finite, >= 0, not all 0."""
+    w = np.asarray(weights, dtype=float)
+    if w.ndim != 1 or w.size == 0:
+        raise InputError(f"weights: one weight per particle, a 1-D array of one or more (got shape {w.shape})")
+    total, lo = float(w.sum()), float(w.min())
+    if not (lo >= 0.0 and 0.0 < total < math.inf):  # NaN fails too
+        raise InputError(f"weights: must be finite, >= 0 and not all 0 (got min {lo:g}, sum {total:g})")
+    return w
 
 
 def _cumulative(w: np.ndarray) -> np.ndarray:
@@ -51,7 +66,8 @@ def systematic(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     -------
     ndarray of int
     """
-    w = np.asarray(weights, dtype=float)
+    w = _weights(weights)
+    require_generator(rng, "rng")
     N = w.size
     return _invert(w, (rng.random() + np.arange(N)) / N)
 
@@ -70,7 +86,8 @@ def stratified(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     -------
     ndarray of int
     """
-    w = np.asarray(weights, dtype=float)
+    w = _weights(weights)
+    require_generator(rng, "rng")
     N = w.size
     return _invert(w, (rng.random(N) + np.arange(N)) / N)
 
@@ -89,7 +106,8 @@ def multinomial(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     -------
     ndarray of int
     """
-    w = np.asarray(weights, dtype=float)
+    w = _weights(weights)
+    require_generator(rng, "rng")
     return _invert(w, rng.random(w.size))
 
 
@@ -107,7 +125,8 @@ def residual(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     -------
     ndarray of int
     """
-    w = np.asarray(weights, dtype=float)
+    w = _weights(weights)
+    require_generator(rng, "rng")
     w = w / w.sum()
     N = w.size
     copies = np.floor(N * w).astype(np.int64)
@@ -139,6 +158,13 @@ def resample(weights: np.ndarray, rng: np.random.Generator, scheme: str = "syste
     -------
     ndarray of int
 
+    Raises
+    ------
+    bmctl.errors.InputError
+        No weights, or weights that are not finite, >= 0 and not all 0 (every scheme alike).
+    TypeError
+        ``rng`` is not a ``numpy.random.Generator``.
+
     Examples
     --------
     >>> import numpy as np
@@ -160,5 +186,10 @@ def effective_sample_size(weights: np.ndarray) -> float:
     ----------
     weights : ndarray
         Normalised weights (sum 1).
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        No weights, or weights that are not finite, >= 0 and not all 0.
     """
-    return float(1.0 / np.sum(np.square(weights)))
+    return float(1.0 / np.sum(np.square(_weights(weights))))

@@ -14,7 +14,9 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import InputError, require_generator
-from .filter import Estimate, FilterSettings, ParticleFilter
+from .filter import (N_PARTICLES_MIN, READING_MIN_C, Estimate, FilterSettings, ParticleFilter,  # noqa: F401
+                     check_reading)
+from .likelihood import S_RANGE_UM, check_particles  # noqa: F401
 
 ESTIMATORS = ("pf", "ukf")
 
@@ -48,6 +50,9 @@ def make_estimator(kind: str, model, rng: np.random.Generator, n_particles: int 
     if n_particles is not None and (isinstance(n_particles, bool) or not isinstance(n_particles, numbers.Real)
                                     or not float(n_particles).is_integer()):
         raise InputError(f"n_particles: a whole number of particles (got {n_particles!r})")
+    if kind == "pf" and settings is None and n_particles is not None and n_particles < N_PARTICLES_MIN:
+        raise InputError(f"n_particles: the particle filter needs {N_PARTICLES_MIN} or more particles "
+                         f"(got {n_particles!r})")
     if kind == "ukf":
         from .ukf import UKFEstimator, UKFSettings  # filterpy (scipy.stats) only when a UKF is asked for
 
@@ -87,33 +92,6 @@ class Sample:
 
 #: an update whose effective sample size falls below this has collapsed onto (about) one particle
 ESS_COLLAPSED = 1.5
-#: the lowest vial-temperature reading accepted (C)
-READING_MIN_C = -50.0
-#: physical range of a measured size (um): 1 nm to 10 mm
-S_RANGE_UM = (1e-3, 1e4)
-
-
-def check_reading(card, temperature_c: float | None, where: str) -> float | None:
-    """Refuse a vial-temperature reading outside [READING_MIN_C, the card's melting limit].
-
-    Parameters
-    ----------
-    card : ModelCard
-    temperature_c : float or None
-        The reading (None: no reading).
-    where : str
-        The flag or file named in the message.
-    """
-    if temperature_c is None:
-        return None
-    from ..cards import melting_limit
-    from ..errors import InputError
-
-    hi, reason = melting_limit(card)
-    if not (math.isfinite(temperature_c) and READING_MIN_C <= temperature_c <= hi):
-        raise InputError(f"{where}: reading {temperature_c:g} °C outside [{READING_MIN_C:g}, {hi:g}] °C "
-                         f"(-50 °C to {reason})")
-    return temperature_c
 
 
 def check_sample(smp: "Sample") -> "Sample":
@@ -122,17 +100,7 @@ def check_sample(smp: "Sample") -> "Sample":
 
     s, r = np.asarray(smp.s_um, dtype=float), np.asarray(smp.r, dtype=float)
     where = smp.source or f"sample at {smp.t_h:g} h"
-    if s.size == 0 or s.shape != r.shape:
-        raise InputError(f"{where}: a sample needs one or more particles with one s and one r each")
-    bad_s = ~((s >= S_RANGE_UM[0]) & (s <= S_RANGE_UM[1]))
-    if bad_s.any():
-        k = int(np.argmax(bad_s))
-        raise InputError(f"{where}: particle {k + 1}: s_um = {s[k]:.4g} outside [{S_RANGE_UM[0]:g}, "
-                         f"{S_RANGE_UM[1]:g}] µm")
-    bad_r = ~((r >= 0) & (r < 1))
-    if bad_r.any():
-        k = int(np.argmax(bad_r))
-        raise InputError(f"{where}: particle {k + 1}: r = {r[k]:.4g} outside [0, 1)")
+    check_particles(s, r, where)
     if smp.temperature_c is not None and not math.isfinite(smp.temperature_c):
         raise InputError(f"{where}: temperature reading must be finite")
     return smp

@@ -55,7 +55,8 @@ from pydantic import Field, model_validator
 from typing import Annotated
 
 from ..config import NonNeg, Pos, Strict
-from .filter import N_MOMENTS, Estimate, ParticleFilter, check_predict, learning_rates
+from .filter import (N_MOMENTS, Estimate, ParticleFilter, check_predict, check_update, learning_rates,
+                     model_step)
 from .likelihood import LawSettings, Raster, fit_sample
 
 Z90 = 1.6448536269514722  # standard-normal 95 % quantile: the 90 % interval is m -+ Z90 sd
@@ -269,7 +270,7 @@ class UKFEstimator:
     def _fx(self, Z: np.ndarray, dt: float, u=None) -> np.ndarray:
         """All sigma points through the moment model over ``dt`` hours."""
         V = self._to_v(np.atleast_2d(Z))
-        X = np.asarray(self.model.step(V[:, :6], np.asarray(u, dtype=float), dt, V[:, 6:8]), dtype=float)
+        X = np.asarray(model_step(self.model, V[:, :6], np.asarray(u, dtype=float), dt, V[:, 6:8]), dtype=float)
         bad = ~np.all(np.isfinite(X), axis=1)
         if np.any(bad):
             X[bad] = V[bad, :6]
@@ -354,7 +355,15 @@ class UKFEstimator:
         -------
         Estimate
             ``ess`` is NaN (no particles); ``eta`` and ``n_measured`` as the particle filter's.
+
+        Raises
+        ------
+        bmctl.errors.InputError
+            What ``run_filter`` refuses (:func:`bmctl.estimate.filter.check_update`): no particles,
+            unequal numbers of s and r, a size outside 1e-3 .. 1e4 um, r outside [0, 1), a reading
+            outside [-50 degC, the card's melting limit]; nothing is changed then.
         """
+        reading = check_update(self.model, s_um, r, temperature_c)
         st = self.settings
         ukf = self._ukf
         tau = self.pending_h
@@ -364,8 +373,6 @@ class UKFEstimator:
         y: list[float] = []
         R_blocks: list[np.ndarray] = []
         fit = None
-        if temperature_c is not None and not math.isfinite(temperature_c):
-            raise ValueError("temperature_c must be finite")
         if s_um is not None:
             raster = Raster.from_particles(s_um, r, st.law)
             n_meas = raster.n
@@ -389,9 +396,9 @@ class UKFEstimator:
         for blk in R_blocks:
             R[k:k + 2, k:k + 2] = blk
             k += 2
-        if temperature_c is not None:
+        if reading is not None:
             rows.append(4)
-            y.append(float(temperature_c))
+            y.append(reading)
             R[k, k] = st.sigma_temperature_c**2
             k += 1
         R = R[:k, :k]

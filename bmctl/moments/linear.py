@@ -15,17 +15,22 @@ OUTPUT_NAMES = ("s_mean_um", "s_std_um", "r_mean", "r_std")
 
 
 def jacobians(model, x, u, p=None, dt_h: float | None = None):
-    """(A, B) of the continuous field (dt_h None, per hour) or of the step map over ``dt_h``."""
+    """(A, B) of the continuous field (dt_h None, per hour) or of the step map over ``dt_h``.
+
+    The point is checked as :meth:`MomentModel.step` checks it: one finite state (hardening in
+    [0, 1], temperature above absolute zero), one (rpm, milling) within the card's range and one
+    finite (gamma_mult, delta_mult) >= 0, else :class:`bmctl.errors.InputError`.
+    """
     import casadi as ca
 
+    x, u, pp = model._check_point(x, u, p)
     xs, us, ps = ca.SX.sym("x", 6), ca.SX.sym("u", 2), ca.SX.sym("p", 2)
     if dt_h is None:
         f = model.rhs(xs, us, ps, xp=ca)
     else:
         f = model.casadi_step(dt_h)(xs, us, ps)
     J = ca.Function("J", [xs, us, ps], [ca.jacobian(f, xs), ca.jacobian(f, us)])
-    pp = model.p0() if p is None else np.asarray(p, dtype=float)
-    A, Bm = J(np.asarray(x, dtype=float), np.asarray(u, dtype=float), pp)
+    A, Bm = J(x, u, pp)
     return np.array(A), np.array(Bm)
 
 
@@ -33,7 +38,8 @@ def linearize(model, x, u, p=None, dt_h: float | None = None):
     """python-control ``StateSpace`` of the moment model at (x, u, p).
 
     Continuous (time in hours) when ``dt_h`` is None, else discrete with period ``dt_h``.
-    Outputs are the four micrograph moments; inputs (rpm, milling).
+    Outputs are the four micrograph moments; inputs (rpm, milling). A point :func:`jacobians`
+    refuses (wrong shape, not finite, out of range) raises :class:`bmctl.errors.InputError`.
     """
     import control
 

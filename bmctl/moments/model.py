@@ -29,6 +29,8 @@ INPUT_NAMES = ("rpm", "milling")
 PARAM_NAMES = ("gamma_mult", "delta_mult")
 #: the optional third multiplier: the mill's impact energy per particle against the card's (e_max)
 ENERGY_NAME = "energy_mult"
+#: absolute zero (degC): no state's temperature lies below it
+ABSOLUTE_ZERO_C = -273.15
 MAX_SUBSTEP_H = 0.0625  # RKC substep of the milling phase (accuracy of the fast modes at top speed)
 STIFFNESS_PER_IMPACT = 2.0  # bound on |eigenvalue| of the z field per impact (measured ~1.4)
 
@@ -120,15 +122,24 @@ class MomentModel:
             :data:`bmctl.limits.INPUT_ROUNDING`; farther out, or another shape, is refused).
         dt_h : float
             Interval length (h), > 0.
-        p : array_like, (..., 2), optional
-            (gamma_mult, delta_mult); default (1, 1).
+        p : array_like, (..., 2) or (..., 3), optional
+            (gamma_mult, delta_mult[, energy_mult]), finite and >= 0; default (1, 1).
         substeps : int, optional
             RKC substeps of the milling phase (default: substeps of <= 1/16 h over ``dt_h``); the
             stages follow from the stiffness.
+
+        Raises
+        ------
+        bmctl.errors.InputError
+            ``x`` not finite, with hardening outside [0, 1] or a temperature below absolute zero;
+            ``u`` out of range; ``p`` not finite, negative or of another shape; ``dt_h`` not > 0.
         """
         x, u = _arr(x), _arr(u)
         self._check_state(x, "x")
+        self._check_values(x, "x")
         self._check_inputs(u, "u")
+        if p is not None:
+            self._check_params(p, "p")
         return self._step(x, u, dt_h, p, substeps)
 
     def _step(self, x: np.ndarray, u: np.ndarray, dt_h: float, p=None, substeps: int | None = None) -> np.ndarray:
@@ -156,16 +167,25 @@ class MomentModel:
             is refused).
         dt_h : float
             Interval length (h).
-        p : array_like, (2,), optional
+        p : array_like, (2,) or (3,), optional
+            (gamma_mult, delta_mult[, energy_mult]), finite and >= 0; default (1, 1).
 
         Returns
         -------
         ndarray, (K + 1, 6)
             x0 first. Single trajectories use the compiled casadi step (same math, faster).
+
+        Raises
+        ------
+        bmctl.errors.InputError
+            As :meth:`step` (``x0`` for ``x``, ``U`` for ``u``).
         """
         U = np.atleast_2d(np.asarray(U, dtype=float))
         x0 = np.asarray(x0, dtype=float)
         self._check_state(x0, "x0")
+        self._check_values(x0, "x0")
+        if p is not None:
+            self._check_params(p, "p")
         if U.ndim != 2 or U.shape[1] != 2:
             raise InputError(f"U: must be (rpm, milling) per interval, shape (K, 2) (got shape {U.shape})")
         self._check_inputs(U, "U")
@@ -185,6 +205,72 @@ class MomentModel:
         """Refuse a state array that is not ``(..., 6)``, naming it."""
         if x.ndim == 0 or x.shape[-1] != self.nx:
             raise InputError(f"{name}: must be a state {STATE_NAMES} of shape (..., {self.nx}) (got shape {x.shape})")
+
+    def _check_values(self, x: np.ndarray, name: str) -> None:
+        """Refuse a state array of shape ``(..., 6)`` that is not finite, has hardening outside [0, 1]
+        or a temperature below absolute zero, naming it (plain float comparisons for one state)."""
+        if x.size == 0:
+            return
+        if x.ndim == 1:
+            v = x.tolist()
+            if all(map(math.isfinite, v)) and 0.0 <= v[5] <= 1.0 and v[4] >= ABSOLUTE_ZERO_C:
+                return
+        else:  # whole-array and column reductions (a reduction along the batch axis is ~10x slower)
+            h = x[..., 5]
+            if (-math.inf < float(x.min()) and float(x.max()) < math.inf and float(h.min()) >= 0.0
+                    and float(h.max()) <= 1.0 and float(x[..., 4].min()) >= ABSOLUTE_ZERO_C):  # NaN fails too
+                return
+
+        def where(idx) -> str:
+            return f"{name}[{', '.join(str(int(i)) for i in idx)}]" if idx else name
+
+        bad = ~np.isfinite(x)
+        if np.any(bad):
+            idx = np.unravel_index(int(np.argmax(bad)), bad.shape)
+            raise InputError(f"{where(idx[:-1])}: {STATE_NAMES[idx[-1]]} must be finite (got {float(x[idx]):g})")
+        h, T = x[..., 5], x[..., 4]
+        for bad, col, what in ((~((h >= 0.0) & (h <= 1.0)), 5, "must be in [0, 1]"),
+                               (T < ABSOLUTE_ZERO_C, 4, f"must be >= {ABSOLUTE_ZERO_C:g} °C (absolute zero)")):
+            if np.any(bad):
+                idx = np.unravel_index(int(np.argmax(bad)), bad.shape) if bad.ndim else ()
+                raise InputError(f"{where(idx)}: {STATE_NAMES[col]} {what} (got {float(x[idx + (col,)]):g})")
+
+    def _check_params(self, p, name: str) -> np.ndarray:
+        """Refuse multipliers that are not ``(..., 2)`` or ``(..., 3)`` (gamma_mult, delta_mult[, energy_mult])
+        or not finite and >= 0, naming them; returns them as an array."""
+        p = _arr(p)
+        if p.ndim == 0 or p.shape[-1] not in (2, 3):
+            raise InputError(f"{name}: must be (gamma_mult, delta_mult[, energy_mult]) of shape (..., 2) or (..., 3) "
+                             f"(got shape {p.shape})")
+        if p.size == 0:
+            return p
+        if p.ndim == 1:
+            if all(0.0 <= v < math.inf for v in p.tolist()):  # NaN fails too
+                return p
+        elif 0.0 <= float(p.min()) and float(p.max()) < math.inf:
+            return p
+        bad = ~((p >= 0.0) & (p < math.inf))
+        idx = np.unravel_index(int(np.argmax(bad)), bad.shape)
+        where = f"{name}[{', '.join(str(int(i)) for i in idx[:-1])}]" if p.ndim > 1 else name
+        what = (PARAM_NAMES + (ENERGY_NAME,))[int(idx[-1])]
+        raise InputError(f"{where}: {what} must be a finite number >= 0 (got {float(p[idx]):g})")
+
+    def _check_point(self, x, u, p=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One state, one input and one (gamma_mult, delta_mult) checked as :meth:`step` checks them
+        (a linearisation point); returns them as arrays (``p`` None: :meth:`p0`)."""
+        x, u = _arr(x), _arr(u)
+        if x.shape != (self.nx,):
+            raise InputError(f"x: must be one state {STATE_NAMES} of shape ({self.nx},) (got shape {x.shape})")
+        self._check_values(x, "x")
+        if u.shape != (self.nu,):
+            raise InputError(f"u: must be one (rpm, milling) of shape ({self.nu},) (got shape {u.shape})")
+        self._check_inputs(u, "u")
+        if p is None:
+            return x, u, self.p0()
+        p = self._check_params(p, "p")
+        if p.shape != (2,):
+            raise InputError(f"p: must be (gamma_mult, delta_mult) of shape (2,) (got shape {p.shape})")
+        return x, u, p
 
     def _check_inputs(self, u: np.ndarray, name: str) -> None:
         """Refuse inputs that are not ``(..., 2)`` or have rpm outside [0, rpm_max] or milling
@@ -353,6 +439,11 @@ class MomentModel:
         many exact zeros) count as censored: log P(r < r_floor). Sizes below ``s_floor_um``
         likewise. Returns the sum over particles (``sum_over``) for each state in a batch,
         else the per-particle values ``(..., n)``.
+
+        Raises
+        ------
+        bmctl.errors.InputError
+            No measured particles, s_um and r of other shapes, not finite, s_um <= 0 or r outside [0, 1).
         """
         s_um = np.asarray(s_um, dtype=float)
         r = np.asarray(r, dtype=float)
@@ -360,6 +451,13 @@ class MomentModel:
             raise InputError(f"loglik: s_um and r must have the same shape (got {s_um.shape} and {r.shape})")
         if not (np.all(np.isfinite(s_um)) and np.all(np.isfinite(r))):
             raise InputError("loglik: measured s_um and r must be finite")
+        if s_um.size == 0:
+            raise InputError("loglik: s_um, r: a sample needs one or more measured particles (got none)")
+        for bad, what, v in ((~(s_um > 0), "s_um must be > 0", s_um),
+                             (~((r >= 0) & (r < 1)), "r must be in [0, 1)", r)):
+            if np.any(bad):
+                k = int(np.argmax(bad))
+                raise InputError(f"loglik: particle {k + 1}: {what} (got {float(v.flat[k]):g})")
         from scipy import special
 
         sig, mu, a, b = (v[..., None] for v in self.distribution_params(x))
