@@ -419,12 +419,12 @@ def check_rpm_range(cfg, rpm_max_card: float) -> None:
     hi_field = "the card's mill.rpm_max" if card <= b.rpm_max else "bounds.rpm_max"
     hi = min(float(b.rpm_max), card)
     lo_d, hi_d = (math.ceil(lo / st - 1e-9) * st, math.floor(hi / st + 1e-9) * st) if st > 0 else (lo, hi)
-    if lo_d <= hi_d + 1e-9:
-        return
-    if st > 0 and hi_d <= 0:  # the dial's first speed above 0 is already past the top: no bound can fix that
+    if st > 0 and hi_d <= 1e-9:  # the dial's first speed above 0 is already past the top: no bound can fix that
         raise InputError(f"controller {cfg.name}: mill.rpm_step: the {st:g} rpm dial is too coarse for this mill: "
                          f"its first speed, {st:g} rpm, is above {hi_field} ({hi:g} rpm), so no speed is left to "
                          f"mill at; set mill.rpm_step to at most {hi:g} rpm")
+    if lo_d <= hi_d + 1e-9:
+        return
     dial = f" on its {st:g} rpm dial (mill.rpm_step)" if st > 0 and (lo_d != lo or hi_d != hi) else ""
     raise InputError(f"controller {cfg.name}: {lo_field}: the lowest milling speed, {lo_d:g} rpm, is above "
                      f"{hi_field} ({hi_d:g} rpm){dial}: no speed is left to mill at on this mill; set "

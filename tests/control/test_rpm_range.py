@@ -117,3 +117,14 @@ def test_a_dial_step_above_the_cards_top_speed_is_not_told_to_lower_the_bounds_t
     assert msg.startswith("controller mpc-fast: mill.rpm_step: the 400 rpm dial is too coarse for this mill"), msg
     assert "the card's mill.rpm_max (350 rpm)" in msg and msg.endswith("set mill.rpm_step to at most 350 rpm")
     assert "at most 0 rpm" not in msg
+
+
+def test_a_dial_that_leaves_only_rests_is_refused_even_with_zero_lower_bounds():
+    """bounds.rpm_min = 0 and mill.rpm_min_milling = 0 with a 400 rpm dial on a 350 rpm mill: both
+    ends round to 0 rpm, which passed as a range although no milling speed is left."""
+    cfg = load_controller(ROOT / "controllers" / "mpc-fast.toml")
+    cfg = cfg.model_copy(update={"mill": cfg.mill.model_copy(update={"rpm_step": 400.0, "rpm_min_milling": 0.0}),
+                                 "bounds": cfg.bounds.model_copy(update={"rpm_min": 0.0})})
+    with pytest.raises(InputError) as exc:
+        check_rpm_range(cfg, 350.0)
+    assert "mill.rpm_step: the 400 rpm dial is too coarse" in str(exc.value)
