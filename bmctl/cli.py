@@ -123,8 +123,28 @@ def _chosen(argv: list[str]) -> list[str]:
     return []
 
 
+def _safe_streams() -> None:
+    """Make stdout/stderr whose encoding lacks characters bmctl prints (µ, °, ≤: an ASCII or Latin-1
+    locale such as ``LC_ALL=C``) write them as ``\\xb5``-style escapes instead of failing with
+    UnicodeEncodeError. The encoding itself stays; a UTF-8 (any UTF) stream is left as it is."""
+    import codecs
+
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            if codecs.lookup(stream.encoding or "ascii").name.startswith("utf"):
+                continue
+        except (AttributeError, TypeError, LookupError):  # a replacement stream without a usable encoding
+            pass
+        if callable(getattr(stream, "reconfigure", None)):
+            try:
+                stream.reconfigure(errors="backslashreplace")
+            except (ValueError, OSError, AttributeError):  # closed or detached: nothing to protect
+                pass
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status (0 ok, 2 bad input, 130 interrupted, 141 output pipe closed)."""
+    _safe_streams()
     try:
         own_process = argv is None
         if argv is None:  # the bmctl command's own process: the numpy field's heap setting

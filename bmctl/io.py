@@ -411,7 +411,7 @@ def output_set():
     ...     write_text(d / "a.txt", "a")
     ...     (d / "a.txt").exists()
     False
-    >>> (d / "a.txt").read_text()
+    >>> (d / "a.txt").read_text(encoding="utf-8")
     'a'
     """
     _pending.append([])
@@ -439,7 +439,7 @@ def output_set():
 def write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text`` to ``path`` atomically."""
     with atomic_path(path) as tmp:
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
 
 
 def csv_text(header: Sequence[str], rows: Iterable[Sequence], fmt: str = "{:.6g}") -> str:

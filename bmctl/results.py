@@ -138,7 +138,7 @@ def load_results(name: str) -> dict:
     dict
         The whole record: values plus ``bmctl_version``, ``command``, ``settings``, ``created_utc``.
     """
-    return json.loads(results_path(name).read_text())
+    return json.loads(results_path(name).read_text(encoding="utf-8"))
 
 
 def lookup(record: Any, key: str) -> Any:

@@ -142,7 +142,7 @@ def trajectory_row(rec: StepRecord) -> list:
 
 def _append_row(path: Path, row: list) -> None:
     line = io.csv_text([], [row]).splitlines()[-1] + "\n"
-    with open(path, "a") as fh:
+    with open(path, "a", encoding="utf-8") as fh:
         fh.write(line)
         fh.flush()
         os.fsync(fh.fileno())

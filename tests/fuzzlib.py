@@ -363,7 +363,7 @@ def make_case(kind: str, seed: int) -> Case:
     out = "@out"
     if kind == "card":
         src = _card(rng)
-        data, names, label = mutate_toml(rng, src.read_text())
+        data, names, label = mutate_toml(rng, src.read_text(encoding="utf-8"))
         cmd = rng.choice(["simulate", "simulate", "card", "whatif", "estimate"])
         files = {"card.toml": data}
         if cmd == "simulate":
@@ -397,7 +397,7 @@ def make_case(kind: str, seed: int) -> Case:
                     {"sc.toml": data}, names + ["sc.toml"], env={"BMCTL_BUDGET_CPU_H": "1e-3"})
     if kind == "controller":
         src = rng.choice(CONTROLLERS)
-        data, names, label = mutate_toml(rng, src.read_text())
+        data, names, label = mutate_toml(rng, src.read_text(encoding="utf-8"))
         # the solver-backed commands are refused by a tiny work budget unless the input is bad first
         argv = ["design", str(_card(rng)), "--target", "s_mean_um=30", "--hours", "1", "--controller", "@c.toml",
                 "--out", out]
@@ -565,7 +565,7 @@ def fixtures() -> Path:
         cp.sample(logged, 0.5, [str(root / "t.csv")])
         cp.advise(logged)
     sc = root / "resume.toml"
-    sc.write_text(RESUME_SCENARIO)
+    sc.write_text(RESUME_SCENARIO, encoding="utf-8")
     run_trial(sc, root / "trial-0", max_steps=0)
     shutil.copytree(root / "trial-0", root / "trial-1")
     run_trial(sc, root / "trial-1", resume=True, max_steps=1)
@@ -710,7 +710,7 @@ def _damage_db(rng: random.Random) -> tuple[Callable[[Path], None], str, list[st
     if op == "input-changed":
         def step(f):
             p = next((f / "out" / "inputs").glob("controller-*.toml"))
-            p.write_text(p.read_text() + "\n# edited\n")
+            p.write_text(p.read_text(encoding="utf-8") + "\n# edited\n", encoding="utf-8")
         return step, "inputs/controller changed", ["inputs", "changed"]
     if op == "input-missing":
         return (lambda f: shutil.rmtree(f / "out" / "inputs")), "inputs/ removed", ["inputs", "changed or missing"]
@@ -809,7 +809,7 @@ def _campaign_case(rng: random.Random) -> Case:
         else:
             which = rng.choice(["card", "controller"])
             src = CAMPAIGN_CARD if which == "card" else CAMPAIGN_CTRL[ctrl]
-            data, names, label = mutate_toml(rng, src.read_text())
+            data, names, label = mutate_toml(rng, src.read_text(encoding="utf-8"))
             files["x.toml"] = data
             init["--model" if which == "card" else "--controller"] = "@x.toml"
             names = names + ["x.toml"]
@@ -895,7 +895,7 @@ def _campaign_case(rng: random.Random) -> Case:
 
 def reference_rows() -> list[list[str]]:
     """The finished trial's ``trajectory.csv`` rows (header first)."""
-    with open(fixtures() / "trial-3" / "trajectory.csv", newline="") as fh:
+    with open(fixtures() / "trial-3" / "trajectory.csv", newline="", encoding="utf-8") as fh:
         return list(csv.reader(fh))
 
 
@@ -908,10 +908,10 @@ def check_resumed(exact: bool) -> Callable[[Path], list[str]]:
         if not summ.is_file():
             return bad + ["summary.json missing after exit 0"]
         try:
-            steps = json.loads(summ.read_text())["steps"]
+            steps = json.loads(summ.read_text(encoding="utf-8"))["steps"]
         except (ValueError, KeyError, TypeError):
             return bad + ["summary.json unreadable after exit 0"]
-        with open(traj, newline="") as fh:
+        with open(traj, newline="", encoding="utf-8") as fh:
             rows = list(csv.reader(fh))
         ref = reference_rows()
         if steps != 3 or len(rows) != len(ref):
@@ -950,10 +950,10 @@ def _resume_case(rng: random.Random) -> Case:
         label = f"trajectory.csv {op}"
         if op == "torn" and k < 3:
             cut = rng.randrange(1, len(line(ref[k + 1])) - 1)
-            step = lambda f: out(f, "trajectory.csv").open("a").write(line(ref[k + 1])[:cut])  # noqa: E731
+            step = lambda f: out(f, "trajectory.csv").open("a", encoding="utf-8").write(line(ref[k + 1])[:cut])  # noqa: E731
             label += f"@{cut}"
         elif op == "extra-row" and k < 3:
-            step = lambda f: out(f, "trajectory.csv").open("a").write(line(ref[k + 1]))  # noqa: E731
+            step = lambda f: out(f, "trajectory.csv").open("a", encoding="utf-8").write(line(ref[k + 1]))  # noqa: E731
         elif op == "empty":
             step = write("trajectory.csv", b"")
         elif op == "missing":
@@ -1056,7 +1056,7 @@ def _resume_case(rng: random.Random) -> Case:
         names = ["trial.json", "--resume"]
         op = rng.choice(["garbage", "empty", "missing", "list", "types", "seed", "scenario", "null", "extra"])
         label = f"trial.json {op}"
-        meta = json.loads((fixtures() / base / "trial.json").read_text())
+        meta = json.loads((fixtures() / base / "trial.json").read_text(encoding="utf-8"))
         data = {"garbage": b"\xff\xfe{{", "empty": b"", "list": b"[1, 2]", "null": b"null",
                 "types": json.dumps({"scenario": 5, "seed": "0"}).encode(),
                 "seed": json.dumps({**meta, "seed": 1}).encode(),
@@ -1173,7 +1173,7 @@ def _nesting_case(rng: random.Random) -> Case:
     files: dict[str, bytes] = {}
     env = {"BMCTL_BUDGET_CPU_H": "0.01"}
     if target == "card":
-        files["card.toml"] = (f"zz = {deep_t}\n" + LAB_CARD.read_text()).encode()
+        files["card.toml"] = (f"zz = {deep_t}\n" + LAB_CARD.read_text(encoding="utf-8")).encode()
         argv = rng.choice([["card", "show", "@card.toml"], ["simulate", "@card.toml", "--hours", "0.1", "--out", "@out"],
                            ["linearize", "@card.toml", "--out", "@out"]])
         return Case("nesting", label, argv, files, names + ["card.toml"], env)
@@ -1187,7 +1187,7 @@ def _nesting_case(rng: random.Random) -> Case:
         return Case("nesting", label, ["trial", "@sc.toml", "--out", "@out", "--no-progress"], files,
                     names + ["sc.toml"], env)
     if target == "controller":
-        files["c.toml"] = (f"zz = {deep_t}\n" + RECIPE_CTRL.read_text()).encode()
+        files["c.toml"] = (f"zz = {deep_t}\n" + RECIPE_CTRL.read_text(encoding="utf-8")).encode()
         return Case("nesting", label, ["design", str(LAB_CARD), "--target", "s_mean_um=30", "--hours", "1",
                                        "--controller", "@c.toml", "--out", "@out"], files, names + ["c.toml"],
                     {"BMCTL_BUDGET_CPU_H": "1e-9"})
@@ -1197,7 +1197,7 @@ def _nesting_case(rng: random.Random) -> Case:
     if target in ("trial.json", "checkpoint"):
         base = rng.choice(["trial-1", "trial-3"])
         if target == "trial.json":
-            step = lambda f: (f / "out" / "trial.json").write_text(deep_j)  # noqa: E731
+            step = lambda f: (f / "out" / "trial.json").write_text(deep_j, encoding="utf-8")  # noqa: E731
         else:
             def step(f):
                 from bmctl.checkpoint import JSON_KEY
@@ -1325,9 +1325,9 @@ def _history_case(rng: random.Random) -> Case:
         label = f"table = {ref!r}"
 
         def setup(f, ref=ref):
-            (f / "secret.csv").write_text(f"{SECRET},r\n40,0.05\n" * 20)
+            (f / "secret.csv").write_text(f"{SECRET},r\n40,0.05\n" * 20, encoding="utf-8")
             r = str(f / "secret.csv") if ref == "@abs" else ref
-            (f / "h" / "h.toml").write_text((f / "h" / "h.toml").read_text().replace('"t0.csv"', json.dumps(r), 1))
+            (f / "h" / "h.toml").write_text((f / "h" / "h.toml").read_text(encoding="utf-8").replace('"t0.csv"', json.dumps(r), 1), encoding="utf-8")
         names += ["sample[0].table", "sample[0]"]
     elif op == "schedule":
         ref = rng.choice(["/etc/passwd", "../s.toml", "@abs"])
@@ -1335,15 +1335,15 @@ def _history_case(rng: random.Random) -> Case:
         label = f"schedule = {ref!r}"
 
         def setup(f, ref=ref):
-            (f / "s.toml").write_text(f"name = \"{SECRET}\"\n[[segment]]\nhours = 1.0\nrpm = 300\n")
+            (f / "s.toml").write_text(f"name = \"{SECRET}\"\n[[segment]]\nhours = 1.0\nrpm = 300\n", encoding="utf-8")
             r = str(f / "s.toml") if ref == "@abs" else ref
-            (f / "h" / "h.toml").write_text((f / "h" / "h.toml").read_text().replace('"PLACEHOLDER"', json.dumps(r)))
+            (f / "h" / "h.toml").write_text((f / "h" / "h.toml").read_text(encoding="utf-8").replace('"PLACEHOLDER"', json.dumps(r)), encoding="utf-8")
         names += ["schedule"]
     else:  # a table that is a link leading out of the history's folder
         label = "t0.csv links outside"
 
         def setup(f):
-            (f / "secret.csv").write_text(f"{SECRET},r\n40,0.05\n" * 20)
+            (f / "secret.csv").write_text(f"{SECRET},r\n40,0.05\n" * 20, encoding="utf-8")
             (f / "h" / "t0.csv").unlink()
             (f / "h" / "t0.csv").symlink_to(f / "secret.csv")
         names += ["sample[0].table", "leads outside"]
@@ -1515,7 +1515,7 @@ def _database_case(rng: random.Random) -> Case:
             import hashlib
 
             other = f / "elsewhere.toml"
-            other.write_text(LAB_CARD.read_text() if how != "other-key" else RECIPE_CTRL.read_text())
+            other.write_text(LAB_CARD.read_text(encoding="utf-8") if how != "other-key" else RECIPE_CTRL.read_text(encoding="utf-8"), encoding="utf-8")
             con = sqlite3.connect(f / "out" / "campaign.sqlite")
             inp = json.loads(con.execute("SELECT value FROM meta WHERE key = 'inputs'").fetchone()[0])
             path = {"absolute": str(other), "dotdot": f"inputs/../../{other.name}", "other-key": f"../{other.name}",
@@ -1550,7 +1550,7 @@ KINDS = ("card", "schedule", "scenario", "controller", "table", "image", "flags"
 # --- the checker --------------------------------------------------------------------------------
 
 def _rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
-    with open(path, newline="") as fh:
+    with open(path, newline="", encoding="utf-8") as fh:
         rd = csv.DictReader(fh)
         return list(rd.fieldnames or []), list(rd)
 
@@ -1656,7 +1656,7 @@ def html_problems(folder: Path) -> list[str]:
     bad = []
     for path in sorted(folder.rglob("*.html")):
         t = Tags()
-        t.feed(path.read_text(errors="replace"))
+        t.feed(path.read_text(errors="replace", encoding="utf-8"))
         bad += [f"{path.name}: {b}" for b in t.bad[:3]]
     return bad
 

@@ -65,10 +65,10 @@ def test_run_schedule_refuses_what_run_open_loop_refuses(segments, every, needle
 # --- make_moment_model -------------------------------------------------------------------------
 def _foreign_card(tmp_path):
     """A copy of the lab card with gamma changed, beside a copy of the lab card's coefficients."""
-    text = LAB.read_text()
+    text = LAB.read_text(encoding="utf-8")
     assert "gamma_per_um2 = 1.82e-4" in text
     card = tmp_path / "mine.toml"
-    card.write_text(text.replace("gamma_per_um2 = 1.82e-4", "gamma_per_um2 = 3.0e-4"))
+    card.write_text(text.replace("gamma_per_um2 = 1.82e-4", "gamma_per_um2 = 3.0e-4"), encoding="utf-8")
     shutil.copy(LAB.with_name(LAB.stem + ".moments.toml"), tmp_path / "mine.moments.toml")
     return card
 

@@ -18,7 +18,7 @@ from .conftest import ROOT
 def _has_examples(info) -> bool:
     spec = importlib.util.find_spec(info.name)
     origin = Path(spec.origin) if spec and spec.origin else None
-    return origin is not None and origin.suffix == ".py" and ">>> " in origin.read_text()
+    return origin is not None and origin.suffix == ".py" and ">>> " in origin.read_text(encoding="utf-8")
 
 
 MODULES = sorted(m.name for m in pkgutil.walk_packages(bmctl.__path__, "bmctl.")

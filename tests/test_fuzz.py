@@ -214,11 +214,11 @@ def test_fuzz_crafted_databases(seed, capsys, monkeypatch):
 # --- the checker itself must be able to fail ------------------------------------------------------
 
 def test_checker_flags_outputs_outside_physical_bounds(tmp_path):
-    (tmp_path / "moments.csv").write_text("t_h,s_mean_um,r_mean,temperature_c\n0,40,0.02,25\n1,0,1.0,2620\n")
+    (tmp_path / "moments.csv").write_text("t_h,s_mean_um,r_mean,temperature_c\n0,40,0.02,25\n1,0,1.0,2620\n", encoding="utf-8")
     bad = fuzzlib.check_outputs(tmp_path, fuzzlib.AL_MELTING_C)
     assert any("s_mean_um" in b for b in bad) and any("r_mean" in b for b in bad)
     assert any("temperature_c" in b for b in bad)
-    (tmp_path / "moments.csv").write_text("t_h,s_mean_um,r_mean,temperature_c\n0,40,0.02,25\n1,35,0.1,60\n")
+    (tmp_path / "moments.csv").write_text("t_h,s_mean_um,r_mean,temperature_c\n0,40,0.02,25\n1,35,0.1,60\n", encoding="utf-8")
     assert fuzzlib.check_outputs(tmp_path) == []
 
 
@@ -226,9 +226,9 @@ def test_checker_reads_designs_batch_end_row_as_no_action(tmp_path):
     """design's predicted.csv states no action over the batch end (empty cells on its last row); an empty
     action on any other row is nonsense (the checker called the stated one nonsense)."""
     head = "t_h,rpm,milling,t_peak_c,s_mean_um,s_std_um,r_mean,r_std,temperature_c,hardening,target_s_mean_um\n"
-    (tmp_path / "predicted.csv").write_text(head + "0,0,0,25,40,4,0.02,0.02,25,0,30\n1,,,,40,4,0.02,0.02,25,0,30\n")
+    (tmp_path / "predicted.csv").write_text(head + "0,0,0,25,40,4,0.02,0.02,25,0,30\n1,,,,40,4,0.02,0.02,25,0,30\n", encoding="utf-8")
     assert fuzzlib.check_outputs(tmp_path) == []
-    (tmp_path / "predicted.csv").write_text(head + "0,,0,25,40,4,0.02,0.02,25,0,30\n1,,,,40,4,0.02,0.02,25,0,30\n")
+    (tmp_path / "predicted.csv").write_text(head + "0,,0,25,40,4,0.02,0.02,25,0,30\n1,,,,40,4,0.02,0.02,25,0,30\n", encoding="utf-8")
     assert fuzzlib.check_outputs(tmp_path) == ["predicted.csv: row 2: rpm = "]
 
 
@@ -249,9 +249,9 @@ def test_classify_flags_writes_outside_out_leaks_and_markup(tmp_path):
     (tmp_path / "out").mkdir()
     assert fuzzlib.classify(case, 2, "", "bmctl: error: h.toml: bad\n", tmp_path / "out")[0] == "clean"
     assert fuzzlib.classify(case, 2, "", "bmctl: error: h.toml: SENTINEL\n", tmp_path / "out")[0] == "unsafe"
-    (tmp_path / "out" / "r.html").write_text('<p>ok</p><img src=x onerror="alert(1)">')
+    (tmp_path / "out" / "r.html").write_text('<p>ok</p><img src=x onerror="alert(1)">', encoding="utf-8")
     assert fuzzlib.classify(case, 0, "", "", tmp_path / "out")[0] == "unsafe"
-    (tmp_path / "out" / "r.html").write_text("<p>&lt;script&gt;</p>")
+    (tmp_path / "out" / "r.html").write_text("<p>&lt;script&gt;</p>", encoding="utf-8")
     assert fuzzlib.classify(case, 0, "", "", tmp_path / "out")[0] == "accepted-ok"
     (tmp_path / "X.png").write_bytes(b"")
     assert fuzzlib.classify(case, 0, "", "", tmp_path / "out")[0] == "unsafe"
@@ -277,13 +277,13 @@ def test_campaign_checker_flags_nonsense_in_the_database(tmp_path):
 
 def test_resume_checker_compares_with_the_uninterrupted_run(tmp_path):
     ref = fuzzlib.reference_rows()
-    (tmp_path / "summary.json").write_text('{"steps": 3}')
+    (tmp_path / "summary.json").write_text('{"steps": 3}', encoding="utf-8")
     rows = [list(r) for r in ref]
-    with open(tmp_path / "trajectory.csv", "w") as fh:
+    with open(tmp_path / "trajectory.csv", "w", encoding="utf-8") as fh:
         fh.write("".join(",".join(r) + "\n" for r in rows))
     assert fuzzlib.check_resumed(True)(tmp_path) == []
     rows[2][1] = "1.25"
-    with open(tmp_path / "trajectory.csv", "w") as fh:
+    with open(tmp_path / "trajectory.csv", "w", encoding="utf-8") as fh:
         fh.write("".join(",".join(r) + "\n" for r in rows))
     assert fuzzlib.check_resumed(True)(tmp_path) != []
     assert fuzzlib.check_resumed(False)(tmp_path) == []

@@ -99,8 +99,8 @@ def test_noise_off_the_default_must_name_its_results(tmp_path):
 def test_figure_of_a_missing_or_foreign_results_file_is_one_line(tmp_path):
     res = tmp_path / "results"
     res.mkdir()
-    (res / "other.json").write_text(json.dumps({"command": "x", "repeats": 3}))
-    (res / "broken.json").write_text("{")
+    (res / "other.json").write_text(json.dumps({"command": "x", "repeats": 3}), encoding="utf-8")
+    (res / "broken.json").write_text("{", encoding="utf-8")
     env = {**os.environ, "BMCTL_RESULTS_DIR": str(res)}
     png = tmp_path / "f.png"
     before = _tree(tmp_path)
@@ -118,7 +118,7 @@ def test_figure_of_a_results_file_with_step_logs_is_drawn(tmp_path):
     rec = {"command": "python benchmarks/hidden_mills.py --results-name mine",
            "cases": [{"case": "A", "steps": steps, "target_s_mean_um": 44.0, "final_s_mean_um": 45.0,
                       "error_pct": 2.27}]}
-    (tmp_path / "mine.json").write_text(json.dumps(rec))
+    (tmp_path / "mine.json").write_text(json.dumps(rec), encoding="utf-8")
     r = _run(["--figure", tmp_path / "f.png", "--results-name", "mine.json"],
              env={**os.environ, "BMCTL_RESULTS_DIR": str(tmp_path)})
     assert r.returncode == 0, r.stderr[-800:]
@@ -134,10 +134,10 @@ def test_the_shipped_results_files_pass_the_checks_of_figure_and_table():
 def test_a_non_empty_out_folder_the_script_did_not_write_is_never_deleted(tmp_path):
     """A folder holding a user's file: refused with one line naming --out; before, it was deleted."""
     mills = tmp_path / "mills.toml"
-    mills.write_text(HOT_MILL)
+    mills.write_text(HOT_MILL, encoding="utf-8")
     out = tmp_path / "mine"
     out.mkdir()
-    (out / "precious.txt").write_text("keep me")
+    (out / "precious.txt").write_text("keep me", encoding="utf-8")
     before = _tree(tmp_path)
     line = _one_line(_run(["--mills", mills, "--particles", 200, "--no-results", "--out", out]))
     assert line.startswith(f"hidden_mills.py: error: --out: {out.resolve()} ") and load_benchmark(
@@ -149,12 +149,12 @@ def test_a_relative_out_is_taken_from_the_current_folder(tmp_path):
     """Run from another folder: --out hmout is <that folder>/hmout (named so in the refusal), never the
     repository's; a run stopped before its campaigns creates no folder anywhere."""
     mills = tmp_path / "mills.toml"
-    mills.write_text(HOT_MILL)
+    mills.write_text(HOT_MILL, encoding="utf-8")
     (tmp_path / "hmout").mkdir()
-    (tmp_path / "hmout" / "precious.txt").write_text("keep me")
+    (tmp_path / "hmout" / "precious.txt").write_text("keep me", encoding="utf-8")
     line = _one_line(_run(["--mills", mills, "--particles", 200, "--no-results", "--out", "hmout"], cwd=tmp_path))
     assert f"--out: {(tmp_path / 'hmout').resolve()} holds files" in line
-    assert (tmp_path / "hmout" / "precious.txt").read_text() == "keep me"
+    assert (tmp_path / "hmout" / "precious.txt").read_text(encoding="utf-8") == "keep me"
     line = _one_line(_run(["--mills", mills, "--particles", 200, "--no-results", "--out", "new"], cwd=tmp_path))
     assert "no constant speed" in line  # past every check, stopped before any campaign
     assert not (tmp_path / "new").exists() and not (ROOT / "new").exists()
@@ -175,8 +175,8 @@ def test_out_is_created_emptied_only_when_marked_and_never_otherwise(tmp_path):
     hm.claim_out(new)
     assert [p.name for p in new.iterdir()] == [hm.OUT_MARKER]
     (new / "case-A").mkdir()
-    (new / "case-A" / "log.csv").write_text("x")
-    (new / "stale.csv").write_text("x")
+    (new / "case-A" / "log.csv").write_text("x", encoding="utf-8")
+    (new / "stale.csv").write_text("x", encoding="utf-8")
     hm.claim_out(new)  # an earlier run's folder: emptied, marked again
     assert [p.name for p in new.iterdir()] == [hm.OUT_MARKER]
 
@@ -187,14 +187,14 @@ def test_out_is_created_emptied_only_when_marked_and_never_otherwise(tmp_path):
 
     mine = tmp_path / "mine"
     mine.mkdir()
-    (mine / "precious.txt").write_text("keep me")
+    (mine / "precious.txt").write_text("keep me", encoding="utf-8")
     for fn in (hm.check_out, hm.claim_out):
         with pytest.raises(InputError, match=r"^--out: .*mine holds files this script did not write"):
             fn(mine)
     assert [p.name for p in mine.iterdir()] == ["precious.txt"]
 
     afile = tmp_path / "afile"
-    afile.write_text("x")
+    afile.write_text("x", encoding="utf-8")
     with pytest.raises(InputError, match="exists and is not a folder"):
         hm.check_out(afile)
 
@@ -236,7 +236,7 @@ def test_mills_side_by_side_give_the_results_of_one_at_a_time(tmp_path):
     """--workers 2 runs the two mills' campaigns at once; each is seeded by its name and has its own
     folder, so every decision, sample and error is the same as with --workers 1 (advice times aside)."""
     mills = tmp_path / "mills.toml"
-    mills.write_text(TINY_MILLS)
+    mills.write_text(TINY_MILLS, encoding="utf-8")
     env = {**os.environ, "BMCTL_RESULTS_DIR": str(tmp_path / "results")}
     recs = []
     for n in (1, 2):
@@ -244,7 +244,7 @@ def test_mills_side_by_side_give_the_results_of_one_at_a_time(tmp_path):
                             str(n), "--out", str(tmp_path / f"o{n}"), "--results-name", f"w{n}"], env=env,
                            capture_output=True, text=True, timeout=600)
         assert r.returncode == 0, r.stderr[-2000:]
-        recs.append(json.loads((tmp_path / "results" / f"w{n}.json").read_text()))
+        recs.append(json.loads((tmp_path / "results" / f"w{n}.json").read_text(encoding="utf-8")))
     import re
 
     timing = ("advise_", "load_", "wall_s")

@@ -19,7 +19,7 @@ ROW = ('name = "X"\ngamma_mult = 1.2\ndelta_mult = 0.8\nfield = "mill.ball_count
 
 def _file(tmp_path, text: str) -> Path:
     p = tmp_path / "mills.toml"
-    p.write_text(text)
+    p.write_text(text, encoding="utf-8")
     return p
 
 
@@ -99,8 +99,8 @@ def test_unknown_case_of_a_mills_file_is_refused(tmp_path):
 
 def test_a_bad_controller_file_is_refused_with_exit_2_and_one_line(tmp_path):
     bad = tmp_path / "ctrl.toml"
-    bad.write_text((ROOT / "benchmarks" / "mpc-narrow-pool.toml").read_text().replace("pool_band = 0.015",
-                                                                                       "pool_band = 3"))
+    bad.write_text((ROOT / "benchmarks" / "mpc-narrow-pool.toml").read_text(encoding="utf-8").replace("pool_band = 0.015",
+                                                                                       "pool_band = 3"), encoding="utf-8")
     out = tmp_path / "out"
     r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hidden_mills.py"), "--controller", str(bad),
                         "--cases", "A", "--no-results", "--out", str(out)], capture_output=True, text=True, timeout=120)
@@ -179,7 +179,7 @@ def test_a_sampling_interval_off_the_advice_grid_is_refused(tmp_path, every):
 
 def test_a_card_without_moment_coefficients_is_refused_with_exit_2_and_one_line(tmp_path):
     card = tmp_path / "mine.toml"  # a copy of a shipped card without its <card>.moments.toml beside it
-    card.write_text((ROOT / "models" / "alni-1to3-300rpm-hadjiafxenti.toml").read_text())
+    card.write_text((ROOT / "models" / "alni-1to3-300rpm-hadjiafxenti.toml").read_text(encoding="utf-8"), encoding="utf-8")
     out = tmp_path / "out"
     r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hidden_mills.py"), "--card", str(card),
                         "--no-results", "--out", str(out)], capture_output=True, text=True, timeout=120)
@@ -216,7 +216,7 @@ def test_a_mill_may_change_more_fields_and_its_hidden_card_changes_each():
     hm = load_benchmark("hidden_mills")
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "mills.toml"
-        p.write_text("[[mill]]\n" + ROW + ALSO)
+        p.write_text("[[mill]]\n" + ROW + ALSO, encoding="utf-8")
         (case,) = hm.load_mills(p)
     assert case.changes() == (("mill.ball_count", 9), ("thermal.ambient_C", 20.0), ("mill.ball_diameter_m", 0.012))
     card = hm.hidden_card(case)

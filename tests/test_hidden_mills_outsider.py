@@ -138,8 +138,8 @@ def test_a_card_slower_than_the_sweep_is_named_as_the_card(tmp_path):
     """A card whose mill tops out under the sweep's 500 rpm: the line names the card and its
     mill.rpm_max (not the mills file, nor 'give it on the card': it is on the card)."""
     card = tmp_path / "slow.toml"
-    card.write_text((ROOT / "models" / "alni-1to1-300rpm-lab.toml").read_text().replace("rpm_max = 600",
-                                                                                       "rpm_max = 450"))
+    card.write_text((ROOT / "models" / "alni-1to1-300rpm-lab.toml").read_text(encoding="utf-8").replace("rpm_max = 600",
+                                                                                       "rpm_max = 450"), encoding="utf-8")
     out = tmp_path / "out"
     r = subprocess.run([sys.executable, str(SCRIPT), "--card", str(card), "--no-results", "--out", str(out)],
                        capture_output=True, text=True, timeout=120)

@@ -82,7 +82,7 @@ def test_report_escapes_every_advice_field(logged_campaign, tmp_path, capsys):
     _sql(d, "UPDATE actions SET deviation = ?", INJECT)
     _sql(d, "UPDATE samples SET sources = ?", json.dumps([INJECT]))
     assert main(["campaign", "report", str(d), "--out", str(d / "r.html")]) == 0
-    page = (d / "r.html").read_text()
+    page = (d / "r.html").read_text(encoding="utf-8")
     p = _Tags()
     p.feed(page)
     assert "script" not in p.tags and "iframe" not in p.tags and not any(a.startswith("on") for a in p.attrs)
@@ -110,7 +110,7 @@ def test_report_never_writes_markup_from_a_crafted_advice(logged_campaign, tmp_p
         return
     assert rc == 0
     p = _Tags()
-    p.feed((d / "r.html").read_text())
+    p.feed((d / "r.html").read_text(encoding="utf-8"))
     assert "script" not in p.tags and not any(a.startswith("on") for a in p.attrs), (p.tags, p.attrs)
 
 
@@ -127,11 +127,11 @@ DEEP = fuzzlib.deep_toml_value(1000)
     (["trial", "@sc.toml", "--out", "@o"], "sc.toml"),
 ])
 def test_toml_nested_1000_deep_is_one_line(tmp_path, capsys, argv, name):
-    (tmp_path / "card.toml").write_text(LAB.read_text() + f"\nzz = {DEEP}\n")
-    (tmp_path / "s.toml").write_text(f"zz = {DEEP}\n[[segment]]\nhours = 0.1\nrpm = 300\n")
-    (tmp_path / "c.toml").write_text(RECIPE.read_text() + f"\nzz = {DEEP}\n")
+    (tmp_path / "card.toml").write_text(LAB.read_text(encoding="utf-8") + f"\nzz = {DEEP}\n", encoding="utf-8")
+    (tmp_path / "s.toml").write_text(f"zz = {DEEP}\n[[segment]]\nhours = 0.1\nrpm = 300\n", encoding="utf-8")
+    (tmp_path / "c.toml").write_text(RECIPE.read_text(encoding="utf-8") + f"\nzz = {DEEP}\n", encoding="utf-8")
     (tmp_path / "sc.toml").write_text(fuzzlib.SCENARIO_BASE.format(model=LAB, controller=RECIPE).replace(
-        'hours = 0.5', f'hours = 0.5\nzz = {DEEP}'))
+        'hours = 0.5', f'hours = 0.5\nzz = {DEEP}'), encoding="utf-8")
     argv = [a.replace("@", str(tmp_path) + "/") if a.startswith("@") else a for a in argv]
     assert main(argv) == 2
     line = _err(capsys)
@@ -153,7 +153,7 @@ def stopped_trial(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("trial")
     sc = root / "resume.toml"
-    sc.write_text(fuzzlib.RESUME_SCENARIO)
+    sc.write_text(fuzzlib.RESUME_SCENARIO, encoding="utf-8")
     run_trial(sc, root / "t", max_steps=1)
     return sc, root / "t"
 
@@ -183,7 +183,7 @@ def test_crafted_checkpoint_is_refused_before_allocation(stopped_trial, tmp_path
         if what == "json-deep":
             _rewrite_json(d, fuzzlib.deep_json())
         elif what == "meta-deep":
-            (d / "trial.json").write_text(fuzzlib.deep_json())
+            (d / "trial.json").write_text(fuzzlib.deep_json(), encoding="utf-8")
         else:
             shape = (10**12,) if what == "npy-huge" else (1000,)
             (d / "checkpoint.npz").write_bytes(fuzzlib.npz_with({"__json__.npy": fuzzlib.npy_bomb((), "<U10", b"x" * 40),
@@ -259,7 +259,7 @@ def test_crafted_database_is_refused_by_every_verb(logged_campaign, tmp_path, ca
         _sql(d, "UPDATE plans SET advice = ?", json.dumps(a))
     else:  # a crafted input path: a file elsewhere, with its own checksum
         other = tmp_path / "elsewhere.toml"
-        other.write_text(LAB.read_text())
+        other.write_text(LAB.read_text(encoding="utf-8"), encoding="utf-8")
         import hashlib
 
         con = sqlite3.connect(str(d / db.DB_NAME))
@@ -286,13 +286,13 @@ def _history(tmp_path: Path, name: str = "run", table: str = "t.csv") -> Path:
     (tmp_path / "h" / "t.csv").write_bytes(fuzzlib._table_csv(random.Random(0), 60))
     h = tmp_path / "h" / "run.toml"
     h.write_text(f'name = {json.dumps(name)}\n[[segment]]\nhours = 1.0\nrpm = 300\n'
-                 f'[[sample]]\nt_h = 1.0\ntable = {json.dumps(table)}\n')
+                 f'[[sample]]\nt_h = 1.0\ntable = {json.dumps(table)}\n', encoding="utf-8")
     return h
 
 
 @pytest.mark.parametrize("table", ["/etc/passwd", "../secret.csv", "../../../../../../etc/passwd"])
 def test_a_history_cannot_name_a_file_outside_its_folder(tmp_path, capsys, table):
-    (tmp_path / "secret.csv").write_text("TOPSECRET,line\n1,2\n")
+    (tmp_path / "secret.csv").write_text("TOPSECRET,line\n1,2\n", encoding="utf-8")
     h = _history(tmp_path, table=table)
     assert main(["calibrate", str(LAB), str(h), "--out", str(tmp_path / "o"), "--workers", "0"]) == 2
     line = _err(capsys)
@@ -333,17 +333,17 @@ def test_time_and_speed_flags_share_one_range(tmp_path, capsys, argv, needle):
 ])
 def test_controller_fields_share_the_card_ranges(tmp_path, capsys, edit, needle):
     ctrl = tmp_path / "c.toml"
-    text = (ROOT / "controllers" / "recipe-400rpm-30-10.toml").read_text()
-    ctrl.write_text(text.replace("rest_min = 10.0\n", edit) if "rest_min" in edit else text + "\n" + edit)
+    text = (ROOT / "controllers" / "recipe-400rpm-30-10.toml").read_text(encoding="utf-8")
+    ctrl.write_text(text.replace("rest_min = 10.0\n", edit) if "rest_min" in edit else text + "\n" + edit, encoding="utf-8")
     sc = tmp_path / "sc.toml"
-    sc.write_text(fuzzlib.SCENARIO_BASE.format(model=LAB, controller=ctrl))
+    sc.write_text(fuzzlib.SCENARIO_BASE.format(model=LAB, controller=ctrl), encoding="utf-8")
     assert main(["trial", str(sc), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
     assert needle in _err(capsys)
 
 
 def test_segment_hours_of_5e_324_is_refused(tmp_path, capsys):
     s = tmp_path / "s.toml"
-    s.write_text("[[segment]]\nhours = 5e-324\nrpm = 300\n")
+    s.write_text("[[segment]]\nhours = 5e-324\nrpm = 300\n", encoding="utf-8")
     assert main(["whatif", str(LAB), str(s), "--out", str(tmp_path / "o")]) == 2
     assert "s.toml: segment[0].hours" in _err(capsys)
 
@@ -397,7 +397,7 @@ def test_errors_are_one_short_line(tmp_path, capsys, case):
     name = {"name": "a\nb", "long-name": "x" * 200_000}.get(case, "fz")
     extra = '"bo\\ngus" = 1\n' if case == "key" else ""
     hours = '"0.1\\n2"' if case == "value" else "0.1"
-    s.write_text(f"name = {json.dumps(name)}\n{extra}[[segment]]\nhours = {hours}\nrpm = 300\n")
+    s.write_text(f"name = {json.dumps(name)}\n{extra}[[segment]]\nhours = {hours}\nrpm = 300\n", encoding="utf-8")
     argv = ["whatif", str(LAB), str(s), "--out", str(tmp_path / "o")]
     if case == "flag":
         argv += ["--see\nds", "3"]
@@ -429,6 +429,6 @@ def test_unclosed_quotes_and_escapes_are_scanned_once(tmp_path, capsys, text):
     from bmctl.io import nesting_depth
 
     assert nesting_depth(text, toml=True) <= 1 and nesting_depth(text) <= 1
-    (tmp_path / "card.toml").write_text(f"zz = {text}\n" + LAB.read_text())
+    (tmp_path / "card.toml").write_text(f"zz = {text}\n" + LAB.read_text(encoding="utf-8"), encoding="utf-8")
     assert main(["card", "show", str(tmp_path / "card.toml")]) == 2
     assert "card.toml" in _err(capsys)

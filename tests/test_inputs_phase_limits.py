@@ -46,10 +46,10 @@ def _history(folder: Path, milling: str) -> Path:
     for k in (1, 2):
         rng = np.random.default_rng(k)
         s, r = rng.lognormal(np.log(40.0), 0.3, 20), rng.uniform(0.0, 0.4, 20)
-        (folder / f"t{k}.csv").write_text("s_um,r\n" + "".join(f"{a:.4f},{b:.4f}\n" for a, b in zip(s, r)))
+        (folder / f"t{k}.csv").write_text("s_um,r\n" + "".join(f"{a:.4f},{b:.4f}\n" for a, b in zip(s, r)), encoding="utf-8")
     p = folder / "hist.toml"
     p.write_text(f"[[segment]]\nhours = 3\nrpm = 300\nmilling = {milling}\n"
-                 '[[sample]]\nt_h = 1.0\ntable = "t1.csv"\n[[sample]]\nt_h = 2.0\ntable = "t2.csv"\n')
+                 '[[sample]]\nt_h = 1.0\ntable = "t1.csv"\n[[sample]]\nt_h = 2.0\ntable = "t2.csv"\n', encoding="utf-8")
     return p
 
 
@@ -104,7 +104,7 @@ def test_campaign_log_takes_a_share_of_one_rounded_and_a_six_second_phase(tmp_pa
 
 def _long_schedule(tmp_path: Path) -> Path:
     p = tmp_path / "long.toml"
-    p.write_text("[[segment]]\nhours = 600\nrpm = 300\n[[segment]]\nhours = 600\nrpm = 0\n")
+    p.write_text("[[segment]]\nhours = 600\nrpm = 300\n[[segment]]\nhours = 600\nrpm = 0\n", encoding="utf-8")
     return p
 
 
@@ -127,5 +127,5 @@ def test_a_schedule_longer_than_the_longest_batch_is_refused(tmp_path, capsys, m
 
 def test_a_schedule_of_exactly_the_longest_batch_is_kept(tmp_path):
     p = tmp_path / "s.toml"
-    p.write_text("[[segment]]\nhours = 600\nrpm = 300\n[[segment]]\nhours = 400\nrpm = 0\n")
+    p.write_text("[[segment]]\nhours = 600\nrpm = 300\n[[segment]]\nhours = 400\nrpm = 0\n", encoding="utf-8")
     assert Schedule.load(p).hours == 1000.0

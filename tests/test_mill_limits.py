@@ -103,5 +103,5 @@ def test_min_time_says_when_the_schedule_is_done_within_the_shortest_batch(tmp_p
                  "--objective", "min_time", "--plant-seeds", "0", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     done = float(text.split("the schedule is done after ")[1].split(" h")[0])
-    segs = (out / "schedule.toml").read_text().count("[[segment]]")
+    segs = (out / "schedule.toml").read_text(encoding="utf-8").count("[[segment]]")
     assert 0 < done < 3.0 and segs >= 1 and "3 h is the shortest batch length the sweep tried" in text

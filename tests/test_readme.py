@@ -25,7 +25,7 @@ def _blocks(text: str, lang: str) -> list[str]:
 def readme_commands() -> list[list[str]]:
     """The ``bmctl ...`` lines of README's bash blocks as argument lists (comments dropped)."""
     out = []
-    for block in _blocks(README.read_text(), "bash"):
+    for block in _blocks(README.read_text(encoding="utf-8"), "bash"):
         for line in block.splitlines():
             if line.startswith("bmctl "):
                 out.append(shlex.split(line, comments=True)[1:])
@@ -91,7 +91,7 @@ def test_example_samples_match_the_readings_and_times_the_readme_gives():
     est = next(a for a in COMMANDS if a[0] == "estimate")
     times = [float(x) for x in est[est.index("--times") + 1].split(",")]
     temps = [float(x) for x in est[est.index("--temperatures") + 1].split(",")]
-    with open(ROOT / "examples" / "readings.csv") as fh:
+    with open(ROOT / "examples" / "readings.csv", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
     assert times == [float(r["t_h"]) for r in rows] and temps == [float(r["temperature_c"]) for r in rows]
     assert len(sorted((ROOT / "examples" / "samples").glob("*.csv"))) == len(times)
@@ -110,7 +110,7 @@ def test_readme_commands_and_python_api_run_on_the_shipped_files(tmp_path, monke
     out = capsys.readouterr().out
     assert (tmp_path / "run1" / "report.html").exists() and (tmp_path / "out" / "lab" / "moments.csv").exists()
     assert "rest 30 min" in out  # the README's rest logs as a rest
-    code = _blocks(README.read_text(), "python")[0]
+    code = _blocks(README.read_text(encoding="utf-8"), "python")[0]
     ns: dict = {}
     exec(compile(code, "README.md", "exec"), ns)  # noqa: S102  (the README's own example)
     assert np.isfinite(ns["X"]).all()

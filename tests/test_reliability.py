@@ -26,7 +26,7 @@ def _err(capsys) -> str:
 
 
 def _table(path: Path, rows: list[tuple[str, str]], header: str = "s_um,r") -> Path:
-    path.write_text(header + "\n" + "\n".join(f"{a},{b}" for a, b in rows) + "\n")
+    path.write_text(header + "\n" + "\n".join(f"{a},{b}" for a, b in rows) + "\n", encoding="utf-8")
     return path
 
 
@@ -36,10 +36,10 @@ def _sample(n: int = 59) -> list[tuple[str, str]]:
 
 
 def _card_with(tmp_path: Path, edit) -> Path:
-    data = tomllib.loads(FAN.read_text())
+    data = tomllib.loads(FAN.read_text(encoding="utf-8"))
     edit(data)
     p = tmp_path / "card.toml"
-    p.write_text(fuzzlib.toml_dumps(data))
+    p.write_text(fuzzlib.toml_dumps(data), encoding="utf-8")
     return p
 
 
@@ -208,7 +208,7 @@ def test_a_run_above_the_melting_point_stops(tmp_path, capsys, command):
         d["mill"]["rpm_max"] = 1500
     card = _card_with(tmp_path, fast)
     sched = tmp_path / "s.toml"
-    sched.write_text("[[segment]]\nhours = 12\nrpm = 1200\n")
+    sched.write_text("[[segment]]\nhours = 12\nrpm = 1200\n", encoding="utf-8")
     argv = (["simulate", str(card), "--rpm", "1200", "--hours", "12", "--particles", "200", "--out",
              str(tmp_path / "o")] if command == "simulate" else
             ["whatif", str(card), str(sched), "--seeds", "1", "--particles", "200", "--out", str(tmp_path / "o")])
@@ -225,7 +225,7 @@ def test_whatif_warns_outside_the_validity_range(tmp_path, capsys):
         d["validity"] = {"temperature_max_C": 30.0}
     card = _card_with(tmp_path, cool)
     sched = tmp_path / "s.toml"
-    sched.write_text("[[segment]]\nhours = 0.2\nrpm = 400\n")
+    sched.write_text("[[segment]]\nhours = 0.2\nrpm = 400\n", encoding="utf-8")
     assert main(["whatif", str(card), str(sched), "--seeds", "1", "--particles", "200", "--out",
                  str(tmp_path / "o")]) == 0
     err = capsys.readouterr().err
@@ -319,9 +319,9 @@ def test_ctrl_c_while_writing_leaves_no_half_output_set(tmp_path, capsys, monkey
 
 def test_design_refuses_a_solver_beyond_the_budget(tmp_path, capsys):
     ctrl = tmp_path / "c.toml"
-    ctrl.write_text((ROOT / "controllers" / "mpc-default.toml").read_text().replace("interval_h = 0.5",
-                                                                                    "interval_h = 0.02"))
-    assert "interval_h = 0.02" in ctrl.read_text()
+    ctrl.write_text((ROOT / "controllers" / "mpc-default.toml").read_text(encoding="utf-8").replace("interval_h = 0.5",
+                                                                                    "interval_h = 0.02"), encoding="utf-8")
+    assert "interval_h = 0.02" in ctrl.read_text(encoding="utf-8")
     assert main(["design", str(FAN), "--target", "s_mean_um=30", "--hours", "1000", "--controller", str(ctrl),
                  "--out", str(tmp_path / "o")]) == 2
     line = _err(capsys)
@@ -374,7 +374,7 @@ def test_no_code_bearing_loads():
     hits = []
     for path in sorted((ROOT / "bmctl").rglob("*.py")):
         rel = path.relative_to(ROOT).as_posix()
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
         for m in CODE_LOADS.finditer(text):
             hits.append(f"{rel}: {m.group(0)}")
         for line in text.splitlines():  # the call's arguments may nest parentheses: look at its line
@@ -388,7 +388,7 @@ def test_no_code_bearing_loads():
 def _trajectory(path: Path, rows: list[list[str]], tail: str = "") -> Path:
     from bmctl.trial import trajectory_header
 
-    path.write_text("\n".join(",".join(r) for r in [trajectory_header(), *rows]) + "\n" + tail)
+    path.write_text("\n".join(",".join(r) for r in [trajectory_header(), *rows]) + "\n" + tail, encoding="utf-8")
     return path
 
 
@@ -479,9 +479,9 @@ def test_resume_of_a_damaged_trial_carries_on_or_names_the_file(tmp_path, capsys
     ref = fuzzlib.reference_rows()
     traj = out / "trajectory.csv"
     if damage == "torn":
-        traj.write_text(traj.read_text() + ",".join(ref[2])[:40])
+        traj.write_text(traj.read_text(encoding="utf-8") + ",".join(ref[2])[:40], encoding="utf-8")
     elif damage == "long-row":
-        traj.write_text(",".join(ref[0]) + "\n" + ",".join(ref[1] + ["7"]) + "\n")
+        traj.write_text(",".join(ref[0]) + "\n" + ",".join(ref[1] + ["7"]) + "\n", encoding="utf-8")
     elif damage == "garbage":
         traj.write_bytes(b"\xce\x00\xff" * 100)
     else:

@@ -72,7 +72,7 @@ def parse_displayed(text: str) -> tuple[float, float]:
 
 
 def _csv_lookup(path: Path, key: str):
-    rows = list(csv.DictReader(path.read_text().splitlines()))
+    rows = list(csv.DictReader(path.read_text(encoding="utf-8").splitlines()))
     row_part, _, column = key.rpartition(".")
     if "=" in row_part:
         keycol, _, keyval = row_part.partition("=")
@@ -95,7 +95,7 @@ def resolve(file: str, key: str, root: Path = RESULTS):
         raise FileNotFoundError(f"results/{file} does not exist")
     if path.suffix == ".csv":
         return _csv_lookup(path, key)
-    return lookup(json.loads(path.read_text()), key)
+    return lookup(json.loads(path.read_text(encoding="utf-8")), key)
 
 
 def check_marker(file: str, key: str, shown: str, root: Path = RESULTS) -> str | None:
@@ -163,7 +163,7 @@ def measured_looking(text: str) -> list[tuple[int, str]]:
 def _markers():
     out = []
     for doc in DOCS:
-        text = doc.read_text()
+        text = doc.read_text(encoding="utf-8")
         for m in MARKER.finditer(text):
             line = text.count("\n", 0, m.start()) + 1
             out.append(pytest.param(m.group(1), m.group(2), m.group(3), id=f"{_rel(doc)}:{line}:{m.group(2)}"))
@@ -182,7 +182,7 @@ def test_marked_number_matches_results_file(file, key, shown):
 @pytest.mark.parametrize("doc", DOCS, ids=_rel)
 def test_hand_and_input_markers_hold_numbers(doc):
     bad = []
-    for m in HAND.finditer(doc.read_text()):
+    for m in HAND.finditer(doc.read_text(encoding="utf-8")):
         try:
             parse_displayed(m.group(2))
         except ValueError:
@@ -194,7 +194,7 @@ def test_hand_and_input_markers_hold_numbers(doc):
 def test_measured_looking_numbers_are_marked(doc):
     if _rel(doc) in PENDING:
         pytest.skip("doc not yet converted to results markers (PENDING)")
-    found = measured_looking(doc.read_text())
+    found = measured_looking(doc.read_text(encoding="utf-8"))
     listing = "\n".join(f"  {_rel(doc)}:{n}: ...{ctx}..." for n, ctx in found)
     assert not found, f"unmarked measured-looking numbers (wrap in <!--r:...-->, <!--hand--> or <!--in-->):\n{listing}"
 
@@ -207,7 +207,7 @@ def test_pending_lists_only_existing_docs():
 def test_results_files_carry_provenance():
     bad = []
     for path in sorted(RESULTS.glob("*.json")):
-        record = json.loads(path.read_text())
+        record = json.loads(path.read_text(encoding="utf-8"))
         lacking = [k for k in REQUIRED if k not in record]
         if lacking:
             bad.append(f"{path.name}: lacks {lacking}")
@@ -225,14 +225,14 @@ def test_results_files_carry_provenance():
     ("46.1k", 46200, False), ("2.3·10⁻⁴", 2.31e-4, True), ("2×10⁻⁴", 2.4e-4, True), ("4.5e-3", 4.6e-3, False),
 ])
 def test_checker_rounds_to_displayed_decimals(tmp_path, shown, value, ok):
-    (tmp_path / "x.json").write_text(json.dumps({"a": {"b": [value]}}))
+    (tmp_path / "x.json").write_text(json.dumps({"a": {"b": [value]}}), encoding="utf-8")
     assert (check_marker("x.json", "a.b.0", shown, tmp_path) is None) is ok
     assert check_marker("x.json", "a.c", shown, tmp_path) is not None  # missing key fails
     assert check_marker("missing.json", "a", shown, tmp_path) is not None  # missing file fails
 
 
 def test_checker_reads_csv(tmp_path):
-    (tmp_path / "t.csv").write_text("card,d50_um\nlab,41.23\n400,93.5\n")
+    (tmp_path / "t.csv").write_text("card,d50_um\nlab,41.23\n400,93.5\n", encoding="utf-8")
     assert check_marker("t.csv", "card=lab.d50_um", "41.2", tmp_path) is None
     assert check_marker("t.csv", "1.d50_um", "93.5", tmp_path) is None
     assert check_marker("t.csv", "card=lab.d50_um", "41.3", tmp_path) is not None

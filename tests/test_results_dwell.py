@@ -49,7 +49,7 @@ def test_the_segments_of_a_log_follow_its_steps():
 
 @pytest.mark.parametrize("path", FILES, ids=[p.name for p in FILES])
 def test_every_logged_campaign_keeps_the_dwell_minimums(path):
-    data = json.loads(path.read_text())
+    data = json.loads(path.read_text(encoding="utf-8"))
     controller = data.get("settings", {}).get("controller")
     cases = [c for c in data.get("cases", []) if c.get("steps")]
     if not controller or not cases:

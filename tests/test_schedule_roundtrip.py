@@ -26,9 +26,9 @@ def _history(tmp_path: Path, schedule_text: str, head: str = 'schedule = "sched.
     (tmp_path / "samples").mkdir(exist_ok=True)
     for name in ("lab-300rpm-0p5h.csv", "lab-300rpm-1h.csv"):
         shutil.copy(SAMPLES / name, tmp_path / "samples" / name)
-    (tmp_path / "sched.toml").write_text(schedule_text)
+    (tmp_path / "sched.toml").write_text(schedule_text, encoding="utf-8")
     p = tmp_path / "h.toml"
-    p.write_text('name = "a"\n' + head + TWO_SAMPLES)
+    p.write_text('name = "a"\n' + head + TWO_SAMPLES, encoding="utf-8")
     return p
 
 
@@ -60,7 +60,7 @@ def test_inline_history_segments_are_held_to_the_total_of_a_batch(tmp_path):
 
 def test_config_load_schedule_reads_milling_and_as_schedule_keeps_it(tmp_path):
     p = tmp_path / "s.toml"
-    p.write_text(Schedule.from_pairs([(1.0, 300.0, 0.75), (0.5, 0.0)], name="s").toml())
+    p.write_text(Schedule.from_pairs([(1.0, 300.0, 0.75), (0.5, 0.0)], name="s").toml(), encoding="utf-8")
     cfg = load_schedule(p)
     assert [s.milling for s in cfg.segment] == [0.75, 1.0]
     assert as_schedule(cfg) == Schedule.load(p)
@@ -77,7 +77,7 @@ def test_toml_reads_back_exactly(tmp_path, name):
     """rpm was written with %g (1234.56789 -> 1234.57), hours to 10 digits and the name unescaped."""
     sched = Schedule(ODD.segments, name)
     p = tmp_path / "s.toml"
-    p.write_text(sched.toml())
+    p.write_text(sched.toml(), encoding="utf-8")
     assert Schedule.load(p) == sched
 
 
@@ -98,7 +98,7 @@ def test_a_designed_schedule_reads_back_exactly(tmp_path):
                U=np.zeros((3, 2)), X=np.zeros((4, 6)), t_peak_c=np.zeros(3), segments=segs, result=result,
                reach=None)
     p = tmp_path / "schedule.toml"
-    p.write_text(schedule_toml(d))
+    p.write_text(schedule_toml(d), encoding="utf-8")
     s = Schedule.load(p)
     assert s.name == 'design-my "lab"' and s.pairs() == segs
 
@@ -183,6 +183,6 @@ def test_the_ceiling_count_is_described_as_sub_steps_not_crossings():
     from bmctl.loop import LoopConfig
 
     doc = " ".join(LoopConfig.__doc__.split())
-    text = " ".join((ROOT / "docs" / "loop.md").read_text().split())
+    text = " ".join((ROOT / "docs" / "loop.md").read_text(encoding="utf-8").split())
     for t in (doc, text):
         assert "crossings are counted" not in t and "sub-steps" in t and "that end above" in t

@@ -139,7 +139,7 @@ def earlier_figures(out: Path) -> list[Path]:
     --------
     >>> import tempfile, json
     >>> d = Path(tempfile.mkdtemp())
-    >>> _ = (d / "calibration.json").write_text(json.dumps({"histories": [{"name": "run 1"}, {"name": "b"}]}))
+    >>> _ = (d / "calibration.json").write_text(json.dumps({"histories": [{"name": "run 1"}, {"name": "b"}]}), encoding="utf-8")
     >>> _ = (d / "histograms-run_1.png").write_bytes(b"")
     >>> [p.name for p in earlier_figures(d)]
     ['histograms-run_1.png']
@@ -147,7 +147,7 @@ def earlier_figures(out: Path) -> list[Path]:
     import json
 
     try:
-        hist = json.loads((Path(out) / "calibration.json").read_text()).get("histories", [])
+        hist = json.loads((Path(out) / "calibration.json").read_text(encoding="utf-8")).get("histories", [])
         names = [str(h["name"]) for h in hist]
     except (OSError, ValueError, TypeError, KeyError, AttributeError):
         return []

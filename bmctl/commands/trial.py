@@ -118,5 +118,5 @@ def _milling_rpms(path: Path) -> set[float]:
     """The speeds a trial milled at (its trajectory.csv's rpm where milling > 0)."""
     import csv
 
-    with open(path, newline="") as f:
+    with open(path, newline="", encoding="utf-8") as f:
         return {float(r["rpm"]) for r in csv.DictReader(f) if float(r["milling"]) > 0 and float(r["rpm"]) > 0}

@@ -240,7 +240,7 @@ def start_compile(solver, path: Path, wait: bool = False) -> None:
                             start_new_session=True)
     _running[str(path)] = proc
     try:  # the lock names the compile's process (group): `cat` it to see, `kill` it to stop
-        lock.write_text(str(proc.pid))
+        lock.write_text(str(proc.pid), encoding="utf-8")
     except OSError:
         pass
     if os.environ.get(ENV_SWITCH, "1") != "detach":

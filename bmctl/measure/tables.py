@@ -167,7 +167,7 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
     --------
     >>> import pathlib, tempfile
     >>> f = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
-    >>> _ = f.write_text("s_um,r\\n40.0,0.02\\n55.5,0.10\\n")
+    >>> _ = f.write_text("s_um,r\\n40.0,0.02\\n55.5,0.10\\n", encoding="utf-8")
     >>> t = read_table(f)
     >>> len(t), t.s_um.tolist()
     (2, [40.0, 55.5])

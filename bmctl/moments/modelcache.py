@@ -89,7 +89,7 @@ def moment_model(card_path) -> object:
         entry = None
     if entry is not None and entry.is_file():
         try:
-            doc = json.loads(entry.read_text())
+            doc = json.loads(entry.read_text(encoding="utf-8"))
             if doc.get("format") == FORMAT:
                 return _restore(load_card(card_path), doc, cp)
         except (OSError, ValueError, KeyError, TypeError):
@@ -100,7 +100,7 @@ def moment_model(card_path) -> object:
                "coeffs_source": model.coeffs_source}
         try:
             fd, tmp = tempfile.mkstemp(prefix=".model-", suffix=".json", dir=entry.parent)
-            with os.fdopen(fd, "w") as f:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
                 json.dump(doc, f)
             os.replace(tmp, entry)
         except OSError:

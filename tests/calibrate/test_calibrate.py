@@ -77,14 +77,14 @@ def _table(path: Path, n: int = 20, seed: int = 0):
     rng = np.random.default_rng(seed)
     s = rng.lognormal(np.log(40), 0.3, n)
     r = rng.uniform(0, 0.4, n)
-    path.write_text("s_um,r\n" + "\n".join(f"{a:.4f},{b:.4f}" for a, b in zip(s, r)) + "\n")
+    path.write_text("s_um,r\n" + "\n".join(f"{a:.4f},{b:.4f}" for a, b in zip(s, r)) + "\n", encoding="utf-8")
 
 
 def _history(tmp_path: Path, text: str) -> Path:
     _table(tmp_path / "t1.csv")
     _table(tmp_path / "t2.csv", seed=1)
     p = tmp_path / "hist.toml"
-    p.write_text(text)
+    p.write_text(text, encoding="utf-8")
     return p
 
 
@@ -198,7 +198,7 @@ def test_cli_calibrate_small_end_to_end(tmp_path, capsys, monkeypatch):
     hp = write_history(h, tmp_path)
     out = tmp_path / "out"
     out.mkdir()  # an earlier calibration's outputs: its figure of another history goes, the user's file stays
-    (out / "calibration.json").write_text(json.dumps({"histories": [{"name": "old run"}, {"name": "tiny"}]}))
+    (out / "calibration.json").write_text(json.dumps({"histories": [{"name": "old run"}, {"name": "tiny"}]}), encoding="utf-8")
     for f in ("histograms-old_run.png", "histograms-tiny.png", "histograms-mine.png"):
         (out / f).write_bytes(b"")
     rc = main(["calibrate", str(LAB), str(hp), "--params", "gamma,delta", "--particles", "200", "--workers", "0",
@@ -207,7 +207,7 @@ def test_cli_calibrate_small_end_to_end(tmp_path, capsys, monkeypatch):
     assert not (out / "histograms-old_run.png").exists() and (out / "histograms-mine.png").exists()
     assert f"removed {out / 'histograms-old_run.png'}" in capsys.readouterr().out
     card = load_card(out / "alni-1to1-300rpm-lab-calibrated.toml")
-    data = json.loads((out / "calibration.json").read_text())
+    data = json.loads((out / "calibration.json").read_text(encoding="utf-8"))
     est = data["parameters"]["gamma"]
     assert est["interval90"][0] <= est["estimate"] <= est["interval90"][1]
     assert card.stochastic.gamma_per_um2 == pytest.approx(est["estimate"])
@@ -275,7 +275,7 @@ def test_estimate_write_card(tmp_path):
                "--times", "1,2", "--particles", "200", "--out", str(tmp_path / "est.csv"), "--write-card", str(out)])
     assert rc == 0
     card, nxt = load_card(LAB), load_card(out)
-    row = (tmp_path / "est.csv").read_text().splitlines()
+    row = (tmp_path / "est.csv").read_text(encoding="utf-8").splitlines()
     header, last = row[0].split(","), row[-1].split(",")
     g = float(last[header.index("gamma_mult")])
     d = float(last[header.index("delta_mult")])
@@ -434,9 +434,9 @@ def test_cli_warns_of_a_sample_outside_the_cards_size_range(tmp_path, capsys):
     without a word; like `bmctl simulate` for a run, calibrate now names the sample whose mean size
     lies outside the card's range of validity (before any work: refused here by the budget)."""
     _table(tmp_path / "t1.csv")
-    (tmp_path / "mm.csv").write_text("s_um,r\n" + "".join(f"{0.04 + 0.001 * k:g},0.2\n" for k in range(30)))
+    (tmp_path / "mm.csv").write_text("s_um,r\n" + "".join(f"{0.04 + 0.001 * k:g},0.2\n" for k in range(30)), encoding="utf-8")
     p = tmp_path / "hist.toml"
-    p.write_text(GOOD.replace('"t2.csv"', '"mm.csv"'))
+    p.write_text(GOOD.replace('"t2.csv"', '"mm.csv"'), encoding="utf-8")
     rc = main(["calibrate", str(LAB), str(p), "--params", "gamma,delta", "--out", str(tmp_path / "out"),
                "--workers", "0", "--budget-cpu-h", "1e-9"])
     err = capsys.readouterr().err

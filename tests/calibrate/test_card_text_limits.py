@@ -91,8 +91,8 @@ def test_cli_estimate_write_card_of_a_card_named_near_the_limit(tmp_path, capsys
     """A 995-character card name: the table and figure were written, then the card's
     ``<name>-calibrated`` failed validation in a traceback. The card is now written, its name cut."""
     card = tmp_path / "long.toml"
-    card.write_text((ROOT / "models" / "alni-1to1-300rpm-lab.toml").read_text().replace(
-        'name = "alni-1to1-300rpm-lab"', f'name = "{"a" * 995}"'))
+    card.write_text((ROOT / "models" / "alni-1to1-300rpm-lab.toml").read_text(encoding="utf-8").replace(
+        'name = "alni-1to1-300rpm-lab"', f'name = "{"a" * 995}"'), encoding="utf-8")
     shutil.copy(ROOT / "models" / "alni-1to1-300rpm-lab.moments.toml", tmp_path / "long.moments.toml")
     assert len(load_card(card).card.name) == 995
     out, written = tmp_path / "out" / "est.csv", tmp_path / "out" / "cal.toml"

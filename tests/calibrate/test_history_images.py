@@ -36,7 +36,7 @@ def _save(path: Path, img: np.ndarray) -> None:
 
 def _history(tmp_path: Path, image: str) -> Path:
     p = tmp_path / "hist.toml"
-    p.write_text(HISTORY.format(image=image))
+    p.write_text(HISTORY.format(image=image), encoding="utf-8")
     return p
 
 

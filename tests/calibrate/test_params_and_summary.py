@@ -90,12 +90,12 @@ def test_run_calibration_refuses_a_setting_before_any_work(monkeypatch):
 
 
 def test_a_mistyped_history_key_is_named_not_reported_missing(tmp_path):
-    text = HISTORY.read_text()
+    text = HISTORY.read_text(encoding="utf-8")
     p = tmp_path / "h.toml"
-    p.write_text(text.replace("[[sample]]", "[[sampel]]", 1))
+    p.write_text(text.replace("[[sample]]", "[[sampel]]", 1), encoding="utf-8")
     with pytest.raises(InputError, match=r"h.toml: sampel: unknown field \(did you mean sample\?\)$"):
         load_history(p)
-    p.write_text(text.replace("rpm = 300", "rmp = 300", 1))
+    p.write_text(text.replace("rpm = 300", "rmp = 300", 1), encoding="utf-8")
     with pytest.raises(InputError, match=r"h.toml: segment\[0\]\.rmp: unknown field \(did you mean rpm\?\)$"):
         load_history(p)
 

@@ -26,5 +26,5 @@ particles = 100
 {extra}
 [controller]
 config = "{LQR}"
-""")
+""", encoding="utf-8")
     return path

@@ -45,9 +45,9 @@ def test_cached_model_equals_a_fresh_build(tmp_path, private_cache):
         assert m.const == fresh.const and m.coeffs == fresh.coeffs and m.coeffs_source == fresh.coeffs_source
     x, u = fresh.x0(), np.array([400.0, 0.5])
     assert np.array_equal(cached.step(x, u, 0.5), fresh.step(x, u, 0.5))
-    entry.write_text("{not json")
+    entry.write_text("{not json", encoding="utf-8")
     assert moment_model(card).const == fresh.const
-    card.write_text(card.read_text() + "\n# edited\n")  # other bytes: another key
+    card.write_text(card.read_text(encoding="utf-8") + "\n# edited\n", encoding="utf-8")  # other bytes: another key
     moment_model(card)
     assert len(list(private_cache.glob("model-*.json"))) == 2
 

@@ -171,7 +171,7 @@ def test_cli_verbs_and_one_line_errors(tmp_path, capsys):
     assert main(["campaign", "log", d, "--rpm", "300", "--hours", "0.5", "--temperature-c", "41"]) == 0
     csv = tmp_path / "s.csv"
     t = _table(5)
-    csv.write_text("s_um,r\n" + "".join(f"{float(s)!r},{float(r)!r}\n" for s, r in zip(t.s_um, t.r)))
+    csv.write_text("s_um,r\n" + "".join(f"{float(s)!r},{float(r)!r}\n" for s, r in zip(t.s_um, t.r)), encoding="utf-8")
     assert main(["campaign", "sample", d, "--at-h", "0.5", str(csv)]) == 0
     assert main(["campaign", "advise", d]) == 0
     out = capsys.readouterr().out
@@ -251,7 +251,7 @@ def test_crash_mid_sample_leaves_a_consistent_campaign(tmp_path):
         plan += [("advise", None), ("decide", None), ("log", None), ("sample", str(img) if k == 1 else None)]
     plan.append(("advise", None))
     script = tmp_path / "step.py"
-    script.write_text(SCRIPT.format(root=str(ROOT), plan=plan, card=str(CARD), ctrl=str(LQR)))
+    script.write_text(SCRIPT.format(root=str(ROOT), plan=plan, card=str(CARD), ctrl=str(LQR)), encoding="utf-8")
     env = dict(os.environ, MPLBACKEND="Agg")
 
     def run(d, step, crash=False):
@@ -302,7 +302,7 @@ def test_report_loads_in_headless_chromium(tmp_path):
     cp.log(d, 300, 0.5, temperature_c=47.0)
     cp.sample(d, 1.0, [_table(2, 40.0)])
     page = cp.report(d)
-    text = page.read_text()
+    text = page.read_text(encoding="utf-8")
     assert text.count("data:image/png;base64,") == 4 and "http" not in text.replace("http-equiv", "")
     shot = tmp_path / "shot.png"
     prof = tempfile.mkdtemp()
@@ -447,7 +447,7 @@ def test_a_table_the_reader_takes_keeps_the_campaign_readable(tmp_path, capsys, 
     stopped at 0.999999999 and refused the campaign after the sample was stored."""
     d = tmp_path / "c"
     _init(d)
-    (tmp_path / "t.csv").write_text(table)
+    (tmp_path / "t.csv").write_text(table, encoding="utf-8")
     assert main(["campaign", "sample", str(d), "--at-h", "0", str(tmp_path / "t.csv")]) == 0
     assert main(["campaign", "status", str(d)]) == 0, capsys.readouterr().err
 

@@ -130,10 +130,10 @@ def test_an_init_sqlite_cannot_write_is_not_called_damaged(tmp_path, capsys, mon
 def test_init_into_a_file_says_it_is_a_file(tmp_path, capsys):
     """It said "afile: File exists"."""
     f = tmp_path / "afile"
-    f.write_text("mine\n")
+    f.write_text("mine\n", encoding="utf-8")
     assert main(_init_argv(f)) == 2
     assert f"{f}: is a file, not a folder" in _err_line(capsys)
-    assert f.read_text() == "mine\n"
+    assert f.read_text(encoding="utf-8") == "mine\n"
 
 
 def test_init_over_a_campaign_leaves_it_as_it_was(advised, tmp_path, capsys):

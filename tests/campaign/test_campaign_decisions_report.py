@@ -68,7 +68,7 @@ def test_a_decision_stands_when_the_advice_is_repeated_at_the_same_time(tmp_path
     out = capsys.readouterr().out
     assert "deviation from the recommendation (advice rejected): rpm 200" in out, out
     assert "no decision recorded" not in out
-    page = cp.report(d).read_text()
+    page = cp.report(d).read_text(encoding="utf-8")
     adv = _advices(page)
     a1, a2 = adv[first["plan_id"]], adv[again["plan_id"]]
     assert a1["decision"] == "rejected; instead 200 rpm" and a1["note"] == "operator chose 200"
@@ -93,7 +93,7 @@ def test_a_decision_does_not_stand_for_an_advice_that_differs(tmp_path):
     a2 = cp.advise(d)
     assert a2["next"] != a1["next"]
     assert cp.status(d)["decision"] is None
-    adv = _advices(cp.report(d).read_text())
+    adv = _advices(cp.report(d).read_text(encoding="utf-8"))
     assert adv[a1["plan_id"]]["decision"] == "accepted"
     assert adv[a1["plan_id"]]["then logged"] == (f"nothing under this advice: advice {a2['plan_id']} at this time "
                                                 "replaces it")
@@ -109,13 +109,13 @@ def test_report_of_a_fresh_campaign_shows_the_prior_labelled(tmp_path):
     cp.init(d, CARD, RECIPE, {"d50_um": 45.0}, hours=2.0, particles=100)
     est = cp.status(d)["estimate"]
     assert est["t_h"] < 0  # the prior, as `status` prints it ("estimate (prior):")
-    now = cp.report(d).read_text().split("<h2>Estimate now</h2>")[1].split("<h2>")[0]
+    now = cp.report(d).read_text(encoding="utf-8").split("<h2>Estimate now</h2>")[1].split("<h2>")[0]
     assert "prior" in html.unescape(now)
     shown = re.findall(r"<td>([a-z_0-9]+)</td>", now)
     assert {"s_mean_um", "d50_um", "temperature_c"} <= set(shown)
     assert f"{est['d50_um']:.4g}" in now
     cp.log(d, rpm=300.0, hours=0.5)
-    now = cp.report(d).read_text().split("<h2>Estimate now</h2>")[1].split("<h2>")[0]
+    now = cp.report(d).read_text(encoding="utf-8").split("<h2>Estimate now</h2>")[1].split("<h2>")[0]
     assert "prior" not in now and "at 0.5 h" in now
     assert f"{cp.status(d)['estimate']['d50_um']:.4g}" in now
 
@@ -152,7 +152,7 @@ def test_sample_of_a_measured_table_keeps_images_and_centroids(tmp_path):
     assert rows == [(str(plain), None, None)] * 5 + [("(table)", None, None)] * 4
     # the same particles again, in other bytes (a comment line): refused as before
     again = tmp_path / "again.csv"
-    again.write_text("# measured again\n" + csv.read_text())
+    again.write_text("# measured again\n" + csv.read_text(encoding="utf-8"), encoding="utf-8")
     with pytest.raises(InputError, match=r"the same particles as"):
         cp.sample(d, 0.5, [again])
 
@@ -163,20 +163,20 @@ def test_trial_campaign_reports_the_binding_limits_of_a_plain_trial(tmp_path, ca
     sc.write_text(f'model = "{CARD.as_posix()}"\nhours = 1.5\ntarget = {{ d50_um = 60.0 }}\n\n'
                   '[scenario]\nname = "small"\ndescription = "binding limits of a campaign trial"\n\n'
                   "[plant]\nparticles = 500\ngamma_factor = 1.2\n\n[sampling]\nparticles = 100\n\n"
-                  f'[estimator]\nparticles = 100\n\n[controller]\nconfig = "{MPC.as_posix()}"\n')
+                  f'[estimator]\nparticles = 100\n\n[controller]\nconfig = "{MPC.as_posix()}"\n', encoding="utf-8")
     plain, camp = tmp_path / "plain", tmp_path / "camp"
     assert main(["trial", str(sc), "--seed", "1", "--out", str(plain), "--no-progress"]) == 0
     out_plain = capsys.readouterr().out
     assert main(["trial", str(sc), "--seed", "1", "--out", str(camp), "--no-progress", "--campaign"]) == 0
     out_camp = capsys.readouterr().out
-    s1 = json.loads((plain / "summary.json").read_text())
-    s2 = json.loads((camp / "summary.json").read_text())
+    s1 = json.loads((plain / "summary.json").read_text(encoding="utf-8"))
+    s2 = json.loads((camp / "summary.json").read_text(encoding="utf-8"))
     assert s1["binding_first"], "the scenario's first plan names its binding limits"
     assert s2["binding_first"] == s1["binding_first"] and s2["binding_last"] == s1["binding_last"]
     line = [ln for ln in out_plain.splitlines() if "binding limits of the first plan" in ln]
     assert line and line == [ln for ln in out_camp.splitlines() if "binding limits of the first plan" in ln]
-    h1, *a = (plain / "trajectory.csv").read_text().splitlines()
-    h2, *b = (camp / "trajectory.csv").read_text().splitlines()
+    h1, *a = (plain / "trajectory.csv").read_text(encoding="utf-8").splitlines()
+    h2, *b = (camp / "trajectory.csv").read_text(encoding="utf-8").splitlines()
     keep = [i for i, k in enumerate(h1.split(",")) if k != "solve_ms"]  # wall time differs run to run
     assert h1 == h2 and [[r.split(",")[i] for i in keep] for r in a] == [[r.split(",")[i] for i in keep] for r in b]
 

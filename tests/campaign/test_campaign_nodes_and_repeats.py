@@ -98,12 +98,12 @@ def test_init_refuses_a_file_already_in_inputs(tmp_path, capsys):
     d = tmp_path / "ov"
     (d / "inputs").mkdir(parents=True)
     mine = d / "inputs" / f"controller-{RECIPE.name}"
-    mine.write_text("# my notes\n")
+    mine.write_text("# my notes\n", encoding="utf-8")
     assert main(["campaign", "init", str(d), "--model", str(CARD), "--controller", str(RECIPE),
                  "--target", "d50_um=45", "--hours", "2", "--particles", "60"]) == 2
     err = _err_line(capsys)
     assert f"{mine}: already exists" in err
-    assert mine.read_text() == "# my notes\n"
+    assert mine.read_text(encoding="utf-8") == "# my notes\n"
     assert sorted(p.name for p in d.rglob("*")) == sorted(["inputs", mine.name])  # nothing written
 
 
@@ -116,14 +116,14 @@ def test_a_failed_init_keeps_a_file_made_in_inputs_meanwhile(tmp_path, capsys, m
     def create_then_user_writes(folder, **kw):
         con = create(folder, **kw)
         mine.parent.mkdir()
-        mine.write_text("mine\n")
+        mine.write_text("mine\n", encoding="utf-8")
         return con
 
     monkeypatch.setattr(wf.db, "create", create_then_user_writes)
     assert main(["campaign", "init", str(d), "--model", str(CARD), "--controller", str(RECIPE),
                  "--target", "d50_um=45", "--hours", "2", "--particles", "60"]) == 2
     assert f"{mine}: already exists" in _err_line(capsys)
-    assert mine.read_text() == "mine\n"
+    assert mine.read_text(encoding="utf-8") == "mine\n"
     assert not (d / db.DB_NAME).exists()
 
 

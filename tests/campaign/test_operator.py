@@ -151,7 +151,7 @@ def test_status_text_json_and_report_show_one_d50(run, capsys):
     text = capsys.readouterr().out
     assert re.search(r"^  d50_um\s+(.*)$", text, re.M).group(1) == want
     assert main(["campaign", "report", run]) == 0
-    page = (Path(run) / "report.html").read_text()
+    page = (Path(run) / "report.html").read_text(encoding="utf-8")
     assert f"<td>d50_um</td><td>{want}</td>" in page  # the report's "estimate now"
     # the advice printed at the clock shows the same estimate
     assert main(["campaign", "advise", run]) == 0
@@ -160,7 +160,7 @@ def test_status_text_json_and_report_show_one_d50(run, capsys):
 
 def test_report_holds_estimates_against_samples_decisions_notes_plans_and_readings(run):
     cp.report(run)
-    page = (Path(run) / "report.html").read_text()
+    page = (Path(run) / "report.html").read_text(encoding="utf-8")
     with cp.Campaign(run) as c:
         n_plans = c.con.execute("SELECT COUNT(*) FROM plans").fetchone()[0]
         s, _ = c.particles(1)

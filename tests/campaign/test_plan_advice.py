@@ -115,7 +115,7 @@ def test_a_correction_the_estimate_cannot_resolve_asks_for_one_more_sample(tmp_p
     cp.sample(d, 1.0, [_sample(rng, 34.0)])
     assert cp.advise(d)["sample_first"] is None
     cp.report(d)
-    page = (d / "report.html").read_text()
+    page = (d / "report.html").read_text(encoding="utf-8")
     assert page.count("<dt>sample first</dt><dd>s_mean_um") == 2 and "<dd>not asked</dd>" in page
 
 

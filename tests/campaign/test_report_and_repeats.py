@@ -29,7 +29,7 @@ def test_report_estimate_now_lists_every_status_quantity(tmp_path):
     cp.log(d, rpm=300.0, hours=0.5)
     est = cp.status(d)["estimate"]
     assert "energy_mult" in est
-    page = cp.report(d).read_text()
+    page = cp.report(d).read_text(encoding="utf-8")
     now = page.split("<h2>Estimate now</h2>")[1].split("<h2>")[0]
     shown = re.findall(r"<td>([a-z_0-9]+)</td>", now)
     assert "energy_mult" in shown

@@ -181,7 +181,7 @@ def test_a_one_particle_sample_says_why_the_sampling_hint_is_missing(tmp_path, c
     d = tmp_path / "c"
     cp.init(d, CARD, MPC, {"d50_um": 45.0}, hours=2.0, particles=100)
     cp.log(d, 300.0, 0.5)
-    (tmp_path / "one.csv").write_text("s_um,r\n41.5,0.05\n")
+    (tmp_path / "one.csv").write_text("s_um,r\n41.5,0.05\n", encoding="utf-8")
     assert main(["campaign", "sample", str(d), "--at-h", "0.5", str(tmp_path / "one.csv")]) == 0
     capsys.readouterr()
     assert main(["campaign", "advise", str(d), "--json"]) == 0
@@ -193,7 +193,7 @@ def test_a_one_particle_sample_says_why_the_sampling_hint_is_missing(tmp_path, c
     assert "note: the latest sample (at 0.5 h) holds 1 particle: too few" in capsys.readouterr().out
     # two more particles at that time read a spread: the hint is given for the samples pooled as the
     # filter reads them (it was the latest sample's alone), and no note
-    (tmp_path / "two.csv").write_text("s_um,r\n38.0,0.05\n47.0,0.07\n")
+    (tmp_path / "two.csv").write_text("s_um,r\n38.0,0.05\n47.0,0.07\n", encoding="utf-8")
     cp.sample(d, 0.5, [tmp_path / "two.csv"])
     a = cp.advise(d)
     assert (a["sampling"]["particles"], a["sampling"]["samples"]) == (3, 2)
@@ -215,7 +215,7 @@ def test_the_reports_sample_std_is_with_n_minus_1_and_none_for_one_particle(logg
     t = _table(3, n=40)
     cp.sample(d, 0.5, [t])
     cp.sample(d, 1.0, [ParticleTable.from_size_aspect([33.0], [0.05])])
-    page = cp.report(d, tmp_path / "r.html").read_text()
+    page = cp.report(d, tmp_path / "r.html").read_text(encoding="utf-8")
     assert f"<td>{np.std(t.s_um, ddof=1):.4g}</td>" in page
     assert f"<td>{np.std(t.s_um):.4g}</td>" not in page
     assert "<td>n/a (1 particle)</td>" in page
@@ -240,7 +240,7 @@ def test_two_small_samples_at_one_time_that_leave_the_filter_degenerate_are_warn
     capsys.readouterr()
     more = _small([50.5, 51.5, 52.5], 0.005)
     (tmp_path / "more.csv").write_text("s_um,r\n" + "".join(f"{float(s)!r},{float(r)!r}\n"
-                                                             for s, r in zip(more.s_um, more.r)))
+                                                             for s, r in zip(more.s_um, more.r)), encoding="utf-8")
     assert main(["campaign", "sample", str(d), "--at-h", "0.5", str(tmp_path / "more.csv")]) == 0
     err = capsys.readouterr().err
     assert ("bmctl: warning: filter nearly degenerate at 0.5 h: the update by 2 samples (6 particles, read as one)"
@@ -256,7 +256,7 @@ def test_two_small_samples_at_one_time_that_leave_the_filter_degenerate_are_warn
     assert len(line) == 1 and f"about {ess:.1f} of its 100 particles" in line[0]
     a = cp.advise(d)
     assert any(w.startswith("filter nearly degenerate at 0.5 h") for w in a["warnings"])
-    page = cp.report(d, tmp_path / "r.html").read_text()
+    page = cp.report(d, tmp_path / "r.html").read_text(encoding="utf-8")
     warned = page.split("<h2>Warnings</h2>")[1].split("<h2>")[0]
     assert "filter nearly degenerate at 0.5 h" in warned
 
@@ -267,4 +267,4 @@ def test_samples_of_a_usual_size_give_no_filter_warning(logged, tmp_path):
     cp.sample(d, 1.0, [SAMPLES / "lab-300rpm-1h.csv"])
     a = cp.advise(d)
     assert not any("degenerate" in w for w in a["warnings"])
-    assert "degenerate" not in cp.report(d, tmp_path / "r.html").read_text()
+    assert "degenerate" not in cp.report(d, tmp_path / "r.html").read_text(encoding="utf-8")

@@ -16,7 +16,7 @@ from .scenarios import lqr_scenario
 
 def _read(path: Path) -> tuple[list[str], np.ndarray]:
     """Header and the cells as written (numbers at the CSV's precision, the solver status as text)."""
-    lines = path.read_text().splitlines()
+    lines = path.read_text(encoding="utf-8").splitlines()
     return lines[0].split(","), np.array([ln.split(",") for ln in lines[1:]])
 
 
@@ -32,8 +32,8 @@ def test_trial_campaign_cli_gives_the_plain_trajectory_and_a_campaign(tmp_path, 
     same = [i for i, k in enumerate(h1) if k != "solve_ms"]  # wall time of the solve differs run to run
     np.testing.assert_array_equal(a[:, same], b[:, same])
     assert np.isfinite(a[:, same[:-3]].astype(float)).all()  # a real trajectory, not empty cells
-    s1 = json.loads((plain / "summary.json").read_text())
-    s2 = json.loads((camp / "summary.json").read_text())
+    s1 = json.loads((plain / "summary.json").read_text(encoding="utf-8"))
+    s2 = json.loads((camp / "summary.json").read_text(encoding="utf-8"))
     for k in ("final_true", "final_estimate", "final_error", "max_temperature_c", "temperature_violations",
               "energy_kj", "fallbacks", "solver_failures", "steps", "batch_h"):
         assert s1[k] == s2[k], k
@@ -62,7 +62,7 @@ def test_trial_campaign_refusals_are_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--campaign does not resume" in err
     ukf = lqr_scenario(tmp_path / "ukf.toml", 'kind = "ukf"')
-    ukf.write_text(ukf.read_text().replace("[estimator]\nparticles = 100\n", "[estimator]\n"))
+    ukf.write_text(ukf.read_text(encoding="utf-8").replace("[estimator]\nparticles = 100\n", "[estimator]\n"), encoding="utf-8")
     assert main(["trial", str(ukf), "--campaign", "--out", str(tmp_path / "u"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "particle filter" in err
@@ -79,8 +79,8 @@ def test_a_window_target_is_refused_before_anything_is_written(tmp_path, capsys)
     from .scenarios import lqr_scenario
 
     sc = lqr_scenario(tmp_path / "s.toml")
-    sc.write_text(sc.read_text().replace("target = { s_mean_um = 40.0 }", "target = { d50_um = [40.0, 50.0] }"))
-    assert "[40.0, 50.0]" in sc.read_text()
+    sc.write_text(sc.read_text(encoding="utf-8").replace("target = { s_mean_um = 40.0 }", "target = { d50_um = [40.0, 50.0] }"), encoding="utf-8")
+    assert "[40.0, 50.0]" in sc.read_text(encoding="utf-8")
     out = tmp_path / "o"
     assert main(["trial", str(sc), "--campaign", "--out", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -94,8 +94,8 @@ def test_trial_campaign_mills_the_advised_minutes_in_a_short_last_interval(tmp_p
     interval, so the campaign mills and logs the advised minutes, as the plain trial does."""
     sc = lqr_scenario(tmp_path / "scenario.toml")  # the 30/10 recipe: 30 of every 40 min, 12 min left at the end
     recipe = Path(__file__).resolve().parents[2] / "controllers" / "recipe-400rpm-30-10.toml"
-    text = sc.read_text().replace("hours = 2.0", "hours = 2.2")
-    sc.write_text(text[:text.index("config = ")] + f'config = "{recipe}"\n')
+    text = sc.read_text(encoding="utf-8").replace("hours = 2.0", "hours = 2.2")
+    sc.write_text(text[:text.index("config = ")] + f'config = "{recipe}"\n', encoding="utf-8")
     plain, camp = tmp_path / "plain", tmp_path / "camp"
     assert main(["trial", str(sc), "--seed", "5", "--out", str(plain), "--no-progress"]) == 0
     assert main(["trial", str(sc), "--seed", "5", "--out", str(camp), "--no-progress", "--campaign"]) == 0
@@ -116,15 +116,15 @@ def test_a_remainder_under_a_second_ends_the_last_interval(tmp_path):
     it ends the third, in the plain trial and through the campaign alike."""
     lqr = Path(__file__).resolve().parents[2] / "controllers" / "lqr-baseline.toml"
     ctrl = tmp_path / "lqr-20min.toml"
-    ctrl.write_text(lqr.read_text().replace("interval_h = 0.5", "interval_h = 0.3333333"))
+    ctrl.write_text(lqr.read_text(encoding="utf-8").replace("interval_h = 0.5", "interval_h = 0.3333333"), encoding="utf-8")
     sc = lqr_scenario(tmp_path / "scenario.toml")
-    text = sc.read_text().replace("hours = 2.0", "hours = 1.0")
-    sc.write_text(text[:text.index("config = ")] + f'config = "{ctrl}"\n')
+    text = sc.read_text(encoding="utf-8").replace("hours = 2.0", "hours = 1.0")
+    sc.write_text(text[:text.index("config = ")] + f'config = "{ctrl}"\n', encoding="utf-8")
     plain, camp = tmp_path / "plain", tmp_path / "camp"
     assert main(["trial", str(sc), "--seed", "5", "--out", str(plain), "--no-progress"]) == 0
     assert main(["trial", str(sc), "--seed", "5", "--out", str(camp), "--no-progress", "--campaign"]) == 0
-    s1 = json.loads((plain / "summary.json").read_text())
-    s2 = json.loads((camp / "summary.json").read_text())
+    s1 = json.loads((plain / "summary.json").read_text(encoding="utf-8"))
+    s2 = json.loads((camp / "summary.json").read_text(encoding="utf-8"))
     assert s1["steps"] == s2["steps"] == 3
     from bmctl import campaign as cp
 

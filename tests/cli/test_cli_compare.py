@@ -15,15 +15,15 @@ SAMPLE = str(ROOT / "examples" / "samples" / "lab-300rpm-2h.csv")
 
 def _schedule(tmp_path, hours, rpm, name="s.toml"):
     p = tmp_path / name
-    p.write_text(f"[[segment]]\nhours = {hours}\nrpm = {rpm}\n")
+    p.write_text(f"[[segment]]\nhours = {hours}\nrpm = {rpm}\n", encoding="utf-8")
     return str(p)
 
 
 def _card(tmp_path, old, new):
-    text = LAB.read_text()
+    text = LAB.read_text(encoding="utf-8")
     assert old in text
     p = tmp_path / "card.toml"
-    p.write_text(text.replace(old, new))
+    p.write_text(text.replace(old, new), encoding="utf-8")
     return str(p)
 
 
@@ -57,7 +57,7 @@ def test_compare_checks_only_the_schedule_up_to_the_sample(tmp_path, capsys):
     """The plant runs the schedule cut at --at-h: a melting hour after the sample is not run."""
     card = _card(tmp_path, "heat_capacity_J_per_K = ", "heat_capacity_J_per_K = 100 # ")
     sched = tmp_path / "s.toml"
-    sched.write_text("[[segment]]\nhours = 0.5\nrpm = 0\n[[segment]]\nhours = 2\nrpm = 600\n")
+    sched.write_text("[[segment]]\nhours = 0.5\nrpm = 0\n[[segment]]\nhours = 2\nrpm = 600\n", encoding="utf-8")
     rc, err = _compare(capsys, card, str(sched), 0.5, tmp_path / "o")
     assert rc == 0 and "bmctl: error" not in err, err
 
@@ -89,7 +89,7 @@ def test_compare_names_the_schedule_segment_faster_than_the_mill(tmp_path, capsy
     """A segment at 1500 rpm on a 600 rpm mill gave `rpm: must be in [0, 600] (got 1500)` from inside the
     plant, naming no file; whatif names the file and segment."""
     sched = tmp_path / "fast.toml"
-    sched.write_text("[[segment]]\nhours = 1\nrpm = 300\n[[segment]]\nhours = 1\nrpm = 1500\n")
+    sched.write_text("[[segment]]\nhours = 1\nrpm = 300\n[[segment]]\nhours = 1\nrpm = 1500\n", encoding="utf-8")
     out = tmp_path / "o"
     line = _refused(*_compare(capsys, LAB, str(sched), at_h, out), out)
     assert line == f"bmctl: error: {sched}: segment[1].rpm: 1500 exceeds the mill's rpm_max 600", line
@@ -105,7 +105,7 @@ def test_compare_refuses_a_one_particle_table_before_the_plant_runs(tmp_path, ca
 
     monkeypatch.setattr(bmctl.measure.compare, "predicted_population", no_plant)
     one = tmp_path / "one.csv"
-    one.write_text("s_um,r\n50,0.1\n")
+    one.write_text("s_um,r\n50,0.1\n", encoding="utf-8")
     out = tmp_path / "o"
     rc = main(["compare", str(one), "--model", str(LAB), "--at-h", "12", "--out", str(out)])
     line = _refused(rc, capsys.readouterr().err, out)

@@ -28,13 +28,13 @@ def test_simulate_writes_outputs_and_same_seed_is_identical(tmp_path, capsys):
         rc, _, err = run(["simulate", LAB, "--hours", "3", "--particles", "1500", "--seed", str(seed), "--out", str(d),
                           "--no-progress"], capsys)
         assert rc == 0, err
-    text = (a / "moments.csv").read_text()
+    text = (a / "moments.csv").read_text(encoding="utf-8")
     assert text.splitlines()[0] == HEADER
     rows = list(csv.DictReader(text.splitlines()))
     assert [float(r["t_h"]) for r in rows] == [0, 1, 2, 3]
     assert int(rows[0]["bond_events"]) == 0 and int(rows[1]["bond_events"]) > 0
-    assert text == (b / "moments.csv").read_text()
-    assert text != (c / "moments.csv").read_text()
+    assert text == (b / "moments.csv").read_text(encoding="utf-8")
+    assert text != (c / "moments.csv").read_text(encoding="utf-8")
     pop = np.load(a / "population.npz")
     assert pop["p"].shape == (4, pop["s_edges_um"].size - 1, pop["r_edges"].size - 1)
     np.testing.assert_allclose(pop["p"].sum(axis=(1, 2)), 1.0, rtol=1e-5)
@@ -46,20 +46,20 @@ def test_simulate_writes_outputs_and_same_seed_is_identical(tmp_path, capsys):
 @pytest.mark.slow
 def test_schedule_file_with_rest(tmp_path, capsys):
     sched = tmp_path / "s.toml"
-    sched.write_text("[[segment]]\nhours = 1\nrpm = 400\n[[segment]]\nhours = 1\nrpm = 0\n")
+    sched.write_text("[[segment]]\nhours = 1\nrpm = 400\n[[segment]]\nhours = 1\nrpm = 0\n", encoding="utf-8")
     rc, _, err = run(["simulate", LAB, "--schedule", str(sched), "--particles", "500", "--out", str(tmp_path / "o"),
                       "--no-progress"], capsys)
     assert rc == 0, err
-    rows = list(csv.DictReader((tmp_path / "o" / "moments.csv").read_text().splitlines()))
+    rows = list(csv.DictReader((tmp_path / "o" / "moments.csv").read_text(encoding="utf-8").splitlines()))
     assert int(rows[2]["bond_events"]) == 0 and int(rows[2]["fracture_events"]) == 0  # the rest hour
     assert float(rows[2]["temperature_c"]) < float(rows[1]["temperature_c"])
 
 
 def _card_variant(tmp_path, old, new):
-    text = open(LAB).read()
+    text = open(LAB, encoding="utf-8").read()
     assert old in text
     p = tmp_path / "card.toml"
-    p.write_text(text.replace(old, new, 1))
+    p.write_text(text.replace(old, new, 1), encoding="utf-8")
     return str(p)
 
 
@@ -110,7 +110,7 @@ def test_bad_flags(tmp_path, capsys, flags, expect):
 
 def test_bad_schedule(tmp_path, capsys):
     sched = tmp_path / "s.toml"
-    sched.write_text("[[segment]]\nhours = -1\nrpm = 300\n")
+    sched.write_text("[[segment]]\nhours = -1\nrpm = 300\n", encoding="utf-8")
     rc, _, err = run(["simulate", LAB, "--schedule", str(sched), "--out", str(tmp_path / "o")], capsys)
     assert rc == 2 and "segment[0].hours" in err and str(sched) in err
     assert not (tmp_path / "o").exists()
@@ -121,10 +121,10 @@ def test_failed_rerun_keeps_previous_outputs(tmp_path, capsys):
     out = tmp_path / "o"
     rc, _, _ = run(["simulate", LAB, "--hours", "1", "--particles", "300", "--out", str(out), "--no-progress"], capsys)
     assert rc == 0
-    before = (out / "moments.csv").read_text()
+    before = (out / "moments.csv").read_text(encoding="utf-8")
     rc, _, _ = run(["simulate", LAB, "--hours", "-1", "--out", str(out)], capsys)
     assert rc == 2
-    assert (out / "moments.csv").read_text() == before
+    assert (out / "moments.csv").read_text(encoding="utf-8") == before
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary leftovers
     shutil.rmtree(out)
 
@@ -137,7 +137,7 @@ def test_failed_rerun_keeps_previous_outputs(tmp_path, capsys):
 def test_unwritable_out_fails_before_any_work(tmp_path, capsys, command):
     """An --out below a file (a typo, a read-only place) is reported at once: one line, exit 2, nothing made."""
     blocker = tmp_path / "afile"
-    blocker.write_text("x")
+    blocker.write_text("x", encoding="utf-8")
     target = blocker / ("c.toml" if command[0] == "identify" else "out")
     rc, out, err = run([*command, "--out", str(target)], capsys)
     assert rc == 2 and err.startswith("bmctl: error: --out:") and "not a folder" in err

@@ -41,7 +41,7 @@ def test_verify_writes_its_four_outputs(tmp_path, capsys, instant_checks):
     out = tmp_path / "v"
     assert _verify(out) == 0, capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == OUTPUTS
-    assert "1 of 1 checks passed" in (out / "verification.txt").read_text()
+    assert "1 of 1 checks passed" in (out / "verification.txt").read_text(encoding="utf-8")
 
 
 def test_an_output_that_cannot_be_written_leaves_none_of_the_set(tmp_path, capsys, instant_checks):
@@ -61,10 +61,10 @@ def test_an_earlier_set_is_kept_whole_when_a_late_output_fails(tmp_path, capsys,
     out = tmp_path / "v"
     out.mkdir()
     for name in ("verification.txt", "verification.csv", "analytic.png"):
-        (out / name).write_text("earlier\n")
+        (out / name).write_text("earlier\n", encoding="utf-8")
     (out / "reference.png").mkdir()
     assert _verify(out) == 2
     assert f"{out / 'reference.png'}: " in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == OUTPUTS
     for name in ("verification.txt", "verification.csv", "analytic.png"):
-        assert (out / name).read_text() == "earlier\n", name
+        assert (out / name).read_text(encoding="utf-8") == "earlier\n", name

@@ -51,7 +51,7 @@ def test_a_scheduler_alone_still_runs(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(parallel, "client_for", record)
     sched = tmp_path / "s.toml"
-    sched.write_text('name = "s"\n[[segment]]\nhours = 0.5\nrpm = 300\n')
+    sched.write_text('name = "s"\n[[segment]]\nhours = 0.5\nrpm = 300\n', encoding="utf-8")
     rc = main(["whatif", LAB, str(sched), "--seeds", "2", "--particles", "200", "--scheduler", ADDRESS,
                "--out", str(tmp_path / "o")])
     assert rc == 0, capsys.readouterr().err

@@ -48,8 +48,8 @@ def _old_format(text: str) -> str:
 def test_old_format_card_loads_and_simulates_identically(tmp_path, capsys):
     src = card_path("alni-1to1-400rpm-fan")
     old = tmp_path / "old.toml"
-    old.write_text(_old_format(src.read_text()))
-    assert "[powder]" not in old.read_text() and "ball_material" not in old.read_text()
+    old.write_text(_old_format(src.read_text(encoding="utf-8")), encoding="utf-8")
+    assert "[powder]" not in old.read_text(encoding="utf-8") and "ball_material" not in old.read_text(encoding="utf-8")
     a, b = load_card(src).model_dump(), load_card(old).model_dump()
     a["mill"].pop("ball_material"), b["mill"].pop("ball_material")
     assert {k: v for k, v in a.items() if k not in ("powder",)} == {k: v for k, v in b.items() if k != "powder"}
@@ -57,14 +57,14 @@ def test_old_format_card_loads_and_simulates_identically(tmp_path, capsys):
         assert main(["simulate", str(path), "--hours", "1", "--particles", "300", "--seed", "3",
                      "--out", str(tmp_path / out), "--no-progress"]) == 0
     capsys.readouterr()
-    assert (tmp_path / "n" / "moments.csv").read_text() == (tmp_path / "o" / "moments.csv").read_text()
+    assert (tmp_path / "n" / "moments.csv").read_text(encoding="utf-8") == (tmp_path / "o" / "moments.csv").read_text(encoding="utf-8")
 
 
 def _edit(tmp_path, old, new):
-    text = card_path("alni-1to1-300rpm-lab").read_text()
+    text = card_path("alni-1to1-300rpm-lab").read_text(encoding="utf-8")
     assert old in text
     p = tmp_path / "c.toml"
-    p.write_text(text.replace(old, new, 1))
+    p.write_text(text.replace(old, new, 1), encoding="utf-8")
     return p
 
 
@@ -77,7 +77,7 @@ def test_15mm_ball_with_a_10mm_ball_mass_is_refused(tmp_path, capsys):
 
 def test_ball_mass_is_derived_when_left_out(tmp_path):
     p = _edit(tmp_path, "ball_diameter_m = 0.010", "ball_diameter_m = 0.015")
-    p.write_text(p.read_text().replace("impactor_mass_kg = 4.14e-3\n", ""))
+    p.write_text(p.read_text(encoding="utf-8").replace("impactor_mass_kg = 4.14e-3\n", ""), encoding="utf-8")
     card = load_card(p)
     assert card.material.impactor_mass_kg == pytest.approx(7900 * math.pi / 6 * 0.015**3, rel=1e-12)
 
@@ -130,8 +130,8 @@ def test_card_show_flags_rows_outside_validity(tmp_path, capsys):
 def test_a_bad_input_of_a_derivation_is_named_itself(tmp_path, capsys, old, new, field):
     """Not as the ball mass or ball-to-powder ratio derived from it, nor as a 'missing' ratio."""
     p = _edit(tmp_path, old, new)
-    p.write_text(p.read_text().replace("impactor_mass_kg = 4.14e-3\n", "")
-                 .replace("ball_to_powder_ratio = 10.0\n", "").replace("[powder]", "[powder]\nmass_kg = 0.00414"))
+    p.write_text(p.read_text(encoding="utf-8").replace("impactor_mass_kg = 4.14e-3\n", "")
+                 .replace("ball_to_powder_ratio = 10.0\n", "").replace("[powder]", "[powder]\nmass_kg = 0.00414"), encoding="utf-8")
     assert main(["card", "show", str(p)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and f": {field}: " in err and "required field is missing" not in err, err
@@ -139,8 +139,8 @@ def test_a_bad_input_of_a_derivation_is_named_itself(tmp_path, capsys, old, new,
 
 def test_a_missing_ball_material_names_the_ball_density_not_the_ratio(tmp_path, capsys):
     p = _edit(tmp_path, 'ball_material = "steel"', "")
-    p.write_text(p.read_text().replace("ball_density_kg_m3 = 7900\n", "").replace("impactor_mass_kg = 4.14e-3\n", "")
-                 .replace("ball_to_powder_ratio = 10.0\n", "").replace("[powder]", "[powder]\nmass_kg = 0.00414"))
+    p.write_text(p.read_text(encoding="utf-8").replace("ball_density_kg_m3 = 7900\n", "").replace("impactor_mass_kg = 4.14e-3\n", "")
+                 .replace("ball_to_powder_ratio = 10.0\n", "").replace("[powder]", "[powder]\nmass_kg = 0.00414"), encoding="utf-8")
     assert main(["card", "show", str(p)]) == 2
     err = capsys.readouterr().err.strip()
     assert ": mill.ball_density_kg_m3: required field is missing" in err and "mill.ball_material" in err, err
@@ -160,8 +160,8 @@ def test_a_validity_temperature_not_above_the_ambient_is_refused(tmp_path, capsy
     """The card's ambient is 25 °C: a calibrated maximum of 20 °C (an empty window from the ambient up,
     every milling run warned) or a validity maximum at the ambient is refused, naming the field."""
     p = _edit(tmp_path, "[validity]", "[validity]\n" + extra)
-    p.write_text("\n".join(ln for ln in p.read_text().splitlines()
-                           if not (ln.startswith(field + " ") and "=" in ln and extra not in ln)) + "\n")
+    p.write_text("\n".join(ln for ln in p.read_text(encoding="utf-8").splitlines()
+                           if not (ln.startswith(field + " ") and "=" in ln and extra not in ln)) + "\n", encoding="utf-8")
     assert main(["card", "show", str(p)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and f"validity.{field}: " in err and "thermal.ambient_C" in err, err

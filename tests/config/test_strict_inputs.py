@@ -31,10 +31,10 @@ def one_line_error(capsys, args, needle):
 
 
 def mutated(tmp_path, src, old, new, name="card.toml"):
-    text = src.read_text()
+    text = src.read_text(encoding="utf-8")
     assert old in text, old
     p = tmp_path / name
-    p.write_text(text.replace(old, new, 1))
+    p.write_text(text.replace(old, new, 1), encoding="utf-8")
     return p
 
 
@@ -71,15 +71,15 @@ def test_a_card_saved_with_a_byte_order_mark_is_read(tmp_path):
 
 def test_schedule_rpm_string_and_huge_segment_are_refused(tmp_path, capsys):
     s = tmp_path / "s.toml"
-    s.write_text('[[segment]]\nhours = 1\nrpm = "250"\n')
+    s.write_text('[[segment]]\nhours = 1\nrpm = "250"\n', encoding="utf-8")
     one_line_error(capsys, ["simulate", LAB, "--schedule", s, "--out", tmp_path / "o"], "segment[0].rpm")
-    s.write_text("[[segment]]\nhours = 1e300\nrpm = 250\n")
+    s.write_text("[[segment]]\nhours = 1e300\nrpm = 250\n", encoding="utf-8")
     one_line_error(capsys, ["simulate", LAB, "--schedule", s, "--out", tmp_path / "o"], "segment[0].hours")
 
 
 def test_controller_boolean_string_interval_and_ceiling_are_refused(tmp_path):
     src = ROOT / "controllers" / "mpc-fast.toml"
-    text = src.read_text()
+    text = src.read_text(encoding="utf-8")
     m = re.search(r"^resolve\s*=\s*\w+", text, re.M)
     cases = [(m.group(0), 'resolve = "yes"', "onoff.resolve"),
              ("interval_h = 0.5", "interval_h = 1e-4", "interval_h"),
@@ -94,18 +94,18 @@ def test_controller_boolean_string_interval_and_ceiling_are_refused(tmp_path):
 
 @pytest.mark.parametrize("table", ["thermal", "simulation", "partition", "initial"])
 def test_card_missing_a_table_names_it(tmp_path, capsys, table):
-    text = LAB.read_text()
+    text = LAB.read_text(encoding="utf-8")
     start = text.index(f"[{table}]")
     nxt = text.find("\n[", start + 1)
     p = tmp_path / "card.toml"
-    p.write_text(text[:start] + (text[nxt + 1:] if nxt >= 0 else ""))
+    p.write_text(text[:start] + (text[nxt + 1:] if nxt >= 0 else ""), encoding="utf-8")
     one_line_error(capsys, ["card", "show", p], f"[{table}]: required table is missing")
 
 
 def test_card_truncated_between_tables_is_refused(tmp_path, capsys):
-    text = LAB.read_text()
+    text = LAB.read_text(encoding="utf-8")
     p = tmp_path / "card.toml"
-    p.write_text(text[:text.index("[thermal]")])
+    p.write_text(text[:text.index("[thermal]")], encoding="utf-8")
     one_line_error(capsys, ["simulate", p, "--out", tmp_path / "o"], "required table is missing")
 
 
@@ -152,7 +152,7 @@ def test_unbounded_simulate_flags_are_refused(tmp_path, capsys, flags, needle):
 def test_estimate_times_beyond_a_batch_are_refused(tmp_path, capsys):
     a, b = tmp_path / "a.csv", tmp_path / "b.csv"
     for p in (a, b):
-        p.write_text("s_um,r\n40,0.05\n41,0.06\n")
+        p.write_text("s_um,r\n40,0.05\n41,0.06\n", encoding="utf-8")
     one_line_error(capsys, ["estimate", LAB, "--samples", a, b, "--times", "0.5,1e9", "--out", tmp_path / "e.csv"],
                    "--times")
 
@@ -184,11 +184,11 @@ def test_outputs_honour_the_umask(tmp_path):
 
 def test_a_symlinked_output_file_stays_a_link(tmp_path):
     target = tmp_path / "real.csv"
-    target.write_text("old")
+    target.write_text("old", encoding="utf-8")
     link = tmp_path / "link.csv"
     link.symlink_to(target)
     io.write_text(link, "new")
-    assert link.is_symlink() and target.read_text() == "new"
+    assert link.is_symlink() and target.read_text(encoding="utf-8") == "new"
 
 
 def test_out_through_a_symlink_to_an_unwritable_place_fails_up_front(tmp_path, capsys):
@@ -220,7 +220,7 @@ def test_simulate_with_an_output_name_that_is_a_folder_writes_nothing(tmp_path, 
 
 @pytest.mark.slow
 def test_run_leaving_the_validity_range_warns(tmp_path, capsys):
-    if "[validity]" in LAB.read_text():
+    if "[validity]" in LAB.read_text(encoding="utf-8"):
         p = mutated(tmp_path, LAB, "[validity]", "[validity]\ntemperature_max_C = 30.0\n#")
     else:
         p = mutated(tmp_path, LAB, "[stochastic]", "[validity]\ntemperature_max_C = 30.0\n\n[stochastic]")
@@ -238,6 +238,6 @@ def test_a_ball_count_whose_derived_ratio_is_absurd_names_both_fields(tmp_path):
     from tests.config.test_own_mill import doc_card
 
     p = doc_card(tmp_path)
-    p.write_text(_re.sub(r"ball_count = \d+", "ball_count = 400", p.read_text()))
+    p.write_text(_re.sub(r"ball_count = \d+", "ball_count = 400", p.read_text(encoding="utf-8")), encoding="utf-8")
     with pytest.raises(InputError, match=r"mill.ball_count, powder.mass_kg: 400 balls .* ratio of 1059"):
         load_card(p)

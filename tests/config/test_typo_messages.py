@@ -24,7 +24,7 @@ def test_a_mistyped_card_key_is_named_with_the_close_known_one(tmp_path, capsys,
 
 def test_a_mistyped_schedule_key_is_named_not_reported_missing(tmp_path, capsys):
     p = tmp_path / "sched.toml"
-    p.write_text("[[segment]]\nhours = 2\nrmp = 300\n")
+    p.write_text("[[segment]]\nhours = 2\nrmp = 300\n", encoding="utf-8")
     out = tmp_path / "out"
     line = one_line_error(capsys, ["simulate", LAB, "--schedule", p, "--out", out, "--no-progress"],
                           "sched.toml: segment[0].rmp: unknown field (did you mean rpm?)")

@@ -17,7 +17,7 @@ import pytest
 def _fake_gcc(folder: Path) -> Path:
     """A 'gcc' that takes a minute: a compile that is still running when the command ends."""
     gcc = folder / "gcc"
-    gcc.write_text("#!/bin/sh\nsleep 60\n")
+    gcc.write_text("#!/bin/sh\nsleep 60\n", encoding="utf-8")
     gcc.chmod(gcc.stat().st_mode | stat.S_IXUSR)
     return folder
 
@@ -62,7 +62,7 @@ def test_background_compile_is_stopped_at_exit_unless_detached(tmp_path, mode):
     if mode == "detach":  # asked for: still running, its lock names it; stop it here
         assert alive
         (lock,) = cache.glob("*.lock")
-        assert int(lock.read_text()) == pgid
+        assert int(lock.read_text(encoding="utf-8")) == pgid
         os.killpg(pgid, 15)
     else:
         assert not alive

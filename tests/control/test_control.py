@@ -387,7 +387,7 @@ def test_parse_target():
 
 def _write(tmp_path, name, text):
     p = tmp_path / name
-    p.write_text(text)
+    p.write_text(text, encoding="utf-8")
     return p
 
 
@@ -444,13 +444,13 @@ def test_design_writes_a_schedule_simulate_reads(tmp_path, capsys, model):
     assert total <= 1.0 + 1e-6
     assert all(s.rpm <= 500 for s in sched.segment)
     assert all(abs(s.hours * 60 - round(s.hours * 60)) < 1e-6 for s in sched.segment)
-    rows = (out / "predicted.csv").read_text().splitlines()
+    rows = (out / "predicted.csv").read_text(encoding="utf-8").splitlines()
     assert rows[0].startswith("t_h,rpm,milling,t_peak_c,s_mean_um") and len(rows) >= 1 + 2  # one row per segment end
     assert (out / "design.png").stat().st_size > 1000
     s_final = float(rows[-1].split(",")[4])
     assert s_final == pytest.approx(Xs[-1, 0], rel=0.03)
     assert math.isfinite(s_final)
-    header = (out / "schedule.toml").read_text().splitlines()[1]  # the prediction of the target's own quantity
+    header = (out / "schedule.toml").read_text(encoding="utf-8").splitlines()[1]  # the prediction of the target's own quantity
     predicted = float(header.split("predicted s_mean_um ")[1].split()[0])
     assert predicted == pytest.approx(s_final, rel=1e-3) and "D50" not in header
 

@@ -10,7 +10,7 @@ from bmctl.cli import main
 from ..conftest import ROOT
 
 CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
-DEFAULT = (ROOT / "controllers" / "mpc-default.toml").read_text()
+DEFAULT = (ROOT / "controllers" / "mpc-default.toml").read_text(encoding="utf-8")
 
 
 def _controller(tmp_path, extra: str = "", **replace) -> str:
@@ -19,7 +19,7 @@ def _controller(tmp_path, extra: str = "", **replace) -> str:
     for start, new in replace.items():
         lines = [new if ln.startswith(start) else ln for ln in lines]
     path = tmp_path / "c.toml"
-    path.write_text("\n".join(lines) + "\n" + extra)
+    path.write_text("\n".join(lines) + "\n" + extra, encoding="utf-8")
     return str(path)
 
 
@@ -100,8 +100,8 @@ def test_target_design_says_when_the_schedule_is_done(tmp_path, capsys):
                  "--out", str(out)]) == 0
     text = capsys.readouterr().out
     done = float(text.split("the schedule is done after ")[1].split(" h")[0])
-    header = (out / "schedule.toml").read_text().splitlines()[0]
-    written = sum(float(ln.split("=")[1].split("#")[0]) for ln in (out / "schedule.toml").read_text().splitlines()
+    header = (out / "schedule.toml").read_text(encoding="utf-8").splitlines()[0]
+    written = sum(float(ln.split("=")[1].split("#")[0]) for ln in (out / "schedule.toml").read_text(encoding="utf-8").splitlines()
                   if ln.startswith("hours ="))
     assert done == pytest.approx(written, abs=0.005) and done < 1.0
     assert "1 h is the batch length it was designed for" in text
@@ -142,7 +142,7 @@ def test_design_summary_counts_the_early_stop(tmp_path, capsys):
                  "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "1 segment, 1 on/off switch, " in text.splitlines()[0], text
-    assert "; 1 on/off switch;" in (out / "schedule.toml").read_text().splitlines()[1]
+    assert "; 1 on/off switch;" in (out / "schedule.toml").read_text(encoding="utf-8").splitlines()[1]
 
 
 def test_family_errors_are_those_of_the_written_schedule(tmp_path):
@@ -263,7 +263,7 @@ def test_schedule_toml_says_the_minutes_it_writes(tmp_path, capsys, hours):
     rc = main(["design", str(CARD), "--target", "d50_um=45", "--hours", hours, "--plant-seeds", "0",
                "--out", str(out)])
     assert rc == 0, capsys.readouterr().err
-    text = (out / "schedule.toml").read_text()
+    text = (out / "schedule.toml").read_text(encoding="utf-8")
     segs = _segment_minutes(text)
     assert segs
     for h, shown in segs:

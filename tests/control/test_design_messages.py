@@ -14,14 +14,14 @@ from bmctl.cli import main
 from ..conftest import ROOT
 
 CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
-DEFAULT = (ROOT / "controllers" / "mpc-default.toml").read_text()
+DEFAULT = (ROOT / "controllers" / "mpc-default.toml").read_text(encoding="utf-8")
 
 
 def _controller(tmp_path, **replace) -> str:
     """mpc-default.toml with ``replace`` ({old line start: new line})."""
     lines = [next((new for start, new in replace.items() if ln.startswith(start)), ln) for ln in DEFAULT.splitlines()]
     path = tmp_path / "c.toml"
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return str(path)
 
 

@@ -13,4 +13,4 @@ def test_one_plant_is_singular(tmp_path, capsys):
                  "--plant-particles", "100", "--out", str(out)]) == 0
     err = capsys.readouterr().err
     assert "checking the schedule on 1 plant of 100 particles" in err, err
-    assert "# plant check (1 plant of 100 particles): " in (out / "schedule.toml").read_text()
+    assert "# plant check (1 plant of 100 particles): " in (out / "schedule.toml").read_text(encoding="utf-8")

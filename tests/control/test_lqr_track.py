@@ -43,9 +43,9 @@ def model():
 
 def _lqr(tmp_path, track: str | None) -> str:
     """lqr-baseline.toml with ``track`` (None: the line removed) in ``tmp_path``."""
-    text = LQR.read_text().replace('track = "s_mean_um"', "" if track is None else f'track = "{track}"')
+    text = LQR.read_text(encoding="utf-8").replace('track = "s_mean_um"', "" if track is None else f'track = "{track}"')
     path = tmp_path / f"lqr-{track}.toml"
-    path.write_text(text)
+    path.write_text(text, encoding="utf-8")
     return str(path)
 
 
@@ -59,7 +59,7 @@ def test_a_dvalue_track_is_refused_where_the_config_is_validated(track):
 
 def _trial(tmp_path, capsys, ctrl: str, target: str) -> tuple[int, list[str], object]:
     sc = tmp_path / "sc.toml"
-    sc.write_text(SCENARIO.format(card=CARD, ctrl=ctrl, target=target))
+    sc.write_text(SCENARIO.format(card=CARD, ctrl=ctrl, target=target), encoding="utf-8")
     out = tmp_path / "out"
     capsys.readouterr()
     rc = main(["trial", str(sc), "--out", str(out), "--no-progress"])

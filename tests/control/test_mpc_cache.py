@@ -164,7 +164,7 @@ def test_one_compile_per_library_across_processes(private_cache, monkeypatch):
     gen = _Generator(ca.Function("band_step", [x], [x * x]))
     path = cache.library_path("0" * 24, prefix="test")
     lock = path.with_name(path.name + ".lock")
-    lock.write_text("12345")
+    lock.write_text("12345", encoding="utf-8")
     cache.start_compile(gen, path)  # held by "another process": nothing started
     assert str(path) not in cache._running and not path.exists()
     old = time.time() - cache.LOCK_STALE_S - 60

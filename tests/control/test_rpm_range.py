@@ -63,10 +63,10 @@ def test_a_recipe_faster_than_the_mill_names_its_controller(model):
 def test_campaign_init_refuses_a_mill_slower_than_the_lowest_milling_speed(tmp_path, capsys):
     from bmctl.cli import main
 
-    text = (ROOT / "models" / "alni-1to1-300rpm-lab.toml").read_text()
+    text = (ROOT / "models" / "alni-1to1-300rpm-lab.toml").read_text(encoding="utf-8")
     card = tmp_path / "lab-rpm90.toml"
-    card.write_text(text.replace("rpm_max = 600", "rpm_max = 90").replace("rpm = 300", "rpm = 90"))
-    assert "rpm_max = 90\n" in card.read_text()
+    card.write_text(text.replace("rpm_max = 600", "rpm_max = 90").replace("rpm = 300", "rpm = 90"), encoding="utf-8")
+    assert "rpm_max = 90\n" in card.read_text(encoding="utf-8")
     d = tmp_path / "c"
     assert main(["campaign", "init", str(d), "--model", str(card), "--controller",
                  str(ROOT / "controllers" / "mpc-default.toml"), "--target", "s_mean_um=45"]) == 2
@@ -76,10 +76,10 @@ def test_campaign_init_refuses_a_mill_slower_than_the_lowest_milling_speed(tmp_p
 
 
 def _with_rpm_step(tmp_path, step, name="c7.toml"):
-    text = (ROOT / "controllers" / "mpc-fast.toml").read_text()
+    text = (ROOT / "controllers" / "mpc-fast.toml").read_text(encoding="utf-8")
     assert "\nrpm_step = 10.0 " in text
     path = tmp_path / name
-    path.write_text(text.replace("\nrpm_step = 10.0 ", f"\nrpm_step = {step} "))
+    path.write_text(text.replace("\nrpm_step = 10.0 ", f"\nrpm_step = {step} "), encoding="utf-8")
     return path
 
 

@@ -43,7 +43,7 @@ config = "{ctrl}"
 def _scenario(tmp_path, hours=1.0, target="{ s_mean_um = 45.0 }", ctrl="mpc-default", every=None):
     path = tmp_path / "sc.toml"
     path.write_text(SCENARIO.format(card=CARD, hours=hours, target=target, ctrl=CTRL / f"{ctrl}.toml",
-                                    every=every if every is not None else max(hours, 1 / 60)))
+                                    every=every if every is not None else max(hours, 1 / 60)), encoding="utf-8")
     return path
 
 
@@ -82,9 +82,9 @@ def test_a_batch_of_the_minimum_milling_period_or_longer_is_accepted(tmp_path):
 
 def test_the_mills_own_minimum_period_sets_the_shortest_batch(tmp_path):
     ctrl = tmp_path / "lqr-10min.toml"
-    ctrl.write_text((CTRL / "lqr-baseline.toml").read_text().replace("min_mill_min = 5.0", "min_mill_min = 10.0"))
+    ctrl.write_text((CTRL / "lqr-baseline.toml").read_text(encoding="utf-8").replace("min_mill_min = 5.0", "min_mill_min = 10.0"), encoding="utf-8")
     sc = _scenario(tmp_path, hours=0.1)
-    sc.write_text(sc.read_text().replace(str(CTRL / "mpc-default.toml"), str(ctrl)))
+    sc.write_text(sc.read_text(encoding="utf-8").replace(str(CTRL / "mpc-default.toml"), str(ctrl)), encoding="utf-8")
     with pytest.raises(InputError, match=r"hours: a batch of 0\.1 h \(6 min\) is shorter than the 10 min .* in "
                                          r".*lqr-10min\.toml"):
         load_scenario(sc)
@@ -121,7 +121,7 @@ def test_a_miss_without_binding_limits_is_still_said(tmp_path, capsys):
     sc = _scenario(tmp_path, hours=1.0, ctrl="recipe-300rpm-continuous", every=0.5)
     rc, err, out = _run(["trial", str(sc), "--out", str(tmp_path / "out"), "--no-progress"], capsys)
     assert rc == 0, err
-    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text(encoding="utf-8"))
     assert abs(summary["final_error"]["s_mean_um"]) > 0.02
     assert summary["binding_first"] == [] and summary["binding_last"] == []
     lines = [ln for ln in out.splitlines() if "missed by more than" in ln]

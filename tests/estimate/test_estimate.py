@@ -243,7 +243,7 @@ def test_cli_estimate_writes_csv_and_figure(tmp_path, capsys):
                "--out", str(out), "--temperatures", "60,"])
     _, err = capsys.readouterr()
     assert rc == 0, err
-    rows = list(csv.DictReader(out.read_text().splitlines()))
+    rows = list(csv.DictReader(out.read_text(encoding="utf-8").splitlines()))
     assert [float(r["t_h"]) for r in rows] == [1.0, 2.0]
     for name in ("s_mean_um", "s_std_um", "r_mean", "r_std", "temperature_c", "hardening", "gamma_mult", "delta_mult"):
         for r in rows:
@@ -254,7 +254,7 @@ def test_cli_estimate_writes_csv_and_figure(tmp_path, capsys):
 
 def _bad_table(tmp_path, text, name="bad.csv"):
     p = tmp_path / name
-    p.write_text(text)
+    p.write_text(text, encoding="utf-8")
     return str(p)
 
 
@@ -295,7 +295,7 @@ def test_write_card_refuses_an_existing_file_unless_forced(tmp_path, capsys):
 
     sample = str(ROOT / "examples" / "samples" / "lab-300rpm-0p5h.csv")
     other = tmp_path / "mine.toml"
-    other.write_text('name = "my schedule"\n\n[[segment]]\nhours = 2\nrpm = 300\n')
+    other.write_text('name = "my schedule"\n\n[[segment]]\nhours = 2\nrpm = 300\n', encoding="utf-8")
     before = other.read_bytes()
     args = ["estimate", LAB, "--samples", sample, "--times", "0.5", "--particles", "100",
             "--out", str(tmp_path / "w.csv"), "--write-card", str(other), "--no-progress"]
@@ -343,7 +343,7 @@ def test_cli_estimate_warns_of_a_sample_outside_the_cards_size_range(tmp_path, c
     names a run outside the card's range of validity."""
     good = [str(p) for p in _write_samples(tmp_path / "ok")]
     mm = tmp_path / "mm.csv"
-    mm.write_text("s_um,r\n" + "".join(f"{0.04 + 0.001 * k:g},0.2\n" for k in range(30)))
+    mm.write_text("s_um,r\n" + "".join(f"{0.04 + 0.001 * k:g},0.2\n" for k in range(30)), encoding="utf-8")
     rc = main(["estimate", LAB, "--samples", good[0], str(mm), "--times", "1,2", "--particles", "100",
                "--out", str(tmp_path / "e.csv"), "--no-progress"])
     err = capsys.readouterr().err

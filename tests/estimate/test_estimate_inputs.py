@@ -14,7 +14,7 @@ LAB = str(card_path("alni-1to1-300rpm-lab"))
 def _table(path, seed):
     rng = np.random.default_rng(seed)
     s, r = rng.uniform(30, 90, 60), rng.uniform(0.05, 0.4, 60)
-    path.write_text("s_um,r\n" + "".join(f"{a:.3f},{b:.4f}\n" for a, b in zip(s, r)))
+    path.write_text("s_um,r\n" + "".join(f"{a:.3f},{b:.4f}\n" for a, b in zip(s, r)), encoding="utf-8")
 
 
 def test_folder_whose_name_order_is_not_its_number_order_warns(tmp_path, capsys):

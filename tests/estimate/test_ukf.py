@@ -275,10 +275,10 @@ def test_make_estimator_kinds(model):
 
 # --- selection: scenarios and the CLI --------------------------------------------------------
 def _scenario(tmp_path, kind: str) -> str:
-    text = (ROOT / "scenarios" / "trial-lab-recipe.toml").read_text()
+    text = (ROOT / "scenarios" / "trial-lab-recipe.toml").read_text(encoding="utf-8")
     text = text.replace('"models/', f'"{ROOT}/models/').replace('"controllers/', f'"{ROOT}/controllers/')
     p = tmp_path / f"sc-{kind}.toml"
-    p.write_text(text + f'\n[estimator]\nkind = "{kind}"\n')
+    p.write_text(text + f'\n[estimator]\nkind = "{kind}"\n', encoding="utf-8")
     return str(p)
 
 
@@ -299,12 +299,12 @@ def test_trial_runs_and_resumes_on_the_ukf(tmp_path):
     r = run_trial(sc, tmp_path / "a", seed=1, max_steps=2)
     assert r == {"interrupted_at_step": 2}
     run_trial(sc, tmp_path / "a", seed=1, resume=True, max_steps=2)
-    rows = list(csv.DictReader((tmp_path / "a" / "trajectory.csv").read_text().splitlines()))
+    rows = list(csv.DictReader((tmp_path / "a" / "trajectory.csv").read_text(encoding="utf-8").splitlines()))
     assert len(rows) == 4
     assert all(float(x["est_s_mean_um_q05"]) <= float(x["est_s_mean_um"]) <= float(x["est_s_mean_um_q95"]) for x in rows)
     b = run_trial(sc, tmp_path / "b", seed=1, max_steps=4)
     assert b == {"interrupted_at_step": 4}
-    rows_b = list(csv.DictReader((tmp_path / "b" / "trajectory.csv").read_text().splitlines()))
+    rows_b = list(csv.DictReader((tmp_path / "b" / "trajectory.csv").read_text(encoding="utf-8").splitlines()))
     for ra, rb in zip(rows, rows_b, strict=True):
         ra.pop("solve_ms"), rb.pop("solve_ms")  # wall-clock time
         assert ra == rb
@@ -327,7 +327,7 @@ def test_cli_estimate_ukf(tmp_path, capsys, model):
     text, err = capsys.readouterr()
     assert rc == 0, err
     assert "unscented Kalman filter" in text
-    rows = list(csv.DictReader(out.read_text().splitlines()))
+    rows = list(csv.DictReader(out.read_text(encoding="utf-8").splitlines()))
     assert [float(r["t_h"]) for r in rows] == [1.0, 2.0]
     for name in ("s_mean_um", "s_std_um", "r_mean", "r_std", "gamma_mult", "delta_mult"):
         for r in rows:

@@ -55,18 +55,18 @@ def _trial(tmp_path, name, env_extra):
 
 
 def _table(path):
-    rows = list(csv.DictReader(io.StringIO(path.read_text())))
+    rows = list(csv.DictReader(io.StringIO(path.read_text(encoding="utf-8"))))
     return [{k: v for k, v in r.items() if k not in TIMING} for r in rows]
 
 
 def _summary(path):
-    s = json.loads(path.read_text())
+    s = json.loads(path.read_text(encoding="utf-8"))
     return {k: v for k, v in s.items() if not k.endswith("_ms")}
 
 
 @pytest.mark.slow
 def test_trial_is_identical_with_cold_and_warm_compile_caches(tmp_path):
-    (tmp_path / "sc.toml").write_text(SCENARIO.format(root=ROOT))
+    (tmp_path / "sc.toml").write_text(SCENARIO.format(root=ROOT), encoding="utf-8")
     cold = _trial(tmp_path, "cold", {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"})
     # fill both caches in the foreground (waits for any compile the cold run started)
     _trial(tmp_path, "fill", {"BMCTL_MPC_COMPILE": "wait", "BMCTL_COMPILE": "now"})
@@ -76,9 +76,9 @@ def test_trial_is_identical_with_cold_and_warm_compile_caches(tmp_path):
     assert _table(cold / "trajectory.csv") == _table(warm / "trajectory.csv")
     assert _summary(cold / "summary.json") == _summary(warm / "summary.json")
     # the timing column aside, the files are byte for byte the same
-    skip = (cold / "trajectory.csv").read_text().splitlines()[0].split(",").index("solve_ms")
+    skip = (cold / "trajectory.csv").read_text(encoding="utf-8").splitlines()[0].split(",").index("solve_ms")
     strip = lambda p: [",".join(c for i, c in enumerate(line.split(",")) if i != skip)  # noqa: E731
-                       for line in p.read_text().splitlines()]
+                       for line in p.read_text(encoding="utf-8").splitlines()]
     assert strip(cold / "trajectory.csv") == strip(warm / "trajectory.csv")
     # and the plant's and the estimator's states to the last bit (numpy engine cold, compiled warm)
     import numpy as np

@@ -18,7 +18,7 @@ config = "{ROOT / "controllers" / "recipe-300rpm-continuous.toml"}"
 
 def _load(tmp_path, extra):
     p = tmp_path / "s.toml"
-    p.write_text(BASE + extra)
+    p.write_text(BASE + extra, encoding="utf-8")
     return load_scenario(p)
 
 

@@ -27,7 +27,7 @@ config = "{root}/controllers/mpc-fast.toml"
 
 def _scenario(tmp_path, sampling="", target="50.0"):
     path = tmp_path / "s.toml"
-    path.write_text(SCENARIO.format(root=ROOT, sampling=sampling, target=target))
+    path.write_text(SCENARIO.format(root=ROOT, sampling=sampling, target=target), encoding="utf-8")
     return path
 
 
@@ -79,9 +79,9 @@ def test_a_controller_files_target_is_named_by_its_key_too(tmp_path):
     from bmctl.control.config import load_controller
     from bmctl.errors import InputError
 
-    src = (ROOT / "controllers" / "mpc-fast.toml").read_text()
+    src = (ROOT / "controllers" / "mpc-fast.toml").read_text(encoding="utf-8")
     bad = tmp_path / "c.toml"
-    bad.write_text(src + '\n[target]\ns_mean_um = "a"\n' if "[target]" not in src else src)
+    bad.write_text(src + '\n[target]\ns_mean_um = "a"\n' if "[target]" not in src else src, encoding="utf-8")
     if "[target]" in src:
         pytest.skip("mpc-fast.toml already has a [target] table")
     with pytest.raises(InputError) as exc:

@@ -11,7 +11,7 @@ from ..conftest import card_path
 
 def test_toml_with_milling_share(tmp_path):
     p = tmp_path / "s.toml"
-    p.write_text('name = "x"\n[[segment]]\nhours = 2\nrpm = 300\nmilling = 0.25\n[[segment]]\nhours = 1\nrpm = 0\n')
+    p.write_text('name = "x"\n[[segment]]\nhours = 2\nrpm = 300\nmilling = 0.25\n[[segment]]\nhours = 1\nrpm = 0\n', encoding="utf-8")
     s = Schedule.load(p)
     assert s.name == "x" and s.hours == 3.0
     assert s.pairs() == [(0.5, 300.0), (1.5, 0.0), (1.0, 0.0)]
@@ -23,7 +23,7 @@ def test_toml_with_milling_share(tmp_path):
                                         ("[[segment]]\nhours = 1\nrpm = 300\nspeed = 1\n", "speed")])
 def test_bad_schedule_one_line(tmp_path, text, field):
     p = tmp_path / "s.toml"
-    p.write_text(text)
+    p.write_text(text, encoding="utf-8")
     with pytest.raises(InputError, match=field):
         Schedule.load(p)
 
@@ -58,7 +58,7 @@ def test_toml_comments_give_the_minutes_written():
 
 def _one_segment(tmp_path, hours, milling):
     p = tmp_path / "s.toml"
-    p.write_text(f"[[segment]]\nhours = {hours}\nrpm = 300\nmilling = {milling}\n")
+    p.write_text(f"[[segment]]\nhours = {hours}\nrpm = 300\nmilling = {milling}\n", encoding="utf-8")
     return p
 
 

@@ -36,7 +36,7 @@ config = "{root}/controllers/mpc-fast.toml"
 def small(tmp_path_factory):
     d = tmp_path_factory.mktemp("sc")
     p = d / "small.toml"
-    p.write_text(SMALL.format(root=ROOT))
+    p.write_text(SMALL.format(root=ROOT), encoding="utf-8")
     return p
 
 
@@ -55,7 +55,7 @@ def _copy(folder, tmp_path):
 
 
 def _rows(path):
-    return path.read_text().splitlines()
+    return path.read_text(encoding="utf-8").splitlines()
 
 
 @pytest.mark.slow
@@ -65,7 +65,7 @@ def test_trial_outputs_and_resume_identical(small, tmp_path):
     for key in ("target", "final_true", "final_error", "max_temperature_c", "temperature_violations", "energy_kj",
                 "batch_h", "solver_failures", "fallbacks"):
         assert key in summary
-    assert json.loads((full / "summary.json").read_text())["batch_h"] == pytest.approx(2.0)
+    assert json.loads((full / "summary.json").read_text(encoding="utf-8"))["batch_h"] == pytest.approx(2.0)
     rows = _rows(full / "trajectory.csv")
     assert rows[0].split(",") == trajectory_header()
     assert len(rows) == 1 + 4  # 0.5 h intervals
@@ -75,11 +75,11 @@ def test_trial_outputs_and_resume_identical(small, tmp_path):
     assert run_trial(small, part, seed=5, max_steps=2) == {"interrupted_at_step": 2}
     assert len(_rows(part / "trajectory.csv")) == 3
     # a row written after the last checkpoint (killed between the two writes) is dropped on resume
-    with open(part / "trajectory.csv", "a") as fh:
+    with open(part / "trajectory.csv", "a", encoding="utf-8") as fh:
         fh.write("garbage\n")
     assert run_trial(small, part, seed=5, resume=True, max_steps=1) == {"interrupted_at_step": 3}
     # killed mid-write of the next row: the torn row (no newline) is dropped on resume
-    with open(part / "trajectory.csv", "a") as fh:
+    with open(part / "trajectory.csv", "a", encoding="utf-8") as fh:
         fh.write("3,2,300,0.5,61.")
     run_trial(small, part, seed=5, resume=True)
     strip = lambda lines: [",".join(r.split(",")[:-3]) for r in lines]  # noqa: E731 - drop ms/status/fallback
@@ -134,10 +134,10 @@ def test_resume_refuses_other_seed(small, one_step, tmp_path, capsys):
     (("particles = 1000", "particles = 1000\ncolour = 1"), "plant.colour: unknown field"),
 ])
 def test_bad_scenario_one_line_exit2(small, tmp_path, capsys, edit, expect):
-    text = small.read_text()
+    text = small.read_text(encoding="utf-8")
     assert edit[0] in text
     bad = tmp_path / "bad.toml"
-    bad.write_text(text.replace(edit[0], edit[1], 1))
+    bad.write_text(text.replace(edit[0], edit[1], 1), encoding="utf-8")
     out = tmp_path / "o"
     rc = main(["trial", str(bad), "--out", str(out), "--no-progress"])
     err = capsys.readouterr().err
@@ -163,7 +163,7 @@ def test_a_default_controller_trial_resumes_to_the_uninterrupted_trajectory(tmp_
         "particles = 200\n", "particles = 200\n" + extra)
     assert "mpc-default.toml" in text and (not extra or extra in text)
     sc = tmp_path / "s.toml"
-    sc.write_text(text)
+    sc.write_text(text, encoding="utf-8")
     whole = run_trial(sc, tmp_path / "whole", seed=3)
     # three steps in: the planner's history holds entries a fresh loop holds none of
     assert run_trial(sc, tmp_path / "cut", seed=3, max_steps=3) == {"interrupted_at_step": 3}
@@ -182,7 +182,7 @@ def test_resume_refuses_a_scenario_edited_since_the_trial_began(small, tmp_path,
     shutil.copy(small, sc)
     out = tmp_path / "o"
     assert run_trial(sc, out, seed=1, max_steps=1) == {"interrupted_at_step": 1}
-    sc.write_text(sc.read_text().replace("gamma_factor = 1.3", "gamma_factor = 3.0"))
+    sc.write_text(sc.read_text(encoding="utf-8").replace("gamma_factor = 1.3", "gamma_factor = 3.0"), encoding="utf-8")
     assert main(["trial", str(sc), "--resume", str(out), "--seed", "1", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "changed since the trial" in err[0], err
@@ -196,21 +196,21 @@ def test_a_scenario_runs_the_files_beside_it_from_any_working_directory(tmp_path
     proj = tmp_path / "proj"
     (proj / "scenarios").mkdir(parents=True)
     (proj / "models").mkdir()
-    (proj / "models" / "c.toml").write_text("x")
+    (proj / "models" / "c.toml").write_text("x", encoding="utf-8")
     elsewhere = tmp_path / "elsewhere"
     (elsewhere / "models").mkdir(parents=True)
-    (elsewhere / "models" / "c.toml").write_text("y")
+    (elsewhere / "models" / "c.toml").write_text("y", encoding="utf-8")
     monkeypatch.chdir(elsewhere)
     assert resolve("models/c.toml", proj / "scenarios") == proj / "models" / "c.toml"
 
 
 def test_a_scenario_name_never_leads_the_default_output_out_of_out(tmp_path, monkeypatch, capsys):
-    text = (ROOT / "scenarios" / "trial-lab-recipe.toml").read_text()
+    text = (ROOT / "scenarios" / "trial-lab-recipe.toml").read_text(encoding="utf-8")
     text = text.replace('"models/', f'"{ROOT}/models/').replace('"controllers/', f'"{ROOT}/controllers/')
     text = __import__("re").sub(r'(?m)^name = ".*"$', 'name = "../../../esc"', text, count=1)
     assert 'name = "../../../esc"' in text
     (tmp_path / "sub").mkdir()
-    (tmp_path / "esc.toml").write_text(text)
+    (tmp_path / "esc.toml").write_text(text, encoding="utf-8")
     monkeypatch.chdir(tmp_path / "sub")
     assert main(["trial", str(tmp_path / "esc.toml"), "--no-progress"]) == 0, capsys.readouterr().err
     made = [p.name for p in (tmp_path / "sub" / "out").iterdir()]
@@ -220,8 +220,8 @@ def test_a_scenario_name_never_leads_the_default_output_out_of_out(tmp_path, mon
 
 def test_a_scenario_ceiling_below_the_ambient_is_refused(small, tmp_path, capsys):
     sc = tmp_path / "s.toml"
-    sc.write_text(small.read_text().replace('hours = 2\n', 'hours = 2\ntemperature_max_c = 20.0\n'))
-    assert "temperature_max_c = 20.0" in sc.read_text()
+    sc.write_text(small.read_text(encoding="utf-8").replace('hours = 2\n', 'hours = 2\ntemperature_max_c = 20.0\n'), encoding="utf-8")
+    assert "temperature_max_c = 20.0" in sc.read_text(encoding="utf-8")
     assert main(["trial", str(sc), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "temperature_max_c: 20 °C is not above the card's ambient" in err[0], err
@@ -236,30 +236,30 @@ def test_estimator_settings_name_typos_and_refuse_the_unused_table(small, tmp_pa
     from bmctl.scenario import load_scenario
 
     sc = tmp_path / "s.toml"
-    sc.write_text(small.read_text().replace("[controller]", table + "[controller]"))
+    sc.write_text(small.read_text(encoding="utf-8").replace("[controller]", table + "[controller]"), encoding="utf-8")
     if said:
         with pytest.raises(InputError, match=__import__("re").escape(said)):
             load_scenario(sc)
     else:
         load_scenario(sc)
-        sc.write_text(sc.read_text().replace("[estimator]\n", '[estimator]\nkind = "ukf"\n'))
+        sc.write_text(sc.read_text(encoding="utf-8").replace("[estimator]\n", '[estimator]\nkind = "ukf"\n'), encoding="utf-8")
         with pytest.raises(InputError, match="settings of the pf estimator, but estimator.kind is 'ukf'"):
             load_scenario(sc)
-        sc.write_text(sc.read_text().replace(table, ""))  # the particle count alone is refused too
+        sc.write_text(sc.read_text(encoding="utf-8").replace(table, ""), encoding="utf-8")  # the particle count alone is refused too
         with pytest.raises(InputError, match="particles: a particle count, but estimator.kind is 'ukf'"):
             load_scenario(sc)
-        sc.write_text(sc.read_text().replace("particles = 300\n[controller]", "[controller]"))
+        sc.write_text(sc.read_text(encoding="utf-8").replace("particles = 300\n[controller]", "[controller]"), encoding="utf-8")
         assert load_scenario(sc).estimator.kind == "ukf"
 
 
 def _lqr_with(tmp_path, *edits) -> Path:
     """lqr-baseline.toml with ``edits`` ((old, new) line replacements) in ``tmp_path``."""
-    text = (ROOT / "controllers" / "lqr-baseline.toml").read_text()
+    text = (ROOT / "controllers" / "lqr-baseline.toml").read_text(encoding="utf-8")
     for old, new in edits:
         assert old in text, old
         text = text.replace(old, new, 1)
     path = tmp_path / "c.toml"
-    path.write_text(text)
+    path.write_text(text, encoding="utf-8")
     return path
 
 
@@ -278,7 +278,7 @@ def test_a_controller_the_mill_limits_make_infeasible_is_refused_naming_the_fiel
 
     ctrl = _lqr_with(tmp_path, *edits)
     sc = tmp_path / "s.toml"
-    sc.write_text(small.read_text().replace(f"{ROOT}/controllers/mpc-fast.toml", str(ctrl)))
+    sc.write_text(small.read_text(encoding="utf-8").replace(f"{ROOT}/controllers/mpc-fast.toml", str(ctrl)), encoding="utf-8")
     with pytest.raises(InputError, match=__import__("re").escape(said)):
         load_scenario(sc)
 
@@ -288,10 +288,10 @@ def test_sampling_faster_than_the_control_interval_is_refused(small, tmp_path):
     from bmctl.scenario import load_scenario
 
     sc = tmp_path / "s.toml"
-    sc.write_text(small.read_text().replace("every_h = 1.0", "every_h = 0.25"))
+    sc.write_text(small.read_text(encoding="utf-8").replace("every_h = 1.0", "every_h = 0.25"), encoding="utf-8")
     with pytest.raises(InputError, match=r"sampling\.every_h: 0\.25 h is shorter than the control interval \(0\.5 h"):
         load_scenario(sc)
-    sc.write_text(small.read_text().replace("every_h = 1.0", "every_h = 0.5"))
+    sc.write_text(small.read_text(encoding="utf-8").replace("every_h = 1.0", "every_h = 0.5"), encoding="utf-8")
     load_scenario(sc)
 
 
@@ -313,12 +313,12 @@ def test_a_missed_target_is_explained_by_the_plans_binding_limits(tmp_path, caps
     It printed the miss alone."""
     sc = tmp_path / "far.toml"
     sc.write_text(SMALL.format(root=ROOT).replace("s_mean_um = 50.0", "s_mean_um = 25.0")
-                  .replace("mpc-fast.toml", "mpc-default.toml"))
+                  .replace("mpc-fast.toml", "mpc-default.toml"), encoding="utf-8")
     assert main(["trial", str(sc), "--out", str(tmp_path / "o"), "--no-progress"]) == 0
     out = capsys.readouterr().out
     line = [ln for ln in out.splitlines() if "missed by more than 2 %" in ln or "missed by more than 2%" in ln]
     assert len(line) == 1 and "binding limits of the first plan: vial-temperature ceiling (80 °C)" in line[0]
-    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text(encoding="utf-8"))
     assert any(b.startswith("vial-temperature ceiling") for b in summary["binding_first"])
     assert isinstance(summary["binding_last"], list)
 
@@ -327,10 +327,10 @@ def test_a_plant_factor_past_the_card_limit_is_one_line(small, tmp_path, capsys)
     """gamma_factor x the plant card's gamma above the 1 um^-2 a card allows: the scenario file and
     the factor named, before --out is made (it was a pydantic traceback from the plant's card)."""
     card = tmp_path / "card.toml"
-    card.write_text((ROOT / "models" / "alni-1to1-300rpm-lab.toml").read_text()
-                    .replace("gamma_per_um2 = 1.82e-4", "gamma_per_um2 = 0.02"))
+    card.write_text((ROOT / "models" / "alni-1to1-300rpm-lab.toml").read_text(encoding="utf-8")
+                    .replace("gamma_per_um2 = 1.82e-4", "gamma_per_um2 = 0.02"), encoding="utf-8")
     sc = tmp_path / "s.toml"
-    sc.write_text(small.read_text().replace("gamma_factor = 1.3", f'gamma_factor = 99.0\nmodel = "{card}"'))
+    sc.write_text(small.read_text(encoding="utf-8").replace("gamma_factor = 1.3", f'gamma_factor = 99.0\nmodel = "{card}"'), encoding="utf-8")
     assert main(["trial", str(sc), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"{sc}: plant.gamma_factor: 99 takes the card's stochastic.gamma_per_um2" in err[0], err

@@ -14,9 +14,9 @@ LQR = ROOT / "controllers" / "lqr-baseline.toml"
 
 def _scenario(d: Path, feed: bool) -> Path:
     """A 2-h LQR trial on the lab card whose plant's feed is 60 um (the card says 40 um)."""
-    text = CARD.read_text().replace("s_mean_um = 40.0", "s_mean_um = 60.0").replace("s_std_um = 4.0", "s_std_um = 9.0")
+    text = CARD.read_text(encoding="utf-8").replace("s_mean_um = 40.0", "s_mean_um = 60.0").replace("s_std_um = 4.0", "s_std_um = 9.0")
     assert "s_mean_um = 60.0" in text and "s_std_um = 9.0" in text
-    (d / "coarse-feed.toml").write_text(text)
+    (d / "coarse-feed.toml").write_text(text, encoding="utf-8")
     p = d / f"feed-{feed}.toml"
     p.write_text(f"""model = "{CARD}"
 hours = 2.0
@@ -35,7 +35,7 @@ feed = {str(feed).lower()}
 particles = 300
 [controller]
 config = "{LQR}"
-""")
+""", encoding="utf-8")
     return p
 
 

@@ -29,7 +29,7 @@ def rpm_line(tmp_path, monkeypatch):
         row.update(step=k, t_h=0.5 * (k + 1), rpm=rpm, milling=0.5 if rpm else 0.0, solver_status=0)
         rows.append(",".join(str(row[h]) for h in header))
     traj = tmp_path / "trajectory.csv"
-    traj.write_text(",".join(header) + "\n" + "\n".join(rows) + "\n")
+    traj.write_text(",".join(header) + "\n" + "\n".join(rows) + "\n", encoding="utf-8")
     sc = Scenario.model_validate({"scenario": {"name": "n", "description": "d"}, "model": "m.toml",
                                   "controller": {"config": "c.toml"}, "hours": 2.0})
     figs = []

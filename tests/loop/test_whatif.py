@@ -14,12 +14,12 @@ LAB = str(card_path("alni-1to1-300rpm-lab"))
 @pytest.mark.slow
 def test_whatif_compares_schedules(tmp_path, capsys):
     a = tmp_path / "a.toml"
-    a.write_text('name = "hot"\n[[segment]]\nhours = 2\nrpm = 400\n')
+    a.write_text('name = "hot"\n[[segment]]\nhours = 2\nrpm = 400\n', encoding="utf-8")
     b = tmp_path / "b.toml"
-    b.write_text('name = "gentle"\n[[segment]]\nhours = 1\nrpm = 250\n[[segment]]\nhours = 1\nrpm = 0\n')
+    b.write_text('name = "gentle"\n[[segment]]\nhours = 1\nrpm = 250\n[[segment]]\nhours = 1\nrpm = 0\n', encoding="utf-8")
     rc = main(["whatif", LAB, str(a), str(b), "--seeds", "2", "--particles", "500", "--out", str(tmp_path / "o")])
     assert rc == 0, capsys.readouterr().err
-    rows = list(csv.DictReader((tmp_path / "o" / "whatif.csv").read_text().splitlines()))
+    rows = list(csv.DictReader((tmp_path / "o" / "whatif.csv").read_text(encoding="utf-8").splitlines()))
     assert [r["schedule"] for r in rows] == ["hot", "gentle"]
     hot, gentle = rows
     # physics the comparison must show: more power -> hotter and more energy
@@ -32,7 +32,7 @@ def test_whatif_compares_schedules(tmp_path, capsys):
 
 def test_whatif_bad_input(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
-    bad.write_text("[[segment]]\nhours = 1\nrpm = 9000\n")
+    bad.write_text("[[segment]]\nhours = 1\nrpm = 9000\n", encoding="utf-8")
     rc = main(["whatif", LAB, str(bad), "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert rc == 2 and "segment[0].rpm" in err and len(err.strip().splitlines()) == 1
@@ -60,7 +60,7 @@ def test_whatif_same_numbers_serial_and_on_two_workers(tmp_path, capsys):
     from bmctl.whatif import run_schedule_ensemble, table_rows
 
     sched = tmp_path / "s.toml"
-    sched.write_text('name = "s"\n[[segment]]\nhours = 0.5\nrpm = 400\n[[segment]]\nhours = 0.25\nrpm = 0\n')
+    sched.write_text('name = "s"\n[[segment]]\nhours = 0.5\nrpm = 400\n[[segment]]\nhours = 0.25\nrpm = 0\n', encoding="utf-8")
     rc = main(["whatif", LAB, str(sched), "--seeds", "3", "--particles", "300", "--seed", "7", "--workers", "0",
                "--out", str(tmp_path / "serial")])
     assert rc == 0, capsys.readouterr().err
@@ -71,7 +71,7 @@ def test_whatif_same_numbers_serial_and_on_two_workers(tmp_path, capsys):
     finally:
         close_client(client)
     io.write_csv(tmp_path / "dask.csv", *table_rows([res]))
-    assert (tmp_path / "dask.csv").read_text() == (tmp_path / "serial" / "whatif.csv").read_text()
+    assert (tmp_path / "dask.csv").read_text(encoding="utf-8") == (tmp_path / "serial" / "whatif.csv").read_text(encoding="utf-8")
 
 
 @pytest.mark.slow
@@ -102,7 +102,7 @@ def test_whatif_member_k_is_the_plant_seeded_by_child_k():
 
 def _short_schedule(tmp_path):
     sched = tmp_path / "s.toml"
-    sched.write_text('name = "s"\n[[segment]]\nhours = 0.5\nrpm = 300\n')
+    sched.write_text('name = "s"\n[[segment]]\nhours = 0.5\nrpm = 300\n', encoding="utf-8")
     return str(sched)
 
 
@@ -210,7 +210,7 @@ def test_whatif_tells_apart_two_schedules_of_one_name(tmp_path, capsys, monkeypa
     for folder, hours in (("A", 0.05), ("B", 0.1)):
         (tmp_path / folder).mkdir()
         p = tmp_path / folder / "schedule.toml"
-        p.write_text(f'name = "design-lab"\n[[segment]]\nhours = {hours}\nrpm = 300\n')
+        p.write_text(f'name = "design-lab"\n[[segment]]\nhours = {hours}\nrpm = 300\n', encoding="utf-8")
         paths.append(str(p))
     shown = []
     real = io.savefig
@@ -228,7 +228,7 @@ def test_whatif_tells_apart_two_schedules_of_one_name(tmp_path, capsys, monkeypa
     out = capsys.readouterr().out
     assert rc == 0
     want = ["design-lab (A)", "design-lab (B)"]
-    rows = list(csv.DictReader((tmp_path / "o" / "whatif.csv").read_text().splitlines()))
+    rows = list(csv.DictReader((tmp_path / "o" / "whatif.csv").read_text(encoding="utf-8").splitlines()))
     assert [r["schedule"] for r in rows] == want
     table = [line.split() for line in out.splitlines() if line.startswith("design-lab")]
     assert [line[:3] for line in table] == [["design-lab", "(A)", "0.05"], ["design-lab", "(B)", "0.1"]]
@@ -238,14 +238,14 @@ def test_whatif_tells_apart_two_schedules_of_one_name(tmp_path, capsys, monkeypa
 
 def _named(path, name, hours=0.05):
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(f'name = "{name}"\n[[segment]]\nhours = {hours}\nrpm = 300\n')
+    path.write_text(f'name = "{name}"\n[[segment]]\nhours = {hours}\nrpm = 300\n', encoding="utf-8")
     return str(path)
 
 
 def _labels(tmp_path, capsys, paths) -> list[str]:
     rc = main(["whatif", LAB, *paths, "--seeds", "1", "--particles", "100", "--out", str(tmp_path / "o")])
     assert rc == 0, capsys.readouterr().err
-    return [r["schedule"] for r in csv.DictReader((tmp_path / "o" / "whatif.csv").read_text().splitlines())]
+    return [r["schedule"] for r in csv.DictReader((tmp_path / "o" / "whatif.csv").read_text(encoding="utf-8").splitlines())]
 
 
 def test_whatif_labels_never_take_or_imitate_another_schedules_name(tmp_path, capsys):
@@ -281,7 +281,7 @@ def test_unique_labels_are_distinct_and_no_made_label_is_a_name(names, paths):
 def test_whatif_refuses_a_share_leaving_a_phase_under_six_seconds(tmp_path, capsys, milling):
     """0.0001 of 0.5 h mills 0.18 s, 0.99999 rests 0.018 s: under the 6 s phase, and both ran."""
     p = tmp_path / "short.toml"
-    p.write_text(f"[[segment]]\nhours = 0.5\nrpm = 300\nmilling = {milling}\n")
+    p.write_text(f"[[segment]]\nhours = 0.5\nrpm = 300\nmilling = {milling}\n", encoding="utf-8")
     rc = main(["whatif", LAB, str(p), "--seeds", "1", "--particles", "100", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert rc == 2 and len(err.strip().splitlines()) == 1, err

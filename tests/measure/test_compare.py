@@ -46,7 +46,7 @@ def test_cli_compare_plant_sample_and_shifted_sample(capsys, tmp_path):
         assert rc == 0, err
         assert "KS D" in text and "Anderson-Darling" in text
         assert (out / "compare.png").stat().st_size > 5000
-        stats[name] = json.loads((out / "compare.json").read_text())
+        stats[name] = json.loads((out / "compare.json").read_text(encoding="utf-8"))
     # an independent plant run at the same time is drawn from the same law; a 1.5x size shift is not
     assert stats["same"]["s_um"]["ks_p"] > 0.001
     assert stats["shifted"]["s_um"]["ks"] > 2 * stats["same"]["s_um"]["ks"]

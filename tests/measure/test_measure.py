@@ -209,11 +209,11 @@ def test_table_round_trip(tmp_path):
     t = ParticleTable.from_size_aspect([10.0, 20.0, 35.5], [0.0, 0.1, 0.25])
     p = tmp_path / "t.csv"
     write_table(p, t)
-    assert p.read_text().splitlines()[0] == "area_um2,perimeter_um,s_um,r"
+    assert p.read_text(encoding="utf-8").splitlines()[0] == "area_um2,perimeter_um,s_um,r"
     u = read_table(p)
     assert np.allclose(u.s_um, t.s_um, rtol=1e-6) and np.allclose(u.r, t.r, atol=1e-6)
     q = tmp_path / "sr.csv"
-    q.write_text("# from a simulator\ns_um,r\n10,0\n20,0.1\n\n")
+    q.write_text("# from a simulator\ns_um,r\n10,0\n20,0.1\n\n", encoding="utf-8")
     v = read_table(q)
     assert np.allclose(v.perimeter_um, [np.pi * 10, np.pi * 20 / 0.9])
 
@@ -221,7 +221,7 @@ def test_table_round_trip(tmp_path):
 def test_table_raises_perimeter_noise_to_bound(tmp_path):
     p = tmp_path / "t.csv"
     s = 10.0
-    p.write_text(f"area_um2,perimeter_um\n{np.pi * s * s / 4},{0.98 * np.pi * s}\n")
+    p.write_text(f"area_um2,perimeter_um\n{np.pi * s * s / 4},{0.98 * np.pi * s}\n", encoding="utf-8")
     t = read_table(p)
     assert t.r[0] == 0.0 and t.perimeter_um[0] == pytest.approx(np.pi * s)
 
@@ -248,7 +248,7 @@ def test_table_raises_perimeter_noise_to_bound(tmp_path):
 def test_table_errors_name_file_and_place(tmp_path, text, needle):
     p = tmp_path / "bad.csv"
     if text is not None:
-        p.write_text(text)
+        p.write_text(text, encoding="utf-8")
     with pytest.raises(InputError) as exc:
         read_table(p)
     msg = str(exc.value)
@@ -348,11 +348,11 @@ def test_cli_measures_image_and_passes_tables_through(capsys, tmp_path, png_imag
 
 def _bad_inputs(tmp_path, png):
     junk = tmp_path / "junk.png"
-    junk.write_text("not an image")
+    junk.write_text("not an image", encoding="utf-8")
     empty = tmp_path / "empty.csv"
-    empty.write_text("area_um2,perimeter_um\n")
+    empty.write_text("area_um2,perimeter_um\n", encoding="utf-8")
     nan = tmp_path / "nan.csv"
-    nan.write_text("area_um2,perimeter_um\n10,12\nnan,3\n")
+    nan.write_text("area_um2,perimeter_um\n10,12\nnan,3\n", encoding="utf-8")
     return {
         "unreadable image": [str(junk), "--um-per-px", "1"],
         "missing image": [str(tmp_path / "nope.png"), "--um-per-px", "1"],
@@ -387,7 +387,7 @@ def test_cli_bad_input_exits_2_without_output(capsys, tmp_path, png_image, case)
 
 def test_trailing_empty_fields_of_a_spreadsheet_export_are_read(tmp_path):
     p = tmp_path / "t.csv"
-    p.write_text("s_um,r\n40,0.1,,\n50,0.2,\n")
+    p.write_text("s_um,r\n40,0.1,,\n50,0.2,\n", encoding="utf-8")
     assert read_table(p).s_um.tolist() == [40.0, 50.0]
 
 

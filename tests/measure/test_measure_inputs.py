@@ -78,7 +78,7 @@ def test_compare_path_with_non_utf8_bytes(capsys, tmp_path):
     stdout.encode("utf-8")
     assert "bad\\xff\\xfename" in stdout
     assert (out / "compare.png").is_file()
-    assert json.loads((out / "compare.json").read_text())["sample"] == str(folder / "t.csv")
+    assert json.loads((out / "compare.json").read_text(encoding="utf-8"))["sample"] == str(folder / "t.csv")
 
 
 def test_compare_late_write_failure_leaves_neither_file(capsys, tmp_path, monkeypatch):

@@ -195,7 +195,7 @@ def test_a_turned_jpeg_is_measured_and_cropped_as_displayed(tmp_path, capsys):
     rc, _, err = _cli(capsys, ["measure", str(tmp_path / "turned.jpg"), "--um-per-px", "0.01", "--crop", "0:500,0:520",
                                "--no-overlay", "--out", str(out)])
     assert rc == 0, err  # 520 columns: the displayed image has 525, the stored one 512
-    assert json.loads((out.parent / "measure.json").read_text())["inputs"][0]["shape_px"] == list(g.shape)
+    assert json.loads((out.parent / "measure.json").read_text(encoding="utf-8"))["inputs"][0]["shape_px"] == list(g.shape)
 
 
 # --- files Pillow will not open -------------------------------------------------------------------

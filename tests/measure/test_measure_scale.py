@@ -69,7 +69,7 @@ def test_jeol_sidecar(tmp_path):
 
     p = tmp_path / "j.png"
     io.imsave(p, np.zeros((32, 32), np.uint8), check_contrast=False)
-    (tmp_path / "j.txt").write_text("$CM_FULL_SIZE 1280 960\n$$SM_MICRON_BAR 160\n$$SM_MICRON_MARKER 5um\n")
+    (tmp_path / "j.txt").write_text("$CM_FULL_SIZE 1280 960\n$$SM_MICRON_BAR 160\n$$SM_MICRON_MARKER 5um\n", encoding="utf-8")
     assert scale_from_metadata(p).um_per_px == pytest.approx(5.0 / 160)
 
 
@@ -212,12 +212,12 @@ def test_cli_sio2_without_scale_or_crop(capsys, tmp_path):
     out = tmp_path / "p.csv"
     rc, stdout, err = _cli(capsys, ["measure", str(SIO2_TIF), "--out", str(out)])
     assert rc == 0, err
-    lines = out.read_text().splitlines()
+    lines = out.read_text(encoding="utf-8").splitlines()
     assert lines[0] == "particle_id,image,x_um,y_um,area_um2,perimeter_um,s_um,r"
     t = read_table(out)
     assert 300 <= len(t) <= 600
     assert 0.3 <= np.median(t.s_um) <= 0.9
-    doc = json.loads((tmp_path / "measure.json").read_text())
+    doc = json.loads((tmp_path / "measure.json").read_text(encoding="utf-8"))
     entry = doc["inputs"][0]
     assert entry["scale"]["source"] == "metadata" and entry["info_bar_first_row"] == 423
     assert entry["scale_bar"]["length_um_at_this_scale"] == pytest.approx(5.0, rel=0.03)
@@ -252,7 +252,7 @@ def test_cli_overlay_columns_and_ids(capsys, tmp_path):
     out = tmp_path / "o" / "p.csv"
     rc, _, err = _cli(capsys, ["measure", str(p), str(q), "--um-per-px", "0.5", "--out", str(out)])
     assert rc == 0, err
-    rows = [ln.split(",") for ln in out.read_text().splitlines()]
+    rows = [ln.split(",") for ln in out.read_text(encoding="utf-8").splitlines()]
     assert rows[0][:4] == ["particle_id", "image", "x_um", "y_um"]
     ids = [int(r[0]) for r in rows[1:]]
     assert ids == list(range(1, len(ids) + 1))  # unique over the pooled images
@@ -289,5 +289,5 @@ def test_small_particles_and_border_cuts_warn(capsys, tmp_path):
     io.imsave(p, (cut * 255).astype(np.uint8), check_contrast=False)
     rc, _, err = _cli(capsys, ["measure", str(p), "--um-per-px", "1", "--out", str(tmp_path / "c.csv")])
     assert rc == 0 and "bmctl: warning:" in err and "border" in err
-    doc = json.loads((tmp_path / "measure.json").read_text())
+    doc = json.loads((tmp_path / "measure.json").read_text(encoding="utf-8"))
     assert "border" in {w["code"] for w in doc["inputs"][0]["warnings"]}

@@ -242,9 +242,9 @@ def test_check_verdicts_refuses_unusable_unless_accepted():
 def test_hand_edited_measure_json_is_no_traceback(tmp_path):
     """A measure.json beside a table with ``inputs`` or ``reasons`` of another type was a TypeError
     traceback in estimate, campaign sample and calibrate."""
-    (tmp_path / "t.csv").write_text("x")
+    (tmp_path / "t.csv").write_text("x", encoding="utf-8")
     for inputs in (5, None, "abc", {"a": 1}):
-        (tmp_path / "measure.json").write_text(json.dumps({"table": "t.csv", "inputs": inputs}))
+        (tmp_path / "measure.json").write_text(json.dumps({"table": "t.csv", "inputs": inputs}), encoding="utf-8")
         assert table_reports(tmp_path / "t.csv") == []
     for reasons, why in ((5, "5"), (None, ""), ("dark", "dark")):
         with pytest.raises(InputError, match=rf"a.png: verdict unusable \({why}\)"):
@@ -284,7 +284,7 @@ def test_cli_reports_polarity_and_verdict(tmp_path, capsys):
     assert main(["measure", str(p), "--um-per-px", "1", "--out", str(tmp_path / "out" / "p.csv")]) == 0
     err = capsys.readouterr().err
     assert "dark particles (edge vote" in err and "verdict ok" in err
-    doc = json.loads((tmp_path / "out" / "measure.json").read_text())
+    doc = json.loads((tmp_path / "out" / "measure.json").read_text(encoding="utf-8"))
     entry = doc["inputs"][0]
     assert entry["polarity"]["value"] == "dark" and entry["verdict"]["value"] == "ok"
     assert set(VERDICT_LIMITS) <= set(entry["evidence"])

@@ -20,12 +20,12 @@ LAB = card_path("alni-1to1-300rpm-lab")
 
 def _copy(tmp_path, old=None, new=None, name="card.toml", coeffs=True):
     """The lab card (one text replaced) and, with ``coeffs``, the lab's coefficient file next to it."""
-    text = LAB.read_text()
+    text = LAB.read_text(encoding="utf-8")
     if old is not None:
         assert old in text
         text = text.replace(old, new)
     p = tmp_path / name
-    p.write_text(text)
+    p.write_text(text, encoding="utf-8")
     if coeffs:
         shutil.copyfile(cf.coeffs_path(LAB), cf.coeffs_path(p))
     return p
@@ -57,9 +57,9 @@ def test_missing_and_unrecorded_coefficients_are_refused(tmp_path):
     with pytest.raises(InputError, match="none identified for this card"):
         for_card(p)
     # a file from before fingerprints: no [card] table, so it may belong to any card
-    text = cf.coeffs_path(LAB).read_text()
+    text = cf.coeffs_path(LAB).read_text(encoding="utf-8")
     cut = text[:text.index("[card]")] + text[text.index("[window]"):]
-    cf.coeffs_path(p).write_text(cut)
+    cf.coeffs_path(p).write_text(cut, encoding="utf-8")
     with pytest.raises(InputError, match="records no card fingerprint"):
         for_card(p)
 
@@ -68,14 +68,14 @@ def test_a_fingerprinted_file_lacking_coefficients_is_refused(tmp_path, capsys):
     """A coefficient file with the card's fingerprint but coefficients deleted (hand edit, bad merge) would run
     the model on defaults for them (held-out error ~20 % instead of ~4 %): refused in one line naming them."""
     p = _copy(tmp_path)
-    text = cf.coeffs_path(p).read_text()
+    text = cf.coeffs_path(p).read_text(encoding="utf-8")
     cf.coeffs_path(p).write_text(text.replace(next(ln for ln in text.splitlines() if ln.startswith("bond_slope"))
-                                              + "\n", ""))
+                                              + "\n", ""), encoding="utf-8")
     with pytest.raises(InputError, match=r"lacks 1 of the \d+ coefficients \(bond_slope\)") as e:
         for_card(p)
     assert "\n" not in str(e.value) and f"bmctl identify {p}" in str(e.value)
     start, end = text.index("[coefficients]\n") + len("[coefficients]\n"), text.index("[card]")
-    cf.coeffs_path(p).write_text(text[:start] + "\n" + text[end:])  # an empty [coefficients]
+    cf.coeffs_path(p).write_text(text[:start] + "\n" + text[end:], encoding="utf-8")  # an empty [coefficients]
     assert status(load_card(p), p).state == "incomplete"
     assert main(["card", "show", str(p)]) == 0 and "lacks" in capsys.readouterr().out
 
@@ -83,8 +83,8 @@ def test_a_fingerprinted_file_lacking_coefficients_is_refused(tmp_path, capsys):
 def test_matching_copy_is_accepted(tmp_path):
     """A card elsewhere with the same fingerprint fields (other name, recipe, plant settings) is accepted."""
     p = _copy(tmp_path, 'name = "alni-1to1-300rpm-lab"', 'name = "my-copy"')
-    text = p.read_text().replace("rpm = 300\n", "rpm = 350\n", 1).replace("particles = 20000", "particles = 5000")
-    p.write_text(text)
+    text = p.read_text(encoding="utf-8").replace("rpm = 300\n", "rpm = 350\n", 1).replace("particles = 20000", "particles = 5000")
+    p.write_text(text, encoding="utf-8")
     assert for_card(p).coeff_file.card_name == "alni-1to1-300rpm-lab"
 
 
@@ -152,7 +152,7 @@ def test_commands_refuse_foreign_coefficients(tmp_path, capsys, argv, root, monk
     p = _copy(tmp_path, "ball_count = 10", "ball_count = 12")
     out = tmp_path / "out"
     sample = tmp_path / "s.csv"
-    sample.write_text("s_um,r\n" + "".join(f"{40 + k % 7},{0.01 * (k % 5)}\n" for k in range(60)))
+    sample.write_text("s_um,r\n" + "".join(f"{40 + k % 7},{0.01 * (k % 5)}\n" for k in range(60)), encoding="utf-8")
     rc = main([a.format(card=p, out=out, sample=sample) for a in argv])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1, err
@@ -165,7 +165,7 @@ def test_trial_refuses_a_scenario_card_without_coefficients(tmp_path, capsys):
 
     p = _copy(tmp_path, coeffs=False)
     s = lqr_scenario(tmp_path / "sc.toml")
-    s.write_text(s.read_text().replace(str(LAB), str(p)))
+    s.write_text(s.read_text(encoding="utf-8").replace(str(LAB), str(p)), encoding="utf-8")
     rc = main(["trial", str(s), "--out", str(tmp_path / "t"), "--no-progress"])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and err[0].startswith(f"bmctl: error: {p}: moment coefficients: none identified")
@@ -295,10 +295,10 @@ def test_window_warns_outside_the_calibrated_temperatures(tmp_path):
     assert len(w) == 1 and "600 rpm" in w[0] and "°C" in w[0]
     # the issue's example: bigger balls in a bigger vial are hot at the card's own rpm
     big = _copy(tmp_path, "ball_diameter_m = 0.010", "ball_diameter_m = 0.015", coeffs=False)
-    text = big.read_text().replace("impactor_mass_kg = 4.14e-3\n", "").replace("ball_count = 10", "ball_count = 12")
+    text = big.read_text(encoding="utf-8").replace("impactor_mass_kg = 4.14e-3\n", "").replace("ball_count = 10", "ball_count = 12")
     text = text.replace("vial_radius_m = 0.0225", "vial_radius_m = 0.035").replace("vial_height_m = 0.05",
                                                                                      "vial_height_m = 0.065")
-    big.write_text(text)
+    big.write_text(text, encoding="utf-8")
     bc = load_card(big)
     T = steady_temperature_c(bc, 300.0)
     assert T > 200.0
@@ -404,8 +404,8 @@ def test_identify_never_starts_from_the_file_it_replaces(tmp_path, monkeypatch):
     p = _copy(tmp_path, "alpha = 2.1", "alpha = 2.2", coeffs=False)
     card = load_card(p)
     own = cf.toml_text(cf.read_file(cf.coeffs_path(LAB)).coeffs, {"card": ident.card_table(card)})
-    cf.coeffs_path(p).write_text(own)  # an earlier identification of this very card
-    (tmp_path / "other.moments.toml").write_text(own)
+    cf.coeffs_path(p).write_text(own, encoding="utf-8")  # an earlier identification of this very card
+    (tmp_path / "other.moments.toml").write_text(own, encoding="utf-8")
     seen = []
     monkeypatch.setattr(ident, "identify", lambda card, seed, **kw: seen.append(kw["start_label"]))
     forcard.identification(card, p, workers=0, quick=True)
@@ -420,7 +420,7 @@ def test_identify_reports_every_phase_and_writes_next_to_the_card(tmp_path, caps
     card, with the card's fingerprint, accepted by for_card. Two Jacobians per start (--jacobians 2): what is
     checked here is the reporting and the file, not how far the fit gets (tests/moments/test_moments.py)."""
     p = _copy(tmp_path, "ball_diameter_m = 0.010", "ball_diameter_m = 0.015", coeffs=False)
-    p.write_text(p.read_text().replace("impactor_mass_kg = 4.14e-3\n", ""))
+    p.write_text(p.read_text(encoding="utf-8").replace("impactor_mass_kg = 4.14e-3\n", ""), encoding="utf-8")
     assert main(["identify", str(p), "--quick", "--jacobians", "2", "--workers", "0"]) == 0
     cap = capsys.readouterr()
     for phase in ("plant experiments: ", "step 1, cost", "validation: held-out NRMSE"):

@@ -100,7 +100,7 @@ def test_identify_a_near_limit_card_end_to_end(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(ident, "fit", no_fit)
     p = tmp_path / "near.toml"
-    p.write_text(LAB.read_text().replace("gamma_per_um2 = 1.82e-4", "gamma_per_um2 = 0.95"))
+    p.write_text(LAB.read_text(encoding="utf-8").replace("gamma_per_um2 = 1.82e-4", "gamma_per_um2 = 0.95"), encoding="utf-8")
     rc = main(["identify", str(p), "--quick", "--quiet", "--workers", "0", "--particles", "200",
                "--random-schedules", "0", "--heldout", "1", "--seeds", "1", "--start", "defaults"])
     cap = capsys.readouterr()

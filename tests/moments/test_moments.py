@@ -249,7 +249,7 @@ def test_size_shape_link_has_the_plants_sign(name):
     path = coeffs_path(card_path(name))
     if not path.exists():
         pytest.skip(f"no identified coefficients for {name}")
-    beta = tomllib.loads(path.read_text())["coefficients"].get("r_size_corr", 0.0)
+    beta = tomllib.loads(path.read_text(encoding="utf-8"))["coefficients"].get("r_size_corr", 0.0)
     plant = make_plant(card_path(name), seed=1, particles=3000)
     plant.advance(300.0, 2.0)
     ls, r = np.log(plant.s), plant.r
@@ -374,10 +374,10 @@ def test_linearize_command(tmp_path, capsys):
 
 def test_bad_coefficient_file_is_an_input_error(tmp_path):
     bad = tmp_path / "x.moments.toml"
-    bad.write_text("[coefficients]\nbond_log_scale = nan\n")
+    bad.write_text("[coefficients]\nbond_log_scale = nan\n", encoding="utf-8")
     with pytest.raises(InputError, match="bond_log_scale"):
         make_moment_model(LAB, coeffs=bad)
-    bad.write_text("[coefficients]\nnot_a_coefficient = 1.0\n")
+    bad.write_text("[coefficients]\nnot_a_coefficient = 1.0\n", encoding="utf-8")
     with pytest.raises(InputError, match="unknown"):
         make_moment_model(LAB, coeffs=bad)
 
@@ -391,9 +391,9 @@ def test_every_card_builds_and_runs(name):
 
 
 def _card_with(tmp_path, old, new):
-    text = LAB.read_text().replace(old, new)
+    text = LAB.read_text(encoding="utf-8").replace(old, new)
     p = tmp_path / "card.toml"
-    p.write_text(text)
+    p.write_text(text, encoding="utf-8")
     return p
 
 
@@ -529,7 +529,7 @@ def test_identify_figures_show_best_median_and_worst(tmp_path):
 
 def test_identify_unwritable_figures_folder(tmp_path, capsys):
     blocker = tmp_path / "afile"
-    blocker.write_text("x")
+    blocker.write_text("x", encoding="utf-8")
     assert main(["identify", str(LAB), "--out", str(tmp_path / "c.toml"), "--figures", str(blocker / "f")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("bmctl: error: --figures:") and len(err.strip().splitlines()) == 1

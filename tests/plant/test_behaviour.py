@@ -44,8 +44,8 @@ def _deviation_reasons() -> tuple[str, str]:
     from ..conftest import ROOT
 
     try:
-        d = json.loads((ROOT / "results" / "fidelity_table.json").read_text())
-        nq = json.loads((ROOT / "results" / "fidelity_table_no_equiaxing.json").read_text())
+        d = json.loads((ROOT / "results" / "fidelity_table.json").read_text(encoding="utf-8"))
+        nq = json.loads((ROOT / "results" / "fidelity_table_no_equiaxing.json").read_text(encoding="utf-8"))
         cards = ("lab", "400", "1:3")
         mode = " / ".join(f"{d[c]['derived']['s_mode_max_1_6h']:.1f}" for c in cards)
         area = " / ".join(f"{d[c]['derived']['s_mode_area_um']['value']:.0f}" for c in cards)

@@ -107,11 +107,11 @@ def test_advance_rejects_bad_input(lab, kwargs, field):
 def test_runaway_bonding_is_one_line_not_a_zero_division(tmp_path):
     """A valid card whose bonding outruns fracture (2000 balls of 1 mm) grew particles to 1e104 µm and died in a
     ZeroDivisionError traceback inside the plant (`bmctl simulate`, `bmctl identify`): one line naming the card."""
-    text = card_path("alni-1to1-300rpm-lab").read_text().replace("impactor_mass_kg = 4.14e-3\n", "")
+    text = card_path("alni-1to1-300rpm-lab").read_text(encoding="utf-8").replace("impactor_mass_kg = 4.14e-3\n", "")
     text = text.replace("ball_diameter_m = 0.010", "ball_diameter_m = 0.001").replace("ball_count = 10",
                                                                                       "ball_count = 2000")
     p = tmp_path / "tiny-balls.toml"
-    p.write_text(text)
+    p.write_text(text, encoding="utf-8")
     plant = make_plant(load_card(p), particles=300, seed=1)
     with pytest.raises(InputError, match=r"alni-1to1-300rpm-lab: the plant's particles grew larger than the vial "
                                          r"at 600 rpm") as e:

@@ -118,9 +118,9 @@ def test_card_samplers_choose_the_kernels_and_bad_values_name_the_field(tmp_path
     assert Plant(card, np.random.default_rng(0), 100).kernels.samplers == "tabulated"
     exact = card.model_copy(update={"simulation": card.simulation.model_copy(update={"samplers": "exact"})})
     assert Plant(exact, np.random.default_rng(0), 100).kernels.samplers == "exact"
-    text = card_path("alni-1to1-300rpm-lab").read_text().replace("[simulation]", '[simulation]\nsamplers = "fast"')
+    text = card_path("alni-1to1-300rpm-lab").read_text(encoding="utf-8").replace("[simulation]", '[simulation]\nsamplers = "fast"')
     bad = tmp_path / "bad.toml"
-    bad.write_text(text)
+    bad.write_text(text, encoding="utf-8")
     with pytest.raises(InputError, match="simulation.samplers"):
         load_card(bad)
 

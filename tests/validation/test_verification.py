@@ -212,7 +212,7 @@ def test_cli_verify_writes_table_and_figures(tmp_path, capsys):
     text, err = capsys.readouterr()
     assert rc == 0, f"verification failed (exit {rc}):\n{text}\n{err}"
     assert "check" in text and "agglomeration-kernel15" in text and "checks passed" in text
-    csv = (out / "verification.csv").read_text().splitlines()
+    csv = (out / "verification.csv").read_text(encoding="utf-8").splitlines()
     assert csv[0] == ",".join(V.HEADER) and len(csv) > 40
     for png in ("analytic.png", "reference.png"):
         assert (out / png).stat().st_size > 10_000
@@ -231,6 +231,6 @@ def test_cli_verify_bad_input_is_one_line_exit_2(args, msg, capsys):
 
 def test_cli_verify_out_must_be_a_folder(tmp_path, capsys):
     f = tmp_path / "file"
-    f.write_text("x")
+    f.write_text("x", encoding="utf-8")
     assert main(["verify", "--out", str(f)]) == 2
     assert "--out:" in capsys.readouterr().err
