@@ -415,56 +415,161 @@ def summarise(sc: Scenario, loop: ClosedLoop) -> dict:
     }
 
 
+#: the quantities of trial.png's top row; a target on another one adds a panel of its own
+_TOP_KEYS = ("s_mean_um", "s_std_um", "r_mean")
+#: targets that are not columns of trajectory.csv: the volume-weighted D-values of the size law
+_DVALUE_NAMES = {"d50_um": "D50", "d90_um": "D90", "span": "span"}
+
+
+def _final_truth(out: Path) -> dict:
+    """``final_true`` of ``out/summary.json`` (written before the figures), or {} where there is none."""
+    try:
+        d = io.read_json(out / "summary.json", max_bytes=1 << 20)
+    except (InputError, OSError, ValueError):
+        return {}
+    ft = d.get("final_true") if isinstance(d, dict) else None
+    return ft if isinstance(ft, dict) else {}
+
+
+def _series(ax, t, y, lo=None, hi=None, *, color, label, band_label="90 % band", truth=False, alpha=0.25,
+            marker="o"):
+    """A quantity over the interval ends and its band: a line and a shaded band, or, with a single
+    interval, a marker and an error bar (a line or band of one point is not drawn)."""
+    one = t.size == 1
+    if not one:
+        (line,) = ax.plot(t, y, "-", color=color, lw=1.5, label=label)
+    elif truth:
+        (line,) = ax.plot(t, y, ls="none", marker="D", ms=5, color=color, zorder=4, clip_on=False, label=label)
+    else:
+        (line,) = ax.plot(t, y, ls="none", marker=marker, ms=8, mfc="none", mec=color, mew=1.5, zorder=3,
+                          clip_on=False, label=label)
+    band = None
+    if lo is None:
+        return line, band
+    if not one:
+        band = ax.fill_between(t, lo, hi, color=color, alpha=alpha, lw=0, label=band_label)
+    elif np.all(np.isfinite([lo[0], hi[0]])):
+        band = ax.errorbar(t, 0.5 * (lo + hi), yerr=0.5 * np.abs(hi - lo), fmt="none", ecolor=color, elinewidth=6,
+                           alpha=min(2 * alpha, 0.6), capsize=0, clip_on=False, label=band_label)
+    return line, band
+
+
+def _target(ax, value) -> None:
+    """A point target as a dashed line, a window [lo, hi] as a band, each with its legend entry."""
+    from .control.config import target_bounds
+
+    lo, hi = target_bounds(value)
+    if hi > lo:
+        ax.axhspan(lo, hi, color="C3", alpha=0.2, lw=0, label="target window")
+    else:
+        ax.axhline(lo, color="C3", ls="--", label="target")
+
+
+def _dvalue_panel(ax, col, t, key: str, final: dict) -> None:
+    """A targeted D-value (or span): trajectory.csv holds none, so the estimate's is drawn from the
+    Weibull size law of its mean and std (the law the filter and the controller read D-values from),
+    and the plant's where summary.json gives it, at the batch end."""
+    from .stats import weibull_size_stats
+
+    name = _DVALUE_NAMES[key]
+    est = np.atleast_1d(weibull_size_stats(col("est_s_mean_um"), col("est_s_std_um"))[key]).astype(float)
+    _series(ax, t, est, color="C0",
+            label=f"estimate: Weibull law of its mean & std\n(trajectory.csv: no {name}, no band)")
+    v = final.get(key)
+    if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+        ax.plot([t[-1]], [v], ls="none", marker="D", ms=6, color="k", zorder=4, clip_on=False,
+                label="plant at batch end (summary.json;\nnot recorded per interval)")
+
+
+def _legend_above_data(ax, *handles_labels):
+    """The legend at the top of ``ax``, the y range raised so that no data lie under it (two
+    columns where they fit the panel's width, else smaller type, else one column)."""
+    r = ax.figure.canvas.get_renderer()
+    axbox = ax.get_window_extent(r)
+    for ncol, size in ((2, 8), (2, 7), (1, 8)):
+        leg = ax.legend(*handles_labels, fontsize=size, ncol=ncol, loc="upper center", borderaxespad=0.3,
+                        framealpha=0.9)
+        box = leg.get_window_extent(r)
+        if box.width <= 0.98 * axbox.width:
+            break
+    frac = min(box.height / axbox.height + 0.04, 0.75)  # share of the panel's height the legend takes
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(lo, hi + (hi - lo) * frac / (1 - frac))
+    return leg
+
+
 def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
-    """Moments with target and estimate bands; rpm and rests; temperature."""
+    """``trial.png``: the moments and each targeted quantity with the truth, the estimate's 90 % band
+    and the target value or window; rpm and rests; temperature; the estimated γ and δ factors.
+
+    Every time axis spans 0 to the batch end. A trial of one interval draws its single points with
+    markers and its bands as error bars (trajectory.csv has no row at t = 0: rows are written at
+    interval ends). A D-value target, which trajectory.csv has no column for, is drawn from the
+    estimate's mean and std, with the plant's final value of ``summary.json`` where present.
+    """
     from .io import pyplot
-
-    plt = pyplot()
-
     from .plots import quantity_label
 
+    plt = pyplot()
     data = np.genfromtxt(traj, delimiter=",", names=True, dtype=None, encoding="utf-8")
-    t = np.atleast_1d(data["t_h"])
-    fig, axes = plt.subplots(2, 3, figsize=(14, 7))
-    for ax, k in zip(axes[0], ("s_mean_um", "s_std_um", "r_mean")):
-        ax.plot(t, data[f"true_{k}"], "k-", lw=1.5, label="plant (truth)")
-        ax.plot(t, data[f"est_{k}"], "C0-", label="estimate")
-        ax.fill_between(t, data[f"est_{k}_q05"], data[f"est_{k}_q95"], color="C0", alpha=0.25, label="90 % band")
-        if k in sc.target:
-            from .control.config import target_bounds
 
-            lo_, hi_ = target_bounds(sc.target[k])
-            ax.axhspan(lo_, hi_, color="C3", alpha=0.2) if hi_ > lo_ else ax.axhline(lo_, color="C3", ls="--",
-                                                                                   label="target")
-        ax.set_title(quantity_label(k)), ax.set_xlabel("batch time (h)"), ax.set_ylabel(quantity_label(k)), ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=8)
-    ax = axes[1][0]
+    def col(name: str) -> np.ndarray:
+        return np.atleast_1d(data[name]).astype(float)
+
+    t = col("t_h")
+    t_end = float(t[-1])  # the batch end (the last row is written at the end of the last interval)
     t0 = np.concatenate([[0.0], t[:-1]])  # each interval's start (rows are written at interval ends)
-    rpm = np.atleast_1d(data["rpm"])
-    ax.step(np.append(t0, t[-1]), np.append(rpm, rpm[-1]), where="post", color="C2")  # each speed over its interval
+    one = t.size == 1
+    top = list(_TOP_KEYS) + [k for k in sc.target if k not in _TOP_KEYS]
+    final = _final_truth(out) if any(k in _DVALUE_NAMES for k in top) else {}
+    fig = plt.figure(figsize=(14 * len(top) / 3, 7))
+    # fixed margins: tight_layout would draw the figure once more only to measure it
+    gs = fig.add_gridspec(2, 1, left=0.055 * 3 / len(top), right=1 - 0.035 * 3 / len(top), bottom=0.075,
+                          top=0.91, hspace=0.32)
+    top_axes = [fig.add_subplot(g) for g in gs[0].subgridspec(1, len(top), wspace=0.36)]
+    axes = [fig.add_subplot(g) for g in gs[1].subgridspec(1, 3, wspace=0.36)]
+    for i, (ax, k) in enumerate(zip(top_axes, top)):
+        if k in _DVALUE_NAMES:
+            _dvalue_panel(ax, col, t, k, final)
+        else:
+            _series(ax, t, col(f"true_{k}"), color="k", label="plant (truth)", truth=True)
+            _series(ax, t, col(f"est_{k}"), col(f"est_{k}_q05"), col(f"est_{k}_q95"), color="C0", label="estimate")
+        if k in sc.target:
+            _target(ax, sc.target[k])
+        ax.set_title(quantity_label(k)), ax.set_xlabel("batch time (h)"), ax.set_ylabel(quantity_label(k))
+        ax.set_xlim(0, t_end), ax.grid(alpha=0.3)
+        if i == 0 or k in sc.target or k in _DVALUE_NAMES:
+            _legend_above_data(ax)
+    ax = axes[0]
+    rpm = col("rpm")
+    ax.step(np.append(t0, t_end), np.append(rpm, rpm[-1]), where="post", color="C2")  # each speed over its interval
     ax.set_ylabel("rpm"), ax.set_xlabel("batch time (h)"), ax.set_title("rpm (bars: rest share)"), ax.grid(alpha=0.3)
-    ax.set_ylim(0, max(float(np.max(data["rpm"])), 1.0) * 1.1)
+    ax.set_ylim(0, max(float(np.max(rpm)), 1.0) * 1.1)
     ax2 = ax.twinx()
-    width = float(np.diff(t).min()) if t.size > 1 else 0.5
-    ax2.bar(t - width / 2, 1 - data["milling"], width=width * 0.9, color="C7", alpha=0.4)
+    ax2.bar(0.5 * (t0 + t), 1 - col("milling"), width=0.9 * (t - t0), color="C7", alpha=0.4)  # one bar per interval
     ax2.set_ylim(0, 1), ax2.set_ylabel("rest fraction")
-    ax = axes[1][1]
-    peak = data["true_peak_temperature_c"]
+    ax.set_xlim(0, t_end)
+    ax = axes[1]
+    peak = col("true_peak_temperature_c")
     ax.hlines(peak, t0, t, color="C3", lw=2, label="plant, peak in each interval")
-    ax.plot(t, data["true_temperature_c"], "C3o", ms=3, alpha=0.6, label="plant at interval ends")
-    ax.plot(t, data["est_temperature_c"], "C0--", label="estimate at interval ends")
+    ax.plot(t, col("true_temperature_c"), "C3o", ms=5 if one else 3, alpha=0.6, clip_on=False,
+            label="plant at interval ends")
+    ax.plot(t, col("est_temperature_c"), "C0--", marker="o" if one else None, mfc="none", clip_on=not one,
+            label="estimate at interval ends")
     if ceiling is not None:
         ax.axhline(ceiling, color="k", ls=":", label=f"ceiling {ceiling:g} °C")
     ax.set_title(f"vial temperature (highest {np.max(peak):.1f} °C)"), ax.set_ylabel("vial temperature (°C)")
-    ax.set_xlabel("batch time (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
-    ax = axes[1][2]
-    ax.plot(t, data["est_gamma_mult"], label=quantity_label("gamma_mult"))
-    ax.plot(t, data["est_delta_mult"], label=quantity_label("delta_mult"))
-    ax.fill_between(t, data["est_gamma_mult_q05"], data["est_gamma_mult_q95"], alpha=0.2)
-    ax.fill_between(t, data["est_delta_mult_q05"], data["est_delta_mult_q95"], alpha=0.2)
+    ax.set_xlabel("batch time (h)"), ax.set_xlim(0, t_end), ax.grid(alpha=0.3)
+    _legend_above_data(ax)
+    ax = axes[2]
+    handles, labels = [], []
+    for name, c, m in (("gamma_mult", "C0", "o"), ("delta_mult", "C1", "s")):
+        line, band = _series(ax, t, col(f"est_{name}"), col(f"est_{name}_q05"), col(f"est_{name}_q95"), color=c,
+                             label=quantity_label(name), alpha=0.2, marker=m)
+        handles.append(line if band is None else (band, line))  # one entry: the estimate over its band
+        labels.append(quantity_label(name) + ("" if band is None else " (band: 90 %)"))
     ax.set_title("estimated bonding γ and fracture δ factors"), ax.set_ylabel("factor relative to the card (1 = card)")
-    ax.set_xlabel("batch time (h)"), ax.legend(fontsize=8), ax.grid(alpha=0.3)
+    ax.set_xlabel("batch time (h)"), ax.set_xlim(0, t_end), ax.grid(alpha=0.3)
+    _legend_above_data(ax, handles, labels)
     fig.suptitle(f"{sc.scenario.name}: {sc.scenario.description}")
-    # fixed margins: tight_layout would draw the figure once more only to measure it
-    fig.subplots_adjust(left=0.055, right=0.965, bottom=0.075, top=0.91, wspace=0.36, hspace=0.32)
     io.savefig(fig, out / "trial.png", dpi=110)
