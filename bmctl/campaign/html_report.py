@@ -81,12 +81,6 @@ def sample_statistics(s_um: np.ndarray, r: np.ndarray) -> dict[str, float]:
             "r_std": std(r), "d50_um": float(dvalues(s_um)["d50_um"])}
 
 
-def _legend(ax) -> None:
-    """A legend when the axes has labelled artists (an empty campaign has none: no warning then)."""
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=7)
-
-
 def _png(fig) -> str:
     buf = _io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)
@@ -117,6 +111,9 @@ class ReportData:
         self.ambient_c = c.ambient_c()
         self.nodes = c.estimates()
         _, self.now_t, self.now = c.last_node()  # the estimate now: the prior (t < 0) before anything is logged
+        row = c.con.execute("SELECT estimate FROM estimator_states WHERE t_h < 0 ORDER BY id DESC LIMIT 1").fetchone()
+        self.prior = None if row is None else json.loads(row[0])  # the card's starting powder: batch time 0
+        self.rpm_max = c.rpm_max()
         self.filter_warnings = c.band_warnings()  # sample updates that left the filter nearly degenerate
         self.actions = c.actions()
         self.deviations = {r[0]: r[1] for r in c.con.execute("SELECT id, deviation FROM actions")}
@@ -158,6 +155,75 @@ class ReportData:
 
 
 # --- figures ----------------------------------------------------------------------------------------
+#: the estimate figure's y axis of each quantity (:data:`QUANTITIES` titles them)
+YLABELS = {"s_mean_um": "s (µm)", "s_std_um": "std of s (µm)", "r_mean": "r", "d50_um": "D50 (µm)"}
+#: what the page calls the card's prior, drawn at batch time 0
+PRIOR_LABEL = "prior at 0 h (the card's powder)"
+#: share of the batch added each side of a time axis, so that markers at 0 h and at the batch end show whole
+TIME_MARGIN = 0.02
+
+
+def _time_axis(ax, hours: float, times=()) -> None:
+    """Batch time from 0 to the batch end (or the latest time drawn, if later), with a small margin."""
+    hi = max([float(hours)] + [float(x) for x in times])
+    hi = hi if hi > 0 else 1.0
+    ax.set_xlim(-TIME_MARGIN * hi, (1 + TIME_MARGIN) * hi)
+    ax.set_xlabel("batch time (h)")
+
+
+def _note(ax, text: str) -> None:
+    """Say in the axes what is not there to draw."""
+    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", fontsize=9, color="0.35",
+            bbox={"facecolor": "white", "edgecolor": "0.8", "alpha": 0.9})
+
+
+def _over_time(ax, nodes: list[tuple[float, dict]], k: str, prior: bool) -> None:
+    """Mean and 90 % interval of estimate ``k`` at the nodes (the card's prior at 0 h first when
+    ``prior``): a band where the nodes span some time, error bars where the logged nodes stand at one
+    time (a band over one time has no width; from the prior to one node it is a thin wedge), and the
+    prior marked at 0 h."""
+    t = np.array([x[0] for x in nodes], dtype=float)
+    m = np.array([e[k] for _, e in nodes], dtype=float)
+    lo = np.array([e[f"{k}_q05"] for _, e in nodes], dtype=float)
+    hi = np.array([e[f"{k}_q95"] for _, e in nodes], dtype=float)
+    only_prior = prior and t.size == 1
+    if np.unique(t).size > 1:
+        ax.fill_between(t, lo, hi, color="C0", alpha=0.25, lw=0, label="estimate, 90 % interval")
+        ax.plot(t, m, "C0-o", ms=3, label="estimate (mean)")
+        i = 1 if prior else 0  # the logged nodes
+        if np.unique(t[i:]).size == 1:  # all at one time: the band is a thin wedge from the prior, so bars too
+            ax.errorbar(t[i:], m[i:], yerr=np.clip([m[i:] - lo[i:], hi[i:] - m[i:]], 0.0, None), fmt="none",
+                        ecolor="C0", capsize=4, lw=1.2)
+    else:
+        err = np.clip([m - lo, hi - m], 0.0, None)  # a mean on a zero-width interval: no negative bar
+        if only_prior:
+            ax.errorbar(t, m, yerr=err, fmt="s", color="C0", mfc="white", ms=6, mew=1.3, capsize=4, lw=1.2,
+                        label=f"{PRIOR_LABEL}, mean and 90 % interval")
+            return
+        ax.errorbar(t, m, yerr=err, fmt="o", color="C0", ms=4, capsize=4, lw=1.2,
+                    label="estimate, mean and 90 % interval")
+    if prior:
+        ax.plot(t[:1], m[:1], "s", color="C0", mfc="white", ms=6, mew=1.3, zorder=3, label=PRIOR_LABEL)
+
+
+def _fig_legend(fig, axes, ncol: int | None = None) -> None:
+    """One legend for the figure, outside the axes (below them), each label once; none without labels."""
+    seen: dict[str, object] = {}
+    for ax in axes:
+        kids = ax.get_children()
+
+        def drawn_at(pair, kids=kids) -> int:  # in the order drawn (matplotlib lists error bars last)
+            h = pair[0]
+            a = h[0] if isinstance(h, tuple) and len(h) and h[0] is not None else h
+            return next((i for i, x in enumerate(kids) if x is a), len(kids))
+
+        for h, lab in sorted(zip(*ax.get_legend_handles_labels()), key=drawn_at):
+            seen.setdefault(lab, h)
+    if seen:
+        fig.legend(list(seen.values()), list(seen), loc="outside lower center", fontsize=8,
+                   ncol=ncol or min(len(seen), 4), frameon=False)
+
+
 def figures(d: ReportData) -> dict[str, str]:
     """The report's figures as base64 PNG strings, by name."""
     plt = io.pyplot()
@@ -165,25 +231,26 @@ def figures(d: ReportData) -> dict[str, str]:
 
     out = {}
     H = d.meta["hours"]
-    t = np.array([n[0] for n in d.nodes])
+    prior = d.prior is not None
+    nodes = ([(0.0, d.prior)] if prior else []) + list(d.nodes)  # the prior is the estimate at batch time 0
+    times = [x[0] for x in nodes] + [s["t_h"] for s in d.samples] + [a.t1_h for a in d.actions]
     target = d.meta["target"]
 
     # 1. estimate and band of each quantity; each sample's statistic of the same quantity; the target
-    fig, axes = plt.subplots(2, 2, figsize=(11, 6.4))
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7.0), layout="constrained")
     for ax, (k, (title, stat)) in zip(axes.flat, QUANTITIES.items()):
-        if t.size:
-            ax.fill_between(t, [e[f"{k}_q05"] for _, e in d.nodes], [e[f"{k}_q95"] for _, e in d.nodes],
-                            color="C0", alpha=0.25, lw=0, label="estimate, 90 % interval")
-            ax.plot(t, [e[k] for _, e in d.nodes], "C0-o", ms=3, label="estimate (mean)")
+        if nodes:
+            _over_time(ax, nodes, k, prior)
         if d.samples:
             ax.plot([s["t_h"] for s in d.samples], [s["stats"][k] for s in d.samples], "kx", ms=7, mew=1.5,
-                    label=stat)
+                    label="sample statistic (mean, std or D50, as titled)")
         if k in target:
             ax.axhline(target[k], color="C3", ls="--", label="target")
-        ax.set_title(title, fontsize=10), ax.set_xlabel("batch time (h)"), ax.grid(alpha=0.3)
-        ax.set_xlim(0, H)
-        _legend(ax)
-    fig.tight_layout()
+        if not d.nodes and not d.samples:
+            _note(ax, "nothing logged yet" + (": the card's prior at 0 h" if prior else ""))
+        ax.set_title(title, fontsize=10), ax.set_ylabel(YLABELS.get(k, k)), ax.grid(alpha=0.3)
+        _time_axis(ax, H, times)
+    _fig_legend(fig, axes.flat)
     out["estimate"] = _png(fig)
 
     # 2. measured histograms against the filter's size law at the estimate of that time
@@ -191,32 +258,34 @@ def figures(d: ReportData) -> dict[str, str]:
     if shown:
         ncol = min(3, len(shown))
         nrow = math.ceil(len(shown) / ncol)
-        fig, axes = plt.subplots(nrow, ncol, figsize=(3.8 * ncol, 3.0 * nrow), squeeze=False)
+        fig, axes = plt.subplots(nrow, ncol, figsize=(3.8 * ncol, 3.0 * nrow + 0.4), squeeze=False,
+                                 layout="constrained")
         for ax, s in zip(axes.flat, shown):
             x = s["s_um"]
             bins = np.geomspace(max(x.min() * 0.8, 1e-3), x.max() * 1.25, 25)
             g = np.geomspace(bins[0], bins[-1], 200)
             # density per unit ln s (s f(s)) on a log axis: the shape is not flattened by the axis
             w = np.full(x.size, 1.0 / (x.size * np.log(bins[1] / bins[0])))
-            ax.hist(x, bins=bins, weights=w, color="C7", alpha=0.6, label=f"measured (n = {s['n']})")
+            ax.hist(x, bins=bins, weights=w, color="C7", alpha=0.6, label="measured")
             e = s["estimate"]
             ax.plot(g, g * _law_pdf(g, e["s_mean_um"], e["s_std_um"]), "C0-", label="size law at the estimate")
-            ax.set_xscale("log"), log_size_axis(ax), ax.set_title(f"sample {s['id']} at {s['t_h']:g} h", fontsize=10)
+            ax.set_xscale("log"), log_size_axis(ax)
+            ax.set_title(f"sample {s['id']} at {s['t_h']:g} h (n = {s['n']})", fontsize=10)
             ax.set_xlabel("s (µm)"), ax.set_ylabel("density per ln s")
         for ax in list(axes.flat)[len(shown):]:
             ax.set_visible(False)
-        _legend(axes[0][0])
-        fig.tight_layout()
+        _fig_legend(fig, axes.flat[:1])
         out["histograms"] = _png(fig)
 
     # 3. what was run, what was advised (the next interval and the whole plan at each advice)
-    fig, ax = plt.subplots(figsize=(11, 3.4))
+    fig, ax = plt.subplots(figsize=(11, 3.4), layout="constrained")
     for a in d.actions:
         if a.milling > 0 and a.rpm > 0:
             ax.fill_between([a.t0_h, a.t0_h + a.milling * a.hours], 0, a.rpm, color="C2", alpha=0.5, lw=0)
     if d.actions:
         ax.plot([], [], color="C2", lw=6, alpha=0.5, label="milled (logged; gaps are rests)")
     cmap = plt.get_cmap("viridis")
+    plan_times: list[float] = []
     for i, p in enumerate(d.plans):
         rows = p["advice"].get("schedule", [])
         if not rows:
@@ -224,34 +293,40 @@ def figures(d: ReportData) -> dict[str, str]:
         col = cmap(i / max(len(d.plans) - 1, 1))
         ts = [r["t0_h"] for r in rows] + [rows[-1]["t1_h"]]
         rpm = [r["rpm"] if r["mill_min"] > 0 else 0.0 for r in rows]
+        first = not plan_times  # the first plan drawn names the series
         ax.step(ts, rpm + rpm[-1:], where="post", color=col, lw=1, alpha=0.7,
-                label="plan at each advice (early → late)" if i == 0 else None)
+                label="plan at each advice (early → late)" if first else None)
         nx = p["advice"]["next"]
-        ax.plot([p["t_h"]], [nx["rpm"]], "v", color="C3", ms=7, label="recommended next" if i == 0 else None)
-    ax.set_xlim(0, H), ax.set_xlabel("batch time (h)"), ax.set_ylabel("rpm"), ax.grid(alpha=0.3)
+        ax.plot([p["t_h"]], [nx["rpm"]], "v", color="C3", ms=7, label="recommended next" if first else None)
+        plan_times += ts + [p["t_h"]]
+    if not d.actions and not plan_times:
+        ax.set_ylim(0, 1.05 * d.rpm_max)
+        _note(ax, "nothing logged or advised yet")
+    _time_axis(ax, H, times + plan_times)
+    ax.set_ylabel("rpm"), ax.grid(alpha=0.3)
     ax.set_title("mill: logged intervals, recommendations and the plan advised at each step", fontsize=10)
-    _legend(ax)
-    fig.tight_layout()
+    _fig_legend(fig, [ax])
     out["actions"] = _png(fig)
 
     # 4. vial temperature: readings against the ceiling, the estimate and its interval
-    fig, ax = plt.subplots(figsize=(11, 3.4))
-    if t.size:
-        ax.fill_between(t, [e["temperature_c_q05"] for _, e in d.nodes], [e["temperature_c_q95"] for _, e in d.nodes],
-                        color="C0", alpha=0.25, lw=0, label="estimate, 90 % interval")
-        ax.plot(t, [e["temperature_c"] for _, e in d.nodes], "C0-", label="estimate (mean)")
+    fig, ax = plt.subplots(figsize=(11, 3.8), layout="constrained")
+    if nodes:
+        _over_time(ax, nodes, "temperature_c", prior)
     if d.temps:
         ty = np.array(d.temps, dtype=float)
         over = ty[:, 1] > (d.ceiling_c if d.ceiling_c is not None else np.inf)
-        ax.plot(ty[~over, 0], ty[~over, 1], "o", color="C1", label="reading")
+        if (~over).any():
+            ax.plot(ty[~over, 0], ty[~over, 1], "o", color="C1", label="reading")
         if over.any():
             ax.plot(ty[over, 0], ty[over, 1], "X", color="C3", ms=9, label="reading above the ceiling")
+    else:
+        _note(ax, "no reading logged yet" if d.nodes else "nothing logged yet")
     if d.ceiling_c is not None:
         ax.axhline(d.ceiling_c, color="k", ls=":", label=f"ceiling {d.ceiling_c:g} °C")
-    ax.set_xlim(0, H), ax.set_xlabel("batch time (h)"), ax.set_ylabel("vial temperature (°C)"), ax.grid(alpha=0.3)
-    ax.set_title("vial temperature: readings (σ 2 °C) against the ceiling", fontsize=10)
-    _legend(ax)
-    fig.tight_layout()
+    _time_axis(ax, H, times)
+    ax.set_ylabel("vial temperature (°C)"), ax.grid(alpha=0.3)
+    ax.set_title(f"vial temperature: readings (σ {d.sigma_reading_c:g} °C) against the ceiling", fontsize=10)
+    _fig_legend(fig, [ax])
     out["temperature"] = _png(fig)
     return out
 

@@ -218,7 +218,11 @@ def estimate_rows(estimates: Sequence[Estimate]) -> tuple[list[str], list[list]]
 
 def plot_estimates(path: str | Path, estimates: Sequence[Estimate], samples: Sequence[Sample] | None = None,
                    title: str = "", truth: dict | None = None) -> None:
-    """Mean and 90 % band of every state and parameter over time; the raw sample moments as dots."""
+    """Mean and 90 % band of every state and parameter over time; the raw sample moments as dots.
+
+    The time axis runs from 0 (the start of the schedule) to the last time drawn. Where the estimates
+    stand at a single time (one sample), a band has no width: the 90 % interval is drawn as error bars.
+    """
     from ..io import pyplot, savefig
 
     from ..plots import quantity_label
@@ -230,39 +234,54 @@ def plot_estimates(path: str | Path, estimates: Sequence[Estimate], samples: Seq
     mean = np.array([e.mean for e in estimates])
     lo = np.array([e.q05 for e in estimates])
     hi = np.array([e.q95 for e in estimates])
+    one_time = np.unique(t).size < 2
     raw = {}
     if samples is not None:
         raw = {"s_mean_um": [np.mean(s.s_um) for s in samples], "s_std_um": [np.std(s.s_um) for s in samples],
                "r_mean": [np.mean(s.r) for s in samples], "r_std": [np.std(s.r) for s in samples]}
         if all(s.temperature_c is not None for s in samples):
             raw["temperature_c"] = [s.temperature_c for s in samples]
+    t_end = float(max([t.max()] + ([np.max(truth.get("t_h", t))] if truth else [])))
+    t_end = t_end if t_end > 0 else 1.0
     ncol = 4
     nrow = int(np.ceil(len(names) / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 2.7 * nrow), squeeze=False)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.4 * ncol, 2.7 * nrow + 0.4), squeeze=False, layout="constrained")
     for k, name in enumerate(names):
         ax = axes.flat[k]
-        ax.fill_between(t, lo[:, k], hi[:, k], color="tab:blue", alpha=0.25, lw=0, label="90 % interval")
-        ax.plot(t, mean[:, k], color="tab:blue", marker="o", ms=3, lw=1.2, label="filter mean")
+        if one_time:
+            err = np.clip([mean[:, k] - lo[:, k], hi[:, k] - mean[:, k]], 0.0, None)
+            ax.errorbar(t, mean[:, k], yerr=err, fmt="o", color="tab:blue", ms=4, capsize=4, lw=1.2,
+                        label="filter mean, 90 % interval")
+        else:
+            ax.fill_between(t, lo[:, k], hi[:, k], color="tab:blue", alpha=0.25, lw=0, label="90 % interval")
+            ax.plot(t, mean[:, k], color="tab:blue", marker="o", ms=3, lw=1.2, label="filter mean")
         if name in raw:
             ax.plot(t, raw[name], ls="none", marker="x", color="k", ms=4, label="sample moment")
         if truth and name in truth:
             ax.plot(truth.get("t_h", t), truth[name], color="tab:red", lw=1.0, label="truth")
         ax.set_title(quantity_label(name), fontsize=8)
         ax.set_xlabel("t (h)", fontsize=8)
+        ax.set_xlim(-0.03 * t_end, 1.03 * t_end)  # from 0; markers at 0 and at the end show whole
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-        if k == 0:
-            ax.legend(fontsize=6)
+    handles = {}
+    for ax in axes.flat[:len(names)]:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(lab, h)
+    first = ("filter mean, 90 % interval", "90 % interval", "filter mean")  # the filter, then the data
+    handles = {lab: handles[lab] for lab in sorted(handles, key=lambda x: x not in first)}
+    fig.legend(list(handles.values()), list(handles), loc="outside lower center", ncol=len(handles), fontsize=7,
+               frameon=False)
     ax = axes.flat[len(names)] if len(names) < nrow * ncol else None
     if ax is not None:
         ax.plot(t, [e.ess for e in estimates], marker="o", ms=3, color="tab:green")
         ax.set_title("effective sample size after update", fontsize=8)
         ax.set_ylabel("particles", fontsize=8)
         ax.set_xlabel("t (h)", fontsize=8)
+        ax.set_xlim(-0.03 * t_end, 1.03 * t_end)
         ax.grid(alpha=0.3)
     for extra in list(axes.flat)[len(names) + 1:]:
         extra.axis("off")
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
     savefig(fig, path, dpi=110)
