@@ -135,9 +135,59 @@ def pick_times(times_h: Sequence[float], n: int = 6) -> list[int]:
 
 SIZE_TICKS_UM = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000)
 
+#: tick mantissas per decade of a log size axis, from coarse to fine: the finer sets are used when
+#: fewer than two ticks of the coarser ones fall in the axis range (a narrow size range)
+SIZE_TICK_STEPS = ((1,), (1, 2, 5), (1, 2, 3, 4, 5, 6, 8), (1, 2, 3, 4, 5, 6, 7, 8, 9))
+
+
+def size_ticks(lo: float, hi: float, most: int = 12) -> list[float]:
+    """Tick positions of a log size axis from ``lo`` to ``hi`` (µm): 1-2-5 per decade (1 per decade
+    when that gives more than ``most``); when fewer than two of those fall in the range, finer ones
+    (1-2-3-4-5-6-8, then every whole mantissa) that give at least three; a range too narrow for
+    any of these (35-48 µm) gets evenly spaced round numbers.
+
+    Examples
+    --------
+    >>> size_ticks(7, 250)
+    [10.0, 20.0, 50.0, 100.0, 200.0]
+    >>> size_ticks(26, 70)
+    [30.0, 40.0, 50.0, 60.0]
+    >>> size_ticks(35, 48)
+    [35.0, 40.0, 45.0]
+    """
+    lo, hi = (float(lo), float(hi)) if lo <= hi else (float(hi), float(lo))
+    if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= 0:
+        return []
+    lo = max(lo, hi * 1e-12)
+    eps = 1e-9 * hi
+    decades = range(int(np.floor(np.log10(lo))) - 1, int(np.ceil(np.log10(hi))) + 1)
+
+    def within(steps):
+        return [float(f"{m * 10.0 ** d:.12g}") for d in decades for m in steps if lo - eps <= m * 10.0 ** d <= hi + eps]
+
+    ticks = within((1, 2, 5))
+    if len(ticks) > most:
+        return within((1,))
+    if len(ticks) >= 2:
+        return ticks
+    for steps in SIZE_TICK_STEPS[2:]:  # finer: while they give fewer than three (30 and 40 only on 30-48 µm)
+        ticks = within(steps)
+        if len(ticks) >= 3:
+            return ticks
+    from matplotlib.ticker import MaxNLocator
+
+    return [float(f"{v:.12g}") for v in MaxNLocator(nbins=6, steps=[1, 2, 5, 10]).tick_values(lo, hi)
+            if lo - eps <= v <= hi + eps]
+
+
+def _plain_number(value: float, _pos=None) -> str:
+    """A size tick's label: the plain number (50, 2.5, 1000), never a power of ten."""
+    return f"{value:.6g}" if abs(value) < 1e6 else f"{value:.0f}"
+
 
 def log_size_axis(ax, axis: str = "x") -> None:
-    """Log size axis with plain µm tick labels (1, 2, 5, 10, 20, ...).
+    """Log size axis with plain µm tick labels (1, 2, 5, 10, 20, ...; finer on a narrow range,
+    :func:`size_ticks`, chosen when the axis is drawn, so its limits may be set later).
 
     Parameters
     ----------
@@ -146,11 +196,18 @@ def log_size_axis(ax, axis: str = "x") -> None:
     axis : {"x", "y"}
         Which axis holds the sizes.
     """
-    from matplotlib.ticker import FixedLocator, NullFormatter, ScalarFormatter
+    from matplotlib.ticker import FuncFormatter, Locator, NullFormatter
+
+    class SizeLocator(Locator):
+        def __call__(self):
+            return self.tick_values(*self.axis.get_view_interval())
+
+        def tick_values(self, vmin, vmax):
+            return size_ticks(vmin, vmax)
 
     a = ax.xaxis if axis == "x" else ax.yaxis
-    a.set_major_locator(FixedLocator(SIZE_TICKS_UM))
-    a.set_major_formatter(ScalarFormatter())
+    a.set_major_locator(SizeLocator())
+    a.set_major_formatter(FuncFormatter(_plain_number))
     a.set_minor_formatter(NullFormatter())
 
 
@@ -163,13 +220,19 @@ def size_distributions(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, time
     """
     cen, edges, q0, q3, Q3 = size_densities(s_edges_um, p_s)
     idx = pick_times(times_h, n_panels)
-    ncol = 3
+    ncol = min(3, len(idx))  # two records: two panels, no empty third column
     nrow = int(np.ceil(len(idx) / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(4.3 * ncol, 3.2 * nrow), sharex=True, squeeze=False)
+    leg_cols = {1: 1, 2: 2}.get(ncol, 4)
+    leg_rows = int(np.ceil(4 / leg_cols))
+    # fixed margins in inches (tight_layout would draw the 12 axes once more only to measure them, ~1 s):
+    # above, the title and the panel titles; below, the tick labels, the axis label and the legend under them
+    top_in, bottom_in = 0.62, 0.62 + 0.2 * leg_rows
+    height = 3.2 * nrow + 0.2 * leg_rows
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.3 * ncol, height), sharex=True, squeeze=False)
     peak = max(q0[idx].max(), q3[idx].max())
     nz = np.nonzero(q0[idx].max(axis=0) + q3[idx].max(axis=0) > 1e-3 * peak)[0]
     xlo, xhi = edges[max(nz[0] - 1, 0)], edges[min(nz[-1] + 2, edges.size - 1)]
-    for a, k in zip(axes.flat, idx):
+    for j, (a, k) in enumerate(zip(axes.flat, idx)):
         top = 1.15 * max(q0[k].max(), q3[k].max())
         a.stairs(q0[k], edges, fill=True, color="tab:blue", alpha=0.45, label="number density per ln s")
         a.step(edges[:-1], q3[k], where="post", color="tab:orange", lw=1.6, label="volume density per ln s")
@@ -177,12 +240,15 @@ def size_distributions(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, time
         log_size_axis(a)
         a.set_xlim(xlo, xhi), a.set_ylim(0, top)
         a.axvline(d50_um[k], color="k", lw=1, ls=":")
-        a.text(d50_um[k], 0.93 * top, f" D50 {d50_um[k]:.0f} µm", fontsize=8, va="top", zorder=5,
+        # the label beside the line, on the side with room: left of it in the right part of the panel
+        right = np.log(d50_um[k] / xlo) > 0.55 * np.log(xhi / xlo) if d50_um[k] > 0 else False
+        a.text(d50_um[k], 0.93 * top, f"D50 {d50_um[k]:.0f} µm " if right else f" D50 {d50_um[k]:.0f} µm",
+               fontsize=8, va="top", ha="right" if right else "left", zorder=5,
                bbox=dict(facecolor="white", alpha=0.8, lw=0, pad=1))
         b = a.twinx()
         b.plot(s_edges_um[1:], 100 * Q3[k], color="0.25", lw=1.1, ls="--", label="cumulative volume (%)")
         b.set_ylim(0, 105)
-        if list(axes.flat).index(a) % ncol == ncol - 1:
+        if j == min((j // ncol + 1) * ncol, len(idx)) - 1:  # the last panel drawn in its row
             b.set_ylabel("cumulative volume (%)")
         else:
             b.tick_params(right=False, labelright=False)
@@ -192,16 +258,17 @@ def size_distributions(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, time
         a.set_visible(False)
     for a in axes[:, 0]:
         a.set_ylabel("density per unit ln s")
-    for a in axes[-1]:
-        a.set_xlabel("particle size s (µm, log scale)")
+    for j, a in enumerate(axes.flat[:len(idx)]):
+        if j + ncol >= len(idx):  # no panel below: the lowest of its column
+            a.set_xlabel("particle size s (µm, log scale)")
+            a.xaxis.set_tick_params(labelbottom=True)
     h1, l1 = axes[0, 0].get_legend_handles_labels()
     fig.legend(h1 + [plt.Line2D([], [], color="0.25", ls="--"), plt.Line2D([], [], color="k", ls=":")],
                l1 + ["cumulative volume fraction (right axis)", "D50: half the volume in smaller particles"],
-               loc="lower center", ncol=4, fontsize=8, frameon=False, bbox_to_anchor=(0.5, -0.01))
+               loc="lower center", ncol=leg_cols, fontsize=8, frameon=False, bbox_to_anchor=(0.5, 0.0))
     fig.suptitle(title)
-    # fixed margins: tight_layout would draw the 12 axes once more only to measure them (~1 s)
-    fig.subplots_adjust(left=0.055, right=0.945, bottom=0.1 + 0.05 / nrow, top=1 - 0.15 / nrow, wspace=0.25,
-                        hspace=0.32)
+    fig.subplots_adjust(left=0.055 * 3 / ncol, right=1 - 0.055 * 3 / ncol, bottom=bottom_in / height,
+                        top=1 - top_in / height, wspace=0.25, hspace=0.32)
     savefig(fig, path, dpi=120)
 
 
@@ -219,7 +286,7 @@ def size_heatmap(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, times_h: S
         t_edges[0], t_edges[-1] = t[0], t[-1]
     nz = np.nonzero(q0.max(axis=0) + q3.max(axis=0) > 1e-2 * max(q0.max(), q3.max()))[0]
     ylo, yhi = edges[max(nz[0] - 1, 0)], edges[min(nz[-1] + 2, edges.size - 1)]
-    fig, axes = plt.subplots(1, 2, figsize=(12.5, 4.6), sharey=True)
+    fig, axes = plt.subplots(1, 2, figsize=(12.5, 5.0), sharey=True)
     for ax, q, lab, lines in (
             (axes[0], q0, "by number", (("s_mean_um", "mean (by number)", "w", "-"),
                                         ("s_mode_um", "mode (by number)", "w", ":"))),
@@ -234,11 +301,13 @@ def size_heatmap(path: Path, s_edges_um: np.ndarray, p_s: np.ndarray, times_h: S
         log_size_axis(ax, "y")
         ax.set_xlabel("batch time t (h)")
         ax.set_title(f"size distribution {lab}")
-        ax.legend(fontsize=8, loc="upper right", facecolor="0.3", labelcolor="w", framealpha=0.6)
+        # below the time axis, off the map: inside, it hid the lines it names (D90 of a short batch)
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=len(lines), facecolor="0.3",
+                  labelcolor="w", framealpha=1.0, edgecolor="0.3", handlelength=3)
         fig.colorbar(im, ax=ax, extend="max", label=f"density per unit ln s ({lab}; t = 0 clipped)")
     axes[0].set_ylabel("particle size s (µm, log scale)")
     fig.suptitle(title)
-    fig.subplots_adjust(left=0.06, right=0.975, bottom=0.11, top=0.87, wspace=0.12)  # fixed: no measuring draw
+    fig.subplots_adjust(left=0.06, right=0.975, bottom=0.2, top=0.88, wspace=0.12)  # fixed: no measuring draw
     savefig(fig, path, dpi=120)
 
 

@@ -266,7 +266,9 @@ def _moments_figure(results: Sequence[WhatIfResult], path: Path) -> None:
     ax.set_title("highest vial temperature of the batch (°C)", fontsize=10), ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=8)
     axes.flat[0].legend(fontsize=8)
-    fig.suptitle("what-if schedules: ensemble mean and 90 % band")
+    seeds = min(len(r.peak_temperature_c) for r in results)
+    fig.suptitle("what-if schedules: one plant per schedule (one seed: no band)" if seeds == 1
+                 else f"what-if schedules: ensemble mean and 90 % band ({seeds} seeds)")
     fig.tight_layout()
     io.savefig(fig, path, dpi=110)
 
@@ -292,7 +294,9 @@ def _final_figure(results: Sequence[WhatIfResult], path: Path) -> None:
     axes[0].set_xlabel("final size s (µm, log scale)"), axes[1].set_xlabel(f"final {plots.R_LABEL}")
     axes[0].set_ylabel("density per ln s (by number)"), axes[0].legend(fontsize=8)
     axes[1].set_ylabel("density per unit r (by number)"), axes[1].set_xlim(0, r_edges[-1])
-    fig.suptitle("what-if schedules: size and irregularity of the particles at the end (all seeds pooled)")
+    seeds = min(len(r.peak_temperature_c) for r in results)
+    fig.suptitle("what-if schedules: size and irregularity of the particles at the end "
+                 + ("(one plant per schedule)" if seeds == 1 else f"(all {seeds} seeds pooled)"))
     for ax in axes:
         ax.grid(alpha=0.3)
     fig.tight_layout()

@@ -293,6 +293,7 @@ def _write_set(args, results, locs, reports, table, loc) -> list[str]:
         for res, out_png, i in zip(results, _overlay_names([res.name for res in results], folder), img_index):
             write_overlay(out_png, res.image, res.segmentation.labels, res.segmentation.offset, locs[i].particle_id,
                           excluded_from_row=res.info_bar_row, excluded_to_row=res.info_bar_top_last_row, scale_bar=res.scale_bar,
+                          crop=getattr(args, "crop", None),
                           title=f"{path_text(Path(res.name).name)}: {len(res.table)} particles, {res.scale.um_per_px:.4g} µm/px, "
                                 f"{res.segmentation.polarity} particles, verdict {res.verdict}")
             reports[i]["overlay"] = str(out_png)

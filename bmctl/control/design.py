@@ -772,51 +772,101 @@ def predicted_csv(d: Design) -> str:
 
 
 def design_figure(d: Design, path: Path) -> None:
-    """Schedule (rpm per segment, rests shaded), size moments and D50 (µm), r, vial temperature."""
+    """Schedule (rpm per segment, rests shaded), size moments and D50 (µm), span, r, vial temperature,
+    over the batch designed for (0 to ``d.hours``, also where the schedule is done earlier)."""
     from ..io import pyplot, savefig
+    from ..plots import R_LABEL, quantity_label
     from .config import target_bounds
     from .outputs import output_values
 
-    from ..plots import quantity_label
-
     plt = pyplot()
     t = d.times_h
-    fig, axes = plt.subplots(2, 2, figsize=(11, 6.5), sharex=True)
-    ax = axes[0, 0]
-    ax.step(t, np.append(d.U[:, 0], d.U[-1:, 0]), where="post", color="tab:blue", label="rpm (0 = rest)")
-    ax.set_ylabel("rpm")
-    ax.set_title(f"schedule: {switches_text(d.switches)}")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
+    end = max(float(d.hours), float(t[-1]))
     X = d.X
     d50 = np.asarray(output_values(X, ["d50_um"])[0], dtype=float)
     sizes = (("s_mean_um", X[:, 0]), ("s_std_um", X[:, 1]), ("d50_um", d50))
     if "d90_um" in d.target:  # drawn with its target line, as the other sizes
         sizes += (("d90_um", np.asarray(output_values(X, ["d90_um"])[0], dtype=float)),)
-    for ax, series, lab in ((axes[0, 1], sizes, f"size (µm); {', '.join(k[:3] for k, _ in sizes[2:])}: volume-weighted"),
-                            (axes[1, 0], (("r_mean", X[:, 2]), ("r_std", X[:, 3])), "irregularity r = 1 − πs/L")):
-        for key, y in series:
-            line, = ax.plot(t, y, label=key)
+    span = (("span", np.asarray(output_values(X, ["span"])[0], dtype=float)),)
+    shape = (("r_mean", X[:, 2]), ("r_std", X[:, 3]))
+
+    def n_entries(series):
+        return len(series) + sum(k in d.target for k, _ in series)
+
+    # fixed layout in inches (tight_layout and a tight bounding box would each draw the figure once more
+    # to measure it): the rpm schedule across the top, then two rows of two panels, each legend above its
+    # panel (inside, it hid the target window it names)
+    W, left, right, gap = 11.0, 0.8, 0.3, 0.95
+    pw = (W - left - right - gap) / 2
+    ph, rpm_h, leg_row = 2.05, 1.45, 0.165
+    rows = [max(n_entries(sizes), n_entries(span)), max(n_entries(shape), 2)]
+    leg = [0.12 + leg_row * int(np.ceil(n / 2)) for n in rows]
+    heights = [0.55, 0.3, rpm_h, 0.2 + leg[0], ph, 0.2 + leg[1], ph, 0.55]
+    H = sum(heights)
+    fig = plt.figure(figsize=(W, H))
+
+    def box(col, y_top, h, width=pw):
+        return [(left + col * (pw + gap)) / W, (H - y_top - h) / H, width / W, h / H]
+
+    y = heights[0] + heights[1]
+    ax_rpm = fig.add_axes(box(0, y, rpm_h, 2 * pw + gap))
+    y += rpm_h + heights[3]
+    ax_size = fig.add_axes(box(0, y, ph), sharex=ax_rpm)
+    ax_span = fig.add_axes(box(1, y, ph), sharex=ax_rpm)
+    y += ph + heights[5]
+    ax_r = fig.add_axes(box(0, y, ph), sharex=ax_rpm)
+    ax_temp = fig.add_axes(box(1, y, ph), sharex=ax_rpm)
+    panels = (ax_rpm, ax_size, ax_span, ax_r, ax_temp)
+
+    rpm = d.U[:, 0] * (d.U[:, 1] > 0)
+    rests = [(t[k], t[k + 1]) for k in range(len(rpm)) if rpm[k] <= 0]
+    stopped = end > t[-1] + 1e-9
+    for ax in panels:
+        for j, (a, b) in enumerate(rests):
+            ax.axvspan(a, b, color="0.88", lw=0, zorder=0, label="rest (rpm 0)" if j == 0 else None)
+        if stopped:
+            ax.axvspan(t[-1], end, facecolor="none", edgecolor="0.78", hatch="//", lw=0, zorder=0,
+                       label="schedule done: mill stopped to the batch end")
+        ax.grid(alpha=0.3)
+    ax = ax_rpm
+    if stopped:  # the mill stands still from the schedule's end to the batch end
+        ax.step(np.append(t, end), np.append(rpm, [0.0, 0.0]), where="post", color="tab:blue", label="rpm (0 = rest)")
+    else:
+        ax.step(t, np.append(rpm, rpm[-1:]), where="post", color="tab:blue", label="rpm (0 = rest)")
+    ax.set_ylim(0, 1.12 * max(float(rpm.max(initial=0.0)), 1.0))
+    ax.set_xlim(0, end)
+    ax.set_ylabel("rpm")
+    ax.set_title(f"schedule: {switches_text(d.switches)}, {d.hours:g} h batch", loc="left", fontsize=10)
+    h, lab = ax.get_legend_handles_labels()
+    ax.legend(h[-1:] + h[:-1], lab[-1:] + lab[:-1], fontsize=7.5, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3,
+              frameon=False, borderaxespad=0.2)
+    for ax, series, lab in ((ax_size, sizes, "particle size s (µm)"), (ax_span, span, quantity_label("span")),
+                            (ax_r, shape, R_LABEL)):
+        for key, yv in series:
+            name = "predicted span" if key == "span" else quantity_label(key)
+            line, = ax.plot(t, yv, label=name)
             if key in d.target:
+                name = "span" if key == "span" else name
                 lo, hi = target_bounds(d.target[key])
                 if hi > lo:
-                    ax.axhspan(lo, hi, color=line.get_color(), alpha=0.15, label=f"target window {key}")
+                    ax.axhspan(lo, hi, color=line.get_color(), alpha=0.15, label=f"target window {name}")
                 else:
-                    ax.axhline(lo, color=line.get_color(), ls="--", lw=1, label=f"target {key}")
+                    ax.axhline(lo, color=line.get_color(), ls="--", lw=1, label=f"target {name}")
         ax.set_ylabel(lab)
-        ax.legend(fontsize=8)
-        ax.grid(alpha=0.3)
-    ax = axes[1, 1]
+    ax = ax_temp
     ax.plot(t, X[:, 4], color="tab:red", label="vial temperature at segment ends")
-    ax.axhline(d.ceiling_c, color="k", ls="--", lw=1, label="ceiling")
+    ax.axhline(d.ceiling_c, color="k", ls="--", lw=1, label=f"ceiling {d.ceiling_c:g} °C")
     ax.set_ylabel("vial temperature (°C)")
-    ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
-    for ax in axes[1]:
+    for ax in (ax_size, ax_span, ax_r, ax_temp):  # only the curves and targets: the shading is explained above
+        h, lab = ax.get_legend_handles_labels()
+        keep = [i for i, s in enumerate(lab) if not s.startswith(("rest", "schedule done"))]
+        ax.legend([h[i] for i in keep], [lab[i] for i in keep], fontsize=7.5, loc="lower left",
+                  bbox_to_anchor=(0.0, 1.0), ncol=2, frameon=False, borderaxespad=0.2)
+    for ax in (ax_rpm, ax_size, ax_span):
+        ax.tick_params(labelbottom=False)
+    for ax in (ax_r, ax_temp):
         ax.set_xlabel("batch time t (h)")
-    fig.suptitle(f"{d.card_name}: designed schedule (moment-model prediction)")
-    # fixed margins: tight_layout and a tight bounding box would each draw the figure once more to measure it
-    fig.subplots_adjust(left=0.07, right=0.985, bottom=0.08, top=0.9, wspace=0.2, hspace=0.16)
+    fig.suptitle(f"{d.card_name}: designed schedule (moment-model prediction)", y=1 - 0.2 / H)
     savefig(fig, path, dpi=110)
 
 

@@ -23,9 +23,36 @@ def display_levels(image: np.ndarray) -> np.ndarray:
     return (img - lo) / (hi - lo)
 
 
+def excluded_pixels(shape, excluded_from_row: int | None = None, excluded_to_row: int | None = None,
+                    crop=None) -> np.ndarray:
+    """Pixels left out of the measurement: a data bar at the bottom (from ``excluded_from_row``) or the
+    top (to ``excluded_to_row``), and everything outside ``crop`` (see :func:`write_overlay`).
+
+    Examples
+    --------
+    >>> int(excluded_pixels((20, 20), crop="5:15,5:15").sum())
+    300
+    >>> int(excluded_pixels((20, 20), excluded_from_row=18, crop=(0, -1, 10, -1)).sum())
+    220
+    """
+    out = np.zeros(shape, dtype=bool)
+    if excluded_from_row is not None:
+        out[excluded_from_row:] = True
+    if excluded_to_row is not None:
+        out[:excluded_to_row + 1] = True
+    if crop is not None:
+        from .loading import crop_slices, parse_crop
+
+        rows, cols = crop_slices(parse_crop(crop) if isinstance(crop, str) else crop, shape)
+        inside = np.zeros(shape, dtype=bool)
+        inside[rows, cols] = True
+        out |= ~inside
+    return out
+
+
 def write_overlay(path: str | os.PathLike, image: np.ndarray, labels: np.ndarray, offset=(0, 0), ids=None,
                   *, excluded_from_row: int | None = None, scale_bar=None, title: str = "",
-                  excluded_to_row: int | None = None) -> None:
+                  excluded_to_row: int | None = None, crop=None) -> None:
     """Write the image with particle outlines (yellow) and ids (cyan) as a PNG, atomically.
 
     Parameters
@@ -46,6 +73,9 @@ def write_overlay(path: str | os.PathLike, image: np.ndarray, labels: np.ndarray
     title : str, optional
     excluded_to_row : int, optional
         Last row of an excluded data bar at the top of the image (shaded red from the top edge).
+    crop : str or (int, int, int, int), optional
+        The window measured (``--crop``: ``"Y0:Y1,X0:X1"`` or ``(y0, y1, x0, x1)``, ``-1`` ends to
+        the edge); everything outside it is shaded red, as the data bar.
     """
     plt = pyplot()
     h, w = image.shape
@@ -54,10 +84,8 @@ def write_overlay(path: str | os.PathLike, image: np.ndarray, labels: np.ndarray
     oy, ox = offset
     full[oy:oy + labels.shape[0], ox:ox + labels.shape[1]] = labels
     rgb[segmentation.find_boundaries(full, mode="inner")] = (1.0, 0.9, 0.0)
-    if excluded_from_row is not None:
-        rgb[excluded_from_row:] = 0.6 * rgb[excluded_from_row:] + 0.4 * np.array([1.0, 0.0, 0.0])
-    if excluded_to_row is not None:
-        rgb[:excluded_to_row + 1] = 0.6 * rgb[:excluded_to_row + 1] + 0.4 * np.array([1.0, 0.0, 0.0])
+    excluded = excluded_pixels((h, w), excluded_from_row, excluded_to_row, crop)
+    rgb[excluded] = 0.6 * rgb[excluded] + 0.4 * np.array([1.0, 0.0, 0.0])  # each excluded pixel shaded once
     scale = max(1.0, 1400.0 / max(h, w))
     fig = plt.figure(figsize=(w * scale / 100.0, h * scale / 100.0), dpi=100)
     ax = fig.add_axes([0, 0, 1, 1])

@@ -238,20 +238,23 @@ def reference_figure(report: Report, path) -> None:
         PNG file (written atomically).
     """
     from ..io import pyplot, savefig
+    from ..plots import R_LABEL
 
     plt = pyplot()
 
     n = len(report.reference)
-    fig, axes = plt.subplots(2, n, figsize=(4 * n, 6.5), squeeze=False)
+    fig, axes = plt.subplots(2, n, figsize=(max(4 * n, 6.0), 6.8), squeeze=False)
     for col, cmp in enumerate(report.reference):
-        for row, (a, b, label) in enumerate(((cmp.plant_s, cmp.ref_s, "size s (µm)"), (cmp.plant_r, cmp.ref_r, "aspect ratio r"))):
+        for row, (a, b, label, ylabel) in enumerate(((cmp.plant_s, cmp.ref_s, "size s (µm)", "density (1/µm)"),
+                                                     (cmp.plant_r, cmp.ref_r, R_LABEL, "density (log scale)"))):
             ax = axes[row, col]
             pa, pb = np.concatenate(a), np.concatenate(b)
             hi = float(np.quantile(np.concatenate([pa, pb]), 0.995))
             edges = np.linspace(0.0, hi, 41)
             ax.hist(pa, bins=edges, density=True, histtype="step", lw=1.4, label="plant (batched)")
             ax.hist(pb, bins=edges, density=True, histtype="step", lw=1.4, ls="--", label="reference (one at a time)")
-            ax.set_xlabel(label)
+            ax.set_xlabel(f"{label}\n(99.5 % of particles shown)", fontsize=9)
+            ax.set_ylabel(ylabel)
             ax.grid(alpha=0.3)
             if row == 1:
                 ax.set_yscale("log")

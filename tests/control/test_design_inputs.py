@@ -181,7 +181,7 @@ def test_design_figure_draws_a_d90_target(tmp_path, monkeypatch):
     design_figure(d, tmp_path / "design.png")
     sizes = figs[0].axes[1]
     labels = [ln.get_label() for ln in sizes.get_lines()]
-    assert "d90_um" in labels and "target d90_um" in labels
+    assert "D90 (µm, by volume)" in labels and "target D90 (µm, by volume)" in labels
     assert "µm" in sizes.get_ylabel()
 
 
