@@ -76,6 +76,11 @@ def _polarity_text(res) -> str:
     return f"{seg.polarity} particles ({how})"
 
 
+def _count(n: int) -> str:
+    """``n`` particles, in words ("1 particle", "31 particles")."""
+    return f"{n} particle{'' if n == 1 else 's'}"
+
+
 def _is_table(path: str) -> bool:
     return Path(path).suffix.lower() == ".csv"
 
@@ -210,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
         if _is_table(path):
             t = read_table(path)
             x = y = np.full(len(t), np.nan)
-            lines.append(f"{name}: {len(t)} particles (table)")
+            lines.append(f"{name}: {_count(len(t))} (table)")
             reports.append({"table": path, "count": len(t)})
         else:
             polarity = "dark" if args.dark_particles else "bright" if args.bright_particles else "auto"
@@ -223,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
             excl = f", data bar from row {res.info_bar_row} excluded" if res.info_bar_row is not None else ""
             if res.info_bar_top_last_row is not None:
                 excl += f", data bar rows 0-{res.info_bar_top_last_row} excluded"
-            lines.append(f"{name}: {len(t)} particles; {res.scale.um_per_px:.5g} µm/px from {res.scale.source} "
+            lines.append(f"{name}: {_count(len(t))}; {res.scale.um_per_px:.5g} µm/px from {res.scale.source} "
                          f"({res.scale.detail}){excl}; min area {res.min_area_px} px")
             warned.append(f"bmctl: {name}: {_polarity_text(res)}; verdict {res.verdict}"
                           + (f" ({'; '.join(res.verdict_reasons)})" if res.verdict_reasons else ""))
@@ -253,7 +258,7 @@ def run(args: argparse.Namespace) -> int:
     for w in warned:  # only once every input is read: a bad input still prints one line
         print(w, file=sys.stderr)
     print("\n".join(lines))
-    print(f"measure: {summ['count']} particles, median s = {summ['s_median_um']:.4g} µm, median r = {summ['r_median']:.3f}"
+    print(f"measure: {_count(summ['count'])}, median s = {summ['s_median_um']:.4g} µm, median r = {summ['r_median']:.3f}"
           + (f"; wrote {path_text(args.out)}, {path_text(Path(args.out).parent / 'measure.json')}"
              + (f" and {len(written)} overlay(s)" if written else "") if args.out else ""))
     return 0
@@ -294,7 +299,7 @@ def _write_set(args, results, locs, reports, table, loc) -> list[str]:
             write_overlay(out_png, res.image, res.segmentation.labels, res.segmentation.offset, locs[i].particle_id,
                           excluded_from_row=res.info_bar_row, excluded_to_row=res.info_bar_top_last_row, scale_bar=res.scale_bar,
                           crop=getattr(args, "crop", None),
-                          title=f"{path_text(Path(res.name).name)}: {len(res.table)} particles, {res.scale.um_per_px:.4g} µm/px, "
+                          title=f"{path_text(Path(res.name).name)}: {_count(len(res.table))}, {res.scale.um_per_px:.4g} µm/px, "
                                 f"{res.segmentation.polarity} particles, verdict {res.verdict}")
             reports[i]["overlay"] = str(out_png)
             written.append(str(out_png))

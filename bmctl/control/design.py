@@ -387,7 +387,7 @@ def check_batch(hours: float, cfg: MPCConfig, objective: str | None = None, hour
     why = (f"shorter than the {shortest * 60:g} min a schedule of whole minutes needs (the mill's minimum milling "
            f"period in {cfg_source}, at least {BATCH_MIN_MIN:g} min)")
     if hours < shortest - 1e-9:
-        raise InputError(f"{hours_source}: a batch of {hours:g} h ({hours * 60:.3g} min) is {why}")
+        raise InputError(f"{hours_source}: a batch of {hours:g} h ({hours * 60:.4g} min) is {why}")
     if (objective or cfg.objective.kind) == "target":
         return
     frac = min(cfg.objective.sweep)

@@ -284,3 +284,14 @@ def test_plant_check_flags_without_a_plant_check_are_refused(tmp_path, capsys, f
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and f"{flag[0]}: sets the plant check, which --plant-seeds 0 skips" in err
     assert not out.exists()
+
+
+def test_a_batch_a_hair_under_five_minutes_says_how_far_under():
+    """0.0833 h is 4.998 min: the refusal said "(5 min) is shorter than the 5 min"."""
+    from bmctl.control.config import validate_controller
+    from bmctl.control.design import check_batch
+    from bmctl.errors import InputError
+
+    cfg = validate_controller({"kind": "mpc", "interval_h": 0.5}, "c.toml")
+    with pytest.raises(InputError, match=r"0\.0833 h \(4\.998 min\) is shorter than the 5 min"):
+        check_batch(0.0833, cfg, hours_source="--hours", cfg_source="c.toml")

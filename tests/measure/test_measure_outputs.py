@@ -209,3 +209,17 @@ def test_a_name_with_control_characters_is_printed_on_one_line(capsys, tmp_path,
         assert line.startswith((f"bmctl: {shown}: ", f"bmctl: warning: {shown}: ")), err
     rows = (out).read_text(encoding="utf-8").splitlines()
     assert len(rows) == 1 + 9 and all(f",{shown}," in r for r in rows[1:])  # one table row per particle
+
+
+def test_one_particle_is_counted_in_the_singular(tmp_path, capsys):
+    """A crop holding one particle: "1 particle", not "1 particles"."""
+    from .shapes import cli
+
+    img = np.full((64, 64), 30, np.uint8)
+    yy, xx = np.mgrid[:64, :64]
+    img[(yy - 32) ** 2 + (xx - 32) ** 2 <= 49] = 220
+    Image.fromarray(img).save(tmp_path / "one.png")
+    rc, out, err = cli(capsys, ["measure", str(tmp_path / "one.png"), "--um-per-px", "1", "--out",
+                                str(tmp_path / "o" / "p.csv")])
+    assert rc == 0, err
+    assert "1 particle," in out and "1 particles" not in out + err, out + err
