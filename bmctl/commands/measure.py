@@ -58,7 +58,7 @@ def configure(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-particles", type=int_arg("--min-particles", 0), default=MIN_PARTICLES, metavar="N",
                         help=f"verdict at least doubtful for an image with fewer than N particles (default {MIN_PARTICLES}; 0: no limit)")
     parser.add_argument("--crop", default=None, metavar="Y0:Y1,X0:X1", help="keep this window only")
-    parser.add_argument("--keep-info-bar", action="store_true", help="do not detect and exclude the data bar at the bottom")
+    parser.add_argument("--keep-info-bar", action="store_true", help="do not detect and exclude a data bar (at the bottom or a banner at the top)")
     parser.add_argument("--no-overlay", action="store_true", help="do not write the overlay PNGs")
     pol = parser.add_mutually_exclusive_group()
     pol.add_argument("--dark-particles", action="store_true", help="particles darker than the background (default: decided per image)")
