@@ -325,6 +325,33 @@ def check_predict(u, dt_h, rpm_max: float | None = None) -> float:
     return max(dt, 0.0)
 
 
+def check_x0(model, x0) -> np.ndarray:
+    """An estimator's given initial state as a float array of shape ``(len(model.state_names),)``,
+    refusing (naming ``x0``) a wrong shape, a value that is not finite and, for the moment model,
+    hardening outside [0, 1] or a temperature below absolute zero (as the model's own checks).
+
+    Raises
+    ------
+    TypeError
+        ``x0`` not an array of numbers.
+    bmctl.errors.InputError
+        ``x0`` of another shape or with a value out of range.
+    """
+    names = tuple(model.state_names)
+    try:
+        x = np.asarray(x0, dtype=float)
+    except (TypeError, ValueError):
+        raise TypeError(f"x0: must be an array of numbers, one state {names} (got {type(x0).__name__})") from None
+    if x.shape != (len(names),):
+        raise InputError(f"x0: must be one state {names} of shape ({len(names)},) (got shape {x.shape})")
+    if isinstance(model, MomentModel):
+        model._check_values(x, "x0")
+    elif not all(map(math.isfinite, x.tolist())):
+        k = int(np.argmax(~np.isfinite(x)))
+        raise InputError(f"x0: {names[k]} must be finite (got {float(x[k]):g})")
+    return x
+
+
 def model_step(model, X: np.ndarray, u: np.ndarray, dt_h: float, P: np.ndarray) -> np.ndarray:
     """One step of a filter's particles (or sigma points): ``model.step(X, u, dt_h, P)``, for a
     :class:`MomentModel` without the argument checks of its public entry (the estimator checked ``u`` and
@@ -428,7 +455,8 @@ class ParticleFilter:
         The single source of randomness (resampling included).
     settings : FilterSettings, optional
     x0 : array, optional
-        Initial moment state (default ``model.x0()``).
+        Initial moment state (default ``model.x0()``); one state, finite, hardening in [0, 1] and
+        temperature >= -273.15 °C (else :class:`bmctl.errors.InputError`; not numbers: ``TypeError``).
 
     Examples
     --------
@@ -451,7 +479,7 @@ class ParticleFilter:
         self.settings = settings or FilterSettings()
         st = self.settings
         N = st.n_particles
-        x0 = np.asarray(model.x0() if x0 is None else x0, dtype=float)
+        x0 = np.asarray(model.x0(), dtype=float) if x0 is None else check_x0(model, x0)
         p0 = np.asarray(model.p0(), dtype=float)
         prior = np.full(p0.size, st.param_prior_log_std)
         if st.energy_prior_log_std > 0:

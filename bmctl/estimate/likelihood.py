@@ -290,16 +290,17 @@ class Raster:
 
     @classmethod
     def from_particles(cls, s_um, r, law: LawSettings | None = None) -> "Raster":
-        """Count measured particles (s > 0 in um, r in [0, 1)) on the raster of ``law``."""
+        """Count measured particles (s in :data:`S_RANGE_UM` in um, r in [0, 1)) on the raster of ``law``.
+
+        Raises
+        ------
+        bmctl.errors.InputError
+            As :func:`check_particles` (naming ``s_um, r``).
+        """
         law = law or LawSettings()
         s_um = np.asarray(s_um, dtype=float).ravel()
         r = np.asarray(r, dtype=float).ravel()
-        if s_um.size == 0 or s_um.size != r.size:
-            raise ValueError("a sample needs n >= 1 particles with one s and one r each")
-        if not (np.all(np.isfinite(s_um)) and np.all(np.isfinite(r))) or np.any(s_um <= 0):
-            raise ValueError("sample values must be finite with s > 0")
-        if np.any((r < 0) | (r >= 1)):
-            raise ValueError("sample r must be in [0, 1)")
+        check_particles(s_um, r, "s_um, r")
         ks = np.floor(np.log(s_um) / law.ds_log).astype(np.int64)
         k0 = int(ks.min())
         s_counts = np.bincount(ks - k0).astype(float)

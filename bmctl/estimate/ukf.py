@@ -55,7 +55,7 @@ from pydantic import Field, model_validator
 from typing import Annotated
 
 from ..config import NonNeg, Pos, Strict
-from .filter import (N_MOMENTS, Estimate, ParticleFilter, check_predict, check_update, learning_rates,
+from .filter import (N_MOMENTS, Estimate, ParticleFilter, check_predict, check_update, check_x0, learning_rates,
                      model_step)
 from .likelihood import LawSettings, Raster, fit_sample
 
@@ -189,7 +189,8 @@ class UKFEstimator:
         Accepted for a common constructor; the UKF draws nothing.
     settings : UKFSettings, optional
     x0 : array, optional
-        Initial moment state (default ``model.x0()``).
+        Initial moment state (default ``model.x0()``); one state, finite, hardening in [0, 1] and
+        temperature >= -273.15 °C (else :class:`bmctl.errors.InputError`; not numbers: ``TypeError``).
 
     Examples
     --------
@@ -208,7 +209,7 @@ class UKFEstimator:
         self.rng = rng
         self.settings = settings or UKFSettings()
         st = self.settings
-        x0 = np.asarray(model.x0() if x0 is None else x0, dtype=float)
+        x0 = np.asarray(model.x0(), dtype=float) if x0 is None else check_x0(model, x0)
         p0 = np.asarray(model.p0(), dtype=float)
         if x0.size != 6 or p0.size != 2:
             raise ValueError("the UKF expects a 6-state, 2-parameter moment model")

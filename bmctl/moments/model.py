@@ -102,10 +102,21 @@ class MomentModel:
 
         ``xp=numpy``: arrays ``(..., 6)`` in, ``(..., 6)`` out. ``xp=casadi``: casadi
         column vectors (SX/MX/DM) in, a column vector out.
+
+        Raises
+        ------
+        bmctl.errors.InputError
+            numpy: as :meth:`step` (casadi symbols are not checked).
         """
         B = eq.NP if xp is None else eq.backend(xp)
         if B is eq.NP:
-            x, u, p = _arr(x), _arr(u), _arr(self._p(p))
+            x, u = _arr(x), _arr(u)
+            self._check_state(x, "x")
+            self._check_values(x, "x")
+            self._check_inputs(u, "u")
+            if p is not None:
+                self._check_params(p, "p")
+            p = _arr(self._p(p))
             out = eq.rhs(B, self.const, self.coeffs, _cols(x), _cols(u), _cols(p))
             return B.stack(out)
         p = self.p0() if p is None else p
@@ -320,6 +331,11 @@ class MomentModel:
         ndarray, (K, 2)
             (bonds, fractures) per particle in each interval.
 
+        Raises
+        ------
+        bmctl.errors.InputError
+            As :meth:`simulate` (``x0`` of shape (6,), ``p`` of shape (2,) or (3,)).
+
         Examples
         --------
         >>> from bmctl.moments.model import make_moment_model
@@ -330,7 +346,17 @@ class MomentModel:
         """
         dt_h = float(dt_h)
         U = np.atleast_2d(np.asarray(U, dtype=float))
-        x, pp = list(np.asarray(x0, dtype=float)), list(self._p(p))
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape != (self.nx,):
+            raise InputError(f"x0: must be one state {STATE_NAMES} of shape ({self.nx},) (got shape {x0.shape})")
+        self._check_values(x0, "x0")
+        if p is not None and self._check_params(p, "p").ndim != 1:
+            raise InputError(f"p: must be one (gamma_mult, delta_mult[, energy_mult]) of shape (2,) or (3,) "
+                             f"(got shape {_arr(p).shape})")
+        if U.ndim != 2 or U.shape[1] != 2:
+            raise InputError(f"U: must be (rpm, milling) per interval, shape (K, 2) (got shape {U.shape})")
+        self._check_inputs(U, "U")
+        x, pp = list(x0), list(self._p(p))
         n, st = self._integration(dt_h)
         out = []
         for u in U:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -601,6 +602,11 @@ def make_plant(card: ModelCard | str | Path, seed: int | None = None, particles:
     -------
     Plant
 
+    Raises
+    ------
+    TypeError
+        ``card`` neither a path nor a :class:`~bmctl.config.ModelCard`.
+
     Examples
     --------
     >>> from bmctl.plant import make_plant
@@ -612,6 +618,9 @@ def make_plant(card: ModelCard | str | Path, seed: int | None = None, particles:
                                                                   np.random.Generator)) \
             and (isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0):
         raise InputError(f"seed: must be a non-negative integer (got {seed!r})")
+    if not isinstance(card, (ModelCard, str, os.PathLike)):
+        raise TypeError(f"card: must be a model card path (str or os.PathLike) or a ModelCard object "
+                        f"(got {type(card).__name__})")
     if not isinstance(card, ModelCard):
         card = load_card(card)
     return Plant(card, rng if rng is not None else np.random.default_rng(seed), particles, engine=engine)
