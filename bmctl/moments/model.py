@@ -110,12 +110,7 @@ class MomentModel:
         """
         B = eq.NP if xp is None else eq.backend(xp)
         if B is eq.NP:
-            x, u = _arr(x), _arr(u)
-            self._check_state(x, "x")
-            self._check_values(x, "x")
-            self._check_inputs(u, "u")
-            if p is not None:
-                self._check_params(p, "p")
+            x, u = self._checked(x, u, p)
             p = _arr(self._p(p))
             out = eq.rhs(B, self.const, self.coeffs, _cols(x), _cols(u), _cols(p))
             return B.stack(out)
@@ -145,13 +140,18 @@ class MomentModel:
             ``x`` not finite, with hardening outside [0, 1] or a temperature below absolute zero;
             ``u`` out of range; ``p`` not finite, negative or of another shape; ``dt_h`` not > 0.
         """
+        x, u = self._checked(x, u, p)
+        return self._step(x, u, dt_h, p, substeps)
+
+    def _checked(self, x, u, p) -> tuple[np.ndarray, np.ndarray]:
+        """``x`` and ``u`` as arrays, refused as :meth:`step` says (``p`` checked where given)."""
         x, u = _arr(x), _arr(u)
         self._check_state(x, "x")
         self._check_values(x, "x")
         self._check_inputs(u, "u")
         if p is not None:
             self._check_params(p, "p")
-        return self._step(x, u, dt_h, p, substeps)
+        return x, u
 
     def _step(self, x: np.ndarray, u: np.ndarray, dt_h: float, p=None, substeps: int | None = None) -> np.ndarray:
         """:meth:`step` of checked arrays."""
