@@ -29,8 +29,8 @@ def _run(args, env, **kw):
 @pytest.fixture(scope="module")
 def ascii_env():
     env = _ascii_env()
-    probe = "import locale, sys; print(locale.getpreferredencoding(False), sys.stdout.encoding)"
-    enc = _run(["-c", probe], env).stdout.decode("ascii", "replace").split()
+    query = "import locale, sys; print(locale.getpreferredencoding(False), sys.stdout.encoding)"
+    enc = _run(["-c", query], env).stdout.decode("ascii", "replace").split()
     if any("utf" in e.lower() for e in enc):
         pytest.skip(f"the C locale is UTF-8 here ({enc}): nothing to check")
     return env
