@@ -64,7 +64,7 @@ from ..config import Strict
 from ..errors import InputError, require_generator
 from ..moments.model import ENERGY_NAME, MomentModel
 from ..limits import INPUT_ROUNDING, RPM_MAX, is_rpm_milling, rpm_rounding
-from .likelihood import LOG_P_FLOOR, LawSettings, Raster, check_particles, fit_sample, loglik_raster
+from .likelihood import LOG_P_FLOOR, LawSettings, Raster, fit_sample, loglik_raster
 from .resampling import SCHEMES, effective_sample_size, resample
 
 N_MOMENTS = 4  # s_mean, s_std, r_mean, r_std: the log-moment block z
@@ -384,9 +384,12 @@ def check_reading(card, temperature_c: float | None, where: str) -> float | None
     return temperature_c
 
 
-def check_update(model, s_um, r, temperature_c) -> float | None:
+def check_update(model, s_um, r, temperature_c,
+                 law: LawSettings | None = None) -> tuple[float | None, Raster | None]:
     """What an estimator's ``update`` refuses, before anything changes: the checks of ``run_filter``
-    (:func:`bmctl.estimate.run.check_sample` and :func:`check_reading`); returns the reading as a float.
+    (:func:`bmctl.estimate.run.check_sample` and :func:`check_reading`); returns the reading as a float
+    and the sample counted on the raster of ``law`` (:meth:`Raster.from_particles`, which checks the
+    particles), each None where not given.
 
     Parameters
     ----------
@@ -396,6 +399,8 @@ def check_update(model, s_um, r, temperature_c) -> float | None:
         Measured sizes (um) and aspect ratios of one sample (``s_um`` None: no sample).
     temperature_c : float or None
         Vial-temperature reading (degC).
+    law : LawSettings, optional
+        The raster the sample is counted on (default ``LawSettings()``).
 
     Raises
     ------
@@ -405,6 +410,7 @@ def check_update(model, s_um, r, temperature_c) -> float | None:
     TypeError
         A sample or reading that is not numbers.
     """
+    raster = None
     if s_um is not None:
         try:
             s = np.asarray(s_um, dtype=float).ravel()
@@ -412,16 +418,16 @@ def check_update(model, s_um, r, temperature_c) -> float | None:
         except (TypeError, ValueError):
             raise TypeError(f"s_um, r: a sample is two arrays of numbers (got {type(s_um).__name__} and "
                             f"{type(r).__name__})") from None
-        check_particles(s, rr, "s_um, r")
+        raster = Raster.from_particles(s, rr, law)  # checks the particles (check_particles)
     if temperature_c is None:
-        return None
+        return None, raster
     if isinstance(temperature_c, (bool, str, bytes)):
         raise TypeError(f"temperature_c: a reading is a number of degC (got {type(temperature_c).__name__})")
     try:
         t = float(temperature_c)
     except (TypeError, ValueError):
         raise TypeError(f"temperature_c: a reading is a number of degC (got {type(temperature_c).__name__})") from None
-    return check_reading(getattr(model, "card", None), t, "temperature_c")
+    return check_reading(getattr(model, "card", None), t, "temperature_c"), raster
 
 
 #: the (card, its powder, its validity) a reading was last checked against, and the limit
@@ -648,8 +654,8 @@ class ParticleFilter:
             unequal numbers of s and r, a size outside 1e-3 .. 1e4 um, r outside [0, 1), a reading
             outside [-50 degC, the card's melting limit]; nothing is changed then.
         """
-        reading = check_update(self.model, s_um, r, temperature_c)
         st, rng = self.settings, self.rng
+        reading, raster = check_update(self.model, s_um, r, temperature_c, st.law)
         N = self.X.shape[0]
         tau, tau_m = self.pending_h, self.pending_model_h
         logw = self.logw.copy()
@@ -665,8 +671,7 @@ class ParticleFilter:
         elif v_walk > 0:
             self._set_gain(self.gain + math.sqrt(v_walk) * rng.standard_normal(N))
 
-        if s_um is not None:
-            raster = Raster.from_particles(s_um, r, st.law)
+        if raster is not None:
             n_meas = raster.n
             logw_s, eta, impossible = self._sample_update(raster, tau_m)
             logw += logw_s

@@ -57,7 +57,7 @@ from typing import Annotated
 from ..config import NonNeg, Pos, Strict
 from .filter import (N_MOMENTS, Estimate, ParticleFilter, check_predict, check_update, check_x0, learning_rates,
                      model_step)
-from .likelihood import LawSettings, Raster, fit_sample
+from .likelihood import LawSettings, fit_sample
 
 Z90 = 1.6448536269514722  # standard-normal 95 % quantile: the 90 % interval is m -+ Z90 sd
 NZ = 8  # filter-state dimension
@@ -364,8 +364,8 @@ class UKFEstimator:
             unequal numbers of s and r, a size outside 1e-3 .. 1e4 um, r outside [0, 1), a reading
             outside [-50 degC, the card's melting limit]; nothing is changed then.
         """
-        reading = check_update(self.model, s_um, r, temperature_c)
         st = self.settings
+        reading, raster = check_update(self.model, s_um, r, temperature_c, st.law)
         ukf = self._ukf
         tau = self.pending_h
         eta = np.array([np.nan, np.nan])
@@ -374,8 +374,7 @@ class UKFEstimator:
         y: list[float] = []
         R_blocks: list[np.ndarray] = []
         fit = None
-        if s_um is not None:
-            raster = Raster.from_particles(s_um, r, st.law)
+        if raster is not None:
             n_meas = raster.n
             fit = fit_sample(raster, st.law)
             self.last_fit = fit
