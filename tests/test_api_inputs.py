@@ -12,6 +12,7 @@ import pytest
 
 from bmctl.errors import InputError
 from tests.conftest import ROOT
+from tests.loopfakes import FakeController, FakeEstimator, FakeSensor
 
 LAB = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
 
@@ -178,31 +179,6 @@ def test_particle_filter_predict_refuses_an_rpm_above_the_models(model):
 
 
 # --- ClosedLoop --------------------------------------------------------------------------------
-class _Est:
-    def as_dict(self):
-        return {"s_mean_um": 40.0, "s_std_um": 4.0, "r_mean": 0.02, "r_std": 0.02, "temperature_c": 25.0}
-
-
-class _Estimator:
-    def __init__(self):
-        self.inputs = []
-
-    def predict(self, u, dt_h):
-        self.inputs.append(tuple(u))
-
-    def update(self, s_um, r, temperature_c=None):
-        return _Est()
-
-    def estimate(self):
-        return _Est()
-
-    def get_state(self):
-        return {}
-
-    def set_state(self, state):
-        pass
-
-
 class _Plan:
     def __init__(self, u, status=None):
         from bmctl.control.base import Status
@@ -211,33 +187,12 @@ class _Plan:
         self.status = Status("test") if status is None else status
 
 
-class _Controller:
-    interval_h = 0.5
-
-    def __init__(self, plan):
-        self.out = plan
-
-    def plan(self, x_est, t_h, p=None, u_prev=None):
-        return self.out
-
-    def get_state(self):
-        return {}
-
-    def set_state(self, state):
-        pass
-
-
-class _Sensor:
-    def sample(self, mill, rng):
-        return np.full(5, 10.0), np.full(5, 0.1)
-
-
 def _loop(plan, particles=50):
     from bmctl.loop import ClosedLoop, LoopConfig
     from bmctl.plant import make_plant
 
     mill = make_plant(LAB, seed=0, particles=particles)
-    return ClosedLoop(mill, _Sensor(), _Estimator(), _Controller(plan), np.random.default_rng(0),
+    return ClosedLoop(mill, FakeSensor(), FakeEstimator(), FakeController(plan), np.random.default_rng(0),
                       LoopConfig(hours=0.5, sample_every_h=0.5))
 
 

@@ -10,10 +10,7 @@ import pytest
 from bmctl.errors import InputError
 from bmctl.loop import ClosedLoop, LoopConfig
 
-
-class _Est:
-    def as_dict(self):
-        return {"s_mean_um": 40.0, "s_std_um": 4.0, "r_mean": 0.02, "r_std": 0.02, "temperature_c": 25.0}
+from ..loopfakes import FakeController, FakeEstimator, FakeSensor
 
 
 class FakeMill:
@@ -32,23 +29,6 @@ class FakeMill:
         pass
 
 
-class FakeEstimator:
-    def predict(self, u, dt_h):
-        pass
-
-    def update(self, s_um, r, temperature_c=None):
-        return _Est()
-
-    def estimate(self):
-        return _Est()
-
-    def get_state(self):
-        return {}
-
-    def set_state(self, state):
-        pass
-
-
 class _Status:
     solve_ms, fallback, success = 1.0, "none", True
 
@@ -58,35 +38,8 @@ class FakePlan:
         self.u_apply, self.status = u, _Status()
 
 
-_DEFAULT = object()
-
-
-class FakeController:
-    interval_h = 0.5
-
-    def __init__(self, out=_DEFAULT):
-        self.out = FakePlan((300.0, 1.0)) if out is _DEFAULT else out
-
-    def plan(self, x_est, t_h, p=None, u_prev=None):
-        return self.out
-
-    def get_state(self):
-        return {}
-
-    def set_state(self, state):
-        pass
-
-
-class FakeSensor:
-    def __init__(self, out=_DEFAULT):
-        self.out = (np.full(5, 10.0), np.full(5, 0.1)) if out is _DEFAULT else out
-
-    def sample(self, mill, rng):
-        return self.out
-
-
 def _loop(mill=None, sensor=None, est=None, ctrl=None, rng=None, cfg=None):
-    return ClosedLoop(mill or FakeMill(), sensor or FakeSensor(), est or FakeEstimator(), ctrl or FakeController(),
+    return ClosedLoop(mill or FakeMill(), sensor or FakeSensor(), est or FakeEstimator(), ctrl or FakeController(FakePlan((300.0, 1.0))),
                       np.random.default_rng(0) if rng is None else rng, cfg or LoopConfig(hours=1.0, sample_every_h=0.5))
 
 
@@ -114,7 +67,7 @@ def test_loop_config_refuses_durations_that_are_not_positive_hours(hours, every)
 
 
 def test_a_controller_interval_of_zero_is_refused():
-    ctrl = FakeController()
+    ctrl = FakeController(FakePlan((300.0, 1.0)))
     ctrl.interval_h = 0.0
     with pytest.raises(InputError, match="controller.interval_h: must be"):
         _loop(ctrl=ctrl)
