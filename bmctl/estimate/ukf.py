@@ -360,9 +360,8 @@ class UKFEstimator:
         Raises
         ------
         bmctl.errors.InputError
-            What ``run_filter`` refuses (:func:`bmctl.estimate.filter.check_update`): no particles,
-            unequal numbers of s and r, a size outside 1e-3 .. 1e4 um, r outside [0, 1), a reading
-            outside [-50 degC, the card's melting limit]; nothing is changed then.
+            As :meth:`bmctl.estimate.ParticleFilter.update` (:func:`bmctl.estimate.filter.check_update`);
+            nothing is changed then.
         """
         st = self.settings
         reading, raster = check_update(self.model, s_um, r, temperature_c, st.law)
