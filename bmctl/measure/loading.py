@@ -57,12 +57,16 @@ class ImageHeader:
     orientation : int or None
         The EXIF orientation (2-8: the stored pixels are shown flipped or rotated; 1 or None: as
         stored) of a file read through Pillow; the pixel count is the same either way.
+    colour_key : bool or None
+        Whether a file read through Pillow declares a transparent colour (PNG tRNS, a GIF's
+        transparent index) without an alpha channel; None: unknown (a TIFF, an unreadable header).
     """
 
     pixels: int | None = None
     images: int | None = None
     mode: str | None = None
     orientation: int | None = None
+    colour_key: bool | None = None
 
 
 @contextlib.contextmanager
@@ -173,7 +177,9 @@ def _pillow_header(path: str) -> ImageHeader:
         with im:
             frames = max(1, int(getattr(im, "n_frames", 1)))
             images = 1 if im.format == "MPO" else frames  # a camera JPEG's further pictures are previews: its first is read
-            return ImageHeader(int(im.size[0]) * int(im.size[1]) * frames, images, im.mode, _exif_orientation(im))
+            keyed = "transparency" in im.info and "A" not in im.mode and "a" not in im.mode
+            return ImageHeader(int(im.size[0]) * int(im.size[1]) * frames, images, im.mode, _exif_orientation(im),
+                               keyed)
 
 
 def image_header(path: str) -> ImageHeader:
@@ -343,7 +349,8 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     tiff = is_tiff(p)
     try:
         img = _decode(p, head)
-        keyed = not tiff and _transparent_colour(p)
+        # the file is opened again only where its header declared a transparent colour (or was not read)
+        keyed = not tiff and head.colour_key is not False and _transparent_colour(p)
     except Image.DecompressionBombError as exc:
         raise _too_large(name, _bomb_pixels(exc)) from None
     except Exception as exc:  # imageio/PIL/tifffile raise many types
