@@ -111,8 +111,7 @@ class ReportData:
         self.ambient_c = c.ambient_c()
         self.nodes = c.estimates()
         _, self.now_t, self.now = c.last_node()  # the estimate now: the prior (t < 0) before anything is logged
-        row = c.con.execute("SELECT estimate FROM estimator_states WHERE t_h < 0 ORDER BY id DESC LIMIT 1").fetchone()
-        self.prior = None if row is None else json.loads(row[0])  # the card's starting powder: batch time 0
+        self.prior = c.prior_estimate()  # the card's starting powder: batch time 0
         self.rpm_max = c.rpm_max()
         self.filter_warnings = c.band_warnings()  # sample updates that left the filter nearly degenerate
         self.actions = c.actions()

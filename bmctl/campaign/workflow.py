@@ -314,6 +314,11 @@ class Campaign:
                              ).fetchone()
         return int(r[0]), float(r[1]), json.loads(r[2])
 
+    def prior_estimate(self) -> dict | None:
+        """The estimate dict of the prior (the card's starting powder, stored before batch time 0), or None."""
+        r = self.con.execute("SELECT estimate FROM estimator_states WHERE t_h < 0 ORDER BY id DESC LIMIT 1").fetchone()
+        return None if r is None else json.loads(r[0])
+
     def estimates(self) -> list[tuple[float, dict]]:
         """(t_h, estimate dict) of every node after the prior."""
         return [(float(t), json.loads(e)) for t, e in self.con.execute(
