@@ -128,6 +128,15 @@ def _sidecars(path: Path) -> list[Path]:
     return [path.with_name(path.name + x) for x in SIDECARS]
 
 
+def remove_made(path: Path) -> None:
+    """Remove a database this process made (a failed ``init``) and the journal files beside it:
+    regular files only (a symlink or folder in their place is the user's)."""
+    for p in [path] + _sidecars(path):
+        if p.is_file() and not p.is_symlink():
+            with contextlib.suppress(OSError):
+                p.unlink()
+
+
 def _kind(p: Path) -> str:
     """What is at ``p`` (which exists), in words."""
     if p.is_symlink():
@@ -171,10 +180,7 @@ def create(folder: str | Path, made: list | None = None) -> sqlite3.Connection:
     try:
         return _connect(path)
     except BaseException:  # Ctrl-C, a file SQLite cannot open: no half-made database is left behind
-        for p in [path] + _sidecars(path):
-            if p.is_file() and not p.is_symlink():
-                with contextlib.suppress(OSError):
-                    p.unlink()
+        remove_made(path)
         raise
 
 

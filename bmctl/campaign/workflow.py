@@ -548,8 +548,9 @@ def _undo_init(folder: Path, made: list[Path], copied: list[Path], created: list
     """Remove what a failed :func:`init` wrote: its database (``created``: none when ``db.create``
     refused, as for a folder that already holds a campaign), the input copies and the folders it made
     (``copied`` names only the files it created: a file of the user's in ``inputs/`` is never one)."""
-    dbs = [p.with_name(p.name + x) for p in created for x in ("", "-wal", "-shm", "-journal")]
-    for p in dbs + copied:
+    for p in created:
+        db.remove_made(p)
+    for p in copied:
         if p.is_file() and not p.is_symlink():
             with contextlib.suppress(OSError):
                 p.unlink()
