@@ -624,17 +624,20 @@ class ParticleFilter:
         self.gain = np.maximum(gain, GAIN_MIN)
         self.X[:, 4] = self.ambient_c + self.gain * E
 
-    def _apply_pending_noise(self) -> None:
-        """Draw the deferred process noise from its prior (no sample to guide it)."""
+    def _with_pending_noise(self) -> tuple[np.ndarray, np.ndarray]:
+        """Copies of the particles and heating gains with the deferred process noise drawn from its
+        prior (no sample to guide it), from a copy of the filter's generator: the filter itself,
+        its generator included, is left as it was."""
         tau, tau_m = self.pending_h, self.pending_model_h
-        if tau <= 0:
-            return
-        st, rng = self.settings, self.rng
+        rng = np.random.Generator(type(self.rng.bit_generator)())
+        rng.bit_generator.state = self.rng.bit_generator.state
         N = self.X.shape[0]
-        self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((N, N_MOMENTS)))
-        self._set_gain(self.gain + st.thermal_gain_walk_per_sqrt_h * math.sqrt(tau) * rng.standard_normal(N))
-        self.X = self._feasible(self.X)
-        self.pending_h = self.pending_model_h = 0.0
+        X = self.X.copy()
+        X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((N, N_MOMENTS)))
+        gain = self.gain + self.settings.thermal_gain_walk_per_sqrt_h * math.sqrt(tau) * rng.standard_normal(N)
+        gain = np.maximum(gain, GAIN_MIN)
+        X[:, 4] = self.ambient_c + gain * self._excess()  # the same card-law excess, as _set_gain
+        return self._feasible(X), gain
 
     # --- update -----------------------------------------------------------------------------
     def update(self, s_um=None, r=None, temperature_c: float | None = None) -> Estimate:
@@ -820,22 +823,32 @@ class ParticleFilter:
         self.n_resampled += 1
 
     # --- read-out ---------------------------------------------------------------------------
-    def _summary(self) -> Estimate:
+    def _summary(self, X: np.ndarray | None = None, gain: np.ndarray | None = None) -> Estimate:
+        """The estimate of particles ``X`` with heating gains ``gain`` (default: the filter's own)."""
+        X = self.X if X is None else X
+        gain = self.gain if gain is None else gain
         w = self.weights
-        V = np.hstack([self.X, self.P])
+        V = np.hstack([X, self.P])
         q = weighted_quantiles(V, w)
-        qg = weighted_quantiles(self.gain[:, None], w)
-        extra = {"thermal_gain": (float(w @ self.gain), float(qg[0, 0]), float(qg[1, 0]))}
+        qg = weighted_quantiles(gain[:, None], w)
+        extra = {"thermal_gain": (float(w @ gain), float(qg[0, 0]), float(qg[1, 0]))}
         if self.settings.size_drift_prior_per_h > 0:
             qd = weighted_quantiles(self.drift[:, None], w)
             extra["size_drift_per_h"] = (float(w @ self.drift), float(qd[0, 0]), float(qd[1, 0]))
         return Estimate(self.t_h, self.names, w @ V, q[0], q[1], effective_sample_size(w),
-                        size_stats=particle_size_stats(self.model, self.X, w), extra=extra)
+                        size_stats=particle_size_stats(self.model, X, w), extra=extra)
 
     def estimate(self) -> Estimate:
-        """Weighted mean and 90 % interval of every state and parameter (deferred noise applied)."""
-        self._apply_pending_noise()
-        return self._summary()
+        """Weighted mean and 90 % interval of every state and parameter, the process noise deferred
+        since the last update included.
+
+        Reading the estimate changes nothing: the deferred noise is drawn on copies of the particles
+        from a copy of the filter's generator and stays deferred, so the next sample's guided proposal
+        still has it, and how often the estimate is read does not change what the filter does.
+        """
+        if self.pending_h <= 0:
+            return self._summary()
+        return self._summary(*self._with_pending_noise())
 
 
 def learning_rates(fit, st: FilterSettings) -> np.ndarray:

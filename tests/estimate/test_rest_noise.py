@@ -42,11 +42,10 @@ def test_discrepancy_time_counts_milled_hours_and_a_share_of_the_rest(model, u, 
 def test_a_rest_leaves_the_moments_alone_at_fraction_zero(model, frac, moved):
     pf = ParticleFilter(model, np.random.default_rng(1), FilterSettings(n_particles=64, rest_noise_fraction=frac))
     pf.predict((300.0, 1.0), 1.0)
-    pf._apply_pending_noise()
+    pf.update(temperature_c=pf.reading_prediction()[0])  # the milled hour's noise spent
     pf.predict((0.0, 0.0), 3.0)
-    before = pf.X[:, :N_MOMENTS].copy()
-    pf._apply_pending_noise()
-    assert (not np.array_equal(before, pf.X[:, :N_MOMENTS])) == moved
+    noisy, _ = pf._with_pending_noise()
+    assert (not np.array_equal(pf.X[:, :N_MOMENTS], noisy[:, :N_MOMENTS])) == moved
 
 
 def test_state_without_the_model_clock_reads_the_wall_clock(model):
