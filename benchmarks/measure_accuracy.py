@@ -9,8 +9,10 @@ Run from the repository root, one part at a time (each writes ``results/measure_
     python benchmarks/measure_accuracy.py PART --table  # print the docs/measurement.md tables from the file
 
 The real images are ``tests/data/ampis_powder_b.png`` (+ ``ampis_masks_validation.json``, hand
-outlines) and ``tests/data/sio2_sem_12000x.tif``, or the same names under ``$BMCTL_MICROGRAPHS``;
-without them a part that needs them says so and writes nothing.
+outlines) and ``tests/data/sio2_sem_12000x.tif``, or the same names under ``$BMCTL_MICROGRAPHS``
+(default ``../shared/data/micrographs`` beside the repository, found from this script's place);
+without them a part that needs them says so in one line (naming the folder, and whether it is
+there), writes nothing and exits with status 2.
 All randomness is seeded (``numpy.random.default_rng``); the numbers are reproducible.
 """
 
@@ -36,8 +38,12 @@ SPECK_LIMITS = (15, 30, 60, 80, 120, 160, 240)
 SYN_SEED = 7
 
 
+#: where the real images are looked for after tests/data: the data shared beside the repository
+MICROGRAPHS = Path(os.environ.get("BMCTL_MICROGRAPHS") or ROOT.parent / "shared" / "data" / "micrographs")
+
+
 def _data(name: str) -> Path | None:
-    for folder in (ROOT / "tests" / "data", Path(os.environ.get("BMCTL_MICROGRAPHS", "/work/shared/data/micrographs"))):
+    for folder in (ROOT / "tests" / "data", MICROGRAPHS):
         if (folder / name).exists():
             return folder / name
     return None
@@ -330,9 +336,10 @@ def main(argv=None) -> int:
                 "sensitivity": ("ampis_powder_b.png", "ampis_masks_validation.json")}[a.part]
         missing = [n for n in need if _data(n) is None]
         if missing:  # never overwrite a results file with a partial one
-            print(f"measure_accuracy: {', '.join(missing)} not found in tests/data or $BMCTL_MICROGRAPHS; "
+            absent = "" if MICROGRAPHS.is_dir() else ", no such folder; set BMCTL_MICROGRAPHS"
+            print(f"measure_accuracy: {', '.join(missing)} not found in tests/data or {MICROGRAPHS}{absent}; "
                   f"nothing measured, results/{name}.json left as it is", file=sys.stderr)
-            return 0
+            return 2
         load, t0 = os.getloadavg(), time.perf_counter()
         values, settings = RUN[a.part]()
         values["timing"] = {"wall_s": round(time.perf_counter() - t0, 1), "loadavg_start": [round(v, 2) for v in load]}

@@ -5,8 +5,10 @@ Run from the repository root::
     python benchmarks/measure_emps.py [--emps DIR] [--polarity auto|bright|dark|best] [--name STEM]
     python benchmarks/measure_emps.py --table   # the docs/measurement.md table from the results files
 
-(``--emps`` defaults to ``$BMCTL_EMPS`` or /work/shared/data/emps-dev: the 40 EMPS images with
-their masks, MIT licence; without them the script says so and measures nothing.)
+(``--emps`` defaults to ``$BMCTL_EMPS`` or ``../shared/data/emps-dev`` beside the repository (found
+from this script's place; a git worktree's is its main checkout's): the 40 EMPS images with their
+masks, MIT licence; without that folder (or its masks) the script says so in one line, measures
+nothing, leaves the results file as it is and exits with status 2.)
 
 Every image is measured as ``bmctl measure IMAGE --um-per-px 1`` would (data bar, automatic
 speck limit, automatic polarity), sizes in pixels (1 px = 1 unit), and scored against its
@@ -63,7 +65,26 @@ from bmctl.measure.micrograph import measure_micrograph  # noqa: E402
 from bmctl.measure.segment import measure_labels, segment  # noqa: E402
 from bmctl.validation.measure import match_labels, rasterise, via_polygons  # noqa: E402
 
-EMPS = Path(os.environ.get("BMCTL_EMPS", "/work/shared/data/emps-dev"))
+
+def _main_checkout(root: Path) -> Path:
+    """The repository's main checkout: ``root``, or where ``root`` is a linked git worktree (its
+    ``.git`` a file ``gitdir: MAIN/.git/worktrees/NAME``: the baseline runs of
+    ``benchmarks/regenerate.py`` copy this script into one) MAIN, so both find the same data."""
+    git = root / ".git"
+    try:
+        text = git.read_text(encoding="utf-8").strip() if git.is_file() else ""
+    except OSError:
+        return root
+    if not text.startswith("gitdir:"):
+        return root
+    gitdir = Path(text[len("gitdir:"):].strip())
+    gitdir = gitdir if gitdir.is_absolute() else (root / gitdir).resolve()
+    return gitdir.parents[2] if gitdir.parent.name == "worktrees" else root
+
+
+#: the data shared beside the repository (its main checkout, see :func:`_main_checkout`)
+SHARED = _main_checkout(ROOT).parent / "shared"
+EMPS = Path(os.environ.get("BMCTL_EMPS") or SHARED / "data" / "emps-dev")
 DATA = ROOT / "tests" / "data"
 MIN_IOU = 0.5
 REF_MIN_AREA_PX = 30  # the detection floor of bmctl measure
@@ -335,9 +356,11 @@ def main(argv=None) -> int:
     if args.table:
         print(doc_table())
         return 0
-    if not args.emps.is_dir():
-        print(f"measure_emps: {args.emps} not found (set --emps or BMCTL_EMPS); nothing measured", file=sys.stderr)
-        return 0
+    if not args.emps.is_dir() or not any(args.emps.glob("*.seg.png")):  # never a results file of no images
+        why = "no such folder" if not args.emps.is_dir() else "no NAME.seg.png masks in it"
+        print(f"measure_emps: {args.emps}: {why} (the EMPS images; set --emps or BMCTL_EMPS); nothing measured, "
+              f"results/{args.name}.json left as it is", file=sys.stderr)
+        return 2
     if args.polarity == "auto" and not _has_polarity():
         args.polarity = "bright"  # older versions: no automatic polarity, bright unless told
     load = os.getloadavg()

@@ -8,9 +8,12 @@ micrometres. A ``.csv`` argument is read as a particle table instead
 ``particle_id,image,x_um,y_um,area_um2,perimeter_um,s_um,r`` written atomically to ``--out``,
 with an overlay PNG per image (outlines and particle ids) and ``measure.json`` (scale and how
 it was found, exclusions, polarity, counts, warnings, the reliability verdict) beside it; nothing
-is written when any input is bad. Per image the polarity (particles brighter or darker than the
-background, decided per image unless ``--dark-particles`` or ``--bright-particles`` is given) and
-the verdict (``ok``, ``doubtful``, ``unusable``) go to stderr with the warnings.
+is written when any input is bad. Each file is given once: two arguments that name one file (the
+same path twice, ``a.png ./a.png``, or one file by two names: a symbolic or hard link) are refused
+before any input is read, naming both (its particles would be counted twice). Per image the
+polarity (particles brighter or darker than the background, decided per image unless
+``--dark-particles`` or ``--bright-particles`` is given) and the verdict (``ok``, ``doubtful``,
+``unusable``) go to stderr with the warnings.
 """
 
 from __future__ import annotations
@@ -48,7 +51,8 @@ def _min_area(text: str):
 
 def configure(parser: argparse.ArgumentParser) -> None:
     """Add the ``measure`` arguments."""
-    parser.add_argument("inputs", nargs="+", metavar="IMAGE", help="micrograph(s) (png/tif/...) or particle table(s) (.csv)")
+    parser.add_argument("inputs", nargs="+", metavar="IMAGE",
+                        help="micrograph(s) (png/tif/...) or particle table(s) (.csv), each file once")
     parser.add_argument("--um-per-px", type=float_arg("--um-per-px"), default=None, metavar="X", help="pixel size in micrometres (overrides the image metadata)")
     parser.add_argument("--scale-bar-um", type=float_arg("--scale-bar-um"), default=None, metavar="L",
                         help="length of the scale bar on the image, in µm (used when the metadata has no pixel size)")
@@ -108,6 +112,40 @@ def _same_file(a: str, b: str) -> bool:
         return os.path.samefile(a, b)
     except (OSError, ValueError):  # one of them does not exist (yet), or a name the system cannot take
         return False
+
+
+def _refuse_same_inputs(inputs) -> None:
+    """Refuse two inputs that are one file, naming both: the same path, the same resolved path (a
+    symbolic link), or the same file by another name (a hard link); its particles would be counted
+    twice. Nothing is read: called before any input is opened.
+
+    Parameters
+    ----------
+    inputs : list of str
+        The IMAGE arguments, in order.
+
+    Raises
+    ------
+    InputError
+        Two of them name one file.
+    """
+    from ..measure.names import path_text
+
+    seen = {}  # what identifies a file -> the first argument naming it
+    for p in inputs:
+        keys = [os.path.realpath(p)]
+        try:
+            st = os.stat(p)
+            keys.append((st.st_dev, st.st_ino))
+        except (OSError, ValueError):  # missing (named by the reader), or a name the system cannot take
+            pass
+        first = next((seen[k] for k in keys if k in seen), None)
+        if first is not None:
+            how = "" if first == p else f" (the same file as {path_text(first)})"
+            raise InputError(f"{path_text(p)}: given twice{how}; give each image or table once "
+                             "(its particles would be counted twice)")
+        for k in keys:
+            seen[k] = p
 
 
 def _check_output_names(args) -> None:
@@ -189,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..io import output_set
     from ..measure.micrograph import measure_micrograph
-    from ..measure.names import path_text, refuse_repeats
+    from ..measure.names import path_text
     from ..measure.scale import check_scale
     from ..measure.tables import ParticleLocations, ParticleTable, check_table, read_table
     from ..work import measure_work
@@ -204,7 +242,7 @@ def run(args: argparse.Namespace) -> int:
         _check_output_names(args)
     tables, locs, lines, results, reports, warned = [], [], [], [], [], []
     next_id = 1
-    refuse_repeats(args.inputs)  # one image twice would be counted twice
+    _refuse_same_inputs(args.inputs)  # one image twice would be counted twice
     pixels = _check_work([p for p in args.inputs if not _is_table(p)])
     long = measure_work(list(pixels.values()))["cpu_s"] > PROGRESS_AFTER_S
     progress = progress_printer("measure") if long and not args.no_progress else None

@@ -34,7 +34,8 @@ OUTLIER_SHARE = 1e-4
 #: the range spans the others, the outliers are clipped to its ends (an image without outliers is
 #: scaled by its darkest and brightest values as they are)
 OUTLIER_REACH = 0.25
-#: the EXIF tag of the orientation a camera stored its picture in (applied by :func:`_orient`)
+#: the EXIF tag of the orientation a camera stored its picture in (applied by :func:`_orient`); EXIF took
+#: it from TIFF, whose Orientation tag (274) has the same number and values
 EXIF_ORIENTATION = 0x0112
 #: why an image with transparent pixels (an alpha channel, or a colour the file declares transparent) is refused
 TRANSPARENT = "has transparent pixels (alpha); flatten it first"
@@ -55,8 +56,9 @@ class ImageHeader:
     mode : str or None
         Pillow's colour mode; for a TIFF, ``"CMYK"`` for inks (photometric separated), else None.
     orientation : int or None
-        The EXIF orientation (2-8: the stored pixels are shown flipped or rotated; 1 or None: as
-        stored) of a file read through Pillow; the pixel count is the same either way.
+        The orientation the file stores its pixels in (2-8: they are shown flipped or rotated; 1 or
+        None: as stored): the EXIF orientation of a file read through Pillow, or a TIFF's
+        Orientation tag; the pixel count is the same either way.
     colour_key : bool or None
         Whether a file read through Pillow declares a transparent colour (PNG tRNS, a GIF's
         transparent index) without an alpha channel; None: unknown (a TIFF, an unreadable header).
@@ -121,7 +123,17 @@ def _tiff_header(path: str) -> ImageHeader:
         images = sum(int(np.prod([n for n, ax in zip(s.shape, s.axes) if ax not in "YXS"])) for s in full)
         first = tif.series[0]
         cmyk = first.keyframe.photometric == tifffile.PHOTOMETRIC.SEPARATED  # tifffile hands over the raw inks
-        return ImageHeader(pixels, images, "CMYK" if cmyk else None)
+        return ImageHeader(pixels, images, "CMYK" if cmyk else None, _tiff_orientation(first.keyframe))
+
+
+def _tiff_orientation(page) -> int | None:
+    """The Orientation tag of a TIFF page (tifffile hands the pixels over as stored): 2-8 as an
+    EXIF orientation, else None."""
+    try:
+        value = int(page.tags.valueof(EXIF_ORIENTATION, 1))
+    except (TypeError, ValueError):  # a damaged tag (several values, not a number): the pixels are shown as stored
+        return None
+    return value if 2 <= value <= 8 else None
 
 
 def _bomb_pixels(exc: Exception) -> int | None:
@@ -252,10 +264,20 @@ def _damaged(path: str, exc: Exception) -> str:
     return f"a damaged or truncated {'PNG' if png else 'file'}: {exc or type(exc).__name__}"
 
 
+#: the gray levels Pillow decodes a PNG's 2- and 4-bit gray samples to are the samples times these
+#: (0-3 to 0-255, 0-15 to 0-255); its transparent gray is given as a sample
+GRAY_SCALED = {"L;2": 85, "L;4": 17}
+#: how Pillow unpacks a PNG's 16-bit RGB samples: their high bytes (its transparent colour is given in 16 bits)
+RGB16 = "RGB;16B"
+
+
 def _transparent_colour(path: str) -> bool:
     """Whether a file read through Pillow has pixels of a colour it declares transparent (PNG's
     tRNS chunk, GIF's transparent index: no alpha channel in the decoded pixels, so
-    :func:`_opaque` cannot see them); an alpha channel is checked on the decoded pixels."""
+    :func:`_opaque` cannot see them); an alpha channel is checked on the decoded pixels.
+
+    The colour is compared with the file's samples: a 16-bit RGB PNG's in all 16 bits (Pillow
+    decodes their high bytes), a 1-, 2- or 4-bit gray PNG's as the levels Pillow decodes them to."""
     from PIL import Image
 
     with _pillow_quiet():
@@ -269,10 +291,33 @@ def _transparent_colour(path: str) -> bool:
             return False
         if im.mode == "P" or isinstance(key, bytes):  # an index, or an alpha per palette entry
             return bool(np.any(np.asarray(im.convert("RGBA"))[..., 3] != 255))
+        rawmode = im.tile[0][3] if len(im.tile) == 1 else None  # how the samples are unpacked (before decoding)
+        rawmode = rawmode if isinstance(rawmode, str) else None  # a GIF's are (bits, interlace)
         px = np.asarray(im)
         if isinstance(key, tuple):  # an RGB colour
-            return bool(np.any(np.all(px.reshape(px.shape[:2] + (-1,))[..., :len(key)] == np.asarray(key), axis=-1)))
-        return bool(np.any(px == key))
+            colour = np.asarray(key, dtype=np.int64)
+            if rawmode != RGB16:
+                return bool(np.any(_has_colour(px, colour)))
+            hit = _has_colour(px, colour >> 8)
+            return bool(np.any(hit)) and bool(np.any(hit & _has_colour(_low_bytes(path), colour & 0xFF)))
+        if im.mode == "1":  # decoded as bool; Pillow gives the key as 0 or 255
+            return bool(np.any(px == bool(key)))
+        return bool(np.any(px == key * GRAY_SCALED.get(rawmode, 1)))
+
+
+def _has_colour(px: np.ndarray, colour: np.ndarray) -> np.ndarray:
+    """Where the pixels ``px`` (H, W, C) have the colour ``colour`` in their first channels, (H, W) bool."""
+    return np.all(px.reshape(px.shape[:2] + (-1,))[..., :len(colour)] == colour, axis=-1)
+
+
+def _low_bytes(path: str) -> np.ndarray:
+    """The low bytes of a 16-bit RGB PNG's samples (H, W, 3) (Pillow decodes their high bytes):
+    decoded with Pillow's unpacker of little-endian samples, which takes each sample's second byte."""
+    from PIL import Image
+
+    with _pillow_quiet(), Image.open(path) as im:
+        im.tile = [t._replace(args="RGB;16L") if hasattr(t, "_replace") else (*t[:3], "RGB;16L") for t in im.tile]
+        return np.asarray(im)
 
 
 def _decode(path: str, head: ImageHeader) -> np.ndarray:
@@ -282,7 +327,8 @@ def _decode(path: str, head: ImageHeader) -> np.ndarray:
     with warnings.catch_warnings(), quiet_tifffile():  # imageio warns while probing plugins on junk files
         warnings.simplefilter("ignore")
         if head.mode in CONVERTED_MODES:
-            with Image.open(path) as im:
+            turned = head.orientation is not None and is_tiff(path)
+            with Image.open(_as_stored(path) if turned else path) as im:
                 return np.asarray(im.convert("RGB"))
         tiff = is_tiff(path)
         if tiff == _named_tiff(path):
@@ -299,8 +345,27 @@ def _decode(path: str, head: ImageHeader) -> np.ndarray:
         return np.asarray(iio.imread(path, plugin="pillow"))
 
 
+def _as_stored(path: str):
+    """A TIFF's bytes with its Orientation tag set to 1, for Pillow to decode: Pillow turns a TIFF
+    itself (and garbles one turned a quarter), while :func:`load_image` turns the pixels read as
+    stored (:func:`_orient`); the path itself where the first page (Pillow's) has no such tag."""
+    import io
+
+    import tifffile
+
+    with quiet_tifffile(), tifffile.TiffFile(path) as tif:
+        tag = tif.pages[0].tags.get(EXIF_ORIENTATION)
+        if tag is None:
+            return path
+        at, size, order = tag.valueoffset, tag.valuebytecount, tif.byteorder
+    with open(path, "rb") as fh:
+        data = bytearray(fh.read())
+    data[at:at + size] = (1).to_bytes(size, "little" if order == "<" else "big")
+    return io.BytesIO(bytes(data))
+
+
 def _orient(img: np.ndarray, orientation: int | None) -> np.ndarray:
-    """``img`` (H, W) as displayed under its EXIF orientation (``PIL.ImageOps.exif_transpose``)."""
+    """``img`` (H, W) as displayed under its EXIF (or TIFF) orientation (``PIL.ImageOps.exif_transpose``)."""
     steps = {
         2: lambda a: a[:, ::-1],  # mirrored
         3: lambda a: a[::-1, ::-1],  # upside down
@@ -319,7 +384,8 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
 
     A palette image is read as its colours; a CMYK (or other Pillow colour space) image is
     converted to RGB by Pillow first; a single-frame GIF is one image. An EXIF orientation (a
-    camera picture stored turned) is applied: the image is measured as it is displayed.
+    camera picture stored turned), or a TIFF's Orientation tag, is applied: the image is measured
+    (its data bar found, a crop window placed) as it is displayed.
 
     Parameters
     ----------
