@@ -427,7 +427,8 @@ def case_seeds(seed: int, name: str) -> np.random.SeedSequence:
 def run_campaign(case: Case, target_um: float, folder: Path, particles: int, seed: int, env: dict,
                  energy_mult: bool = True, sample_particles: int = SAMPLE_PARTICLES,
                  on_request: bool = False, controller: Path = CONTROLLER,
-                 sample_every_h: float = SAMPLE_EVERY_H, sample_feed: bool = False, card_path: Path = CARD) -> dict:
+                 sample_every_h: float = SAMPLE_EVERY_H, sample_feed: bool = False, card_path: Path = CARD,
+                 moment_noise_at: str = "update") -> dict:
     """The scripted operator: advise, accept, run the hidden plant, log, sample every
     ``sample_every_h`` (hourly) and at the batch end; with
     ``on_request`` also take the extra sample an advice asks for (``sample_first``), then advise again;
@@ -443,7 +444,8 @@ def run_campaign(case: Case, target_um: float, folder: Path, particles: int, see
     plant = Plant(card, g_plant, particles)
     cli(["campaign", "init", str(folder), "--model", str(card_path), "--controller", str(controller), "--target",
          f"s_mean_um={target_um:.4f}", "--hours", repr(float(case.hours)), "--seed", "0",
-         *([] if energy_mult else ["--no-energy-mult"])], env)
+         *([] if energy_mult else ["--no-energy-mult"]),
+         *([] if moment_noise_at == "update" else ["--moment-noise-at", moment_noise_at])], env)
     t, peak = 0.0, plant.temperature_c
     advise_wall, advise_cpu, steps = [], [], []
     samples = extra = 0
@@ -667,6 +669,9 @@ def _main() -> None:
                          "advises again")
     ap.add_argument("--sample-feed", action="store_true",
                     help="the operator also samples the feed at 0 h, before the first advice")
+    ap.add_argument("--moment-noise-at", choices=("update", "sample"), default="update",
+                    help="the campaigns' `campaign init --moment-noise-at`: when the filter draws the moments' "
+                         "deferred model noise (default: update)")
     ap.add_argument("--card", metavar="TOML",
                     help=f"the card the campaigns are given and the hidden mills change (default "
                          f"{CARD.relative_to(ROOT)}; it needs its moment coefficients, <card>.moments.toml)")
@@ -758,7 +763,7 @@ def _main() -> None:
                ("--seed", a.seed != SEED),
                ("--sample-particles", a.sample_particles != SAMPLE_PARTICLES),
                ("--sample-on-request", a.sample_on_request), ("--sample-every-h", a.sample_every_h != SAMPLE_EVERY_H),
-               ("--sample-feed", a.sample_feed))
+               ("--sample-feed", a.sample_feed), ("--moment-noise-at", a.moment_noise_at != "update"))
     for flag, given in changed:  # a run off the default protocol must not overwrite the default's results
         if given and a.results_name == "hidden_mills" and not a.no_results:
             raise InputError(f"{flag}: name its results (--results-name) or pass --no-results")
@@ -805,7 +810,7 @@ def _main() -> None:
             print(head, flush=True)
         res = run_campaign(case, target, out / f"case-{case.name}", a.particles, a.seed, env, not a.no_energy_mult,
                            a.sample_particles, a.sample_on_request, controller, a.sample_every_h, a.sample_feed,
-                           card_path)
+                           card_path, a.moment_noise_at)
         print(("" if a.workers == 1 else head + "\n")
               + f"  campaign: final {res['final_s_mean_um']:.2f} µm ({res['error_pct']:+.2f} %), peak "
               f"{res['peak_c']:.1f} °C, idle while needed {res['idle_needed_h']:.2f} h (longest "
@@ -872,6 +877,7 @@ def _main() -> None:
             cmd += (f" --sample-every-h {a.sample_every_h:g}" if a.sample_every_h != SAMPLE_EVERY_H else "")
             cmd += (" --sample-on-request" if a.sample_on_request else "")
             cmd += (" --sample-feed" if a.sample_feed else "")
+            cmd += (f" --moment-noise-at {a.moment_noise_at}" if a.moment_noise_at != "update" else "")
             cmd += f" --results-name {a.results_name}"
         path = write_results(a.results_name, {"summary": summary, "cases": rows},
                              settings={"cases": [c.__dict__ for c in cases], "particles": a.particles, "seed": a.seed,
@@ -879,7 +885,8 @@ def _main() -> None:
                                        "ceiling_c": CEILING_C, "interval_h": INTERVAL_H,
                                        "sample_every_h": a.sample_every_h, "sample_particles": a.sample_particles,
                                        "need_tol": NEED_TOL, "energy_mult": not a.no_energy_mult,
-                                       "sample_on_request": a.sample_on_request, "sample_feed": a.sample_feed},
+                                       "sample_on_request": a.sample_on_request, "sample_feed": a.sample_feed,
+                                       "moment_noise_at": a.moment_noise_at},
                              command=cmd)
         print(f"wrote {path}")
 

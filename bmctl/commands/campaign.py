@@ -35,6 +35,10 @@ def configure(parser: argparse.ArgumentParser) -> None:
                    help="the filter also learns energy_mult, the mill's impact energy per particle against the card's "
                         "(a mill whose balls or powder mass the card does not describe); --no-energy-mult: "
                         "gamma_mult, delta_mult only (default: on)")
+    p.add_argument("--moment-noise-at", choices=("update", "sample"), default="update",
+                   help="when the filter draws the moments' deferred model noise: at every update, a vial "
+                        "reading alone included (update, the default), or only at a micrograph sample, whose "
+                        "guided proposal draws it (sample; docs/estimation.md)")
     add_identify_flag(p)
     p = sub.add_parser("log", help="record what the mill ran")
     p.add_argument("dir", metavar="DIR", help="the campaign folder (campaign.sqlite and inputs/)")
@@ -157,6 +161,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{db_path(args.dir)}: damaged campaign database ({exc})") from None
 
 
+def _estimator_changes(args: argparse.Namespace, cp) -> dict | None:
+    """The filter settings ``init`` records: None (the campaign default) unless a flag changes them."""
+    if args.energy_mult and args.moment_noise_at == "update":
+        return None
+    base = cp.CAMPAIGN_FILTER if args.energy_mult else cp.TWO_MULT_FILTER
+    return base if args.moment_noise_at == "update" else {**base, "moment_noise_at": args.moment_noise_at}
+
+
 def _run(args: argparse.Namespace) -> int:
     from .. import campaign as cp
     from ..campaign import targets as tg
@@ -166,7 +178,7 @@ def _run(args: argparse.Namespace) -> int:
         meta = cp.init(d, args.model, args.controller, tg.parse(args.target), hours=args.hours,
                        temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles,
                        identify=args.identify, progress=progress_printer(),
-                       estimator=None if args.energy_mult else cp.TWO_MULT_FILTER)
+                       estimator=_estimator_changes(args, cp))
         print(f"campaign: {d}: {meta['hours']:g} h batch, target "
               + ", ".join(f"{k} = {x:g}" for k, x in meta["target"].items())
               + f", controller {meta['controller_kind']}; inputs copied to {d}/inputs")

@@ -111,6 +111,12 @@ class FilterSettings(Strict):
         1: wall hours (the default). Small (a campaign's 0.02): hourly samples of a resting
         mill average out instead of each one moving the estimate; 0 leaves the cloud of a long
         rest no jitter at all, and reweighting alone degenerates it (docs/estimation.md, "Rests").
+    moment_noise_at : {"update", "sample"}
+        When the moments' deferred discrepancy noise is drawn. "update" (the default): at every
+        update, a temperature reading alone included, where nothing guides it (drawn from its
+        prior); "sample": only at a micrograph sample, whose guided proposal draws it, so a
+        reading between samples leaves it deferred (estimates read in between show it)
+        (docs/estimation.md, "Readings between samples").
     thermal_gain_prior_std : float
         Prior std of the vial's heating gain g over the card's thermal law (1: the card is exact),
         weighed in at the first reading.
@@ -162,6 +168,7 @@ class FilterSettings(Strict):
     size_drift_prior_per_h: Annotated[float, Field(ge=0, le=1)] = 0.0
     size_drift_walk_per_sqrt_h: Annotated[float, Field(ge=0, le=1)] = 0.0
     rest_noise_fraction: Annotated[float, Field(ge=0, le=1)] = 1.0
+    moment_noise_at: Literal["update", "sample"] = "update"
     thermal_gain_prior_std: Annotated[float, Field(ge=0, le=2)] = 0.3
     thermal_gain_walk_per_sqrt_h: Annotated[float, Field(ge=0, le=1)] = 0.05
     thermal_gain_jump_prob: Annotated[float, Field(ge=0, lt=1)] = 0.02
@@ -634,9 +641,11 @@ class ParticleFilter:
         N = self.X.shape[0]
         X = self.X.copy()
         X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((N, N_MOMENTS)))
-        gain = self.gain + self.settings.thermal_gain_walk_per_sqrt_h * math.sqrt(tau) * rng.standard_normal(N)
-        gain = np.maximum(gain, GAIN_MIN)
-        X[:, 4] = self.ambient_c + gain * self._excess()  # the same card-law excess, as _set_gain
+        gain = self.gain
+        if tau > 0:  # the vial's gain walks on wall hours (none left after a reading)
+            gain = np.maximum(gain + self.settings.thermal_gain_walk_per_sqrt_h * math.sqrt(tau) * rng.standard_normal(N),
+                              GAIN_MIN)
+            X[:, 4] = self.ambient_c + gain * self._excess()  # the same card-law excess, as _set_gain
         return self._feasible(X), gain
 
     # --- update -----------------------------------------------------------------------------
@@ -679,10 +688,12 @@ class ParticleFilter:
             logw_s, eta, impossible = self._sample_update(raster, tau_m)
             logw += logw_s
             self.feed_open = False
-        elif tau_m > 0:
+        elif tau_m > 0 and st.moment_noise_at == "update":
             self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((N, N_MOMENTS)))
         self.X = self._feasible(self.X)
-        self.pending_h = self.pending_model_h = 0.0
+        self.pending_h = 0.0
+        if raster is not None or st.moment_noise_at == "update":
+            self.pending_model_h = 0.0
 
         degenerate = False
         if impossible or not np.any(np.isfinite(logw)):
@@ -696,7 +707,7 @@ class ParticleFilter:
         if ess < st.ess_fraction * N:
             self._resample()
             resampled = True
-        est = self._summary()
+        est = self.estimate()  # the moments' noise still deferred ("sample") shown, not spent
         est.ess, est.resampled, est.degenerate = ess, resampled, degenerate
         est.eta, est.n_measured = tuple(float(e) for e in eta), n_meas
         return est
@@ -846,7 +857,7 @@ class ParticleFilter:
         from a copy of the filter's generator and stays deferred, so the next sample's guided proposal
         still has it, and how often the estimate is read does not change what the filter does.
         """
-        if self.pending_h <= 0:
+        if self.pending_h <= 0 and self.pending_model_h <= 0:
             return self._summary()
         return self._summary(*self._with_pending_noise())
 

@@ -74,3 +74,26 @@ def test_campaign_learns_energy_mult_unless_told_not_to_and_the_plan_uses_it(tmp
         assert main(["campaign", "advise", str(d), "--json"]) == 0
         a = json.loads(capsys.readouterr().out)
         assert ("energy_mult" in a["estimate"]) == (not flag) and a["next"]["interval_h"] > 0
+
+
+@pytest.mark.parametrize("flags, expected", [([], None), (["--moment-noise-at", "update"], None),
+                                             (["--moment-noise-at", "sample"], "sample"),
+                                             (["--no-energy-mult", "--moment-noise-at", "sample"], "sample")])
+def test_init_records_when_the_filter_draws_the_moment_noise(tmp_path, capsys, flags, expected):
+    from bmctl.campaign.workflow import TWO_MULT_FILTER
+
+    d = tmp_path / "c"
+    assert main(["campaign", "init", str(d), "--model", str(CARD), "--controller", str(RECIPE), "--target",
+                 "d50_um=45", "--hours", "2", "--particles", "100", *flags]) == 0
+    base = TWO_MULT_FILTER if "--no-energy-mult" in flags else CAMPAIGN_FILTER
+    with Campaign(d) as c:
+        assert c.meta["estimator"] == (base if expected is None else {**base, "moment_noise_at": expected})
+        assert c.filter_settings().moment_noise_at == (expected or "update")
+        assert c.loop.estimator.settings.moment_noise_at == (expected or "update")
+
+
+def test_init_refuses_an_unknown_moment_noise_time(tmp_path, capsys):
+    assert main(["campaign", "init", str(tmp_path / "c"), "--model", str(CARD), "--controller", str(RECIPE),
+                 "--target", "d50_um=45", "--moment-noise-at", "later"]) == 2
+    assert "--moment-noise-at" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()

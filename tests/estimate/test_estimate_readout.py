@@ -61,3 +61,35 @@ def test_the_read_out_includes_the_deferred_noise_and_leaves_it_deferred(model):
     assert est.q95[k] - est.q05[k] > bare.q95[k] - bare.q05[k]
     again = pf.estimate()
     assert np.array_equal(again.mean, est.mean)  # the same read-out from the same state
+
+
+def _reading_then_sample(model, at: str):
+    pf = ParticleFilter(model, np.random.default_rng(11), FilterSettings(n_particles=500, moment_noise_at=at))
+    pf.predict((300.0, 1.0), 1.0)
+    reading = pf.update(temperature_c=pf.reading_prediction()[0])
+    s_um, r = _sample(2, median_um=36.0)
+    return pf, reading, pf.update(s_um, r)
+
+
+def test_moment_noise_at_sample_keeps_it_past_a_reading(model):
+    """A reading alone cannot guide the moments' noise: with ``moment_noise_at="sample"`` it stays
+    deferred for the sample that follows, whose guided proposal then keeps more particles alive than
+    the reweighting of noise already spent unguided ("update")."""
+    pf, reading, _ = _reading_then_sample(model, "sample")
+    assert pf.pending_model_h == 0.0  # spent by the sample
+    spent, _, after_spent = _reading_then_sample(model, "update")
+    kept, _, after_kept = _reading_then_sample(model, "sample")
+    assert after_kept.ess > 2 * after_spent.ess
+    k = list(reading.names).index("s_mean_um")
+    bare = ParticleFilter(model, np.random.default_rng(11), FilterSettings(n_particles=500, moment_noise_at="sample"))
+    bare.predict((300.0, 1.0), 1.0)
+    bare.update(temperature_c=bare.reading_prediction()[0])
+    assert bare.pending_model_h == 1.0  # the milled hour's noise still deferred after the reading
+    shown, plain = bare.estimate(), bare._summary()
+    assert shown.q95[k] - shown.q05[k] > plain.q95[k] - plain.q05[k]  # and shown in the estimate
+
+
+def test_moment_noise_at_update_is_the_default_and_spends_it():
+    assert FilterSettings().moment_noise_at == "update"
+    with pytest.raises(Exception, match="moment_noise_at"):
+        FilterSettings(moment_noise_at="later")
