@@ -102,8 +102,8 @@ class CampaignLoop(ClosedLoop):
 
     def observe_at(self, s_um=None, r=None, temperature_c: float | None = None) -> dict:
         """Weigh in what was observed now (a sample, a temperature reading, both or neither:
-        then the estimate is read, which leaves the deferred process noise for the next update);
-        returns the estimate dict."""
+        then the estimate is read, which applies the deferred process noise unless the filter keeps
+        it for a sample: ``moment_noise_at = "sample"``); returns the estimate dict."""
         predicted = None
         if s_um is None and temperature_c is None:
             est = self.estimator.estimate()

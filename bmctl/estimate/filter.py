@@ -631,13 +631,14 @@ class ParticleFilter:
         self.gain = np.maximum(gain, GAIN_MIN)
         self.X[:, 4] = self.ambient_c + self.gain * E
 
-    def _with_pending_noise(self) -> tuple[np.ndarray, np.ndarray]:
+    def _with_pending_noise(self, rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Copies of the particles and heating gains with the deferred process noise drawn from its
-        prior (no sample to guide it), from a copy of the filter's generator: the filter itself,
-        its generator included, is left as it was."""
+        prior (no sample to guide it), from ``rng`` (default: a copy of the filter's generator, so the
+        filter itself, its generator included, is left as it was)."""
         tau, tau_m = self.pending_h, self.pending_model_h
-        rng = np.random.Generator(type(self.rng.bit_generator)())
-        rng.bit_generator.state = self.rng.bit_generator.state
+        if rng is None:
+            rng = np.random.Generator(type(self.rng.bit_generator)())
+            rng.bit_generator.state = self.rng.bit_generator.state
         N = self.X.shape[0]
         X = self.X.copy()
         X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((N, N_MOMENTS)))
@@ -853,13 +854,19 @@ class ParticleFilter:
         """Weighted mean and 90 % interval of every state and parameter, the process noise deferred
         since the last update included.
 
-        Reading the estimate changes nothing: the deferred noise is drawn on copies of the particles
-        from a copy of the filter's generator and stays deferred, so the next sample's guided proposal
-        still has it, and how often the estimate is read does not change what the filter does.
+        With ``moment_noise_at = "sample"`` reading the estimate changes nothing: the deferred noise
+        is drawn on copies of the particles from a copy of the filter's generator and stays deferred,
+        so the next sample's guided proposal still has it, and how often the estimate is read does
+        not change what the filter does. With ``"update"`` (the default) the read draws the deferred
+        noise into the particles from its prior, as an update without a sample would.
         """
         if self.pending_h <= 0 and self.pending_model_h <= 0:
             return self._summary()
-        return self._summary(*self._with_pending_noise())
+        if self.settings.moment_noise_at == "sample":
+            return self._summary(*self._with_pending_noise())
+        self.X, self.gain = self._with_pending_noise(self.rng)  # spent: the next update starts afresh
+        self.pending_h = self.pending_model_h = 0.0
+        return self._summary()
 
 
 def learning_rates(fit, st: FilterSettings) -> np.ndarray:

@@ -1,9 +1,11 @@
-"""Reading the particle filter's estimate changes nothing.
+"""When the particle filter draws the moments' deferred noise (``moment_noise_at``).
 
 The process noise deferred since the last update is what the next sample's guided proposal
-draws; a read-out between the two must neither spend it nor advance the filter's generator, so
-the filter after ``predict, estimate, update`` is the filter after ``predict, update``, and a
-read-out shows the noise (its intervals are at least as wide as the bare particles').
+draws. With ``moment_noise_at = "sample"`` a read-out between the two neither spends it nor
+advances the filter's generator, so the filter after ``predict, estimate, update`` is the filter
+after ``predict, update``, and a read-out shows the noise (its intervals are wider than the bare
+particles'); a vial reading leaves the moments' noise deferred too. ``"update"`` (the default)
+spends it at every read and update.
 """
 
 from __future__ import annotations
@@ -30,8 +32,8 @@ def _sample(seed: int, median_um: float = 40.0, n: int = 300):
     return g.lognormal(np.log(median_um), 0.45, n), g.uniform(0.02, 0.2, n)
 
 
-def _run(model, read: bool):
-    pf = ParticleFilter(model, np.random.default_rng(5), FilterSettings(n_particles=300))
+def _run(model, read: bool, at: str = "sample"):
+    pf = ParticleFilter(model, np.random.default_rng(5), FilterSettings(n_particles=300, moment_noise_at=at))
     pf.predict((300.0, 1.0), 1.0)
     if read:
         pf.estimate()
@@ -50,8 +52,16 @@ def test_a_read_before_a_sample_changes_nothing(model):
     assert np.array_equal(est_read.mean, est_plain.mean)
 
 
+def test_a_read_spends_the_noise_by_default(model):
+    """The default keeps the filter's long-standing behaviour: a read draws the deferred noise
+    from its prior, and the sample after it has none left to guide (fewer particles survive)."""
+    _, est_plain = _run(model, read=False, at="update")
+    pf, est_read = _run(model, read=True, at="update")
+    assert pf.pending_h == 0.0 and est_read.ess < 0.5 * est_plain.ess
+
+
 def test_the_read_out_includes_the_deferred_noise_and_leaves_it_deferred(model):
-    pf = ParticleFilter(model, np.random.default_rng(7), FilterSettings(n_particles=400))
+    pf = ParticleFilter(model, np.random.default_rng(7), FilterSettings(n_particles=400, moment_noise_at="sample"))
     pf.predict((300.0, 1.0), 2.0)
     bare = pf._summary()
     rng_before = pf.rng.bit_generator.state
