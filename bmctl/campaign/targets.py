@@ -20,8 +20,9 @@ import math
 from typing import Callable
 
 from ..config import did_you_mean
+from ..control.base import NOT_NUMBERS as _NOT_NUMBERS
 from ..control.config import TARGET_KEYS, check_dvalue_order, target_value
-from ..errors import InputError, finite_float
+from ..errors import InputError, finite_float, quote
 
 #: extra target keys: name -> (maps value and estimate dict to controller targets, one-line meaning)
 TARGETS: dict[str, tuple[Callable[[float, dict], dict[str, float]], str]] = {}
@@ -58,6 +59,86 @@ def parse(text: str, where: str = "--target") -> dict[str, float]:
         raise InputError(f"{where}: d50_um and s_mean_um both set the size; give one")
     check_dvalue_order(out, where)
     return out
+
+
+#: what a target value given from Python may not be (:data:`bmctl.control.base.NOT_NUMBERS`): a
+#: whole target is text only as one ``"key=value"`` string (:func:`parse`)
+NOT_NUMBERS = _NOT_NUMBERS
+
+
+def check(target, where: str = "target") -> dict[str, float]:
+    """A campaign target given as a mapping (the Python API's ``init(target={...})``), checked as
+    :func:`parse` checks its text: each key known, each value one finite number > 0 in its range,
+    D90 above D50. Text and flags are not numbers here (``"55"`` is refused, not read as 55).
+
+    Parameters
+    ----------
+    target : mapping
+        ``{key: value}``, e.g. ``{"d50_um": 45.0}`` (or ``(key, value)`` pairs).
+    where : str, optional
+        What a message names first: the argument (``target``).
+
+    Returns
+    -------
+    dict
+        ``{key: float}``.
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        One line naming ``where`` and the key.
+
+    Examples
+    --------
+    >>> check({"d50_um": 45})
+    {'d50_um': 45.0}
+    >>> check({"d50_um": "45"})  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: target: d50_um: not a number: '45' (give the number 45, ...)
+    """
+    try:
+        items = dict(target)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: expected a dict such as {{'d50_um': 45.0}} or text such as 'd50_um=45' "
+                         f"(got {type(target).__name__})") from None
+    out: dict[str, float] = {}
+    for k, v in items.items():
+        if k not in known_keys():
+            raise InputError(f"{where}: unknown target {quote(k)}{did_you_mean(k, known_keys())} "
+                             f"(one of {', '.join(known_keys())})")
+        if isinstance(v, NOT_NUMBERS):
+            raise InputError(f"{where}: {k}: not a number: {quote(v)}{_text_hint(k, v)}")
+        if isinstance(v, (list, tuple)):  # design and trial scenarios take windows; a campaign steers to one value
+            raise InputError(f"{where}: {k}: a campaign takes one value per target, not a window ({quote(v)}); "
+                             "windows are for design and trial scenarios")
+        try:
+            val = float(v)
+        except (TypeError, ValueError):
+            raise InputError(f"{where}: {k}: not a number ({quote(v)})") from None
+        if not math.isfinite(val):
+            raise InputError(f"{where}: {k}: must be a finite number (got {v})")
+        if val <= 0:
+            raise InputError(f"{where}: {k}: must be > 0 (got {v})")
+        out[k] = target_value(k, val, where) if k in TARGET_KEYS else val
+    check_dvalue_order(out, where)
+    return out
+
+
+def _text_hint(key: str, value) -> str:
+    """For a number given as text in a target mapping: the mapping's form and the text form, e.g.
+    `` (give the number 55, or the whole target as text: "d50_um=55")``; empty for anything else.
+
+    >>> _text_hint("d50_um", " 55 "), _text_hint("d50_um", "abc"), _text_hint("d50_um", True)
+    (' (give the number 55, or the whole target as text: "d50_um=55")', '', '')
+    """
+    if not isinstance(value, str) or "_" in value:
+        return ""
+    try:
+        x = float(value)
+    except ValueError:
+        return ""
+    return f' (give the number {x:g}, or the whole target as text: "{key}={x:g}")' if math.isfinite(x) else ""
 
 
 def _mid(window: str) -> str:

@@ -18,7 +18,8 @@ The estimator's timeline
     logged inputs since the previous node (an action cut at a sample time inside it keeps its
     mill-then-rest order) and then updated with everything observed at that time (samples
     pooled, the vial-temperature reading with them) or, with nothing observed, read
-    (which applies the deferred process noise). The state after every node is stored. A
+    (which applies the deferred process noise; kept for the next sample with ``moment_noise_at =
+    "sample"``). The state after every node is stored. A
     late observation (at or before the logged clock) removes the nodes from its time on and
     replays from the node before it, so the result equals the one had it arrived on time; an
     observation after the clock waits until the log reaches it. With on-time entries
@@ -40,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..limits import HOURS_MIN
 from . import db
 from . import targets as tg
@@ -73,6 +74,11 @@ def _sha(path: Path) -> str:
 
 
 def _finite(v, name: str, lo: float | None = None, hi: float | None = None, strict: bool = False) -> float:
+    """A number argument of a verb, finite and within [lo, hi] (``strict``: > lo), else a one-line
+    InputError naming ``name``. Text and flags are not numbers (``float`` reads ``"0.5"`` as 0.5 and
+    ``True`` as 1)."""
+    if isinstance(v, tg.NOT_NUMBERS):
+        raise InputError(f"{name}: not a number ({quote(v)})")
     try:
         x = float(v)
     except (TypeError, ValueError):
@@ -442,7 +448,9 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
     controller : path-like
         Controller config (``controllers/*.toml``).
     target : dict or str
-        Target, e.g. ``{"d50_um": 45}`` or ``"s_mean_um=40,r_mean=0.05"`` (:mod:`bmctl.campaign.targets`).
+        Target, e.g. ``{"d50_um": 45}`` or ``"s_mean_um=40,r_mean=0.05"``: a dict's values are
+        numbers (text such as ``"45"`` is refused; :func:`bmctl.campaign.targets.check`), text is
+        read by :func:`bmctl.campaign.targets.parse`.
     hours : float, optional
         Batch length (default: the card's ``process.hours``).
     temperature_max_c : float, optional
@@ -478,13 +486,10 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
 
         check_rpm_range(cfg, float(card.mill.rpm_max))
     for_card(card_p, identify=identify, progress=progress)  # the card's own coefficients, or refuse
-    tgt = tg.parse(target) if isinstance(target, str) else {k: _finite(v, f"target: {k}", 0, strict=True)
-                                                            for k, v in dict(target).items()}
-    for k in tgt:
-        if k not in tg.known_keys():
-            raise InputError(f"target: unknown key {k!r} (one of {', '.join(tg.known_keys())})")
+    # the argument is named `target` (the command parses --target itself and passes the dict)
+    tgt = tg.parse(target, "target") if isinstance(target, str) else tg.check(target, "target")
     if not tgt and cfg.kind != "recipe":
-        raise InputError(f"--target: a feedback controller ({cfg.kind}) needs a target")
+        raise InputError(f"target: a feedback controller ({cfg.kind}) needs a target")
     if cfg.kind == "lqr" and all(k in TARGET_KEYS for k in tgt):  # one the LQR cannot track: refused now
         check_lqr_track(cfg.lqr.track, tgt, "--target", str(ctrl_p))
     H = float(card.process.hours) if hours is None else _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)

@@ -22,7 +22,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..moments import equations as eq
 from .config import TARGET_KEYS, Target, check_target_dict
 
@@ -206,6 +206,15 @@ class Status:
 class Plan:
     """A controller's answer at one decision time.
 
+    What to run next is :attr:`u_apply` (also :attr:`rpm` and :attr:`milling`): the first
+    interval's input as the mill runs it. :meth:`applied` (and :meth:`schedule`,
+    :meth:`segments`, built from it) is a preview of every planned interval with its milling
+    time only rounded to whole minutes; its first row is *not* always :attr:`u_apply`: the
+    controller's temperature guard (milling rounded down under the ceiling), its on/off mode,
+    and the mill's own limits (the rpm dial's steps, the shortest milling period and rest)
+    act on :attr:`u_apply` alone. A schedule shown to the operator takes :attr:`u_apply` for
+    its first interval (``bmctl campaign advise`` does).
+
     Attributes
     ----------
     t_h : float
@@ -219,7 +228,9 @@ class Plan:
     t_peak_c : ndarray, (N,)
         Predicted peak vial temperature per interval.
     u_apply : ndarray, (2,)
-        The input to apply now: ``u[0]`` with whole minutes of milling (rpm 0 = rest).
+        The input to apply now, (rpm, milling) for ``interval_h``: ``u[0]`` with whole minutes
+        of milling, then the temperature guard, the on/off mode and the mill's limits (rpm 0 =
+        rest). The one to read for the next interval.
     status : Status
     extra : dict
         Controller-specific details (e.g. the LQR gain).
@@ -236,10 +247,12 @@ class Plan:
 
     @property
     def rpm(self) -> float:
+        """The rpm to run now: ``u_apply[0]`` (0: a rest)."""
         return float(self.u_apply[0])
 
     @property
     def milling(self) -> float:
+        """The share of ``interval_h`` to mill now, first: ``u_apply[1]``."""
         return float(self.u_apply[1])
 
     @property
@@ -247,11 +260,27 @@ class Plan:
         return self.t_h + self.interval_h * np.arange(self.u.shape[0] + 1)
 
     def applied(self, round_minutes: bool = True, binary: bool = False) -> np.ndarray:
-        """All planned intervals as applied inputs (N, 2) (see :func:`applied_input`)."""
+        """All planned intervals with whole minutes of milling (N, 2) (:func:`applied_input` of each
+        row of ``u``): a preview of the plan. Its first row may differ from :attr:`u_apply`, which
+        alone passes the temperature guard and the mill's limits; run :attr:`u_apply`.
+
+        Parameters
+        ----------
+        round_minutes : bool, optional
+            Round each milling time to whole minutes.
+        binary : bool, optional
+            Round each milling share to 0 or 1 first.
+
+        Returns
+        -------
+        ndarray, (N, 2)
+            (rpm, milling) per planned interval.
+        """
         return np.array([applied_input(u, self.interval_h, round_minutes, binary) for u in self.u]).reshape(-1, 2)
 
     def schedule(self, round_minutes: bool = True):
-        """The plan as a :class:`bmctl.schedule.Schedule` (mill, then rest; equal neighbours merged)."""
+        """The plan as a :class:`bmctl.schedule.Schedule` (mill, then rest; equal neighbours merged),
+        from :meth:`applied`: its first interval is not always :attr:`u_apply`."""
         from ..schedule import Schedule
 
         return Schedule.from_inputs(self.applied(round_minutes), self.interval_h)
@@ -291,7 +320,8 @@ class Reference:
     """
 
     def __init__(self, points: Sequence[tuple[float, Mapping[str, float]]] = ()):
-        pts = sorted(((float(t), check_target_dict(dict(d), "target")) for t, d in points), key=lambda p: p[0])
+        pts = sorted(((_from_h(t), check_target_dict(_no_text(dict(d), "target"), "target")) for t, d in points),
+                     key=lambda p: p[0])
         self.points = pts
 
     @classmethod
@@ -343,7 +373,7 @@ class _CallableReference(Reference):
         self.points = []
 
     def at(self, t_h: float) -> dict[str, float]:
-        return check_target_dict(dict(self.fn(t_h) or {}), "target")
+        return check_target_dict(_no_text(dict(self.fn(t_h) or {}), "target"), "target")
 
     def keys(self) -> list[str]:
         return list(TARGET_KEYS)
@@ -352,9 +382,46 @@ class _CallableReference(Reference):
         return True
 
 
+#: what a number given from Python may not be: text (``"55"`` is not read as 55) and flags
+#: (``float(True)`` is 1.0)
+NOT_NUMBERS = (str, bytes, bytearray, bool, np.bool_)
+
+
+def _no_text(target: dict, source: str) -> dict:
+    """``target`` unchanged, or an InputError for a value of a known key (or an entry of its window)
+    that is text or a flag (:func:`bmctl.control.config.target_value` would read ``"25"`` as 25).
+
+    >>> _no_text({"s_mean_um": 25.0, "r_mean": [0.1, 0.2]}, "target")
+    {'s_mean_um': 25.0, 'r_mean': [0.1, 0.2]}
+    >>> _no_text({"s_mean_um": "25"}, "target")
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: target: s_mean_um: not a number: '25'
+    """
+    for k, v in target.items():
+        entries = v if isinstance(v, (list, tuple)) else (v,)
+        if k in TARGET_KEYS and any(isinstance(x, NOT_NUMBERS) for x in entries):
+            raise InputError(f"{source}: {k}: not a number: {quote(v)}")
+    return target
+
+
+def _from_h(t) -> float:
+    """A reference point's start time (h): a number (text and flags refused), as ``float`` reads it."""
+    if isinstance(t, NOT_NUMBERS):
+        raise InputError(f"target: from_h: not a number: {quote(t)}")
+    return float(t)
+
+
 def batch_end_h(t_end_h) -> float:
-    """A validated batch end (h) for ``set_target(..., t_end_h)``: finite and > 0."""
-    if not (math.isfinite(t_end_h) and t_end_h > 0):
+    """A validated batch end (h) for ``set_target(..., t_end_h)``: a finite number > 0 (not text,
+    not a flag), else an InputError naming ``t_end_h``."""
+    if isinstance(t_end_h, NOT_NUMBERS):
+        raise InputError(f"t_end_h: must be a finite number > 0 (got {quote(t_end_h)})")
+    try:
+        ok = math.isfinite(t_end_h) and t_end_h > 0
+    except (TypeError, ValueError):
+        raise InputError(f"t_end_h: must be a finite number > 0 (got {quote(t_end_h)})") from None
+    if not ok:
         raise InputError(f"t_end_h: must be a finite number > 0 (got {t_end_h})")
     return float(t_end_h)
 
