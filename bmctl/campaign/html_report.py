@@ -160,6 +160,9 @@ YLABELS = {"s_mean_um": "s (µm)", "s_std_um": "std of s (µm)", "r_mean": "r", 
 PRIOR_LABEL = "prior at 0 h (the card's powder)"
 #: share of the batch added each side of a time axis, so that markers at 0 h and at the batch end show whole
 TIME_MARGIN = 0.02
+#: the estimate's markers are drawn above the readings, the samples and the prior, and smaller than
+#: they are (those hollow), so that where an estimate and a reading nearly coincide both show
+ESTIMATE_Z, MEASURED_Z = 4, 3
 
 
 def _time_axis(ax, hours: float, times=()) -> None:
@@ -188,21 +191,21 @@ def _over_time(ax, nodes: list[tuple[float, dict]], k: str, prior: bool) -> None
     only_prior = prior and t.size == 1
     if np.unique(t).size > 1:
         ax.fill_between(t, lo, hi, color="C0", alpha=0.25, lw=0, label="estimate, 90 % interval")
-        ax.plot(t, m, "C0-o", ms=3, label="estimate (mean)")
+        ax.plot(t, m, "C0-o", ms=3, zorder=ESTIMATE_Z, label="estimate (mean)")
         i = 1 if prior else 0  # the logged nodes
         if np.unique(t[i:]).size == 1:  # all at one time: the band is a thin wedge from the prior, so bars too
             ax.errorbar(t[i:], m[i:], yerr=np.clip([m[i:] - lo[i:], hi[i:] - m[i:]], 0.0, None), fmt="none",
-                        ecolor="C0", capsize=4, lw=1.2)
+                        ecolor="C0", capsize=4, lw=1.2, zorder=ESTIMATE_Z)
     else:
         err = np.clip([m - lo, hi - m], 0.0, None)  # a mean on a zero-width interval: no negative bar
         if only_prior:
-            ax.errorbar(t, m, yerr=err, fmt="s", color="C0", mfc="white", ms=6, mew=1.3, capsize=4, lw=1.2,
-                        label=f"{PRIOR_LABEL}, mean and 90 % interval")
+            ax.errorbar(t, m, yerr=err, fmt="s", color="C0", mfc="none", ms=6, mew=1.3, capsize=4, lw=1.2,
+                        zorder=MEASURED_Z, label=f"{PRIOR_LABEL}, mean and 90 % interval")
             return
-        ax.errorbar(t, m, yerr=err, fmt="o", color="C0", ms=4, capsize=4, lw=1.2,
+        ax.errorbar(t, m, yerr=err, fmt="o", color="C0", ms=4, capsize=4, lw=1.2, zorder=ESTIMATE_Z,
                     label="estimate, mean and 90 % interval")
-    if prior:
-        ax.plot(t[:1], m[:1], "s", color="C0", mfc="white", ms=6, mew=1.3, zorder=3, label=PRIOR_LABEL)
+    if prior:  # hollow and under the estimate: an estimate at 0 h (a sample of the feed) shows inside it
+        ax.plot(t[:1], m[:1], "s", color="C0", mfc="none", ms=6, mew=1.3, zorder=MEASURED_Z, label=PRIOR_LABEL)
 
 
 def _fig_legend(fig, axes, ncol: int | None = None) -> None:
@@ -241,8 +244,8 @@ def figures(d: ReportData) -> dict[str, str]:
         if nodes:
             _over_time(ax, nodes, k, prior)
         if d.samples:
-            ax.plot([s["t_h"] for s in d.samples], [s["stats"][k] for s in d.samples], "kx", ms=7, mew=1.5,
-                    label="sample statistic (mean, std or D50, as titled)")
+            ax.plot([s["t_h"] for s in d.samples], [s["stats"][k] for s in d.samples], "kx", ms=8, mew=1.5,
+                    zorder=MEASURED_Z, label="sample statistic (mean, std or D50, as titled)")
         if k in target:
             ax.axhline(target[k], color="C3", ls="--", label="target")
         if not d.nodes and not d.samples:
@@ -285,6 +288,7 @@ def figures(d: ReportData) -> dict[str, str]:
         ax.plot([], [], color="C2", lw=6, alpha=0.5, label="milled (logged; gaps are rests)")
     cmap = plt.get_cmap("viridis")
     plan_times: list[float] = []
+    drawn_rpm = [float(a.rpm) for a in d.actions if a.milling > 0 and a.rpm > 0]
     for i, p in enumerate(d.plans):
         rows = p["advice"].get("schedule", [])
         if not rows:
@@ -298,8 +302,11 @@ def figures(d: ReportData) -> dict[str, str]:
         nx = p["advice"]["next"]
         ax.plot([p["t_h"]], [nx["rpm"]], "v", color="C3", ms=7, label="recommended next" if first else None)
         plan_times += ts + [p["t_h"]]
+        drawn_rpm += [float(x) for x in rpm] + [float(nx["rpm"])]
+    # from 0 (a rest), also where only plans are drawn: a plan at one speed made an axis of 285-315 rpm
+    top = max(drawn_rpm, default=0.0)
+    ax.set_ylim(0, 1.05 * (top if top > 0 else d.rpm_max))
     if not d.actions and not plan_times:
-        ax.set_ylim(0, 1.05 * d.rpm_max)
         _note(ax, "nothing logged or advised yet")
     _time_axis(ax, H, times + plan_times)
     ax.set_ylabel("rpm"), ax.grid(alpha=0.3)
@@ -315,9 +322,11 @@ def figures(d: ReportData) -> dict[str, str]:
         ty = np.array(d.temps, dtype=float)
         over = ty[:, 1] > (d.ceiling_c if d.ceiling_c is not None else np.inf)
         if (~over).any():
-            ax.plot(ty[~over, 0], ty[~over, 1], "o", color="C1", label="reading")
+            ax.plot(ty[~over, 0], ty[~over, 1], "o", color="C1", mfc="none", ms=8, mew=1.5, zorder=MEASURED_Z,
+                    label="reading")
         if over.any():
-            ax.plot(ty[over, 0], ty[over, 1], "X", color="C3", ms=9, label="reading above the ceiling")
+            ax.plot(ty[over, 0], ty[over, 1], "X", color="C3", mfc="none", ms=9, mew=1.5, zorder=MEASURED_Z,
+                    label="reading above the ceiling")
     else:
         _note(ax, "no reading logged yet" if d.nodes else "nothing logged yet")
     if d.ceiling_c is not None:

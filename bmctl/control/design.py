@@ -44,6 +44,11 @@ class Design:
         The global search (its best row per family: ``search.per_family``).
     searched : PatternResult
         The search's answer: the best of its families' schedules integrated as written.
+    model : MomentModel or None
+        The moment model of the prediction; design.png draws its curves within each segment from it
+        (:func:`predicted_path`).
+    p : array_like or None
+        The model's (gamma_mult, delta_mult) of the prediction (None: (1, 1)).
     """
 
     card_name: str
@@ -63,6 +68,8 @@ class Design:
     search: object = None  # the global search's SearchResult
     searched: object = None  # the search's best schedule as written (a PatternResult)
     plant: dict | None = None  # the plant check (:func:`plant_check`), when run
+    model: object = None  # the moment model predicted with (the figure's curves within segments)
+    p: object = None  # its (gamma_mult, delta_mult); None for (1, 1)
 
     @property
     def times_h(self) -> np.ndarray:
@@ -476,6 +483,7 @@ def design_schedule(model, target: dict, hours: float, cfg: MPCConfig, p=None, o
     d.local = res_l
     d.search = sr
     d.searched = searched.best
+    d.model, d.p = model, p
     return d
 
 
@@ -771,9 +779,65 @@ def predicted_csv(d: Design) -> str:
     return csv_text(header, rows)
 
 
+#: points of design.png's predicted curves over the batch (at least; every segment end is one)
+FIGURE_POINTS = 300
+
+
+def predicted_path(d: Design, points: int = FIGURE_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """The moment-model prediction within each segment, as design.png draws it.
+
+    Each segment is integrated from its start state in pieces of whole substeps of
+    :func:`simulate_segments`'s own integration (the same substeps and stages, so the pieces add up
+    to the segment as predicted); a rest in pieces of about ``end / points``. Without the model
+    (``d.model`` None) only the segment ends are known.
+
+    Parameters
+    ----------
+    d : Design
+    points : int, optional
+        About how many points over the batch.
+
+    Returns
+    -------
+    t : ndarray, (N,)
+        Batch times (h), every segment end among them.
+    X : ndarray, (N, 6)
+        States at ``t``; ``d.X`` exactly at the segment ends.
+    """
+    t_end = d.times_h
+    X_end = np.asarray(d.X, dtype=float)
+    if d.model is None:
+        return t_end, X_end
+    from ..moments.model import n_substeps
+
+    pp = d.model.p0() if d.p is None else np.asarray(d.p, dtype=float)
+    dt = max(float(d.hours), float(t_end[-1])) / max(int(points), 1)
+    ts, xs = [float(t_end[0])], [X_end[0]]
+    for k, (h, _) in enumerate(d.segments):
+        h, u = float(h), np.asarray(d.U[k], dtype=float)
+        if u[0] > 0 and u[1] > 0:  # milling: pieces of whole substeps of the segment's own integration
+            n = max(n_substeps(h), MILLING_SUBSTEPS_MIN)  # as simulate_segments integrates it
+            q = max(1, int(dt / (h / n)))
+            sizes = [q] * (n // q) + ([n % q] if n % q else [])
+        else:  # a rest: the powder is unchanged, the temperature exact over any piece
+            sizes = [1] * max(1, int(math.ceil(h / dt - 1e-9)))
+            n = len(sizes)
+        x, t = X_end[k], float(t_end[k])
+        for m in sizes[:-1]:
+            x = np.asarray(d.model.step(x, u, m * h / n, pp, substeps=m), dtype=float)
+            t += m * h / n
+            ts.append(t)
+            xs.append(x)
+        ts.append(float(t_end[k + 1]))  # the last piece's end: the segment's state as predicted
+        xs.append(X_end[k + 1])
+    return np.asarray(ts), np.vstack(xs)
+
+
 def design_figure(d: Design, path: Path) -> None:
     """Schedule (rpm per segment, rests shaded), size moments and D50 (µm), span, r, vial temperature,
-    over the batch designed for (0 to ``d.hours``, also where the schedule is done earlier)."""
+    over the batch designed for (0 to ``d.hours``, also where the schedule is done earlier); the
+    predicted curves run through each segment (:func:`predicted_path`), not straight from one
+    segment end to the next."""
     from ..io import pyplot, savefig
     from ..plots import R_LABEL, quantity_label
     from .config import target_bounds
@@ -782,7 +846,8 @@ def design_figure(d: Design, path: Path) -> None:
     plt = pyplot()
     t = d.times_h
     end = max(float(d.hours), float(t[-1]))
-    X = d.X
+    tp, X = predicted_path(d)  # the curves; t, d.X: the segment ends (the schedule and predicted.csv)
+    within = d.model is not None
     d50 = np.asarray(output_values(X, ["d50_um"])[0], dtype=float)
     sizes = (("s_mean_um", X[:, 0]), ("s_std_um", X[:, 1]), ("d50_um", d50))
     if "d90_um" in d.target:  # drawn with its target line, as the other sizes
@@ -801,7 +866,8 @@ def design_figure(d: Design, path: Path) -> None:
     ph, rpm_h, leg_row = 2.05, 1.45, 0.165
     rows = [max(n_entries(sizes), n_entries(span)), max(n_entries(shape), 2)]
     leg = [0.12 + leg_row * int(np.ceil(n / 2)) for n in rows]
-    heights = [0.55, 0.3, rpm_h, 0.2 + leg[0], ph, 0.2 + leg[1], ph, 0.55]
+    # the rpm panel keeps its time labels: it is twice as wide as the panels below, whose labels do not fit it
+    heights = [0.55, 0.3, rpm_h, 0.45 + leg[0], ph, 0.2 + leg[1], ph, 0.55]
     H = sum(heights)
     fig = plt.figure(figsize=(W, H))
 
@@ -840,11 +906,13 @@ def design_figure(d: Design, path: Path) -> None:
     h, lab = ax.get_legend_handles_labels()
     ax.legend(h[-1:] + h[:-1], lab[-1:] + lab[:-1], fontsize=7.5, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=3,
               frameon=False, borderaxespad=0.2)
+    # without the model, only the segment ends are predicted: marked, the lines between them only join them
+    style = {} if within else {"marker": "o", "ms": 3}
     for ax, series, lab in ((ax_size, sizes, "particle size s (µm)"), (ax_span, span, quantity_label("span")),
                             (ax_r, shape, R_LABEL)):
         for key, yv in series:
             name = "predicted span" if key == "span" else quantity_label(key)
-            line, = ax.plot(t, yv, label=name)
+            line, = ax.plot(tp, yv, label=name, **style)
             if key in d.target:
                 name = "span" if key == "span" else name
                 lo, hi = target_bounds(d.target[key])
@@ -854,7 +922,8 @@ def design_figure(d: Design, path: Path) -> None:
                     ax.axhline(lo, color=line.get_color(), ls="--", lw=1, label=f"target {name}")
         ax.set_ylabel(lab)
     ax = ax_temp
-    ax.plot(t, X[:, 4], color="tab:red", label="vial temperature at segment ends")
+    ax.plot(tp, X[:, 4], color="tab:red", label="vial temperature" if within else "vial temperature at segment ends",
+            **style)
     ax.axhline(d.ceiling_c, color="k", ls="--", lw=1, label=f"ceiling {d.ceiling_c:g} °C")
     ax.set_ylabel("vial temperature (°C)")
     for ax in (ax_size, ax_span, ax_r, ax_temp):  # only the curves and targets: the shading is explained above
@@ -862,7 +931,7 @@ def design_figure(d: Design, path: Path) -> None:
         keep = [i for i, s in enumerate(lab) if not s.startswith(("rest", "schedule done"))]
         ax.legend([h[i] for i in keep], [lab[i] for i in keep], fontsize=7.5, loc="lower left",
                   bbox_to_anchor=(0.0, 1.0), ncol=2, frameon=False, borderaxespad=0.2)
-    for ax in (ax_rpm, ax_size, ax_span):
+    for ax in (ax_size, ax_span):
         ax.tick_params(labelbottom=False)
     for ax in (ax_r, ax_temp):
         ax.set_xlabel("batch time t (h)")
