@@ -109,12 +109,12 @@ def campaign(tmp_path_factory):
 
 
 @pytest.mark.parametrize("verb,kw,name", [
-    ("log", {"rpm": "300", "hours": 0.5}, "--rpm"), ("log", {"rpm": 300.0, "hours": True}, "--hours"),
-    ("log", {"rpm": 300.0, "hours": 0.5, "milling": "1"}, "--milling"),
-    ("log", {"rpm": 300.0, "hours": 0.5, "temperature_c": b"40"}, "--temperature-c"),
-    ("log", {"rpm": 300.0, "hours": 0.5, "from_h": "0"}, "--from-h"),
-    ("sample", {"at_h": "0.5", "inputs": [ROOT / "examples" / "samples" / "lab-300rpm-0p5h.csv"]}, "--at-h"),
-    ("decide", {"accept": False, "rpm": "250"}, "--rpm")])
+    ("log", {"rpm": "300", "hours": 0.5}, "rpm"), ("log", {"rpm": 300.0, "hours": True}, "hours"),
+    ("log", {"rpm": 300.0, "hours": 0.5, "milling": "1"}, "milling"),
+    ("log", {"rpm": 300.0, "hours": 0.5, "temperature_c": b"40"}, "temperature_c"),
+    ("log", {"rpm": 300.0, "hours": 0.5, "from_h": "0"}, "from_h"),
+    ("sample", {"at_h": "0.5", "inputs": [ROOT / "examples" / "samples" / "lab-300rpm-0p5h.csv"]}, "at_h"),
+    ("decide", {"accept": False, "rpm": "250"}, "rpm")])
 def test_verbs_refuse_numbers_given_as_text_or_flags(campaign, verb, kw, name):
     """The verbs read ``"300"`` as 300 and ``hours=True`` as one hour; nothing is recorded now."""
     with pytest.raises(InputError, match=rf"^{name}: not a number \("):
@@ -122,7 +122,7 @@ def test_verbs_refuse_numbers_given_as_text_or_flags(campaign, verb, kw, name):
     assert cp.status(campaign)["counts"]["actions"] == 0 and cp.status(campaign)["counts"]["samples"] == 0
 
 
-@pytest.mark.parametrize("kw,name", [({"hours": "2"}, "--hours"), ({"temperature_max_c": True}, "--temperature-max-c")])
+@pytest.mark.parametrize("kw,name", [({"hours": "2"}, "hours"), ({"temperature_max_c": True}, "temperature_max_c")])
 def test_init_refuses_numbers_given_as_text_or_flags(tmp_path, kw, name):
     d = tmp_path / "c"
     with pytest.raises(InputError, match=rf"^{name}: not a number \("):

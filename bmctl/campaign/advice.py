@@ -29,18 +29,21 @@ def _band_indices(w: np.ndarray, n: int) -> np.ndarray:
     return np.minimum(np.searchsorted(c, (np.arange(n) + 0.5) / n), w.size - 1)
 
 
-def _measure(inputs, um_per_px, accept_unusable: bool = False):
+def _measure(inputs, um_per_px, accept_unusable: bool = False, scale_name: str = "um_per_px",
+             accept_name: str = "accept_unusable=True"):
     """Pooled particle table, each particle's image, its position, per-input reports of images and
     tables (as ``bmctl measure``) and each input's particle count (in the order of ``inputs``).
 
     An image (or a table's image, by its ``measure.json``) with the verdict ``unusable`` is
     refused unless ``accept_unusable``; doubtful ones are listed in the reports' ``verdict_warnings``.
+    The messages name ``um_per_px`` as ``scale_name`` and the way to accept an unusable image as
+    ``accept_name`` (:func:`bmctl.campaign.workflow.arg`).
     """
     from ..measure.micrograph import check_verdicts, measure_micrograph, table_reports
     from ..measure.scale import check_scale
     from ..measure.tables import ParticleTable, read_locations, read_table
 
-    scale = check_scale(um_per_px) if um_per_px is not None else None
+    scale = check_scale(um_per_px, scale_name) if um_per_px is not None else None
     tables, images, xs, ys, reports, counts = [], [], [], [], [], []
     for item in inputs:
         if isinstance(item, ParticleTable):
@@ -53,14 +56,14 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False):
             where = read_locations(item, len(t))  # a table `bmctl measure` wrote: each particle's image and centroid
             side = table_reports(item)
             reports.append({"table": name, "count": len(t),
-                            "verdict_warnings": check_verdicts(side, accept_unusable, "--accept-unusable")})
+                            "verdict_warnings": check_verdicts(side, accept_unusable, accept_name)})
             if where is not None:
                 name, x, y = where
         else:
             res = measure_micrograph(item, um_per_px=scale)
             t, name, x, y = res.table, str(item), res.x_um, res.y_um
             rep = res.report()
-            rep["verdict_warnings"] = check_verdicts([rep], accept_unusable, "--accept-unusable")
+            rep["verdict_warnings"] = check_verdicts([rep], accept_unusable, accept_name)
             reports.append(rep)
         tables.append(t)
         counts.append(len(t))

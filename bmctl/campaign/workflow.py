@@ -36,6 +36,8 @@ import os
 import shutil
 import stat
 import time
+from collections.abc import Iterator, Mapping
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -69,6 +71,55 @@ MAX_HOURS = 1000.0
 
 
 # --- helpers -------------------------------------------------------------------------------------
+#: how the verbs' messages name their arguments (:func:`arg`): None as Python spells them, else a
+#: table {argument: name} that :func:`naming` sets (``bmctl campaign``: its flags)
+_NAMES: ContextVar[Mapping[str, str] | None] = ContextVar("bmctl_campaign_argument_names", default=None)
+
+
+def arg(name: str) -> str:
+    """An argument of a verb as the verb's messages name it: ``name``, as a Python caller spells it
+    (``"hours"``; a switch with its value, ``"accept=False"``), or within :func:`naming` the name
+    its table gives (``bmctl campaign``: the flag, ``"--hours"``, ``"--reject"``).
+
+    Parameters
+    ----------
+    name : str
+        The argument as a Python caller spells it.
+
+    Returns
+    -------
+    str
+        How the message names it.
+
+    Examples
+    --------
+    >>> arg("temperature_max_c")
+    'temperature_max_c'
+    >>> with naming({"temperature_max_c": "--temperature-max-c"}):
+    ...     arg("temperature_max_c")
+    '--temperature-max-c'
+    """
+    names = _NAMES.get()
+    return name if names is None else names.get(name, name)
+
+
+@contextlib.contextmanager
+def naming(names: Mapping[str, str]) -> Iterator[None]:
+    """Within the block, the verbs' messages name each argument by ``names`` (:func:`arg`; one it
+    does not hold as Python spells it); ``bmctl campaign`` runs its verbs so, naming its flags.
+
+    Parameters
+    ----------
+    names : mapping of str to str
+        ``{argument: name}``, the argument as :func:`arg` takes it.
+    """
+    token = _NAMES.set(dict(names))
+    try:
+        yield
+    finally:
+        _NAMES.reset(token)
+
+
 def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -486,25 +537,25 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
 
         check_rpm_range(cfg, float(card.mill.rpm_max))
     for_card(card_p, identify=identify, progress=progress)  # the card's own coefficients, or refuse
-    # the argument is named `target` (the command parses --target itself and passes the dict)
-    tgt = tg.parse(target, "target") if isinstance(target, str) else tg.check(target, "target")
+    # the messages name the argument, `target` (the command parses --target itself and passes the dict)
+    tgt = tg.parse(target, arg("target")) if isinstance(target, str) else tg.check(target, arg("target"))
     if not tgt and cfg.kind != "recipe":
-        raise InputError(f"target: a feedback controller ({cfg.kind}) needs a target")
+        raise InputError(f"{arg('target')}: a feedback controller ({cfg.kind}) needs a target")
     if cfg.kind == "lqr" and all(k in TARGET_KEYS for k in tgt):  # one the LQR cannot track: refused now
-        check_lqr_track(cfg.lqr.track, tgt, "--target", str(ctrl_p))
-    H = float(card.process.hours) if hours is None else _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)
+        check_lqr_track(cfg.lqr.track, tgt, arg("target"), str(ctrl_p))
+    H = float(card.process.hours) if hours is None else _finite(hours, arg("hours"), HOURS_MIN, MAX_HOURS)
     from ..control.design import check_batch
 
     # as `bmctl design --hours` and a trial's hours: a batch under the mill's minimum milling period is no batch
-    check_batch(H, cfg, "target", "--hours" if hours is not None else f"{card_p}: process.hours", str(ctrl_p))
-    Tmax = None if temperature_max_c is None else _finite(temperature_max_c, "--temperature-max-c", -50, 400)
+    check_batch(H, cfg, "target", arg("hours") if hours is not None else f"{card_p}: process.hours", str(ctrl_p))
+    Tmax = None if temperature_max_c is None else _finite(temperature_max_c, arg("temperature_max_c"), -50, 400)
     if Tmax is not None and Tmax <= card.thermal.ambient_C:
-        raise InputError(f"--temperature-max-c: {Tmax:g} °C is not above the card's ambient temperature "
+        raise InputError(f"{arg('temperature_max_c')}: {Tmax:g} °C is not above the card's ambient temperature "
                          f"(thermal.ambient_C = {card.thermal.ambient_C:g} °C): a resting vial is already at the ambient")
     if Tmax is None:
         check_ceiling(cfg, card, str(ctrl_p))
     if int(particles) < 50:
-        raise InputError(f"--particles: must be >= 50 (got {particles})")
+        raise InputError(f"{arg('particles')}: must be >= 50 (got {particles})")
     if estimator is not None:
         _filter_settings(estimator, int(particles), "estimator")
     folder = Path(folder)
@@ -665,9 +716,9 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
         interval's start was followed), ``warnings`` (the reading above the ceiling or far from the
         estimate; the estimate above the ceiling) and the new ``estimate``.
     """
-    rpm = _finite(rpm, "--rpm", 0)
-    hours = _finite(hours, "--hours", HOURS_MIN, MAX_HOURS)  # one second at least (bmctl.limits)
-    milling = _finite(milling, "--milling", 0, 1)
+    rpm = _finite(rpm, arg("rpm"), 0)
+    hours = _finite(hours, arg("hours"), HOURS_MIN, MAX_HOURS)  # one second at least (bmctl.limits)
+    milling = _finite(milling, arg("milling"), 0, 1)
     if rpm == 0 or milling == 0:  # a rest: the mill stood still for the whole interval
         rpm, milling = 0.0, 0.0
     # as a schedule file's share: no milling or rest phase under 6 s; a phase under EPS_H (microseconds)
@@ -675,25 +726,27 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
     share = milling if min(milling, 1.0 - milling) * hours >= EPS_H else float(round(milling))
     why = short_phase(hours, rpm, share, "interval")
     if why:
-        raise InputError(f"--milling {milling:.12g} of --hours {hours:.12g}: {why}")
-    T = None if temperature_c is None else _finite(temperature_c, "--temperature-c", -50, 400)
+        raise InputError(f"{arg('milling')} {milling:.12g} of {arg('hours')} {hours:.12g}: {why}")
+    T = None if temperature_c is None else _finite(temperature_c, arg("temperature_c"), -50, 400)
     c = campaign or Campaign(folder)
     try:
         if rpm > c.rpm_max():
-            raise InputError(f"--rpm {rpm:.12g}: above the mill's rpm_max ({c.rpm_max():g}) in the campaign's card")
+            raise InputError(f"{arg('rpm')} {rpm:.12g}: above the mill's rpm_max ({c.rpm_max():g}) in the "
+                             "campaign's card")
         with db.transaction(c.con, where=str(folder)):
             clock = c.clock_h()
-            t0 = clock if from_h is None else _finite(from_h, "--from-h", 0)
+            t0 = clock if from_h is None else _finite(from_h, arg("from_h"), 0)
             if t0 < clock - EPS_H:
-                raise InputError(f"--from-h {t0:g}: overlaps the logged interval ending at {clock:g} h "
+                raise InputError(f"{arg('from_h')} {t0:g}: overlaps the logged interval ending at {clock:g} h "
                                  "(time going backwards); the log is append-only")
             if t0 > clock + EPS_H:
-                raise InputError(f"--from-h {t0:g}: leaves a gap after {clock:g} h; log what the mill did from "
-                                 f"{clock:g} h first (a rest is --rpm 0)")
+                raise InputError(f"{arg('from_h')} {t0:g}: leaves a gap after {clock:g} h; log what the mill did "
+                                 f"from {clock:g} h first (a rest is {arg('rpm')} 0)")
             t0 = clock
             t1 = t0 + hours
             if t1 > c.meta["hours"] + 1e-6:
-                raise InputError(f"--hours {hours:g}: ends at {t1:g} h, after the batch end ({c.meta['hours']:g} h)")
+                raise InputError(f"{arg('hours')} {hours:g}: ends at {t1:g} h, after the batch end "
+                                 f"({c.meta['hours']:g} h)")
             pid, dev = _deviation(c, t0, rpm, milling, hours)
             cur = c.con.execute("INSERT INTO actions (t0_h, t1_h, hours, rpm, milling, plan_id, deviation, logged_at)"
                                 " VALUES (?, ?, ?, ?, ?, ?, ?, ?)", (t0, t1, hours, rpm, milling, pid, dev, db.now()))
@@ -744,7 +797,7 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
     SHA-256, ``sample_inputs``), or whose particles are a stored sample's or part of one, is
     refused: it would read as a sample larger than it is.
     """
-    at_h = _finite(at_h, "--at-h", 0)
+    at_h = _finite(at_h, arg("at_h"), 0)
     if not inputs:
         raise InputError("sample: give at least one image or particle table")
     inputs = list(inputs)
@@ -754,11 +807,12 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
     if campaign is None:  # a campaign this user may not record to: refused before the images are measured
         db.refuse_read_only(folder)
     # before the lock: may take seconds
-    table, images, x, y, reports, counts = _measure(inputs, um_per_px, accept_unusable)
+    table, images, x, y, reports, counts = _measure(inputs, um_per_px, accept_unusable, arg("um_per_px"),
+                                                       arg("accept_unusable=True"))
     c = campaign or Campaign(folder)
     try:
         if at_h > c.meta["hours"] + 1e-6:
-            raise InputError(f"--at-h {at_h:g}: after the batch end ({c.meta['hours']:g} h)")
+            raise InputError(f"{arg('at_h')} {at_h:g}: after the batch end ({c.meta['hours']:g} h)")
         with db.transaction(c.con, where=str(folder)):
             db.upgrade(c.con)  # a version-1 campaign gets sample_inputs (rolled back if refused below)
             _refuse_stored_table(c, table, inputs)
@@ -1189,13 +1243,15 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
         on the same advice, which this one replaces).
     """
     if accept and (rpm is not None or milling is not None):
-        raise InputError("decide: --rpm/--milling go with --reject (an accepted advice is run as recommended)")
-    rpm = None if rpm is None else _finite(rpm, "--rpm", 0)
-    milling = None if milling is None else _finite(milling, "--milling", 0, 1)
+        raise InputError(f"decide: {arg('rpm')}/{arg('milling')} go with {arg('accept=False')} (an accepted advice "
+                         "is run as recommended)")
+    rpm = None if rpm is None else _finite(rpm, arg("rpm"), 0)
+    milling = None if milling is None else _finite(milling, arg("milling"), 0, 1)
     c = campaign or Campaign(folder)
     try:
         if rpm is not None and rpm > c.rpm_max():
-            raise InputError(f"--rpm {rpm:.12g}: above the mill's rpm_max ({c.rpm_max():g}) in the campaign's card")
+            raise InputError(f"{arg('rpm')} {rpm:.12g}: above the mill's rpm_max ({c.rpm_max():g}) in the "
+                             "campaign's card")
         with db.transaction(c.con, where=str(folder)):
             plan = c.latest_plan()
             clock = c.clock_h()
@@ -1274,16 +1330,17 @@ def _latest_advice(plan, clock: float) -> dict:
             "current": abs(plan[1] - clock) < 1e-6, **{k: nx[k] for k in ("interval_h", "mill_min", "rest_min")}}
 
 
-def _not_a_campaign_file(folder, dest: Path, flag: str) -> None:
+def _not_a_campaign_file(folder, dest: Path, name: str) -> None:
     """Refuse an output that would replace the campaign's database (or its journal) or one of the
-    input copies under ``DIR/inputs`` (later verbs check those copies and would refuse the campaign)."""
+    input copies under ``DIR/inputs`` (later verbs check those copies and would refuse the campaign);
+    the message names ``name`` first."""
     real = Path(os.path.realpath(dest))
     base = Path(os.path.realpath(folder))
     inputs = base / "inputs"
     dbfile = Path(os.path.realpath(db.db_path(folder)))
     if real == dbfile or real.name.startswith(dbfile.name) and real.parent == dbfile.parent \
             or inputs == real or inputs in real.parents:
-        raise InputError(f"{flag}: {dest} is the campaign's own file (its database or an input copy); "
+        raise InputError(f"{name}: {dest} is the campaign's own file (its database or an input copy); "
                          "choose another path")
 
 
@@ -1306,7 +1363,7 @@ def report(folder, out=None, campaign: Campaign | None = None) -> Path:
     from .html_report import write_report
 
     dest = Path(out) if out else Path(folder) / "report.html"
-    _not_a_campaign_file(folder, dest, "--out")
+    _not_a_campaign_file(folder, dest, arg("out"))
     c = campaign or Campaign(folder, read_only=True)
     try:
         with db.transaction(c.con, write=False, where=str(folder)):
