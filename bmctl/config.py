@@ -84,7 +84,12 @@ class Strict(BaseModel):
     """Base: unknown keys are errors, values are validated on assignment, and numbers must be
     numbers (strict mode: no string or boolean coercion; an integer is accepted for a float,
     as TOML writes 300 for 300.0). Text is one line (no control characters) of at most
-    :data:`TEXT_MAX_CHARS` characters."""
+    :data:`TEXT_MAX_CHARS` characters.
+
+    Built directly (``FilterSettings(n_particle=100)``) a bad setting raises pydantic's
+    ``ValidationError``; :func:`validate` (``validate(FilterSettings, {"n_particle": 100},
+    "settings")``) raises the one-line :class:`bmctl.errors.InputError` the command line prints,
+    naming the field ("settings: n_particle: unknown field (did you mean n_particles?)")."""
 
     model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False, strict=True,
                               str_max_length=TEXT_MAX_CHARS)
