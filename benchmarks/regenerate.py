@@ -222,6 +222,13 @@ REGISTRY: tuple[Study, ...] = (
     Study("hidden_mills_1to3_seed1", "python benchmarks/hidden_mills.py --card models/alni-1to3-300rpm-hadjiafxenti.toml "
           "--mills benchmarks/mills-1to3.toml --cases Y1,Y2,Y3,Y4,Y5,Y6 --seed 1 --results-name hidden_mills_1to3_seed1",
           8),
+    Study("hidden_mills_atsample_seed1_all", "python benchmarks/hidden_mills.py --cases A,B,C,D,E,F,G --seed 1 "
+          "--moment-noise-at sample --results-name hidden_mills_atsample_seed1_all", 17),
+    Study("hidden_mills_atsample_unseen", "python benchmarks/hidden_mills.py --mills benchmarks/mills-unseen.toml "
+          "--cases M,N,O,P,Q,R,S --seed 0 --moment-noise-at sample --results-name hidden_mills_atsample_unseen", 17),
+    Study("hidden_mills_atsample_fields_seed1", "python benchmarks/hidden_mills.py --mills benchmarks/mills-fields.toml "
+          "--cases V1,V2,V3,V4,V5,V6 --seed 1 --moment-noise-at sample --results-name hidden_mills_atsample_fields_seed1",
+          11),
     # reads the default, the 1000-particle and the on-request hidden-mill files above
     Study("hidden_mills_floor", "python benchmarks/hidden_mills_floor.py", 0.1),
     Study("estimate_replay", "python benchmarks/estimate_replay.py", 20),
