@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from .campaign.test_report_figures_edges import _figures
+
 ROOT = Path(__file__).resolve().parents[1]
 CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
 RECIPE = ROOT / "controllers" / "recipe-300rpm-continuous.toml"
@@ -191,22 +193,6 @@ def campaigns(tmp_path_factory):
     return {"one": one, "feed": feed}
 
 
-def _report_figures(folder, monkeypatch):
-    from bmctl.campaign import db
-    from bmctl.campaign import html_report as hr
-    from bmctl.campaign.workflow import Campaign
-
-    c = Campaign(folder, read_only=True)
-    try:
-        with db.transaction(c.con, write=False, where=str(folder)):
-            d = hr.ReportData(c)
-    finally:
-        c.close()
-    figs: list = []
-    monkeypatch.setattr(hr, "_png", lambda fig: figs.append(fig) or str(len(figs) - 1))
-    return {k: figs[int(v)] for k, v in hr.figures(d).items()}, d
-
-
 def _markers(ax) -> list[tuple[str, object]]:
     """(label, Line2D) of every line with a marker; an error bar's markers under its container's label."""
     out = []
@@ -244,7 +230,7 @@ def _check_estimate_over(ax, t: float, others: tuple[str, ...]) -> int:
 def test_report_estimate_shows_over_the_sample_and_the_reading(campaigns, monkeypatch, close_figures):
     """After one logged interval with a reading and a sample at its end, the estimate's dot at 0.5 h sat
     under the sample's cross and under the reading's disc (same zorder, drawn later)."""
-    figs, d = _report_figures(campaigns["one"], monkeypatch)
+    figs, d = _figures(campaigns["one"], monkeypatch)
     t1 = d.nodes[-1][0]
     for ax in figs["estimate"].axes:
         assert _check_estimate_over(ax, t1, ("sample statistic",)) == 1, ax.get_title()
@@ -257,7 +243,7 @@ def test_report_estimate_shows_over_the_sample_and_the_reading(campaigns, monkey
 def test_report_feed_sample_shows_the_estimate_over_the_prior(campaigns, monkeypatch, close_figures):
     """A sample at 0 h only: the prior's square (filled white, drawn above) hid the estimate at 0 h
     where the sample leaves it unchanged (the vial temperature)."""
-    figs, d = _report_figures(campaigns["feed"], monkeypatch)
+    figs, d = _figures(campaigns["feed"], monkeypatch)
     assert {t for t, _ in d.nodes} == {0.0}
     for ax in figs["estimate"].axes:
         assert _check_estimate_over(ax, 0.0, ("prior", "sample statistic")) == 2, ax.get_title()
@@ -271,7 +257,7 @@ def test_report_feed_sample_shows_the_estimate_over_the_prior(campaigns, monkeyp
 
 def test_report_plan_axis_starts_at_0_rpm_with_only_a_plan(campaigns, monkeypatch, close_figures):
     """Nothing logged, one advice at 300 rpm: the rpm axis ran 285-315, hiding that 0 is a rest."""
-    figs, d = _report_figures(campaigns["feed"], monkeypatch)
+    figs, d = _figures(campaigns["feed"], monkeypatch)
     assert not d.actions and d.plans
     ax = figs["actions"].axes[0]
     lo, hi = ax.get_ylim()
