@@ -32,6 +32,7 @@ import contextlib
 import hashlib
 import json
 import math
+import numbers
 import os
 import shutil
 import stat
@@ -68,6 +69,8 @@ EPS_H = 1e-9
 INPUTS = "inputs"
 #: the longest batch a campaign may plan (h), as ``bmctl design --hours``
 MAX_HOURS = 1000.0
+#: the filter particles a campaign may run, as ``bmctl campaign init --particles``
+PARTICLES_RANGE = (50, 200_000)
 
 
 # --- helpers -------------------------------------------------------------------------------------
@@ -143,6 +146,26 @@ def _finite(v, name: str, lo: float | None = None, hi: float | None = None, stri
     return x
 
 
+def _whole(v, name: str, lo: int, hi: int | None = None) -> int:
+    """A whole-number argument of a verb within [lo, hi] (``hi`` None: no upper bound), as an int,
+    else a one-line InputError naming ``name``. An integral float (``1000.0``) is its integer; text,
+    flags and other fractions are refused (``int`` reads ``"3"`` as 3, ``True`` as 1, cuts ``50.7``)."""
+    if isinstance(v, tg.NOT_NUMBERS):
+        raise InputError(f"{name}: not a whole number ({quote(v)})")
+    if isinstance(v, numbers.Integral):
+        n = int(v)
+    elif isinstance(v, numbers.Real) and math.isfinite(float(v)) and float(v).is_integer():
+        n = int(v)
+    else:
+        raise InputError(f"{name}: not a whole number ({v!r})")
+    span = "" if hi is None else f"; allowed: {lo} to {hi}"
+    if n < lo:
+        raise InputError(f"{name}: must be >= {lo} (got {v}){span}")
+    if hi is not None and n > hi:
+        raise InputError(f"{name}: must be <= {hi} (got {v}){span}")
+    return n
+
+
 def _check_meta(meta: dict, where: str) -> dict:
     """The campaign's meta data, each key of the type and range ``init`` writes (else an InputError)."""
     def bad(key, why):
@@ -160,9 +183,9 @@ def _check_meta(meta: dict, where: str) -> dict:
         raise bad("temperature_max_c", f"{T!r} is not a ceiling in [-50, 400] °C")
     if not isinstance(meta["seed"], int) or isinstance(meta["seed"], bool) or meta["seed"] < 0:
         raise bad("seed", f"{meta['seed']!r} is not a seed")
-    n = meta["particles"]
-    if not isinstance(n, int) or isinstance(n, bool) or not 50 <= n <= 200_000:
-        raise bad("particles", f"{n!r} is not a particle count in [50, 200000]")
+    n, (lo, hi) = meta["particles"], PARTICLES_RANGE
+    if not isinstance(n, int) or isinstance(n, bool) or not lo <= n <= hi:
+        raise bad("particles", f"{n!r} is not a particle count in [{lo}, {hi}]")
     tgt = meta["target"]
     if not isinstance(tgt, dict) or any(k not in tg.known_keys() or not isinstance(v, num) or isinstance(v, bool)
                                         or not (math.isfinite(v) and v > 0) for k, v in tgt.items()):
@@ -507,9 +530,9 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
     temperature_max_c : float, optional
         Vial-temperature ceiling (default: the controller config's).
     seed : int, optional
-        Seed of the filter's generator.
+        Seed of the filter's generator, >= 0.
     particles : int, optional
-        Filter particles.
+        Filter particles, 50 to 200000 (:data:`PARTICLES_RANGE`, as ``--particles``).
     identify : bool, optional
         Identify the card's moment coefficients first when it has none of its own
         (:func:`bmctl.moments.for_card`); else such a card is refused.
@@ -523,7 +546,17 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
     -------
     dict
         The campaign's meta data.
+
+    Raises
+    ------
+    InputError
+        A bad argument, before anything is written. ``seed`` and ``particles`` are whole numbers
+        (an integral float such as ``1000.0`` is taken as its integer; text such as
+        ``"3"``, ``True``/``False`` and fractions such as ``50.7`` are refused).
     """
+    # the whole-number arguments first: cheap, and nothing (an identification included) runs on bad ones
+    seed = _whole(seed, arg("seed"), 0)
+    particles = _whole(particles, arg("particles"), *PARTICLES_RANGE)
     from ..config import load_card
     from ..control.config import TARGET_KEYS, check_ceiling, check_dwell_interval, check_lqr_track, load_controller
     from ..moments.coeffs import coeffs_path
@@ -554,10 +587,8 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
                          f"(thermal.ambient_C = {card.thermal.ambient_C:g} °C): a resting vial is already at the ambient")
     if Tmax is None:
         check_ceiling(cfg, card, str(ctrl_p))
-    if int(particles) < 50:
-        raise InputError(f"{arg('particles')}: must be >= 50 (got {particles})")
     if estimator is not None:
-        _filter_settings(estimator, int(particles), "estimator")
+        _filter_settings(estimator, particles, "estimator")
     folder = Path(folder)
     inp = folder / INPUTS
     made = [p for p in (folder, inp) if not p.exists()]
@@ -584,8 +615,8 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
                     shutil.copyfileobj(fh, out)
             meta = {"inputs": {k: {"source": str(src.resolve()), "file": str(dst.relative_to(folder)),
                                    "sha256": _sha(dst)} for k, (src, dst) in files.items()},
-                    "target": tgt, "hours": H, "temperature_max_c": Tmax, "seed": int(seed),
-                    "particles": int(particles), "estimator": dict(CAMPAIGN_FILTER if estimator is None else estimator),
+                    "target": tgt, "hours": H, "temperature_max_c": Tmax, "seed": seed,
+                    "particles": particles, "estimator": dict(CAMPAIGN_FILTER if estimator is None else estimator),
                     "controller_kind": cfg.kind, "created_at": db.now()}
             with db.transaction(con, where=str(folder)):
                 db.init_schema(con)
@@ -1330,16 +1361,19 @@ def _latest_advice(plan, clock: float) -> dict:
             "current": abs(plan[1] - clock) < 1e-6, **{k: nx[k] for k in ("interval_h", "mill_min", "rest_min")}}
 
 
-def _not_a_campaign_file(folder, dest: Path, name: str) -> None:
+def _not_a_campaign_file(folder, dest: Path, name: str | None) -> None:
     """Refuse an output that would replace the campaign's database (or its journal) or one of the
     input copies under ``DIR/inputs`` (later verbs check those copies and would refuse the campaign);
-    the message names ``name`` first."""
+    the message names ``name`` first, or (``name`` None: a default path, no argument given) the file."""
     real = Path(os.path.realpath(dest))
     base = Path(os.path.realpath(folder))
     inputs = base / "inputs"
     dbfile = Path(os.path.realpath(db.db_path(folder)))
     if real == dbfile or real.name.startswith(dbfile.name) and real.parent == dbfile.parent \
             or inputs == real or inputs in real.parents:
+        if name is None:
+            raise InputError(f"{path_text(dest)}: the default output is the campaign's own file (its database "
+                             f"or an input copy, through a link); remove it or choose another path ({arg('out')})")
         raise InputError(f"{name}: {dest} is the campaign's own file (its database or an input copy); "
                          "choose another path")
 
@@ -1363,7 +1397,7 @@ def report(folder, out=None, campaign: Campaign | None = None) -> Path:
     from .html_report import write_report
 
     dest = Path(out) if out else Path(folder) / "report.html"
-    _not_a_campaign_file(folder, dest, arg("out"))
+    _not_a_campaign_file(folder, dest, arg("out") if out else None)
     c = campaign or Campaign(folder, read_only=True)
     try:
         with db.transaction(c.con, write=False, where=str(folder)):

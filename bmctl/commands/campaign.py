@@ -19,7 +19,8 @@ from ._model import add_identify_flag, progress_printer, warn_window
 FLAGS = {"target": "--target", "hours": "--hours", "temperature_max_c": "--temperature-max-c",
          "particles": "--particles", "rpm": "--rpm", "milling": "--milling", "temperature_c": "--temperature-c",
          "from_h": "--from-h", "at_h": "--at-h", "um_per_px": "--um-per-px",
-         "accept_unusable=True": "--accept-unusable", "accept=False": "--reject", "out": "--out"}
+         "accept_unusable=True": "--accept-unusable", "accept=False": "--reject", "out": "--out",
+         "seed": "--seed"}
 
 
 def configure(parser: argparse.ArgumentParser) -> None:
