@@ -315,6 +315,23 @@ def inside(base: str | os.PathLike, ref: str, where: str) -> Path:
 _UNSAFE = re.compile(r"[^A-Za-z0-9._+-]+")
 
 
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether paths ``a`` and ``b`` name one file: the same resolved path (symbolic links followed)
+    or, where both exist, the same file by another name (a hard link).
+
+    Examples
+    --------
+    >>> same_file("a/../b.csv", "b.csv"), same_file("a.csv", "b.csv")
+    (True, False)
+    """
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):  # one of them does not exist (yet), or a name the system cannot take
+        return False
+
+
 def name_part(text: str, max_len: int = 60) -> str:
     """``text`` (a name read from an input file) as a safe part of a file name: letters,
     digits and ``._+-`` kept, every other run of characters one ``_``, no leading dot,

@@ -79,6 +79,7 @@ class History:
     segments: list[tuple[float, float, float]]
     samples: list[MeasuredSample]
     warnings: list[str] = field(default_factory=list)  # doubtful (or accepted unusable) images
+    schedule: str | None = None  # the schedule file it names, if any (an input, as the history and its samples)
 
     @property
     def times_h(self) -> list[float]:
@@ -132,6 +133,25 @@ def _read_sample(src: str, spec: SampleSpec, base: Path, k: int,
     return smp, [f"{where}.{field_name}: {w}" for w in warns]
 
 
+def _refuse_a_file_twice(src: str, base: Path, specs) -> None:
+    """One line when two samples name one table or image: its particles would be fitted as two samples
+    (at two times), counted twice. A path that is bad for another reason is left to :func:`_read_sample`."""
+    seen: list[tuple[int, Path]] = []
+    for k, spec in enumerate(specs):
+        if (spec.table is None) == (spec.image is None):
+            continue
+        field_name, ref = ("table", spec.table) if spec.table is not None else ("image", spec.image)
+        try:
+            path = io.inside(base, ref, f"{src}: sample[{k}].{field_name}")
+        except InputError:
+            continue
+        for j, other in seen:
+            if io.same_file(path, other):
+                raise InputError(f"{src}: sample[{k}].{field_name}: {ref[:80]!r} is also sample[{j}]'s file; each "
+                                 "sample needs its own")
+        seen.append((k, path))
+
+
 def load_history(path: str | Path, card: ModelCard | None = None, accept_unusable: bool = False) -> History:
     """Load and check a history file.
 
@@ -162,11 +182,13 @@ def load_history(path: str | Path, card: ModelCard | None = None, accept_unusabl
         sched = Schedule.load(io.inside(base, h.schedule, f"{src}: schedule"))  # a schedule file's limits
         segments = [(s.hours, s.rpm, s.milling) for s in sched.segments]
         seg_src = f"{base / h.schedule}: segment"
+        sched_path = str(base / h.schedule)
     else:
         if not h.segment:
             raise InputError(f"{src}: segment: at least one [[segment]] is needed")
         segments = [(s.hours, s.rpm, s.milling) for s in h.segment]
         seg_src = f"{src}: segment"
+        sched_path = None
     if card is not None:
         for i, (_, rpm, _) in enumerate(segments):
             if rpm > card.mill.rpm_max:
@@ -178,8 +200,10 @@ def load_history(path: str | Path, card: ModelCard | None = None, accept_unusabl
             raise InputError(f"{src}: sample[{k + 1}].t_h: sample times must increase (got {a:g} then {b:g})")
     if times[-1] > total + 1e-9:
         raise InputError(f"{src}: sample[{len(times) - 1}].t_h: {times[-1]:g} h is after the schedule's end ({total:g} h)")
+    _refuse_a_file_twice(src, base, h.sample)  # before any table is read or image measured
     read = [_read_sample(src, spec, base, k, accept_unusable) for k, spec in enumerate(h.sample)]
-    return History(h.name or Path(path).stem, src, segments, [r[0] for r in read], [w for r in read for w in r[1]])
+    return History(h.name or Path(path).stem, src, segments, [r[0] for r in read], [w for r in read for w in r[1]],
+                   sched_path)
 
 
 def size_range_warnings(card: ModelCard, samples) -> list[str]:

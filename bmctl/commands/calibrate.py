@@ -60,6 +60,7 @@ def run(args) -> int:
         if name_part(h.name) in seen:
             raise_dup(h)
         seen.add(name_part(h.name))
+    refuse_output_onto_input(out, args.model, histories)
     from ..calibrate.history import size_range_warnings
 
     for h in histories:  # doubtful images and sizes the card does not cover: once every history is read
@@ -135,20 +136,51 @@ def estimate_line(cal, i: int) -> str:
 
 
 def refuse_same_file(paths) -> None:
-    """One line when a history file is given twice (it would be fitted twice, its figure named twice)."""
-    import os
-
+    """One line when a history file is given twice, by the same path, a symbolic or a hard link (it
+    would be fitted twice, its figure named twice)."""
     from ..errors import InputError
+    from ..io import same_file
 
-    seen = {}
+    seen = []
     for p in paths:
-        try:
-            key = os.path.realpath(p)
-        except (OSError, ValueError):
-            continue
-        if key in seen:
-            raise InputError(f"{p}: this history file is given twice (also as {seen[key]}); give each once")
-        seen[key] = p
+        first = next((q for q in seen if same_file(p, q)), None)
+        if first is not None:
+            raise InputError(f"{p}: this history file is given twice (also as {first}); give each once")
+        seen.append(p)
+
+
+def refuse_output_onto_input(out, card_path, histories) -> None:
+    """One line when a file the calibration writes in ``out`` (the calibrated card, its moment
+    coefficients, ``calibration.json``, a history's figure) is one of its inputs (the card, its
+    coefficients, a history, its schedule file or a sample): the input would be replaced.
+
+    Parameters
+    ----------
+    out : path-like
+        The output folder.
+    card_path : path-like
+        The starting card.
+    histories : list of bmctl.calibrate.history.History
+    """
+    from pathlib import Path
+
+    from ..io import same_file
+    from ..errors import InputError
+    from ..io import name_part
+    from ..moments.coeffs import coeffs_path
+
+    out = Path(out)
+    card_out = out / f"{Path(card_path).stem}-calibrated.toml"
+    outputs = [card_out, coeffs_path(card_out), out / "calibration.json",
+               *(out / f"histograms-{name_part(h.name)}.png" for h in histories)]
+    inputs = [Path(card_path), coeffs_path(card_path)]
+    for h in histories:
+        inputs += [Path(h.path), *([Path(h.schedule)] if h.schedule else []), *(Path(s.source) for s in h.samples)]
+    for o in outputs:
+        for i in inputs:
+            if same_file(o, i):
+                raise InputError(f"--out: the calibration writes {o}, which is an input of this run ({i}); it would "
+                                 "be replaced (choose another --out folder)")
 
 
 def raise_dup(h):

@@ -135,6 +135,38 @@ def _read_sample(path: Path, um_per_px: float | None, accept_unusable: bool = Fa
     return check_table(res.table, str(path)), check_verdicts([res.report()], accept_unusable)
 
 
+def _refuse_twice(files) -> None:
+    """Refuse a sample file given twice (its particles would stand for two times), naming both."""
+    from ..io import same_file
+
+    for k, f in enumerate(files):
+        for g in files[:k]:
+            if same_file(f, g):
+                also = "" if str(f) == str(g) else f" (also as {g})"
+                raise InputError(f"--samples: {f} is given twice{also}; each time needs its own sample")
+
+
+def _refuse_output_onto_input(outputs, inputs) -> None:
+    """Refuse an output (``--out`` or the figure beside it) that is one of the run's inputs: it would be
+    replaced by the results, the input lost.
+
+    Parameters
+    ----------
+    outputs : list of (flag, path)
+        What the run writes, with the flag that names it.
+    inputs : list of path-like
+        The card, its coefficients, the schedule and the samples.
+    """
+    from ..io import same_file
+
+    for flag, out in outputs:
+        for other in inputs:
+            if same_file(out, other):
+                also = "" if str(out) == str(other) else f" (as {other})"
+                raise InputError(f"{flag}: {out} is an input of this run{also}; writing there would replace it "
+                                 "(choose another file name)")
+
+
 def _check_write_card(path, taken, force: bool = False) -> None:
     """``--write-card``: a ``.toml`` that is none of the run's inputs or outputs (the card it starts
     from, its coefficients, the samples, the table and figure it writes) and, unless ``force``, no
@@ -214,6 +246,10 @@ def run(args) -> int:
     out = output_path(args.out, folder=False)
     if out.suffix.lower() != ".csv":
         raise InputError(f"--out: expected a .csv file name (got {out})")
+    _refuse_twice(files)
+    _refuse_output_onto_input([("--out", out), ("--out", out.with_suffix(".png"))],
+                              [Path(args.model), coeffs_path(args.model), *files,
+                               *([args.schedule] if args.schedule else [])])
     if args.write_card is not None:
         taken = [out, out.with_suffix(".png"), Path(args.model), coeffs_path(args.model), *files,
                  *([args.schedule] if args.schedule else [])]

@@ -64,6 +64,12 @@ def _out_path(args) -> Path:
         raise InputError(f"--out: {out} must end in .toml")
     if not out.parent.exists():
         raise InputError(f"--out: folder {out.parent} does not exist")
+    from ..io import same_file
+
+    if same_file(out, args.model):  # the card itself: replaced by its coefficients, even with --overwrite
+        card = "" if str(out) == str(args.model) else f" ({args.model})"
+        raise InputError(f"--out: {out} is the model card{card}; writing the coefficients there would replace the "
+                         "card (give a .moments.toml, or leave --out out)")
     from ..moments.forcard import is_shipped
 
     if is_shipped(out) and not args.overwrite:

@@ -103,17 +103,6 @@ def _overlay_names(images, folder: Path) -> list[Path]:
     return names
 
 
-def _same_file(a: str, b: str) -> bool:
-    """Whether paths ``a`` and ``b`` name one file: the same resolved path (symbolic links
-    followed), or, where both exist, the same inode (a hard link)."""
-    if os.path.realpath(a) == os.path.realpath(b):
-        return True
-    try:
-        return os.path.samefile(a, b)
-    except (OSError, ValueError):  # one of them does not exist (yet), or a name the system cannot take
-        return False
-
-
 def _refuse_same_inputs(inputs) -> None:
     """Refuse two inputs that are one file, naming both: the same path, the same resolved path (a
     symbolic link), or the same file by another name (a hard link); its particles would be counted
@@ -151,11 +140,12 @@ def _refuse_same_inputs(inputs) -> None:
 def _check_output_names(args) -> None:
     """Refuse, before any work, an output set whose files would overwrite an input or each other: the
     table ``--out``, ``measure.json`` beside it and each image's overlay (unless ``--no-overlay``)."""
+    from ..io import same_file
     from ..measure.names import path_text
 
     out = os.fspath(args.out)
     for inp in args.inputs:
-        if _same_file(out, inp):
+        if same_file(out, inp):
             also = "" if os.path.normpath(out) == os.path.normpath(inp) else f" ({path_text(inp)})"
             raise InputError(f"--out: {path_text(out)} is one of the inputs{also}")
     folder = Path(out).parent
@@ -168,7 +158,7 @@ def _check_output_names(args) -> None:
         if os.path.realpath(path) == os.path.realpath(out):
             raise InputError(f"--out: {path_text(out)} would be overwritten by {what}; choose another name{hint}")
         for inp in args.inputs:
-            if _same_file(path, inp):
+            if same_file(path, inp):
                 raise InputError(f"--out: {what} ({path_text(path)}) would overwrite the input {path_text(inp)}; "
                                  f"choose another folder for --out{hint}")
     for k, (path, what, hint) in enumerate(beside):
