@@ -97,3 +97,13 @@ def test_distinct_samples_and_outputs_still_run(tmp_path, capsys):
                    tmp_path / "e.csv")
     assert rc == 0, capsys.readouterr().err
     assert (tmp_path / "e.csv").is_file() and (tmp_path / "e.png").is_file()
+
+
+def test_a_pixel_size_with_tables_only_is_refused(tmp_path, capsys):
+    """--um-per-px with particle tables only was ignored without a word (their sizes are in µm)."""
+    table = tmp_path / "t1.csv"
+    _table(table)
+    rc = _estimate("--samples", table, "--times", "1", "--um-per-px", "0.5", "--out", tmp_path / "e.csv")
+    line = _one_error_line(capsys)
+    assert rc == 2 and "--um-per-px" in line and "micrographs only" in line, line
+    assert not (tmp_path / "e.csv").exists()

@@ -225,6 +225,9 @@ def run(args) -> int:
         from ..measure.scale import check_scale
 
         check_scale(args.um_per_px)
+        if all(Path(f).suffix.lower() == ".csv" for f in files):  # a pixel size nothing would use
+            raise InputError("--um-per-px: every sample is a particle table (.csv, sizes in µm already); "
+                             "it applies to micrographs only")
     if args.rpm is not None and args.rpm > card.mill.rpm_max:
         raise InputError(f"--rpm: {args.rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g} ({args.model})")
     t_end = max(times)
