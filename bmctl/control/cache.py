@@ -223,19 +223,25 @@ def start_compile(solver, path: Path, wait: bool = False) -> None:
     c_file = _new_source_file(path)
     tmp_so = c_file[:-2] + ".so"
     c_path = Path(c_file)
+    sources = [c_file]
     cwd = os.getcwd()
     try:  # casadi writes the generated file into the working folder (it takes a bare name only)
         os.chdir(path.parent)
         solver.generate_dependencies(c_path.name, {"with_header": False})
+        hess = _hessian_source(solver, c_path, path)
+        if hess is not None:
+            sources.append(hess)
     except Exception:
-        c_path.unlink(missing_ok=True)
+        for f in sources + [c_file]:
+            Path(f).unlink(missing_ok=True)
         lock.unlink(missing_ok=True)
         raise
     finally:
         os.chdir(cwd)
     # compile to a temporary name, then rename into place; the sources are removed either way
-    script = (f'gcc {" ".join(CFLAGS)} -o "{tmp_so}" "{c_file}" && mv -f "{tmp_so}" "{path}"; '
-              f'rc=$?; rm -f "{c_file}" "{tmp_so}" "{lock}"; exit $rc')
+    quoted = " ".join(f'"{f}"' for f in sources)
+    script = (f'gcc {" ".join(CFLAGS)} -o "{tmp_so}" {quoted} && mv -f "{tmp_so}" "{path}"; '
+              f'rc=$?; rm -f {quoted} "{tmp_so}" "{lock}"; exit $rc')
     proc = subprocess.Popen(["sh", "-c", script], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     _running[str(path)] = proc
@@ -244,7 +250,7 @@ def start_compile(solver, path: Path, wait: bool = False) -> None:
     except OSError:
         pass
     if os.environ.get(ENV_SWITCH, "1") != "detach":
-        _files[str(path)] = (c_file, tmp_so, str(lock))
+        _files[str(path)] = (*sources, tmp_so, str(lock))
         _register_stop()
     if wait:
         proc.wait()
@@ -303,6 +309,25 @@ def stop_running() -> list[str]:
 #: a compile lock older than this is taken to be left by a killed process (the slowest compile,
 #: the exact-Hessian NLP, takes 3-5 min at -O1)
 LOCK_STALE_S = 1800.0
+
+
+def _hessian_source(solver, c_path: Path, path: Path) -> str | None:
+    """The C file of ``solver``'s Lagrangian Hessian ``nlp_hess_l`` when it was given as an option
+    (``hess_lag``: the MPC's Gauss-Newton Hessian), which ``generate_dependencies`` leaves out of
+    ``c_path``; None when the solver has none or the file already holds it. Without it the
+    library does not load (IPOPT asks for ``nlp_hess_l`` and cannot differentiate the compiled
+    NLP), so a Gauss-Newton solver would always run interpreted. Called in ``path``'s folder."""
+    import casadi as ca
+
+    if not (hasattr(solver, "has_function") and solver.has_function("nlp_hess_l")):  # a step library: none
+        return None
+    if "nlp_hess_l(" in c_path.read_text(encoding="utf-8"):
+        return None
+    h_file = _new_source_file(path)
+    gen = ca.CodeGenerator(Path(h_file).name, {"with_header": False})
+    gen.add(solver.get_function("nlp_hess_l"))
+    gen.generate()
+    return h_file
 
 
 def _new_source_file(path: Path) -> str:

@@ -181,3 +181,39 @@ def test_generated_source_names_are_c_identifiers(tmp_path):
     for _ in range(500):
         stem = Path(cache._new_source_file(tmp_path / "mpc-cold-0123abcd.so")).stem
         assert "__" not in stem and re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", stem)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+def test_the_gauss_newton_warm_solver_loads_from_its_library(private_cache, monkeypatch):
+    """The Gauss-Newton Hessian is an nlpsol option (``hess_lag``), which ``generate_dependencies``
+    leaves out: its library lacked ``nlp_hess_l``, did not load ("Derivatives cannot be calculated
+    for nlp"), was removed and compiled again by every process, and the warm solver always ran
+    interpreted. A fresh controller now plans from the library without building the NLP."""
+    model = make_moment_model(card_path("alni-1to1-300rpm-lab"))
+
+    def ctl():
+        c = _controller(model, tight=True, horizon=4)
+        c.cfg = c.cfg.model_copy(update={"solver": c.cfg.solver.model_copy(update={
+            "hessian": "gauss-newton", "retry_exact": False})})
+        return c
+
+    monkeypatch.setenv(cache.ENV_SWITCH, "wait")
+    ctrl = ctl()
+    x, u = model.x0(), None
+    for k in range(2):
+        if k == 1:
+            state, x1, u1 = ctrl.get_state(), x.copy(), u
+        plan = ctrl.plan(x, 0.5 * k, None, u)
+        u = plan.u_apply
+        x = model.step(x, u, 0.5)
+    fresh = ctl()
+    fresh.set_state(state)
+    again = fresh.plan(x1, 0.5, None, u1)
+    assert fresh._nlp is None and fresh._nlp_c is None  # the warm solve came from the library
+    np.testing.assert_allclose(again.u, plan.u, rtol=1e-9)
+    # the interpreted solver of the library's NLP (a process before gcc is done) takes the same iterates
+    interp = ctl()
+    monkeypatch.setattr(type(interp), "_compiled_solver", lambda self, key, opts: None)
+    interp.set_state(state)
+    np.testing.assert_array_equal(interp.plan(x1, 0.5, None, u1).u, again.u)
