@@ -625,11 +625,18 @@ class ParticleFilter:
         """The card law's temperature excess over ambient of every particle, (T - T_amb) / g (degC)."""
         return (self.X[:, 4] - self.ambient_c) / self.gain
 
+    def _gain_and_temperatures(self, gain: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """New gains (kept >= GAIN_MIN) and the temperatures they give at the particles' card-law excess."""
+        gain = np.maximum(gain, GAIN_MIN)
+        return gain, self.ambient_c + gain * self._excess()
+
     def _set_gain(self, gain: np.ndarray) -> None:
         """New gains (kept >= GAIN_MIN); the temperatures follow at the same card-law excess."""
-        E = self._excess()
-        self.gain = np.maximum(gain, GAIN_MIN)
-        self.X[:, 4] = self.ambient_c + self.gain * E
+        self.gain, self.X[:, 4] = self._gain_and_temperatures(gain)
+
+    def _moment_noise(self, rng: np.random.Generator, tau_m: float) -> np.ndarray:
+        """Factors (N, 4) of the moments' discrepancy noise over ``tau_m`` hours, drawn from its prior."""
+        return np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((self.X.shape[0], N_MOMENTS)))
 
     def _with_pending_noise(self, rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Copies of the particles and heating gains with the deferred process noise drawn from its
@@ -639,14 +646,12 @@ class ParticleFilter:
         if rng is None:
             rng = np.random.Generator(type(self.rng.bit_generator)())
             rng.bit_generator.state = self.rng.bit_generator.state
-        N = self.X.shape[0]
         X = self.X.copy()
-        X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((N, N_MOMENTS)))
+        X[:, :N_MOMENTS] *= self._moment_noise(rng, tau_m)
         gain = self.gain
         if tau > 0:  # the vial's gain walks on wall hours (none left after a reading)
-            gain = np.maximum(gain + self.settings.thermal_gain_walk_per_sqrt_h * math.sqrt(tau) * rng.standard_normal(N),
-                              GAIN_MIN)
-            X[:, 4] = self.ambient_c + gain * self._excess()  # the same card-law excess, as _set_gain
+            walk = self.settings.thermal_gain_walk_per_sqrt_h * math.sqrt(tau)
+            gain, X[:, 4] = self._gain_and_temperatures(gain + walk * rng.standard_normal(X.shape[0]))
         return self._feasible(X), gain
 
     # --- update -----------------------------------------------------------------------------
@@ -690,7 +695,7 @@ class ParticleFilter:
             logw += logw_s
             self.feed_open = False
         elif tau_m > 0 and st.moment_noise_at == "update":
-            self.X[:, :N_MOMENTS] *= np.exp(self.q * math.sqrt(tau_m) * rng.standard_normal((N, N_MOMENTS)))
+            self.X[:, :N_MOMENTS] *= self._moment_noise(rng, tau_m)
         self.X = self._feasible(self.X)
         self.pending_h = 0.0
         if raster is not None or st.moment_noise_at == "update":
