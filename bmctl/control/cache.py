@@ -228,11 +228,9 @@ def start_compile(solver, path: Path, wait: bool = False) -> None:
     try:  # casadi writes the generated file into the working folder (it takes a bare name only)
         os.chdir(path.parent)
         solver.generate_dependencies(c_path.name, {"with_header": False})
-        hess = _hessian_source(solver, c_path, path)
-        if hess is not None:
-            sources.append(hess)
+        _hessian_source(solver, c_path, path, sources)
     except Exception:
-        for f in sources + [c_file]:
+        for f in sources:
             Path(f).unlink(missing_ok=True)
         lock.unlink(missing_ok=True)
         raise
@@ -311,23 +309,24 @@ def stop_running() -> list[str]:
 LOCK_STALE_S = 1800.0
 
 
-def _hessian_source(solver, c_path: Path, path: Path) -> str | None:
-    """The C file of ``solver``'s Lagrangian Hessian ``nlp_hess_l`` when it was given as an option
-    (``hess_lag``: the MPC's Gauss-Newton Hessian), which ``generate_dependencies`` leaves out of
-    ``c_path``; None when the solver has none or the file already holds it. Without it the
-    library does not load (IPOPT asks for ``nlp_hess_l`` and cannot differentiate the compiled
-    NLP), so a Gauss-Newton solver would always run interpreted. Called in ``path``'s folder."""
+def _hessian_source(solver, c_path: Path, path: Path, sources: list) -> None:
+    """Add to ``sources`` the C file of ``solver``'s Lagrangian Hessian ``nlp_hess_l`` when it was
+    given as an option (``hess_lag``: the MPC's Gauss-Newton Hessian), which ``generate_dependencies``
+    leaves out of ``c_path`` (nothing when the solver has none or the file already holds it). Without
+    it the library does not load (IPOPT asks for ``nlp_hess_l`` and cannot differentiate the compiled
+    NLP), so a Gauss-Newton solver would always run interpreted. Called in ``path``'s folder; the
+    file is in ``sources`` from its creation, so the caller removes it should generating fail."""
     import casadi as ca
 
     if not (hasattr(solver, "has_function") and solver.has_function("nlp_hess_l")):  # a step library: none
-        return None
+        return
     if "nlp_hess_l(" in c_path.read_text(encoding="utf-8"):
-        return None
+        return
     h_file = _new_source_file(path)
+    sources.append(h_file)
     gen = ca.CodeGenerator(Path(h_file).name, {"with_header": False})
     gen.add(solver.get_function("nlp_hess_l"))
     gen.generate()
-    return h_file
 
 
 def _new_source_file(path: Path) -> str:
