@@ -332,6 +332,32 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
         return False
 
 
+def repeated_file(paths: Sequence[str | os.PathLike]) -> tuple[int, int] | None:
+    """The first pair of ``paths`` that name one file (:func:`same_file`: the same resolved path, or
+    the same file by another name), as (index of the earlier, index of the later); None when every
+    path names its own file. One pass: each path is resolved and stat-ed once.
+
+    Examples
+    --------
+    >>> repeated_file(["a.csv", "b.csv", "./a.csv"]), repeated_file(["a.csv", "b.csv"])
+    ((0, 2), None)
+    """
+    seen: dict = {}  # what identifies a file (resolved path, device and inode) -> the first index naming it
+    for i, p in enumerate(paths):
+        keys: list = [os.path.realpath(p)]
+        try:
+            st = os.stat(p)
+            keys.append((st.st_dev, st.st_ino))
+        except (OSError, ValueError):  # missing, or a name the system cannot take: its path alone
+            pass
+        first = next((seen[k] for k in keys if k in seen), None)
+        if first is not None:
+            return first, i
+        for k in keys:
+            seen[k] = i
+    return None
+
+
 def name_part(text: str, max_len: int = 60) -> str:
     """``text`` (a name read from an input file) as a safe part of a file name: letters,
     digits and ``._+-`` kept, every other run of characters one ``_``, no leading dot,

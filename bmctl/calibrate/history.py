@@ -136,20 +136,20 @@ def _read_sample(src: str, spec: SampleSpec, base: Path, k: int,
 def _refuse_a_file_twice(src: str, base: Path, specs) -> None:
     """One line when two samples name one table or image: its particles would be fitted as two samples
     (at two times), counted twice. A path that is bad for another reason is left to :func:`_read_sample`."""
-    seen: list[tuple[int, Path]] = []
+    named: list[tuple[int, str, str, Path]] = []  # (sample index, field, reference, path)
     for k, spec in enumerate(specs):
         if (spec.table is None) == (spec.image is None):
             continue
         field_name, ref = ("table", spec.table) if spec.table is not None else ("image", spec.image)
         try:
-            path = io.inside(base, ref, f"{src}: sample[{k}].{field_name}")
+            named.append((k, field_name, ref, io.inside(base, ref, f"{src}: sample[{k}].{field_name}")))
         except InputError:
             continue
-        for j, other in seen:
-            if io.same_file(path, other):
-                raise InputError(f"{src}: sample[{k}].{field_name}: {ref[:80]!r} is also sample[{j}]'s file; each "
-                                 "sample needs its own")
-        seen.append((k, path))
+    pair = io.repeated_file([n[3] for n in named])
+    if pair is not None:
+        (j, *_), (k, field_name, ref, _) = named[pair[0]], named[pair[1]]
+        raise InputError(f"{src}: sample[{k}].{field_name}: {ref[:80]!r} is also sample[{j}]'s file; each "
+                         "sample needs its own")
 
 
 def load_history(path: str | Path, card: ModelCard | None = None, accept_unusable: bool = False) -> History:

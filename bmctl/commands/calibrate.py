@@ -139,14 +139,12 @@ def refuse_same_file(paths) -> None:
     """One line when a history file is given twice, by the same path, a symbolic or a hard link (it
     would be fitted twice, its figure named twice)."""
     from ..errors import InputError
-    from ..io import same_file
+    from ..io import repeated_file
 
-    seen = []
-    for p in paths:
-        first = next((q for q in seen if same_file(p, q)), None)
-        if first is not None:
-            raise InputError(f"{p}: this history file is given twice (also as {first}); give each once")
-        seen.append(p)
+    pair = repeated_file(paths)
+    if pair is not None:
+        raise InputError(f"{paths[pair[1]]}: this history file is given twice (also as {paths[pair[0]]}); "
+                         "give each once")
 
 
 def refuse_output_onto_input(out, card_path, histories) -> None:

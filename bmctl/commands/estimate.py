@@ -137,13 +137,13 @@ def _read_sample(path: Path, um_per_px: float | None, accept_unusable: bool = Fa
 
 def _refuse_twice(files) -> None:
     """Refuse a sample file given twice (its particles would stand for two times), naming both."""
-    from ..io import same_file
+    from ..io import repeated_file
 
-    for k, f in enumerate(files):
-        for g in files[:k]:
-            if same_file(f, g):
-                also = "" if str(f) == str(g) else f" (also as {g})"
-                raise InputError(f"--samples: {f} is given twice{also}; each time needs its own sample")
+    pair = repeated_file(files)
+    if pair is not None:
+        g, f = files[pair[0]], files[pair[1]]
+        also = "" if str(f) == str(g) else f" (also as {g})"
+        raise InputError(f"--samples: {f} is given twice{also}; each time needs its own sample")
 
 
 def _refuse_output_onto_input(outputs, inputs) -> None:
@@ -250,13 +250,10 @@ def run(args) -> int:
     if out.suffix.lower() != ".csv":
         raise InputError(f"--out: expected a .csv file name (got {out})")
     _refuse_twice(files)
-    _refuse_output_onto_input([("--out", out), ("--out", out.with_suffix(".png"))],
-                              [Path(args.model), coeffs_path(args.model), *files,
-                               *([args.schedule] if args.schedule else [])])
+    inputs = [Path(args.model), coeffs_path(args.model), *files, *([args.schedule] if args.schedule else [])]
+    _refuse_output_onto_input([("--out", out), ("--out", out.with_suffix(".png"))], inputs)
     if args.write_card is not None:
-        taken = [out, out.with_suffix(".png"), Path(args.model), coeffs_path(args.model), *files,
-                 *([args.schedule] if args.schedule else [])]
-        _check_write_card(args.write_card, taken, args.force)
+        _check_write_card(args.write_card, [out, out.with_suffix(".png"), *inputs], args.force)
     elif args.force:
         raise InputError("--force: only with --write-card (it lets --write-card replace an existing file)")
     law_kw = {"size_law": args.size_law}

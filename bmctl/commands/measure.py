@@ -118,23 +118,15 @@ def _refuse_same_inputs(inputs) -> None:
     InputError
         Two of them name one file.
     """
+    from ..io import repeated_file
     from ..measure.names import path_text
 
-    seen = {}  # what identifies a file -> the first argument naming it
-    for p in inputs:
-        keys = [os.path.realpath(p)]
-        try:
-            st = os.stat(p)
-            keys.append((st.st_dev, st.st_ino))
-        except (OSError, ValueError):  # missing (named by the reader), or a name the system cannot take
-            pass
-        first = next((seen[k] for k in keys if k in seen), None)
-        if first is not None:
-            how = "" if first == p else f" (the same file as {path_text(first)})"
-            raise InputError(f"{path_text(p)}: given twice{how}; give each image or table once "
-                             "(its particles would be counted twice)")
-        for k in keys:
-            seen[k] = p
+    pair = repeated_file(inputs)
+    if pair is not None:
+        first, p = inputs[pair[0]], inputs[pair[1]]
+        how = "" if first == p else f" (the same file as {path_text(first)})"
+        raise InputError(f"{path_text(p)}: given twice{how}; give each image or table once "
+                         "(its particles would be counted twice)")
 
 
 def _check_output_names(args) -> None:
