@@ -20,8 +20,7 @@ import math
 from typing import Callable
 
 from ..config import did_you_mean
-from ..control.base import NOT_NUMBERS as _NOT_NUMBERS
-from ..control.config import TARGET_KEYS, check_dvalue_order, target_value
+from ..control.config import NOT_NUMBERS, TARGET_KEYS, check_dvalue_order, target_value
 from ..errors import InputError, finite_float, quote
 
 #: extra target keys: name -> (maps value and estimate dict to controller targets, one-line meaning)
@@ -59,11 +58,6 @@ def parse(text: str, where: str = "--target") -> dict[str, float]:
         raise InputError(f"{where}: d50_um and s_mean_um both set the size; give one")
     check_dvalue_order(out, where)
     return out
-
-
-#: what a target value given from Python may not be (:data:`bmctl.control.base.NOT_NUMBERS`): a
-#: whole target is text only as one ``"key=value"`` string (:func:`parse`)
-NOT_NUMBERS = _NOT_NUMBERS
 
 
 def check(target, where: str = "target") -> dict[str, float]:

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import InputError, quote
 from ..moments import equations as eq
-from .config import TARGET_KEYS, Target, check_target_dict
+from .config import NOT_NUMBERS, TARGET_KEYS, Target, check_target_dict
 
 #: returned by Status.fallback
 FALLBACKS = ("none", "shifted", "rest")
@@ -320,7 +320,7 @@ class Reference:
     """
 
     def __init__(self, points: Sequence[tuple[float, Mapping[str, float]]] = ()):
-        pts = sorted(((_from_h(t), check_target_dict(_no_text(dict(d), "target"), "target")) for t, d in points),
+        pts = sorted(((_from_h(t), check_target_dict(dict(d), "target")) for t, d in points),
                      key=lambda p: p[0])
         self.points = pts
 
@@ -373,36 +373,13 @@ class _CallableReference(Reference):
         self.points = []
 
     def at(self, t_h: float) -> dict[str, float]:
-        return check_target_dict(_no_text(dict(self.fn(t_h) or {}), "target"), "target")
+        return check_target_dict(dict(self.fn(t_h) or {}), "target")
 
     def keys(self) -> list[str]:
         return list(TARGET_KEYS)
 
     def __bool__(self) -> bool:
         return True
-
-
-#: what a number given from Python may not be: text (``"55"`` is not read as 55) and flags
-#: (``float(True)`` is 1.0)
-NOT_NUMBERS = (str, bytes, bytearray, bool, np.bool_)
-
-
-def _no_text(target: dict, source: str) -> dict:
-    """``target`` unchanged, or an InputError for a value of a known key (or an entry of its window)
-    that is text or a flag (:func:`bmctl.control.config.target_value` would read ``"25"`` as 25).
-
-    >>> _no_text({"s_mean_um": 25.0, "r_mean": [0.1, 0.2]}, "target")
-    {'s_mean_um': 25.0, 'r_mean': [0.1, 0.2]}
-    >>> _no_text({"s_mean_um": "25"}, "target")
-    Traceback (most recent call last):
-    ...
-    bmctl.errors.InputError: target: s_mean_um: not a number: '25'
-    """
-    for k, v in target.items():
-        entries = v if isinstance(v, (list, tuple)) else (v,)
-        if k in TARGET_KEYS and any(isinstance(x, NOT_NUMBERS) for x in entries):
-            raise InputError(f"{source}: {k}: not a number: {quote(v)}")
-    return target
 
 
 def _from_h(t) -> float:

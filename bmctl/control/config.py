@@ -16,11 +16,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
+import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from ..config import HOURS, MINUTES, RPM, Finite, Frac, NonNeg, Pos, Range, Strict, did_you_mean, read_toml, validate
 from ..limits import HOURS_MAX, PHASE_MAX_MINUTES, RPM_MAX
-from ..errors import InputError, finite_float
+from ..errors import InputError, finite_float, quote
 
 #: moments a target may name (state components 0..3 of the moment model)
 MOMENT_KEYS = ("s_mean_um", "s_std_um", "r_mean", "r_std")
@@ -118,10 +119,28 @@ def format_target(value) -> str:
     return f"{lo:g}" if lo == hi else f"[{lo:g}, {hi:g}]"
 
 
+#: what a number given from Python may not be: text (``"55"`` is not read as 55) and flags
+#: (``float(True)`` is 1.0)
+NOT_NUMBERS = (str, bytes, bytearray, bool, np.bool_)
+
+
 def check_target_dict(d, source: str) -> dict:
-    """Validate {key: value or [lo, hi]}; returns {key: float or (lo, hi)}."""
+    """Validate {key: value or [lo, hi]}; returns {key: float or (lo, hi)}. A value of a known key
+    (or an entry of its window) that is text or a flag is refused, not read as a number.
+
+    >>> check_target_dict({"s_mean_um": 25, "r_mean": [0.1, 0.2]}, "target")
+    {'s_mean_um': 25.0, 'r_mean': (0.1, 0.2)}
+    >>> check_target_dict({"s_mean_um": "25"}, "target")
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: target: s_mean_um: not a number: '25'
+    """
     if not isinstance(d, dict):
         raise InputError(f"{source}: expected a table of targets")
+    for k, v in d.items():
+        entries = v if isinstance(v, (list, tuple)) else (v,)
+        if k in TARGET_KEYS and any(isinstance(x, NOT_NUMBERS) for x in entries):
+            raise InputError(f"{source}: {k}: not a number: {quote(v)}")
     out = {}
     for k, v in d.items():
         if k not in TARGET_KEYS:
