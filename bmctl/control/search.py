@@ -1281,19 +1281,46 @@ def _summary(C: dict, i: int, grid: Grid) -> dict:
             "params": [float(v) for v in C["P"][i]]}
 
 
+#: the most rpm phases :func:`describe` names in order (more: their range and count)
+DESCRIBED_PHASES = 3
+
+
 def describe(rpm: np.ndarray, minutes: np.ndarray, grid: Grid) -> str:
-    """A short text of a schedule, e.g. "330 rpm continuous 9.5 h, then rest" or "450 rpm 20 of 60 min x 12".
+    """A short text of a schedule: its rpm phases in time order, the hours milled and in how many
+    intervals, e.g. "140 then 100 rpm, 6.00 h milling in 12 of 24 intervals (continuous)".
+
+    Up to :data:`DESCRIBED_PHASES` phases (runs of one rpm among the milled intervals) are named in
+    order; more are given as their range and count.
 
     Parameters
     ----------
     rpm, minutes : ndarray, (K,)
+        The rpm and the minutes milled in each interval of ``grid``.
     grid : Grid
+
+    Returns
+    -------
+    str
+
+    Examples
+    --------
+    >>> g = make_grid(0.0, 4.0, 0.5)
+    >>> describe(np.r_[[140.0] * 4, [100.0] * 4], np.r_[[30.0] * 4, [30.0] * 4], g)
+    '140 then 100 rpm, 4.00 h milling in 8 of 8 intervals (continuous)'
+    >>> describe(np.full(8, 450.0), np.r_[[10.0, 0.0] * 4], g)
+    '450 rpm, 0.67 h milling in 4 of 8 intervals'
+    >>> describe(np.zeros(8), np.zeros(8), g)
+    'rest'
     """
     on = minutes > 0
     if not on.any():
         return "rest"
-    rs = sorted({int(r) for r in rpm[on]})
-    rtxt = f"{rs[0]} rpm" if len(rs) == 1 else f"{rs[0]}-{rs[-1]} rpm"
+    milled = [int(r) for r in rpm[on]]
+    phases = [r for k, r in enumerate(milled) if k == 0 or r != milled[k - 1]]
+    if len(phases) <= DESCRIBED_PHASES:
+        rtxt = " then ".join(str(r) for r in phases) + " rpm"
+    else:
+        rtxt = f"{min(phases)}-{max(phases)} rpm in {len(phases)} phases"
     full = np.all(minutes[on] >= grid.lengths_min[on] - 1e-9)
     return f"{rtxt}, {minutes.sum() / 60:.2f} h milling in {int(on.sum())} of {grid.K} intervals" + \
         (" (continuous)" if full and np.all(np.diff(np.flatnonzero(on)) == 1) else "")
