@@ -116,7 +116,7 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
         meta = {"card": str(card_path), "seed": seed, "settings": s.model_dump(), "moment_stage": info,
                 "wall_s": wall}
         figures = [out / f"histograms-{name_part(h.name)}.png" for h in histories]
-        stale = [p for p in earlier_figures(out) if p not in figures]
+        stale = stale_figures(out, figures, run_inputs(card_path, histories))
         with output_set():  # card, coefficients, calibration.json and figures: all of them or none
             write_text(card_out, outputs.card_toml(new, f"{new.card.name}: {note}\nSee calibration.json next to this "
                                                         "file; its moment coefficients are in the .moments.toml beside it."))
@@ -129,6 +129,41 @@ def run_calibration(card: ModelCard, card_path: str | Path, histories: Sequence[
             p.unlink(missing_ok=True)
         load_card(card_out)  # the written card loads (as outputs.write_card checks)
     return CalibrationRun(cal, info, kept, dist, paths, wall, stale if out is not None else [])
+
+
+def run_inputs(card_path: str | Path, histories: Sequence[History]) -> list[Path]:
+    """The files a calibration reads: the card, its moment coefficients, each history, its schedule file
+    and its samples (tables or images)."""
+    from ..moments.coeffs import coeffs_path
+
+    inputs = [Path(card_path), Path(coeffs_path(card_path))]
+    for h in histories:
+        inputs += [Path(h.path), *([Path(h.schedule)] if h.schedule else []), *(Path(s.source) for s in h.samples)]
+    return inputs
+
+
+def stale_figures(out: str | Path, figures: Sequence[str | Path] = (),
+                  inputs: Sequence[str | Path] = ()) -> list[Path]:
+    """The figures of an earlier calibration in ``out`` (:func:`earlier_figures`) that a new one removes:
+    those it does not write again (``figures``), and never one of its ``inputs`` (the same file by
+    :func:`bmctl.io.same_file`: a sample image that happens to bear such a name stays).
+
+    Examples
+    --------
+    >>> import tempfile, json
+    >>> d = Path(tempfile.mkdtemp())
+    >>> record = {"histories": [{"name": "a"}, {"name": "b"}, {"name": "c"}]}
+    >>> _ = (d / "calibration.json").write_text(json.dumps(record), encoding="utf-8")
+    >>> for n in "abc":
+    ...     _ = (d / f"histograms-{n}.png").write_bytes(b"")
+    >>> [p.name for p in stale_figures(d, [d / "histograms-a.png"], [d / "." / "histograms-c.png"])]
+    ['histograms-b.png']
+    """
+    from ..io import same_file
+
+    out = Path(out)
+    return [p for p in earlier_figures(out)
+            if not any(same_file(p, f) for f in figures) and not any(same_file(p, i) for i in inputs)]
 
 
 def earlier_figures(out: Path) -> list[Path]:

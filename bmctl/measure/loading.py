@@ -269,6 +269,11 @@ def _damaged(path: str, exc: Exception) -> str:
 GRAY_SCALED = {"L;2": 85, "L;4": 17}
 #: how Pillow unpacks a PNG's 16-bit RGB samples: their high bytes (its transparent colour is given in 16 bits)
 RGB16 = "RGB;16B"
+#: how Pillow unpacks the 16-bit samples of a PNG's colour with alpha, gray with alpha: their high bytes too
+RGBA16, LA16 = "RGBA;16B", "LA;16B"
+#: an unpacker of the same bytes that keeps each sample's low byte (its second, as a little-endian sample's)
+#: where Pillow has one; a 16-bit gray and alpha PNG's four bytes a pixel are unpacked as they are
+LOW_BYTES = {RGB16: "RGB;16L", RGBA16: "RGBA;16L", LA16: "RGBA"}
 
 
 def _transparent_colour(path: str) -> bool:
@@ -310,14 +315,55 @@ def _has_colour(px: np.ndarray, colour: np.ndarray) -> np.ndarray:
     return np.all(px.reshape(px.shape[:2] + (-1,))[..., :len(colour)] == colour, axis=-1)
 
 
+def _unpacked(im, rawmode: str) -> np.ndarray:
+    """The pixels of ``im`` (opened, not yet decoded) unpacked by Pillow's ``rawmode`` instead of its own."""
+    im.tile = [t._replace(args=rawmode) if hasattr(t, "_replace") else (*t[:3], rawmode) for t in im.tile]
+    return np.asarray(im)
+
+
 def _low_bytes(path: str) -> np.ndarray:
     """The low bytes of a 16-bit RGB PNG's samples (H, W, 3) (Pillow decodes their high bytes):
     decoded with Pillow's unpacker of little-endian samples, which takes each sample's second byte."""
     from PIL import Image
 
     with _pillow_quiet(), Image.open(path) as im:
-        im.tile = [t._replace(args="RGB;16L") if hasattr(t, "_replace") else (*t[:3], "RGB;16L") for t in im.tile]
-        return np.asarray(im)
+        return _unpacked(im, LOW_BYTES[RGB16])
+
+
+def _wide_png(path: str) -> np.ndarray | None:
+    """The samples of a 16-bit colour PNG (RGB, RGBA; or gray and alpha) at their full depth, uint16
+    (H, W, C): Pillow decodes such samples to their high bytes only, so an image whose detail lies in
+    the low bytes (a narrow-range 16-bit export) was measured as a few gray levels, its transparency
+    from the alpha's high byte. None for any other file (a 16-bit gray PNG Pillow reads in full), and
+    for one Pillow cannot decode (left to the reader, which names what is wrong as for any file)."""
+    from PIL import Image
+
+    try:
+        return _wide_png_samples(path)
+    except Image.DecompressionBombError:
+        raise
+    except Exception:  # noqa: BLE001 - a damaged file: the reader says so
+        return None
+
+
+def _wide_png_samples(path: str) -> np.ndarray | None:
+    from PIL import Image
+
+    with _pillow_quiet():
+        im = Image.open(path)
+    with _pillow_quiet(), im:
+        if im.format != "PNG" or len(im.tile) != 1 or getattr(im, "n_frames", 1) != 1:
+            return None
+        rawmode = im.tile[0][3]
+        if not isinstance(rawmode, str) or rawmode not in LOW_BYTES:
+            return None
+        if rawmode == LA16:  # gray and alpha (Pillow gives them as RGBA): each pixel's four bytes, big-endian
+            b = _unpacked(im, LOW_BYTES[LA16]).astype(np.uint16)
+            return np.stack([(b[..., 0] << 8) | b[..., 1], (b[..., 2] << 8) | b[..., 3]], axis=-1)
+        hi = np.asarray(im)
+    with _pillow_quiet(), Image.open(path) as im:  # decoded again, its samples' low bytes this time
+        lo = _unpacked(im, LOW_BYTES[rawmode])
+    return (hi.astype(np.uint16) << 8) | lo
 
 
 def _decode(path: str, head: ImageHeader) -> np.ndarray:
@@ -331,6 +377,9 @@ def _decode(path: str, head: ImageHeader) -> np.ndarray:
             with Image.open(_as_stored(path) if turned else path) as im:
                 return np.asarray(im.convert("RGB"))
         tiff = is_tiff(path)
+        wide = _wide_png(path) if not tiff and head.mode in ("RGB", "RGBA") else None
+        if wide is not None:  # a 16-bit colour PNG: read in full, not as Pillow's high bytes
+            return wide
         if tiff == _named_tiff(path):
             return io.imread(path)
         if tiff:  # a TIFF under another name: what scikit-image does for a .tif (tifffile, planar colour last)
@@ -383,7 +432,8 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     """Read a micrograph as a 2-D float array in [0, 1] (colour is averaged to gray).
 
     A palette image is read as its colours; a CMYK (or other Pillow colour space) image is
-    converted to RGB by Pillow first; a single-frame GIF is one image. An EXIF orientation (a
+    converted to RGB by Pillow first; a single-frame GIF is one image; a 16-bit PNG is read at its
+    full depth (colour and alpha too, which Pillow alone decodes to 8 bits). An EXIF orientation (a
     camera picture stored turned), or a TIFF's Orientation tag, is applied: the image is measured
     (its data bar found, a crop window placed) as it is displayed.
 
