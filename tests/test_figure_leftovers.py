@@ -121,6 +121,29 @@ def test_design_curves_hold_in_rests_and_meet_every_segment_end(model, monkeypat
         assert np.all(np.diff(ty) < 0), k
 
 
+def test_design_figure_draws_the_plant_check(model, monkeypatch, tmp_path, close_figures):
+    """The plant check was printed but not drawn: design.png showed the moment model alone. Its
+    ensemble mean and range now stand at the schedule's end beside each curve it gives (labelled for a
+    target), and its peak vial temperature as a line."""
+    d = _design(model, [(2.0, 300.0), (1.0, 0.0)], 4.0, {"s_mean_um": 50.0})
+    d.plant = {"seeds": 3, "particles": 500, "s_mean_um": {"mean": 51.0, "min": 49.5, "max": 52.5},
+               "temperature_c": {"mean": 40.0, "min": 39.0, "max": 41.0}, "temperature_peak_c": 66.6}
+    fig = _design_figure(monkeypatch, tmp_path, d)
+    sizes = fig.axes[1]
+    bars = [c for c in sizes.containers if c.get_label().startswith("plant check (3 plants)")]
+    assert len(bars) == 1
+    x, y = (np.asarray(v, dtype=float) for v in bars[0].lines[0].get_data())
+    assert x.tolist() == [3.0] and y.tolist() == [51.0]  # at the schedule's end, the ensemble's mean
+    seg = np.asarray(bars[0].lines[2][0].get_segments()[0], dtype=float)
+    assert seg[:, 1].tolist() == [49.5, 52.5]  # its range
+    peak = _line(fig, "plant check (3 plants): peak 66.6 °C")
+    assert np.allclose(peak.get_ydata(), 66.6)
+    assert "plant check" in fig._suptitle.get_text()
+    d.plant = None  # no check: nothing drawn for it
+    fig = _design_figure(monkeypatch, tmp_path, d)
+    assert not fig.axes[1].containers and "plant check" not in fig._suptitle.get_text()
+
+
 def test_design_without_its_model_marks_the_segment_ends(model, monkeypatch, tmp_path, close_figures):
     """Without the model only the segment ends are predicted: they are marked, and the temperature
     says so, instead of straight lines that read as the prediction between them."""

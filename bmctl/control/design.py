@@ -837,7 +837,8 @@ def design_figure(d: Design, path: Path) -> None:
     """Schedule (rpm per segment, rests shaded), size moments and D50 (µm), span, r, vial temperature,
     over the batch designed for (0 to ``d.hours``, also where the schedule is done earlier); the
     predicted curves run through each segment (:func:`predicted_path`), not straight from one
-    segment end to the next."""
+    segment end to the next. With a plant check (``d.plant``) its ensemble's mean and range are
+    drawn at the schedule's end beside each curve it gives, and its peak vial temperature as a line."""
     from ..io import pyplot, savefig
     from ..plots import R_LABEL, quantity_label
     from .config import target_bounds
@@ -855,8 +856,10 @@ def design_figure(d: Design, path: Path) -> None:
     span = (("span", np.asarray(output_values(X, ["span"])[0], dtype=float)),)
     shape = (("r_mean", X[:, 2]), ("r_std", X[:, 3]))
 
-    def n_entries(series):
-        return len(series) + sum(k in d.target for k, _ in series)
+    checked = d.plant or {}
+
+    def n_entries(series):  # curves, target lines and the plant check's targeted markers
+        return len(series) + sum((k in d.target) * (1 + (k in checked)) for k, _ in series)
 
     # fixed layout in inches (tight_layout and a tight bounding box would each draw the figure once more
     # to measure it): the rpm schedule across the top, then two rows of two panels, each legend above its
@@ -864,7 +867,7 @@ def design_figure(d: Design, path: Path) -> None:
     W, left, right, gap = 11.0, 0.8, 0.3, 0.95
     pw = (W - left - right - gap) / 2
     ph, rpm_h, leg_row = 2.05, 1.45, 0.165
-    rows = [max(n_entries(sizes), n_entries(span)), max(n_entries(shape), 2)]
+    rows = [max(n_entries(sizes), n_entries(span)), max(n_entries(shape), 2 + bool(checked))]
     leg = [0.12 + leg_row * int(np.ceil(n / 2)) for n in rows]
     # the rpm panel keeps its time labels: it is twice as wide as the panels below, whose labels do not fit it
     heights = [0.55, 0.3, rpm_h, 0.45 + leg[0], ph, 0.2 + leg[1], ph, 0.55]
@@ -921,9 +924,22 @@ def design_figure(d: Design, path: Path) -> None:
                 else:
                     ax.axhline(lo, color=line.get_color(), ls="--", lw=1, label=f"target {name}")
         ax.set_ylabel(lab)
+    pc = d.plant
+    if pc is not None:  # the plant check at the schedule's end: the ensemble's mean, its range as a bar
+        plants = f"plant check ({pc['seeds']} plant{'s' if pc['seeds'] != 1 else ''})"
+        for ax, series in ((ax_size, sizes), (ax_span, span), (ax_r, shape)):
+            for j, (key, _) in enumerate(series):
+                if key in pc:
+                    m = pc[key]
+                    ax.errorbar([t[-1]], [m["mean"]], yerr=[[m["mean"] - m["min"]], [m["max"] - m["mean"]]],
+                                fmt="D", ms=5, color=f"C{j}", mec="k", ecolor="k", capsize=3, zorder=5,
+                                label=f"{plants}: {quantity_label(key)}" if key in d.target else None)
     ax = ax_temp
     ax.plot(tp, X[:, 4], color="tab:red", label="vial temperature" if within else "vial temperature at segment ends",
             **style)
+    if pc is not None:
+        ax.axhline(pc["temperature_peak_c"], color="tab:red", ls=":", lw=1.2,
+                   label=f"{plants}: peak {pc['temperature_peak_c']:.1f} °C")
     ax.axhline(d.ceiling_c, color="k", ls="--", lw=1, label=f"ceiling {d.ceiling_c:g} °C")
     ax.set_ylabel("vial temperature (°C)")
     for ax in (ax_size, ax_span, ax_r, ax_temp):  # only the curves and targets: the shading is explained above
@@ -935,7 +951,8 @@ def design_figure(d: Design, path: Path) -> None:
         ax.tick_params(labelbottom=False)
     for ax in (ax_r, ax_temp):
         ax.set_xlabel("batch time t (h)")
-    fig.suptitle(f"{d.card_name}: designed schedule (moment-model prediction)", y=1 - 0.2 / H)
+    checked = "" if pc is None else "; ◆ plant check: mean and range"
+    fig.suptitle(f"{d.card_name}: designed schedule (moment-model prediction{checked})", y=1 - 0.2 / H)
     savefig(fig, path, dpi=110)
 
 
