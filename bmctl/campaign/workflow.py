@@ -37,14 +37,13 @@ import os
 import shutil
 import stat
 import time
-from collections.abc import Iterator, Mapping
-from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError, quote
+from ..naming import arg, naming  # noqa: F401 - naming: re-exported (bmctl.campaign.workflow.naming)
 from ..limits import HOURS_MIN
 from . import db
 from . import targets as tg
@@ -74,55 +73,6 @@ PARTICLES_RANGE = (50, 200_000)
 
 
 # --- helpers -------------------------------------------------------------------------------------
-#: how the verbs' messages name their arguments (:func:`arg`): None as Python spells them, else a
-#: table {argument: name} that :func:`naming` sets (``bmctl campaign``: its flags)
-_NAMES: ContextVar[Mapping[str, str] | None] = ContextVar("bmctl_campaign_argument_names", default=None)
-
-
-def arg(name: str) -> str:
-    """An argument of a verb as the verb's messages name it: ``name``, as a Python caller spells it
-    (``"hours"``; a switch with its value, ``"accept=False"``), or within :func:`naming` the name
-    its table gives (``bmctl campaign``: the flag, ``"--hours"``, ``"--reject"``).
-
-    Parameters
-    ----------
-    name : str
-        The argument as a Python caller spells it.
-
-    Returns
-    -------
-    str
-        How the message names it.
-
-    Examples
-    --------
-    >>> arg("temperature_max_c")
-    'temperature_max_c'
-    >>> with naming({"temperature_max_c": "--temperature-max-c"}):
-    ...     arg("temperature_max_c")
-    '--temperature-max-c'
-    """
-    names = _NAMES.get()
-    return name if names is None else names.get(name, name)
-
-
-@contextlib.contextmanager
-def naming(names: Mapping[str, str]) -> Iterator[None]:
-    """Within the block, the verbs' messages name each argument by ``names`` (:func:`arg`; one it
-    does not hold as Python spells it); ``bmctl campaign`` runs its verbs so, naming its flags.
-
-    Parameters
-    ----------
-    names : mapping of str to str
-        ``{argument: name}``, the argument as :func:`arg` takes it.
-    """
-    token = _NAMES.set(dict(names))
-    try:
-        yield
-    finally:
-        _NAMES.reset(token)
-
-
 def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 

@@ -8,6 +8,11 @@ from pathlib import Path
 
 from ..errors import InputError, finite_float
 
+#: the library's arguments that its messages name (:func:`bmctl.naming.arg`), as the flags of the
+#: commands that pass them on: each such command runs within :func:`bmctl.naming.naming` of this table,
+#: so its refusals name ``--um-per-px`` where a Python caller reads ``um_per_px``
+LIBRARY_FLAGS = {"um_per_px": "--um-per-px", "scale_bar_um": "--scale-bar-um", "identify=True": "--identify"}
+
 
 def progress_bar(**kw):
     """A tqdm progress bar on stderr, shown only when stderr is a terminal (``disable=None``) and

@@ -11,11 +11,12 @@ import argparse
 import json
 import sys
 
-from ._args import float_arg, hours_arg, int_arg, rpm_arg
+from ._args import LIBRARY_FLAGS, float_arg, hours_arg, int_arg, rpm_arg
 from ._model import add_identify_flag, progress_printer, warn_window
 
-#: the verbs' arguments (:func:`bmctl.campaign.workflow.arg`) as this command's flags: the verbs run
-#: under this table, so their messages name the flags (``--hours``), as from Python the arguments (``hours``)
+#: the verbs' arguments (:func:`bmctl.naming.arg`) as this command's flags: the verbs run under this
+#: table (and :data:`~bmctl.commands._args.LIBRARY_FLAGS`, for what they pass on to the measurement and
+#: the moment model), so their messages name the flags (``--hours``), as from Python the arguments (``hours``)
 FLAGS = {"target": "--target", "hours": "--hours", "temperature_max_c": "--temperature-max-c",
          "particles": "--particles", "rpm": "--rpm", "milling": "--milling", "temperature_c": "--temperature-c",
          "from_h": "--from-h", "at_h": "--at-h", "um_per_px": "--um-per-px",
@@ -153,17 +154,18 @@ def _print_advice(a: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Dispatch the sub-verb; print what it did. Its refusals name the flags (:data:`FLAGS`). An
-    SQLite error the checks did not foresee (a file damaged under a running command; an ``init``
-    whose new database SQLite cannot write) is one line naming the database."""
+    """Dispatch the sub-verb; print what it did. Its refusals name the flags (:data:`FLAGS`,
+    :data:`~bmctl.commands._args.LIBRARY_FLAGS`). An SQLite error the checks did not foresee (a file
+    damaged under a running command; an ``init`` whose new database SQLite cannot write) is one line
+    naming the database."""
     import sqlite3
 
     from ..campaign.db import db_path
-    from ..campaign.workflow import naming
     from ..errors import InputError
+    from ..naming import naming
 
     try:
-        with naming(FLAGS):
+        with naming({**LIBRARY_FLAGS, **FLAGS}):
             return _run(args)
     except sqlite3.DatabaseError as exc:
         if args.verb == "init":  # a new database (init removed what it made): nothing was damaged

@@ -6,7 +6,8 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import hours_arg, int_arg, output_path
+from ..naming import naming
+from ._args import LIBRARY_FLAGS, hours_arg, int_arg, output_path
 from ._model import add_identify_flag, heldout_text, model_for, warn_window
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -43,6 +44,7 @@ def _controller_path(arg) -> Path:
     return local if local.exists() else ROOT / DEFAULT_CONTROLLER
 
 
+@naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags
 def run(args) -> int:
     from ..control.config import MPCConfig, check_ceiling, load_controller, parse_target
     from ..control.design import (check_batch, design_schedule, done_text, mill_violations, switches_of, switches_text,

@@ -18,7 +18,8 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError, finite_float
-from ._args import float_arg, int_arg, output_path, progress_bar, rpm_arg
+from ..naming import naming
+from ._args import LIBRARY_FLAGS, float_arg, int_arg, output_path, progress_bar, rpm_arg
 from ._model import add_identify_flag, model_for, warn_window
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp")
@@ -183,6 +184,7 @@ def _check_write_card(path, taken, force: bool = False) -> None:
         raise InputError(f"--write-card: {path} exists; give --force to replace it, or choose another file name")
 
 
+@naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags
 def run(args) -> int:
     from ..moments.coeffs import coeffs_path
     from ..schedule import Schedule

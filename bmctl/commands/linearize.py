@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from ..errors import InputError
-from ._args import hours_arg, output_path, rpm_arg
+from ..naming import naming
+from ._args import LIBRARY_FLAGS, hours_arg, output_path, rpm_arg
 from ._model import add_identify_flag
 
 
@@ -17,6 +18,7 @@ def configure(p):
     add_identify_flag(p)
 
 
+@naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags
 def run(args) -> int:
     import numpy as np
 

@@ -26,7 +26,8 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import float_arg, int_arg, output_path
+from ..naming import naming
+from ._args import LIBRARY_FLAGS, float_arg, int_arg, output_path
 
 #: default --min-area-px; equals bmctl.measure.segment.MIN_AREA_PX (a test checks), kept here so that
 #: building the parser does not import the image stack
@@ -203,6 +204,7 @@ def _check_work(images) -> dict:
     return pixels
 
 
+@naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags
 def run(args: argparse.Namespace) -> int:
     """Measure all inputs, print a summary and warnings, write ``--out`` and what goes beside it."""
     import numpy as np
@@ -216,7 +218,7 @@ def run(args: argparse.Namespace) -> int:
     from ._model import progress_printer
 
     scale = check_scale(args.um_per_px) if args.um_per_px is not None else None
-    bar_um = check_scale(args.scale_bar_um, "--scale-bar-um") if args.scale_bar_um is not None else None
+    bar_um = check_scale(args.scale_bar_um, "scale_bar_um") if args.scale_bar_um is not None else None
     if args.out is not None:
         if args.out == "":
             raise InputError("--out: empty path")

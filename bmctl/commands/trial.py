@@ -6,7 +6,8 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import int_arg, output_path, progress_bar
+from ..naming import naming
+from ._args import LIBRARY_FLAGS, int_arg, output_path, progress_bar
 from ._model import add_identify_flag, model_for, warn_window
 
 
@@ -51,6 +52,7 @@ def _check_trial_work(sc, path):
     return card
 
 
+@naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags
 def run(args) -> int:
     from ..io import name_part
     from ..scenario import load_scenario

@@ -168,7 +168,7 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
     if um_per_px is not None:
         um_per_px = check_scale(um_per_px)
     if scale_bar_um is not None:
-        scale_bar_um = check_scale(scale_bar_um, "--scale-bar-um")
+        scale_bar_um = check_scale(scale_bar_um, "scale_bar_um")
     if isinstance(min_particles, bool) or not isinstance(min_particles, (int, np.integer)) or min_particles < 0:
         raise InputError(f"--min-particles: expected a whole number >= 0 (got {min_particles!r})")
     info_row = None if keep_info_bar else find_info_bar(img)

@@ -1,9 +1,10 @@
 """Pixel size of a micrograph: vendor metadata, the data bar and its scale bar.
 
-Order of precedence (:func:`resolve_scale`): ``--um-per-px`` given by the user, then the
-pixel size stored by the instrument in the TIFF (:func:`scale_from_metadata`), then a scale
-bar found in the image when the user gives its length (``--scale-bar-um``,
-:func:`find_scale_bar`). Supported metadata (``docs/measurement.md`` §8.1):
+Order of precedence (:func:`resolve_scale`): ``um_per_px`` (``--um-per-px``) given by the user,
+then the pixel size stored by the instrument in the TIFF (:func:`scale_from_metadata`), then a
+scale bar found in the image when the user gives its length (``scale_bar_um``, ``--scale-bar-um``;
+:func:`find_scale_bar`); messages name them as the caller spells them (:func:`scale_help`).
+Supported metadata (``docs/measurement.md`` §8.1):
 
 * FEI/Thermo Fisher (Helios, Quanta, Nova, Scios, Apreo, ...): TIFF tag 34682 ``FEI_HELIOS``,
   ``[Scan] PixelWidth`` in metres;
@@ -35,6 +36,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from ..errors import InputError
+from ..naming import arg
 
 #: sane pixel sizes: 0.1 nm (a TEM) to 1 mm (a photograph of a sieve) per px
 UM_PER_PX_RANGE = (1e-4, 1e3)
@@ -433,7 +435,27 @@ def nearest_125(value: float) -> float:
     return float(cands[np.argmin(np.abs(np.log(cands / value)))])
 
 
-SCALE_HELP = "give the scale with --um-per-px X, or --scale-bar-um L (the length written on the image's scale bar)"
+def scale_help(bar: bool = True) -> str:
+    """How to give a pixel size, naming the arguments as the caller spells them
+    (:func:`bmctl.naming.arg`): ``um_per_px`` and, with ``bar``, ``scale_bar_um``; within
+    :func:`bmctl.naming.naming` (``bmctl measure``) the flags.
+
+    Parameters
+    ----------
+    bar : bool, optional
+        Also name the scale bar's length as a way.
+
+    Examples
+    --------
+    >>> scale_help()
+    "give the scale with um_per_px X, or scale_bar_um L (the length written on the image's scale bar)"
+    >>> from bmctl.naming import naming
+    >>> with naming({"um_per_px": "--um-per-px"}):
+    ...     scale_help(bar=False)
+    'give the scale with --um-per-px X'
+    """
+    way = f"give the scale with {arg('um_per_px')} X"
+    return f"{way}, or {arg('scale_bar_um')} L (the length written on the image's scale bar)" if bar else way
 
 
 def resolve_scale(path, img: np.ndarray, *, um_per_px=None, scale_bar_um=None, info_top=None,
@@ -467,41 +489,69 @@ def resolve_scale(path, img: np.ndarray, *, um_per_px=None, scale_bar_um=None, i
     """
     bar = find_scale_bar(img, info_top, info_banner)
     if um_per_px is not None:
+        # the detail is recorded (measure.json): the same words from Python as from `bmctl measure`
         return Scale(float(um_per_px), "user", "--um-per-px"), bar
     name = str(path) if path is not None else "image"
     meta = scale_from_metadata(path) if path is not None else None
     if meta is not None:
-        return _sane(meta, name, "the image metadata", "give the scale with --um-per-px X"), bar
+        return _sane(meta, name, "the image metadata", scale_help(bar=False)), bar
     if scale_bar_um is not None:
         if bar is None:
-            raise InputError(f"{name}: --scale-bar-um given but no scale bar found; {SCALE_HELP.split(', or')[0]}")
-        found = Scale(float(scale_bar_um) / bar.length_px, "scale-bar",
-                      f"scale bar {bar.length_px:g} px at row {bar.row} = {float(scale_bar_um):g} µm (--scale-bar-um)")
-        return _sane(found, name, "the scale bar", "check --scale-bar-um, or give the scale with --um-per-px X"), bar
-    raise InputError(f"{name}: no pixel size in the image metadata; {SCALE_HELP}")
+            raise InputError(f"{name}: {arg('scale_bar_um')} given but no scale bar found; {scale_help(bar=False)}")
+        read = f"scale bar {bar.length_px:g} px at row {bar.row} = {float(scale_bar_um):g} µm"
+        found = Scale(float(scale_bar_um) / bar.length_px, "scale-bar", f"{read} (--scale-bar-um)")
+        return _sane(found, name, "the scale bar", f"check {arg('scale_bar_um')}, or {scale_help(bar=False)}",
+                     f"{read} ({arg('scale_bar_um')})"), bar
+    raise InputError(f"{name}: no pixel size in the image metadata; {scale_help()}")
 
 
-def _sane(scale: Scale, name: str, source: str, remedy: str) -> Scale:
-    """``scale`` if its pixel size lies in :data:`UM_PER_PX_RANGE` (the range ``--um-per-px`` is held
-    to), else :class:`InputError` naming where it came from: a metadata unit or a bar length read wrong
-    gave particle sizes of kilometres, refused only later as a particle outside its range, with the
-    advice to check flags the user never gave."""
+def _sane(scale: Scale, name: str, source: str, remedy: str, detail: str | None = None) -> Scale:
+    """``scale`` if its pixel size lies in :data:`UM_PER_PX_RANGE` (the range ``um_per_px`` is held
+    to), else :class:`InputError` naming where it came from (``detail``, default the scale's): a
+    metadata unit or a bar length read wrong gave particle sizes of kilometres, refused only later as
+    a particle outside its range, with the advice to check arguments the user never gave."""
     lo, hi = UM_PER_PX_RANGE
     if not lo <= scale.um_per_px <= hi:
         raise InputError(f"{name}: pixel size from {source}, {scale.um_per_px:g} µm/px, outside [{lo:g}, {hi:g}] µm/px "
-                         f"({scale.detail}); {remedy}")
+                         f"({scale.detail if detail is None else detail}); {remedy}")
     return scale
 
 
-def check_scale(um_per_px, name: str = "--um-per-px") -> float:
-    """Validate a pixel size: a finite number > 0, else :class:`InputError`."""
+def check_scale(um_per_px, name: str = "um_per_px") -> float:
+    """Validate a pixel size (or, ``name`` ``"scale_bar_um"``, a scale bar's length): a finite
+    number in its sane range, else :class:`InputError` naming the argument as the caller spells it
+    (:func:`bmctl.naming.arg`; ``bmctl measure``: its flag).
+
+    Parameters
+    ----------
+    um_per_px : float
+        The value given.
+    name : str, optional
+        The argument as Python spells it: ``"um_per_px"`` (range :data:`UM_PER_PX_RANGE`) or
+        ``"scale_bar_um"`` (1e-3 to 1e5 µm).
+
+    Returns
+    -------
+    float
+
+    Examples
+    --------
+    >>> check_scale(0.5)
+    0.5
+    >>> check_scale(-1)
+    Traceback (most recent call last):
+    ...
+    bmctl.errors.InputError: um_per_px: must be a finite number > 0 (got -1)
+    """
+    bar = name == "scale_bar_um"
+    name = arg(name)
     try:
         v = float(um_per_px)
     except (TypeError, ValueError):
         raise InputError(f"{name}: not a number ({um_per_px!r})") from None
     if not np.isfinite(v) or v <= 0:
         raise InputError(f"{name}: must be a finite number > 0 (got {um_per_px})")
-    lo, hi = UM_PER_PX_RANGE if name != "--scale-bar-um" else (1e-3, 1e5)
+    lo, hi = (1e-3, 1e5) if bar else UM_PER_PX_RANGE
     if not lo <= v <= hi:
         raise InputError(f"{name}: {v:g} µm is outside the sane range [{lo:g}, {hi:g}] µm")
     return v

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, quote
+from ..naming import arg
 from ..io import write_csv
 from ..plant.events import aspect_from_perimeter, perimeter_from_aspect, size_from_area
 
@@ -280,7 +281,7 @@ def check_table(table: ParticleTable, source: str) -> ParticleTable:
             k = int(np.argmax(bad))
             rng = {"s_um": f"[{S_MIN_UM:g}, {S_MAX_UM:g}] µm", "r": "[0, 1)"}.get(name, "> 0")
             raise InputError(f"{source}: particle {k + 1}: {name} = {v[k]:.4g} outside {rng}: check the scale "
-                             "(--um-per-px, --scale-bar-um)")
+                             f"({arg('um_per_px')}, {arg('scale_bar_um')})")
     return table
 
 

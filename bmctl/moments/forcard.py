@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Callable
 
 from ..errors import InputError
+from ..naming import arg
 from . import coeffs as cf
 
 #: the shipped cards' folder: ``bmctl identify`` never writes over a file here unless asked (``--overwrite``)
@@ -220,7 +221,7 @@ def for_card(card, *, identify: bool = False, progress: Callable[[str], None] | 
     st = status(card_obj, card_path, coeffs)
     if not st.ok:
         if not identify or card_path is None:
-            fix = (f"bmctl identify {card_path} (about a minute), or add --identify" if card_path is not None
+            fix = (f"bmctl identify {card_path} (about a minute), or add {arg('identify=True')}" if card_path is not None
                    else "identify the card (bmctl identify CARD.toml)")
             raise refusal(where, st, fix)
         out = Path(coeffs) if coeffs is not None else cf.coeffs_path(card_path)

@@ -197,7 +197,7 @@ def test_no_data_bar_on_plain_micrograph():
 
 def test_array_without_scale_is_an_input_error():
     m = render_micrograph(np.random.default_rng(3), n=10, shape=(128, 128), s_px=(14, 24))
-    with pytest.raises(InputError, match="--um-per-px"):
+    with pytest.raises(InputError, match="give the scale with um_per_px X"):
         measure_micrograph(m.image)
 
 

@@ -49,7 +49,7 @@ def test_a_changed_card_field_is_refused_naming_card_field_and_fix(tmp_path):
     assert "\n" not in msg
     assert msg.startswith(f"{p}: moment coefficients:")
     assert "stochastic.gamma_per_um2 0.000273 (coefficients: 0.000182)" in msg
-    assert f"bmctl identify {p}" in msg and "--identify" in msg
+    assert f"bmctl identify {p}" in msg and "or add identify=True" in msg
 
 
 def test_missing_and_unrecorded_coefficients_are_refused(tmp_path):
