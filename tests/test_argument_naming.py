@@ -213,7 +213,156 @@ def test_the_named_arguments_are_those_the_functions_take():
     assert {"um_per_px", "scale_bar_um"} <= takes
     assert "identify" in inspect.signature(for_card).parameters
     assert "identify" in inspect.signature(cp.init).parameters and "um_per_px" in inspect.signature(cp.sample).parameters
-    assert LIBRARY_FLAGS == {"um_per_px": "--um-per-px", "scale_bar_um": "--scale-bar-um", "identify=True": "--identify"}
+    assert {k: LIBRARY_FLAGS[k] for k in ("um_per_px", "scale_bar_um", "identify=True")} == {
+        "um_per_px": "--um-per-px", "scale_bar_um": "--scale-bar-um", "identify=True": "--identify"}
     with naming(LIBRARY_FLAGS):
         assert [arg(a) for a in ("um_per_px", "scale_bar_um", "identify=True", "hours")] == [*FLAGS, "hours"]
     assert arg("identify=True") == "identify=True"
+
+
+# --- the measurement's own arguments: min_particles, min_area_px, crop (bmctl.measure) ----------------
+
+def test_measurement_arguments_are_named_as_python_spells_them(plain):
+    from bmctl.measure.loading import parse_crop
+
+    img = np.asarray(Image.open(plain), dtype=float) / 255.0
+    msg = _refusal(lambda: measure_micrograph(img, um_per_px=1.0, min_particles=-1))
+    assert msg == "min_particles: expected a whole number >= 0 (got -1)", msg
+    msg = _refusal(lambda: measure_micrograph(img, um_per_px=1.0, min_area_px="big"))
+    assert msg == "min_area_px: expected a number of px or 'auto' (got 'big')", msg
+    msg = _refusal(lambda: measure_micrograph(img, um_per_px=1.0, crop="a:b"))
+    assert msg == "crop: expected Y0:Y1,X0:X1 in pixels (got 'a:b')", msg
+    msg = _refusal(lambda: measure_micrograph(img, um_per_px=1.0, crop="10:5,0:20"))
+    assert msg == "crop: empty window '10:5,0:20' (need Y0 < Y1 and X0 < X1)", msg
+    assert _refusal(lambda: parse_crop("0:0,:")).startswith("crop: empty window")
+    assert "--" not in _refusal(lambda: measure_micrograph(img, um_per_px=1.0, crop="x"))
+
+
+def test_measurement_arguments_from_the_command_name_the_flags(plain, capsys):
+    line = _cli_error(capsys, ["measure", plain, "--um-per-px", "1", "--crop", "a:b"])
+    assert line == "bmctl: error: --crop: expected Y0:Y1,X0:X1 in pixels (got 'a:b')", line
+    line = _cli_error(capsys, ["measure", plain, "--um-per-px", "1", "--crop", "10:5,0:20"])
+    assert line == "bmctl: error: --crop: empty window '10:5,0:20' (need Y0 < Y1 and X0 < X1)", line
+    # the command checks --min-particles and --min-area-px itself; the library, run as the command runs it,
+    # names the same flags
+    from bmctl.commands._args import LIBRARY_FLAGS
+
+    img = np.asarray(Image.open(plain), dtype=float) / 255.0
+    with naming(LIBRARY_FLAGS):
+        msg = _refusal(lambda: measure_micrograph(img, um_per_px=1.0, min_particles=-1))
+        assert msg == "--min-particles: expected a whole number >= 0 (got -1)", msg
+        msg = _refusal(lambda: measure_micrograph(img, um_per_px=1.0, min_area_px="big"))
+        assert msg == "--min-area-px: expected a number of px or 'auto' (got 'big')", msg
+    line = _cli_error(capsys, ["measure", plain, "--um-per-px", "1", "--min-particles", "-1"])
+    assert line == "bmctl: error: --min-particles: must be >= 0 (got -1)", line
+    line = _cli_error(capsys, ["measure", plain, "--um-per-px", "1", "--min-area-px", "big"])
+    assert line == "bmctl: error: --min-area-px: expected a number of px or 'auto' (got 'big')", line
+    assert _refusal(lambda: measure_micrograph(img, um_per_px=1.0, crop="a:b")).startswith("crop: ")
+
+
+# --- the sample's time against the schedule (bmctl.measure.compare) ----------------------------------
+
+def test_compare_time_is_named_as_python_spells_it():
+    from bmctl.measure.compare import predicted_population, truncate_schedule
+
+    msg = _refusal(lambda: truncate_schedule([(2.0, 300.0)], 5.0))
+    assert msg == "at_h: must be in [0, 2] h, the schedule's length (got 5)", msg
+    from bmctl.config import load_card
+
+    msg = _refusal(lambda: predicted_population(load_card(CARD), [(2.0, 300.0)], -1.0, np.random.default_rng(0), 100))
+    assert msg.startswith("at_h: must be in [0, 2] h"), msg
+
+
+def test_compare_command_names_the_at_h_flag(tmp_path, capsys):
+    from bmctl.measure.compare import truncate_schedule
+
+    t = tmp_path / "t.csv"
+    t.write_text("s_um,r\n40,0.1\n50,0.2\n60,0.1\n", encoding="utf-8")
+    line = _cli_error(capsys, ["compare", t, "--model", CARD, "--at-h", "99", "--out", tmp_path / "o"])
+    assert line.startswith("bmctl: error: --at-h: must be in [0, "), line
+    assert line.endswith("h, the schedule's length (got 99)"), line
+    assert not (tmp_path / "o").exists()
+    assert _refusal(lambda: truncate_schedule([(2.0, 300.0)], 5.0)).startswith("at_h: ")
+
+
+# --- the start of an identification (bmctl.moments.forcard.identification) ---------------------------
+
+@pytest.fixture
+def unfingerprinted(tmp_path) -> Path:
+    """The lab's coefficient file without its [card] table (a file from before fingerprints)."""
+    text = cf.coeffs_path(CARD).read_text(encoding="utf-8")
+    p = tmp_path / "old.moments.toml"
+    p.write_text(text[:text.index("[card]")] + text[text.index("[window]"):], encoding="utf-8")
+    return p
+
+
+def test_identification_start_is_named_as_python_spells_it(unfingerprinted):
+    from bmctl.config import load_card
+    from bmctl.moments.forcard import identification
+
+    msg = _refusal(lambda: identification(load_card(CARD), CARD, start=unfingerprinted))
+    assert msg == f"start: {unfingerprinted}: records no card fingerprint; give an identified file", msg
+
+
+def test_identify_command_names_the_start_flag(unfingerprinted, tmp_path, capsys):
+    from bmctl.config import load_card
+    from bmctl.moments.forcard import identification
+
+    line = _cli_error(capsys, ["identify", CARD, "--start", unfingerprinted, "--quick", "--workers", "0",
+                               "--out", tmp_path / "x.moments.toml"])
+    assert line == f"bmctl: error: --start: {unfingerprinted}: records no card fingerprint; give an identified file"
+    assert not (tmp_path / "x.moments.toml").exists()
+    assert _refusal(lambda: identification(load_card(CARD), CARD, start=unfingerprinted)).startswith("start: ")
+
+
+def test_the_added_names_are_those_the_functions_take():
+    from bmctl.commands._args import LIBRARY_FLAGS
+    from bmctl.measure.compare import predicted_population, truncate_schedule
+    from bmctl.moments.forcard import identification
+
+    assert {"min_particles", "min_area_px", "crop"} <= set(inspect.signature(measure_micrograph).parameters)
+    assert "at_h" in inspect.signature(truncate_schedule).parameters
+    assert "at_h" in inspect.signature(predicted_population).parameters
+    assert "start" in inspect.signature(identification).parameters
+    added = {"min_particles": "--min-particles", "min_area_px": "--min-area-px", "crop": "--crop",
+             "at_h": "--at-h", "start": "--start"}
+    assert {k: LIBRARY_FLAGS.get(k) for k in added} == added
+    assert cp_flags()["at_h"] == LIBRARY_FLAGS["at_h"]  # campaign sample passes at_h as the same flag
+
+
+def cp_flags() -> dict:
+    from bmctl.commands.campaign import FLAGS as CAMPAIGN_FLAGS
+
+    return CAMPAIGN_FLAGS
+
+
+# --- a trial run as a campaign into a used folder (bmctl.campaign.simulated) -------------------------
+
+def _used_trial_folder(tmp_path) -> tuple[Path, Path]:
+    from .campaign.scenarios import lqr_scenario
+
+    s = lqr_scenario(tmp_path / "sc.toml")
+    out = tmp_path / "t"
+    out.mkdir()
+    (out / "trajectory.csv").write_text("k\n", encoding="utf-8")
+    return s, out
+
+
+def test_trial_as_campaign_names_out_as_python_spells_it(tmp_path):
+    from bmctl.campaign.simulated import run_trial_as_campaign
+
+    s, out = _used_trial_folder(tmp_path)
+    msg = _refusal(lambda: run_trial_as_campaign(s, out))
+    assert msg == (f"out: {out} already holds a trial; give another folder (a trial run as a campaign "
+                   "does not resume)"), msg
+
+
+def test_trial_command_with_campaign_names_the_out_flag(tmp_path, capsys):
+    from bmctl.campaign.simulated import run_trial_as_campaign
+
+    s, out = _used_trial_folder(tmp_path)
+    line = _cli_error(capsys, ["trial", s, "--campaign", "--out", out, "--no-progress"])
+    assert line == (f"bmctl: error: --out: {out} already holds a trial; give another folder (a trial run as a "
+                    "campaign does not resume)"), line
+    assert _refusal(lambda: run_trial_as_campaign(s, out)).startswith("out: ")
+    assert not (out / "campaign").exists()

@@ -21,6 +21,7 @@ import json
 from pathlib import Path
 
 from ..errors import InputError
+from ..naming import arg
 from ..physics.constants import TIME_EPS_H
 from . import workflow as wf
 
@@ -180,7 +181,7 @@ def run_trial_as_campaign(scenario_path, out, seed: int = 0, progress=None) -> d
     out = Path(out)
     traj, folder = out / "trajectory.csv", out / CAMPAIGN_DIR
     if traj.exists() or folder.exists():
-        raise InputError(f"--out: {out} already holds a trial; give another folder (a trial run as a campaign "
+        raise InputError(f"{arg('out')}: {out} already holds a trial; give another folder (a trial run as a campaign "
                          "does not resume)")
     out.mkdir(parents=True, exist_ok=True)
     io.write_text(out / "trial.json", json.dumps({"scenario": str(Path(scenario_path).resolve()), "seed": seed,

@@ -10,8 +10,11 @@ from ..errors import InputError, finite_float
 
 #: the library's arguments that its messages name (:func:`bmctl.naming.arg`), as the flags of the
 #: commands that pass them on: each such command runs within :func:`bmctl.naming.naming` of this table,
-#: so its refusals name ``--um-per-px`` where a Python caller reads ``um_per_px``
-LIBRARY_FLAGS = {"um_per_px": "--um-per-px", "scale_bar_um": "--scale-bar-um", "identify=True": "--identify"}
+#: so its refusals name ``--um-per-px`` where a Python caller reads ``um_per_px``; a key holds for every such
+#: command, so each is one that every command passing the argument spells the same way
+LIBRARY_FLAGS = {"um_per_px": "--um-per-px", "scale_bar_um": "--scale-bar-um", "identify=True": "--identify",
+                 "min_particles": "--min-particles", "min_area_px": "--min-area-px", "crop": "--crop",
+                 "at_h": "--at-h", "start": "--start"}
 
 
 def progress_bar(**kw):

@@ -12,7 +12,8 @@ from __future__ import annotations
 import json
 import sys
 
-from ._args import hours_arg, int_arg, output_path
+from ..naming import naming
+from ._args import LIBRARY_FLAGS, hours_arg, int_arg, output_path
 
 
 def configure(p):
@@ -36,6 +37,7 @@ def _ad_p_text(p: float) -> str:
     return f"p = {p:.3g}"
 
 
+@naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags
 def run(args) -> int:
     """Simulate to ``--at-h``, compare, print the statistics, write the figure and JSON."""
     import numpy as np

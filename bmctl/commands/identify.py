@@ -16,7 +16,8 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import int_arg, output_path
+from ..naming import naming
+from ._args import LIBRARY_FLAGS, int_arg, output_path
 
 
 def configure(p):
@@ -78,6 +79,7 @@ def _out_path(args) -> Path:
     return out
 
 
+@naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags
 def run(args) -> int:
     from ..cards import check_work, identify_work
     from ..config import load_card

@@ -82,7 +82,8 @@ def run(args) -> int:
         if args.campaign:
             from ..campaign.simulated import run_trial_as_campaign
 
-            summary = run_trial_as_campaign(args.scenario, out, seed=args.seed, progress=progress)
+            with naming({**LIBRARY_FLAGS, "out": "--out"}):  # with --campaign the folder is --out's (no --resume)
+                summary = run_trial_as_campaign(args.scenario, out, seed=args.seed, progress=progress)
         else:
             summary = run_trial(args.scenario, out, seed=args.seed, resume=args.resume is not None,
                                 progress=progress)

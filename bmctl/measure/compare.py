@@ -16,6 +16,7 @@ import numpy as np
 from scipy import stats
 
 from ..errors import InputError
+from ..naming import arg
 
 UM = 1e-6
 
@@ -30,7 +31,7 @@ def truncate_schedule(segments, at_h: float) -> list[tuple[float, float]]:
     """
     total = sum(h for h, _ in segments)
     if not 0.0 <= at_h <= total + 1e-9:
-        raise InputError(f"--at-h: must be in [0, {total:g}] h, the schedule's length (got {at_h:g})")
+        raise InputError(f"{arg('at_h')}: must be in [0, {total:g}] h, the schedule's length (got {at_h:g})")
     out, done = [], 0.0
     for h, rpm in segments:
         take = min(h, at_h - done)

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..naming import arg
 
 
 #: the largest image read (pixels): a 16-bit SEM frame is <= ~25 Mpx; a small compressed file can
@@ -600,10 +601,10 @@ def parse_crop(text: str) -> tuple[int, int, int, int]:
     """
     m = re.fullmatch(r"\s*(\d*)\s*:\s*(\d*)\s*,\s*(\d*)\s*:\s*(\d*)\s*", text or "")
     if not m:
-        raise InputError(f"--crop: expected Y0:Y1,X0:X1 in pixels (got {text!r})")
+        raise InputError(f"{arg('crop')}: expected Y0:Y1,X0:X1 in pixels (got {text!r})")
     y0, y1, x0, x1 = (int(g) if g else d for g, d in zip(m.groups(), (0, -1, 0, -1)))
     if (y1 != -1 and y1 <= y0) or (x1 != -1 and x1 <= x0):
-        raise InputError(f"--crop: empty window {text!r} (need Y0 < Y1 and X0 < X1)")
+        raise InputError(f"{arg('crop')}: empty window {text!r} (need Y0 < Y1 and X0 < X1)")
     return y0, y1, x0, x1
 
 

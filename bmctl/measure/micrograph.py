@@ -15,6 +15,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from ..errors import InputError
+from ..naming import arg
 from .loading import as_gray_float, load_image, parse_crop
 from .quality import MIN_PARTICLES, QualityWarning, auto_min_area, check_segmentation, evidence, verdict
 from .scale import Scale, ScaleBar, check_scale, find_info_bar, nearest_125, resolve_scale
@@ -170,7 +171,7 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
     if scale_bar_um is not None:
         scale_bar_um = check_scale(scale_bar_um, "scale_bar_um")
     if isinstance(min_particles, bool) or not isinstance(min_particles, (int, np.integer)) or min_particles < 0:
-        raise InputError(f"--min-particles: expected a whole number >= 0 (got {min_particles!r})")
+        raise InputError(f"{arg('min_particles')}: expected a whole number >= 0 (got {min_particles!r})")
     info_row = None if keep_info_bar else find_info_bar(img)
     banner = None if keep_info_bar else find_info_bar(img, side="top")
     scale, bar = resolve_scale(path, img, um_per_px=um_per_px, scale_bar_um=scale_bar_um, info_top=info_row,
@@ -190,7 +191,7 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
         segment_kw["drawn"] = _bar_pixels(img.shape, bar)  # masked with the annotations (unless switched off)
     auto = isinstance(min_area_px, str)
     if auto and min_area_px != "auto":
-        raise InputError(f"--min-area-px: expected a number of px or 'auto' (got {min_area_px!r})")
+        raise InputError(f"{arg('min_area_px')}: expected a number of px or 'auto' (got {min_area_px!r})")
     floor = MIN_AREA_PX if auto else int(min_area_px)
     seg = segment(img, min_area_px=floor, crop=crop, mask=mask, name=name, **segment_kw)
     used = floor

@@ -345,7 +345,7 @@ def identification(card, card_path: str | Path | None, *, seed: int = 0, log=Non
     else:
         first, label = ident.warm_start(card, [cf.read_file(start)])
         if not cf.read_file(start).values:
-            raise InputError(f"--start: {start}: records no card fingerprint; give an identified file")
+            raise InputError(f"{arg('start')}: {start}: records no card fingerprint; give an identified file")
     own = client is None
     if own:
         quick = kw.get("quick", False)

@@ -212,7 +212,7 @@ def test_few_particles_image_is_doubtful_and_still_accepted():
     assert lines == [f"two.png: verdict doubtful (few particles: 2 found (fewer than {MIN_PARTICLES}); statistics "
                      "unreliable): check its overlay before trusting its particles"]
     assert measure_micrograph(_two_particles(), um_per_px=1.0, min_particles=0).verdict == "ok"
-    with pytest.raises(InputError, match=r"^--min-particles: expected a whole number >= 0 \(got -1\)$"):
+    with pytest.raises(InputError, match=r"^min_particles: expected a whole number >= 0 \(got -1\)$"):
         measure_micrograph(_two_particles(), um_per_px=1.0, min_particles=-1)
 
 
