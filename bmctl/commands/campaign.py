@@ -14,6 +14,10 @@ import sys
 from ._args import LIBRARY_FLAGS, float_arg, hours_arg, int_arg, rpm_arg
 from ._model import add_identify_flag, progress_printer, warn_window
 
+#: ``init --particles``: equals :data:`bmctl.campaign.workflow.PARTICLES_RANGE` (a test checks), kept here so
+#: that building the parser does not import the campaign's numerical modules
+PARTICLES_RANGE = (50, 200_000)
+
 #: the verbs' arguments (:func:`bmctl.naming.arg`) as this command's flags: the verbs run under this
 #: table (and :data:`~bmctl.commands._args.LIBRARY_FLAGS`, for what they pass on to the measurement and
 #: the moment model), so their messages name the flags (``--hours``), as from Python the arguments (``hours``)
@@ -38,8 +42,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--temperature-max-c", type=float_arg("--temperature-max-c"), default=None, metavar="C",
                    help="vial-temperature ceiling (°C); default: the controller's")
     p.add_argument("--seed", type=int_arg("--seed", 0), default=0, help="seed of the estimator (default: 0)")
-    p.add_argument("--particles", type=int_arg("--particles", 50, 200_000), default=1000,
-                   help="filter particles (default: 1000)")
+    p.add_argument("--particles", type=int_arg("--particles", *PARTICLES_RANGE), default=1000,
+                   help=f"filter particles, {PARTICLES_RANGE[0]} to {PARTICLES_RANGE[1]} (default: 1000)")
     p.add_argument("--energy-mult", action=argparse.BooleanOptionalAction, default=True,
                    help="the filter also learns energy_mult, the mill's impact energy per particle against the card's "
                         "(a mill whose balls or powder mass the card does not describe); --no-energy-mult: "

@@ -49,6 +49,13 @@ def test_measure_default_min_area_matches_the_segmenter():
     assert cmd.MIN_AREA_PX == MIN_AREA_PX
 
 
+def test_campaign_particles_range_matches_the_workflow():
+    from bmctl.campaign.workflow import PARTICLES_RANGE
+    from bmctl.commands import campaign as cmd
+
+    assert cmd.PARTICLES_RANGE == PARTICLES_RANGE
+
+
 def test_the_bmctl_process_help_imports_no_numerical_library():
     # main() of the command's own process (argv None) also makes the heap setting: it must stay light
     code = ("import sys\n"
