@@ -41,7 +41,7 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False, scale_name: str =
     """
     from ..measure.micrograph import check_verdicts, measure_micrograph, table_reports
     from ..measure.scale import check_scale
-    from ..measure.tables import ParticleTable, read_locations, read_table
+    from ..measure.tables import ParticleTable, read_table_with_locations
 
     scale = check_scale(um_per_px, scale_name) if um_per_px is not None else None
     tables, images, xs, ys, reports, counts = [], [], [], [], [], []
@@ -51,9 +51,8 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False, scale_name: str =
             x = y = np.full(len(t), np.nan)
             reports.append({"table": name, "count": len(t)})
         elif Path(item).suffix.lower() == ".csv":
-            t, name = read_table(item), str(item)
-            x = y = np.full(len(t), np.nan)
-            where = read_locations(item, len(t))  # a table `bmctl measure` wrote: each particle's image and centroid
+            (t, where), name = read_table_with_locations(item), str(item)  # where: a table `bmctl measure` wrote
+            x = y = np.full(len(t), np.nan)  # (each particle's image and centroid), else None
             side = table_reports(item)
             reports.append({"table": name, "count": len(t),
                             "verdict_warnings": check_verdicts(side, accept_unusable, accept_name)})

@@ -173,15 +173,51 @@ def read_table(path: str | os.PathLike) -> ParticleTable:
     >>> len(t), t.s_um.tolist()
     (2, [40.0, 55.5])
     """
+    return _parse_table(str(path), _table_text(path))
+
+
+def read_table_with_locations(path: str | os.PathLike) -> tuple[ParticleTable, tuple | None]:
+    """The particle table (:func:`read_table`) and its rows' images and centroids
+    (:func:`read_locations`, None for a table without them) from one read of the file: a table
+    replaced between two reads cannot give one's particles the other's locations.
+
+    Parameters
+    ----------
+    path : path-like
+
+    Returns
+    -------
+    (ParticleTable, (images, x_um, y_um) or None)
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> f = pathlib.Path(tempfile.mkdtemp()) / "t.csv"
+    >>> _ = f.write_text("image,x_um,y_um,s_um,r\\na.png,1.5,2.0,40.0,0.02\\n", encoding="utf-8")
+    >>> t, (images, x_um, y_um) = read_table_with_locations(f)
+    >>> len(t), images, x_um.tolist()
+    (1, ['a.png'], [1.5])
+    """
+    text = _table_text(path)
+    table = _parse_table(str(path), text)
+    return table, _locations(path, text, len(table))
+
+
+def _table_text(path) -> str:
+    """A particle table's text (a regular file of a sane size), or :class:`InputError` naming it."""
     p = str(path)
     try:
         from ..io import read_input_bytes  # a regular file of a sane size (no FIFO, no device)
 
-        text = read_input_bytes(path, max_bytes=TABLE_MAX_BYTES).decode("utf-8-sig")
+        return read_input_bytes(path, max_bytes=TABLE_MAX_BYTES).decode("utf-8-sig")
     except FileNotFoundError:
         raise InputError(f"{p}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{p}: cannot read particle table ({type(exc).__name__})") from None
+
+
+def _parse_table(p: str, text: str) -> ParticleTable:
+    """The particle table in ``text`` (the file ``p``'s), as :func:`read_table` checks it."""
     lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise InputError(f"{p}: empty particle table (no header, no rows)")
@@ -239,7 +275,11 @@ def read_locations(path: str | os.PathLike, n: int) -> tuple[list[str], np.ndarr
     them. An empty image is the table's path; an empty or unreadable centroid is NaN (stored NULL)."""
     from ..io import read_input_bytes
 
-    text = read_input_bytes(path, max_bytes=TABLE_MAX_BYTES).decode("utf-8-sig")  # read_table read it
+    return _locations(path, read_input_bytes(path, max_bytes=TABLE_MAX_BYTES).decode("utf-8-sig"), n)
+
+
+def _locations(path, text: str, n: int) -> tuple[list[str], np.ndarray, np.ndarray] | None:
+    """:func:`read_locations` of the table's ``text``."""
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     rows = list(csv.reader(lines))
     header = [h.strip() for h in rows[0]]
