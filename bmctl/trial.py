@@ -129,6 +129,32 @@ def build(sc: Scenario, base: Path, seed: int) -> ClosedLoop:
     return ClosedLoop(plant, sensor, pf, controller, g_sample, cfg)
 
 
+def start_truth(mill) -> dict:
+    """The plant's state at t = 0 (the :data:`TRUE_KEYS` a trajectory row gives; its peak is the
+    temperature then), which ``trial.json`` keeps as ``start`` for trial.png: trajectory.csv has rows
+    at interval ends only. Reads the population, draws nothing.
+
+    Parameters
+    ----------
+    mill : Plant
+    """
+    m = mill.moments()
+    return {**{k: float(m[k]) for k in TRUE_KEYS if k in m}, "peak_temperature_c": float(m["temperature_c"])}
+
+
+def _start(out: Path) -> dict:
+    """``start`` of ``out/trial.json`` (:func:`start_truth`), or {} where there is none or it is not
+    every true quantity as a finite number (a trial begun by an earlier bmctl)."""
+    try:
+        d = io.read_json(out / "trial.json", max_bytes=1 << 20)
+    except (InputError, OSError, ValueError):
+        return {}
+    st = d.get("start") if isinstance(d, dict) else None
+    ok = isinstance(st, dict) and all(isinstance(st.get(k), (int, float)) and not isinstance(st.get(k), bool)
+                                      and np.isfinite(st[k]) for k in TRUE_KEYS)
+    return st if ok else {}
+
+
 def trajectory_row(rec: StepRecord) -> list:
     """The ``trajectory.csv`` row of one step."""
     st = rec.status
@@ -361,7 +387,8 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
     else:
         out.mkdir(parents=True, exist_ok=True)
         io.write_text(out / "trial.json", json.dumps({"scenario": str(Path(scenario_path).resolve()), "seed": seed,
-                                                      "sha256": inputs_digest(sc, scenario_path)}))
+                                                      "sha256": inputs_digest(sc, scenario_path),
+                                                      "start": start_truth(loop.mill)}))
         io.write_text(traj, ",".join(trajectory_header()) + "\n")
         save_state(ckpt, loop.get_state())
     K = loop.steps
@@ -502,9 +529,10 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
     """``trial.png``: the moments and each targeted quantity with the truth, the estimate's 90 % band
     and the target value or window; rpm and rests; temperature; the estimated γ and δ factors.
 
-    Every time axis spans 0 to the batch end. A trial of one interval draws its single points with
-    markers and its bands as error bars (trajectory.csv has no row at t = 0: rows are written at
-    interval ends). A D-value target, which trajectory.csv has no column for, is drawn from the
+    Every time axis spans 0 to the batch end. The plant's curves start at t = 0 where ``trial.json``
+    holds its state then (:func:`start_truth`; trajectory.csv has rows at interval ends only); the
+    estimate's at the first interval's end. A trial of one interval draws its single estimate with
+    markers and its bands as error bars. A D-value target, which trajectory.csv has no column for, is drawn from the
     estimate's mean and std, with the plant's final value of ``summary.json`` where present.
     """
     from .io import pyplot
@@ -517,6 +545,12 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
         return np.atleast_1d(data[name]).astype(float)
 
     t = col("t_h")
+    start = _start(out)
+    t_truth = np.concatenate([[0.0], t]) if start else t  # the plant's state at t = 0 where trial.json has it
+
+    def truth(name: str) -> np.ndarray:
+        return np.concatenate([[start[name]], col(f"true_{name}")]) if start else col(f"true_{name}")
+
     t_end = float(t[-1])  # the batch end (the last row is written at the end of the last interval)
     t0 = np.concatenate([[0.0], t[:-1]])  # each interval's start (rows are written at interval ends)
     one = t.size == 1
@@ -532,7 +566,7 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
         if k in _DVALUE_NAMES:
             _dvalue_panel(ax, col, t, k, final)
         else:
-            _series(ax, t, col(f"true_{k}"), color="k", label="plant (truth)", truth=True)
+            _series(ax, t_truth, truth(k), color="k", label="plant (truth)", truth=True)
             _series(ax, t, col(f"est_{k}"), col(f"est_{k}_q05"), col(f"est_{k}_q95"), color="C0", label="estimate")
         if k in sc.target:
             _target(ax, sc.target[k])
@@ -552,8 +586,8 @@ def figures(sc: Scenario, traj: Path, out: Path, ceiling: float | None) -> None:
     ax = axes[1]
     peak = col("true_peak_temperature_c")
     ax.hlines(peak, t0, t, color="C3", lw=2, label="plant, peak in each interval")
-    ax.plot(t, col("true_temperature_c"), "C3o", ms=5 if one else 3, alpha=0.6, clip_on=False,
-            label="plant at interval ends")
+    ax.plot(t_truth, truth("temperature_c"), "C3o", ms=5 if one else 3, alpha=0.6, clip_on=False,
+            label="plant at interval ends" + (" and t = 0" if start else ""))
     ax.plot(t, col("est_temperature_c"), "C0--", marker="o" if one else None, mfc="none", clip_on=not one,
             label="estimate at interval ends")
     if ceiling is not None:

@@ -76,7 +76,7 @@ def _tally_binding(loop, stats: dict) -> None:
     loop.decide_at = tallied
 
 
-def trial_steps(scenario_path, folder, seed: int = 0):
+def trial_steps(scenario_path, folder, seed: int = 0, on_start=None):
     """Run a trial scenario through the campaign verbs, one control interval at a time.
 
     Parameters
@@ -87,6 +87,9 @@ def trial_steps(scenario_path, folder, seed: int = 0):
         New campaign folder.
     seed : int
         Seed of the trial (plant, filter and sampler generators are spawned from it, as ``bmctl trial``).
+    on_start : callable, optional
+        Called with the plant before the first step (``run_trial_as_campaign`` records its state at
+        t = 0); it must draw nothing from the plant's generator.
 
     Yields
     ------
@@ -106,6 +109,8 @@ def trial_steps(scenario_path, folder, seed: int = 0):
     trial_loop = build(sc, base, seed)
     trial_loop.estimator = _NoEstimator()
     plant, sensor = trial_loop.mill, trial_loop.sensor
+    if on_start is not None:
+        on_start(plant)
     wf.init(folder, resolve(sc.model, base), resolve(sc.controller.config, base), dict(sc.target), hours=sc.hours,
             temperature_max_c=sc.temperature_max_c, seed=seed, particles=sc.estimator.particles,
             estimator=dict(sc.estimator.pf))
@@ -174,7 +179,7 @@ def run_trial_as_campaign(scenario_path, out, seed: int = 0, progress=None) -> d
     """
     from .. import io
     from ..scenario import load_scenario
-    from ..trial import figures, summarise, trajectory_header, trajectory_row
+    from ..trial import figures, start_truth, summarise, trajectory_header, trajectory_row
 
     sc = load_scenario(scenario_path)
     check_scenario(sc, scenario_path)
@@ -184,12 +189,16 @@ def run_trial_as_campaign(scenario_path, out, seed: int = 0, progress=None) -> d
         raise InputError(f"{arg('out')}: {out} already holds a trial; give another folder (a trial run as a campaign "
                          "does not resume)")
     out.mkdir(parents=True, exist_ok=True)
-    io.write_text(out / "trial.json", json.dumps({"scenario": str(Path(scenario_path).resolve()), "seed": seed,
-                                                  "campaign": CAMPAIGN_DIR}))
+    meta = {"scenario": str(Path(scenario_path).resolve()), "seed": seed, "campaign": CAMPAIGN_DIR}
+    io.write_text(out / "trial.json", json.dumps(meta))
+
+    def record_start(plant):  # the plant at t = 0, for trial.png (trajectory.csv has interval ends only)
+        io.write_text(out / "trial.json", json.dumps({**meta, "start": start_truth(plant)}))
+
     header = ",".join(trajectory_header()) + "\n"
     rows: list[str] = []
     loop = None
-    for loop, rec, _ in trial_steps(scenario_path, folder, seed):
+    for loop, rec, _ in trial_steps(scenario_path, folder, seed, on_start=record_start):
         rows.append(io.csv_text([], [trajectory_row(rec)]).splitlines()[-1] + "\n")
         io.write_text(traj, header + "".join(rows))
         if progress is not None:

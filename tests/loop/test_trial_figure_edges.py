@@ -154,3 +154,45 @@ def test_legend_sits_above_the_data(tmp_path, monkeypatch, title):
     top_of_data = max(float(np.nanmax(a.get_datalim(ax.transData).y1)) if hasattr(a, "get_datalim") else
                       float(np.nanmax(a.get_ydata())) for a in ax.lines + ax.collections)
     assert bottom > top_of_data
+
+
+def test_the_plant_curves_start_at_t0_where_trial_json_has_the_start(tmp_path, monkeypatch):
+    """trajectory.csv has rows at interval ends only, so the plant's curves began at the first one (a
+    trial's first half hour, where the powder grows most, was missing); trial.json now keeps the
+    plant's state at t = 0 and the truth starts there. The estimate still starts at the first row;
+    a trial.json without a start (an earlier bmctl's) draws as before."""
+    start = {"s_mean_um": 37.0, "s_std_um": 4.0, "r_mean": 0.01, "r_std": 0.01, "temperature_c": 25.0,
+             "peak_temperature_c": 25.0}
+    (tmp_path / "trial.json").write_text(json.dumps({"scenario": "x", "seed": 0, "start": start}), encoding="utf-8")
+    fig = _draw(tmp_path, monkeypatch, HALF_HOURS)
+    size = _panel(fig, quantity_label("s_mean_um"))
+    lines = {ln.get_label(): ln for ln in size.get_lines()}
+    x, y = (np.asarray(v, dtype=float) for v in lines["plant (truth)"].get_data())
+    assert x.tolist() == [0.0] + HALF_HOURS and y[0] == 37.0 and y[1:].tolist() == [40.0, 41.0, 42.0, 43.0]
+    assert np.asarray(lines["estimate"].get_xdata(), dtype=float).tolist() == HALF_HOURS
+    temp = _panel(fig, "vial temperature")
+    pts = next(ln for ln in temp.get_lines() if ln.get_label().startswith("plant at interval ends"))
+    assert np.asarray(pts.get_xdata(), dtype=float)[0] == 0.0 and np.asarray(pts.get_ydata())[0] == 25.0
+    (tmp_path / "trial.json").write_text(json.dumps({"scenario": "x", "seed": 0}), encoding="utf-8")
+    fig = _draw(tmp_path, monkeypatch, HALF_HOURS)
+    size = _panel(fig, quantity_label("s_mean_um"))
+    truth = next(ln for ln in size.get_lines() if ln.get_label() == "plant (truth)")
+    assert np.asarray(truth.get_xdata(), dtype=float).tolist() == HALF_HOURS
+
+
+def test_start_truth_is_the_plants_state_and_draws_nothing():
+    """trial.json's start is the plant's moments at t = 0 (its peak: the temperature then), read
+    without a draw from the plant's generator, so a trial's numbers do not change."""
+    from bmctl.config import load_card
+    from bmctl.plant.plant import Plant
+    from bmctl.trial import TRUE_KEYS, start_truth
+
+    from ..conftest import ROOT
+
+    plant = Plant(load_card(ROOT / "models" / "alni-1to1-300rpm-lab.toml"), np.random.default_rng(3), 500)
+    before = plant.rng.bit_generator.state
+    st = start_truth(plant)
+    assert set(st) == set(TRUE_KEYS)
+    assert st["s_mean_um"] == pytest.approx(float(np.mean(plant.s)) * 1e6, rel=1e-12)
+    assert st["peak_temperature_c"] == st["temperature_c"] == pytest.approx(plant.temperature_C)
+    assert plant.rng.bit_generator.state == before
