@@ -259,7 +259,7 @@ REGISTRY: tuple[Study, ...] = (
           "cd /tmp/base && BMCTL_RESULTS_DIR=$OLDPWD/results python benchmarks/measure_emps.py --polarity best "
           "--name measure_emps_baseline_best", 2, manual=True),
     # timings: re-measured at the end on a quiet machine (each file records the load)
-    Study("bench_identify", "python benchmarks/bench_identify.py", 4, timing=True),
+    Study("bench_identify", "python benchmarks/bench_identify.py --repeat 2", 6, timing=True),
     Study("bench_moments", "python benchmarks/bench_moments.py", 0.5, timing=True),
     Study("calibrate_scaling", "python benchmarks/calibrate_accuracy.py scaling --calibration", 3, timing=True),
     Study("bench_estimate", "python benchmarks/bench_estimate.py", 1, timing=True),
