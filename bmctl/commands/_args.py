@@ -17,6 +17,30 @@ LIBRARY_FLAGS = {"um_per_px": "--um-per-px", "scale_bar_um": "--scale-bar-um", "
                  "at_h": "--at-h", "start": "--start"}
 
 
+#: the repository folder above the package: its models/, controllers/ and scenarios/ are shipped with a
+#: clone (``pip install -e .``), not inside an installed wheel
+REPOSITORY = Path(__file__).resolve().parents[2]
+
+
+def shipped(folder: str, flag: str) -> Path:
+    """The repository's shipped ``folder`` (``"models"``, ``"controllers"``), or :class:`InputError`
+    naming ``flag`` where this installation has none beside it (a non-editable install): the
+    defaults that read it need a clone installed with ``pip install -e .``, or the file given.
+
+    Parameters
+    ----------
+    folder : str
+        The folder under the repository.
+    flag : str
+        The option that gives the file instead (named in the message).
+    """
+    path = REPOSITORY / folder
+    if not path.is_dir():
+        raise InputError(f"{flag}: not given, and this installation of bmctl ({REPOSITORY / 'bmctl'}) has no "
+                         f"{folder}/ folder beside it (install from a clone with pip install -e ., or give {flag})")
+    return path
+
+
 def progress_bar(**kw):
     """A tqdm progress bar on stderr, shown only when stderr is a terminal (``disable=None``) and
     cleared when closed: a log or a pipe gets no bar fragments before the result or an error line.

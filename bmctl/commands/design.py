@@ -10,7 +10,6 @@ from ..naming import naming
 from ._args import LIBRARY_FLAGS, hours_arg, int_arg, output_path
 from ._model import add_identify_flag, heldout_text, model_for, warn_window
 
-ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_CONTROLLER = "controllers/mpc-default.toml"
 
 
@@ -41,7 +40,11 @@ def _controller_path(arg) -> Path:
     if arg is not None:
         return Path(arg)
     local = Path(DEFAULT_CONTROLLER)
-    return local if local.exists() else ROOT / DEFAULT_CONTROLLER
+    if local.exists():
+        return local
+    from ._args import shipped
+
+    return shipped("controllers", "--controller").parent / DEFAULT_CONTROLLER
 
 
 @naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags

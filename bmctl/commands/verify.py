@@ -42,6 +42,10 @@ def run(args) -> int:
     from ..config import load_card
 
     out = output_path(args.out)
+    if not args.models:
+        from ._args import shipped
+
+        shipped("models", "--models")
     paths = [Path(p) for p in args.models] if args.models else default_cards()
     if not paths:
         raise InputError(f"--models: no model cards given and none found in {MODELS_DIR}")
