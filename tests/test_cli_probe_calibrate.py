@@ -14,24 +14,11 @@ import pytest
 from bmctl.calibrate.history import load_history
 from bmctl.cli import main
 
+from tests.calibrate.test_calibrate import SAMPLES, SEGMENTS
 from tests.conftest import card_path
 
 LAB = card_path("alni-1to1-300rpm-lab")
 NO_WORK = ("--workers", "0", "--budget-cpu-h", "1e-9")
-
-SEGMENTS = """
-[[segment]]
-hours = 3
-rpm = 300
-"""
-SAMPLES = """
-[[sample]]
-t_h = 1.0
-table = "t1.csv"
-[[sample]]
-t_h = 2.0
-table = "t2.csv"
-"""
 
 
 def _table(path, seed=0, n=20):

@@ -190,9 +190,8 @@ def run_trial_as_campaign(scenario_path, out, seed: int = 0, progress=None) -> d
                          "does not resume)")
     out.mkdir(parents=True, exist_ok=True)
     meta = {"scenario": str(Path(scenario_path).resolve()), "seed": seed, "campaign": CAMPAIGN_DIR}
-    io.write_text(out / "trial.json", json.dumps(meta))
 
-    def record_start(plant):  # the plant at t = 0, for trial.png (trajectory.csv has interval ends only)
+    def record_start(plant):  # with the plant at t = 0, for trial.png (trajectory.csv has interval ends only)
         io.write_text(out / "trial.json", json.dumps({**meta, "start": start_truth(plant)}))
 
     header = ",".join(trajectory_header()) + "\n"

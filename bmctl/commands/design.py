@@ -44,7 +44,7 @@ def _controller_path(arg) -> Path:
         return local
     from ._args import shipped
 
-    return shipped("controllers", "--controller").parent / DEFAULT_CONTROLLER
+    return shipped("controllers", "--controller") / local.name
 
 
 @naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags

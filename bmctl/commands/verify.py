@@ -14,9 +14,9 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import int_arg, output_path
+from ._args import REPOSITORY, int_arg, output_path
 
-MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+MODELS_DIR = REPOSITORY / "models"
 
 
 

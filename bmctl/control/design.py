@@ -856,7 +856,8 @@ def design_figure(d: Design, path: Path) -> None:
     span = (("span", np.asarray(output_values(X, ["span"])[0], dtype=float)),)
     shape = (("r_mean", X[:, 2]), ("r_std", X[:, 3]))
 
-    checked = d.plant or {}
+    pc = d.plant  # the plant check (:func:`plant_check`), None where it was not run
+    checked = pc or {}
 
     def n_entries(series):  # curves, target lines and the plant check's targeted markers
         return len(series) + sum((k in d.target) * (1 + (k in checked)) for k, _ in series)
@@ -867,7 +868,7 @@ def design_figure(d: Design, path: Path) -> None:
     W, left, right, gap = 11.0, 0.8, 0.3, 0.95
     pw = (W - left - right - gap) / 2
     ph, rpm_h, leg_row = 2.05, 1.45, 0.165
-    rows = [max(n_entries(sizes), n_entries(span)), max(n_entries(shape), 2 + bool(checked))]
+    rows = [max(n_entries(sizes), n_entries(span)), max(n_entries(shape), 2 + (pc is not None))]
     leg = [0.12 + leg_row * int(np.ceil(n / 2)) for n in rows]
     # the rpm panel keeps its time labels: it is twice as wide as the panels below, whose labels do not fit it
     heights = [0.55, 0.3, rpm_h, 0.45 + leg[0], ph, 0.2 + leg[1], ph, 0.55]
@@ -924,7 +925,6 @@ def design_figure(d: Design, path: Path) -> None:
                 else:
                     ax.axhline(lo, color=line.get_color(), ls="--", lw=1, label=f"target {name}")
         ax.set_ylabel(lab)
-    pc = d.plant
     if pc is not None:  # the plant check at the schedule's end: the ensemble's mean, its range as a bar
         plants = f"plant check ({pc['seeds']} plant{'s' if pc['seeds'] != 1 else ''})"
         for ax, series in ((ax_size, sizes), (ax_span, span), (ax_r, shape)):
@@ -951,8 +951,8 @@ def design_figure(d: Design, path: Path) -> None:
         ax.tick_params(labelbottom=False)
     for ax in (ax_r, ax_temp):
         ax.set_xlabel("batch time t (h)")
-    checked = "" if pc is None else "; ◆ plant check: mean and range"
-    fig.suptitle(f"{d.card_name}: designed schedule (moment-model prediction{checked})", y=1 - 0.2 / H)
+    marker_note = "" if pc is None else "; ◆ plant check: mean and range"
+    fig.suptitle(f"{d.card_name}: designed schedule (moment-model prediction{marker_note})", y=1 - 0.2 / H)
     savefig(fig, path, dpi=110)
 
 

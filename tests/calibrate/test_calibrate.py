@@ -88,10 +88,13 @@ def _history(tmp_path: Path, text: str) -> Path:
     return p
 
 
-GOOD = """
+#: a history's schedule and its two samples (tables t1.csv, t2.csv), apart and together
+SEGMENTS = """
 [[segment]]
 hours = 3
 rpm = 300
+"""
+SAMPLES = """
 [[sample]]
 t_h = 1.0
 table = "t1.csv"
@@ -99,6 +102,7 @@ table = "t1.csv"
 t_h = 2.0
 table = "t2.csv"
 """
+GOOD = SEGMENTS + SAMPLES
 
 
 @pytest.mark.slow
