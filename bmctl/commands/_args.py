@@ -17,15 +17,13 @@ LIBRARY_FLAGS = {"um_per_px": "--um-per-px", "scale_bar_um": "--scale-bar-um", "
                  "at_h": "--at-h", "start": "--start"}
 
 
-#: the repository folder above the package: its models/, controllers/ and scenarios/ are shipped with a
-#: clone (``pip install -e .``), not inside an installed wheel
-REPOSITORY = Path(__file__).resolve().parents[2]
 
 
 def shipped(folder: str, flag: str) -> Path:
-    """The repository's shipped ``folder`` (``"models"``, ``"controllers"``), or :class:`InputError`
-    naming ``flag`` where this installation has none beside it (a non-editable install): the
-    defaults that read it need a clone installed with ``pip install -e .``, or the file given.
+    """The shipped ``folder`` (``"models"``, ``"controllers"``: a clone's, or the copy a wheel
+    carries; :func:`bmctl.shipped.shipped_dir`), or :class:`InputError` naming ``flag`` where this
+    installation has neither (a package copied without them): the defaults that read it need a
+    complete installation, or the file given.
 
     Parameters
     ----------
@@ -34,10 +32,12 @@ def shipped(folder: str, flag: str) -> Path:
     flag : str
         The option that gives the file instead (named in the message).
     """
-    path = REPOSITORY / folder
-    if not path.is_dir():
-        raise InputError(f"{flag}: not given, and this installation of bmctl ({REPOSITORY / 'bmctl'}) has no "
-                         f"{folder}/ folder beside it (install from a clone with pip install -e ., or give {flag})")
+    from .. import shipped as S
+
+    path = S.shipped_dir(folder)
+    if path is None:
+        raise InputError(f"{flag}: not given, and this installation of bmctl ({S.PACKAGED.parent}) has no shipped "
+                         f"{folder}/ folder (reinstall bmctl with pip install . or pip install -e ., or give {flag})")
     return path
 
 

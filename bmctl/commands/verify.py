@@ -14,11 +14,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
-from ._args import REPOSITORY, int_arg, output_path
-
-MODELS_DIR = REPOSITORY / "models"
-
-
+from ._args import int_arg, output_path, shipped
 
 
 def configure(p):
@@ -32,8 +28,14 @@ def configure(p):
 
 
 def default_cards() -> list[Path]:
-    """The model cards in ``models/`` (``NAME.toml``; companion files such as ``NAME.moments.toml`` left out)."""
-    return sorted(p for p in MODELS_DIR.glob("*.toml") if p.suffixes == [".toml"])
+    """The shipped model cards (``NAME.toml`` in ``models/``; companion files such as
+    ``NAME.moments.toml`` left out), or :class:`InputError` naming ``--models`` where the
+    installation has none."""
+    folder = shipped("models", "--models")
+    cards = sorted(p for p in folder.glob("*.toml") if p.suffixes == [".toml"])
+    if not cards:
+        raise InputError(f"--models: no model cards given and none found in {folder}")
+    return cards
 
 
 def run(args) -> int:
@@ -42,13 +44,7 @@ def run(args) -> int:
     from ..config import load_card
 
     out = output_path(args.out)
-    if not args.models:
-        from ._args import shipped
-
-        shipped("models", "--models")
     paths = [Path(p) for p in args.models] if args.models else default_cards()
-    if not paths:
-        raise InputError(f"--models: no model cards given and none found in {MODELS_DIR}")
     cards = []
     for p in paths:
         try:

@@ -24,10 +24,12 @@ from typing import Callable
 
 from ..errors import InputError
 from ..naming import arg
+from ..shipped import models_dir
 from . import coeffs as cf
 
-#: the shipped cards' folder: ``bmctl identify`` never writes over a file here unless asked (``--overwrite``)
-SHIPPED_DIR = Path(__file__).resolve().parents[2] / "models"
+#: the shipped cards' folder (a clone's models/ or the copy a wheel carries): ``bmctl identify``
+#: never writes over a file here unless asked (``--overwrite``)
+SHIPPED_DIR = models_dir()
 
 
 def is_shipped(path: str | Path) -> bool:

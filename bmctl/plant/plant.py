@@ -30,6 +30,7 @@ import numpy as np
 
 from ..config import ModelCard, card_schedule, load_card
 from ..errors import InputError, require_generator
+from ..shipped import models_dir
 from . import events as ev
 from . import thermal
 from .kernels import Kernels, PaperKernels
@@ -38,7 +39,7 @@ from .population import UM, initial_sample, moments, raster
 
 ENGINES = ("numba", "numpy")  # the compiled event step (default) and the numpy batch code it replicates
 
-MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
+MODELS_DIR = models_dir()  # the shipped cards: a clone's models/, or the copy a wheel carries
 
 
 def default_card() -> ModelCard:

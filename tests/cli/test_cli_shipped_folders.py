@@ -1,10 +1,15 @@
-"""A non-editable install (``pip install .``, a wheel) has no models/ or controllers/ beside the
-package: ``bmctl design`` without ``--controller`` said "file not found" for a path inside
-site-packages, and ``bmctl verify`` "none found in .../models". Each now says what is missing and
-what to do, in one line, exit 2; from a clone the defaults still resolve from any folder."""
+"""The shipped model cards and controller settings reach every installation: a clone reads them
+beside the package, a wheel (``pip install .``, ``pip install git+...``) carries copies inside it
+(``bmctl/_shipped/``). ``bmctl design`` without ``--controller`` and ``bmctl verify`` without
+``--models`` read them; an installation with neither says what is missing in one line, exit 2."""
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -13,31 +18,51 @@ from bmctl.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+FOLDERS = ("models", "controllers")
 
 
-@pytest.fixture
-def installed_without_clone(tmp_path, monkeypatch):
-    import bmctl.commands._args as args
+def _install(monkeypatch, tmp_path, packaged: bool) -> Path:
+    """Point bmctl.shipped at a fake site-packages: no clone beside the package, and the shipped
+    folders inside it (a wheel) or not (a package copied without them)."""
+    import bmctl.shipped as S
 
-    fake = tmp_path / "site-packages"
-    (fake / "bmctl").mkdir(parents=True)
-    monkeypatch.setattr(args, "REPOSITORY", fake)
+    site = tmp_path / "site-packages"
+    (site / "bmctl").mkdir(parents=True)
+    if packaged:
+        for folder in FOLDERS:
+            shutil.copytree(ROOT / folder, site / "bmctl" / "_shipped" / folder)
+    monkeypatch.setattr(S, "REPOSITORY", site)
+    monkeypatch.setattr(S, "PACKAGED", site / "bmctl" / "_shipped")
     monkeypatch.chdir(tmp_path)  # no controllers/ in the working folder either
-    return fake
+    return site
 
 
 @pytest.mark.parametrize("argv, flag, folder", [
     (["design", str(CARD), "--target", "s_mean_um=35", "--plant-seeds", "0"], "--controller", "controllers"),
     (["verify", "--quick"], "--models", "models"),
 ])
-def test_defaults_of_a_non_editable_install_name_what_is_missing(installed_without_clone, capsys, argv, flag, folder):
-    out = installed_without_clone
-    assert main(argv + ["--out", str(out.parent / "o")]) == 2
+def test_an_installation_without_the_shipped_folders_names_what_is_missing(tmp_path, monkeypatch, capsys,
+                                                                            argv, flag, folder):
+    site = _install(monkeypatch, tmp_path, packaged=False)
+    assert main(argv + ["--out", str(site.parent / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "Traceback" not in err[0]
-    assert err[0].startswith(f"bmctl: error: {flag}: not given") and f"no {folder}/ folder" in err[0]
-    assert "pip install -e ." in err[0]
-    assert not (out.parent / "o").exists()  # nothing written
+    assert err[0].startswith(f"bmctl: error: {flag}: not given") and f"no shipped {folder}/ folder" in err[0]
+    assert "pip install" in err[0]
+    assert not (site.parent / "o").exists()  # nothing written
+
+
+def test_a_wheel_reads_the_copies_it_carries(tmp_path, monkeypatch):
+    from bmctl.commands import design, verify
+    from bmctl.shipped import shipped_dir
+
+    site = _install(monkeypatch, tmp_path, packaged=True)
+    for folder in FOLDERS:
+        assert shipped_dir(folder) == site / "bmctl" / "_shipped" / folder
+    assert design._controller_path(None) == site / "bmctl" / "_shipped" / "controllers" / "mpc-default.toml"
+    names = sorted(p.name for p in verify.default_cards())
+    assert names == sorted(p.name for p in (ROOT / "models").glob("*.toml") if p.suffixes == [".toml"])
+    assert all(p.parent == site / "bmctl" / "_shipped" / "models" for p in verify.default_cards())
 
 
 def test_shipped_folders_resolve_from_a_clone():
@@ -45,3 +70,32 @@ def test_shipped_folders_resolve_from_a_clone():
 
     assert shipped("controllers", "--controller") == ROOT / "controllers"
     assert (shipped("models", "--models") / "alni-1to1-300rpm-lab.toml").is_file()
+
+
+@pytest.mark.slow
+def test_the_built_wheel_carries_every_shipped_card_and_controller(tmp_path):
+    """Build the wheel as pip does (isolated build), install it without dependencies into a
+    folder of its own, and read the shipped defaults from there, away from the clone."""
+    build = subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "-q", "-w", str(tmp_path)],
+                           capture_output=True, text=True)
+    assert build.returncode == 0, build.stderr[-2000:]
+    (wheel,) = tmp_path.glob("bmctl-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for folder in FOLDERS:
+        for p in (ROOT / folder).glob("*.toml"):
+            assert f"bmctl/_shipped/{folder}/{p.name}" in names, f"{folder}/{p.name} is not in the wheel"
+    target = tmp_path / "site"
+    with zipfile.ZipFile(wheel) as z:
+        z.extractall(target)  # a wheel's files install as they are stored (no scripts or data here)
+    probe = ("import bmctl, bmctl.shipped as S; from bmctl.commands import design, verify; "
+             "from bmctl.plant.plant import default_card; "
+             "print(bmctl.__file__); print(design._controller_path(None)); print(len(verify.default_cards())); "
+             "print(default_card().card.name)")
+    env = {**os.environ, "PYTHONPATH": str(target)}
+    run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=tmp_path, env=env)
+    assert run.returncode == 0, run.stderr[-2000:]
+    module, controller, cards, card_name = run.stdout.split("\n")[:4]
+    assert Path(module).is_relative_to(target)
+    assert Path(controller) == target / "bmctl" / "_shipped" / "controllers" / "mpc-default.toml"
+    assert int(cards) == len([p for p in (ROOT / "models").glob("*.toml") if p.suffixes == [".toml"]])
+    assert card_name  # the lab card loads from the copy
