@@ -26,6 +26,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .errors import InputError
+from .naming import arg
 
 Task = Any
 
@@ -127,10 +128,10 @@ def check_engine_args(workers: int | None, scheduler: str | None) -> None:
     >>> check_engine_args(0, "tcp://host:8786")
     Traceback (most recent call last):
     ...
-    bmctl.errors.InputError: --workers: sets the local Dask workers, which --scheduler replaces
+    bmctl.errors.InputError: workers: sets the local Dask workers, which scheduler replaces
     """
     if workers is not None and scheduler is not None:
-        raise InputError("--workers: sets the local Dask workers, which --scheduler replaces")
+        raise InputError(f"{arg('workers')}: sets the local Dask workers, which {arg('scheduler')} replaces")
 
 
 def client_for(scheduler: str | None = None, workers: int | None = None, processes: bool = True):
@@ -154,7 +155,7 @@ def client_for(scheduler: str | None = None, workers: int | None = None, process
         :func:`close_client`.
     """
     if scheduler is None and workers is not None and workers < 0:
-        raise InputError(f"--workers: must be >= 0 (got {workers})")
+        raise InputError(f"{arg('workers')}: must be >= 0 (got {workers})")
     if scheduler is None and (workers is not None and workers <= 1):
         return None
     import distributed
@@ -163,7 +164,7 @@ def client_for(scheduler: str | None = None, workers: int | None = None, process
         try:
             return _quiet_gather_stops(distributed.Client(scheduler, timeout="20s"))
         except (OSError, TimeoutError, ValueError) as exc:
-            raise InputError(f"--scheduler: cannot connect to {scheduler}: {exc}") from None
+            raise InputError(f"{arg('scheduler')}: cannot connect to {scheduler}: {exc}") from None
     n = default_workers() if workers is None else int(workers)
     if n <= 1:
         return None

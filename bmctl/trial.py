@@ -29,6 +29,7 @@ from . import io
 from .checkpoint import load_state, save_state
 from .config import ModelCard, load_card, with_factors
 from .errors import InputError
+from .naming import arg
 from .loop import ClosedLoop, LoopConfig, StepRecord
 from .scenario import TARGET_KEYS, Scenario, load_scenario, resolve
 
@@ -193,7 +194,7 @@ def inputs_digest(sc: Scenario, scenario_path) -> str:
 
 def _read_meta(path: Path) -> dict:
     if not path.exists() and not path.is_symlink():
-        raise InputError(f"--resume: {path} not found")
+        raise InputError(f"{arg('resume=True')}: {path} not found")
     try:
         meta = io.read_json(path, max_bytes=1 << 20)
     except InputError as exc:
@@ -318,20 +319,21 @@ def _misfit(template, value, path: str = "") -> str | None:
 def _resume(loop: ClosedLoop, out: Path, scenario_path, seed: int) -> None:
     ckpt, traj = out / CHECKPOINT, out / "trajectory.csv"
     meta = _read_meta(out / "trial.json")
+    R = arg("resume=True")
     if meta.get("campaign"):
-        raise InputError(f"--resume: {out} holds a trial run with --campaign, which does not resume; run it again "
-                         "with the same --seed into a new --out")
+        raise InputError(f"{R}: {out} holds a trial run with --campaign, which does not resume; run it again "
+                         f"with the same {arg('seed')} into a new {arg('out')}")
     if meta.get("scenario") != str(Path(scenario_path).resolve()):
-        raise InputError(f"--resume: {out} holds a trial of {meta.get('scenario')} with seed {meta.get('seed')}, "
+        raise InputError(f"{R}: {out} holds a trial of {meta.get('scenario')} with seed {meta.get('seed')}, "
                          f"not of {Path(scenario_path).resolve()}")
     if meta.get("seed") != seed:
-        raise InputError(f"--resume: {out} holds the trial with seed {meta.get('seed')}, not {seed}; "
-                         f"carry it on with --seed {meta.get('seed')}")
+        raise InputError(f"{R}: {out} holds the trial with seed {meta.get('seed')}, not {seed}; "
+                         f"carry it on with {arg('seed')} {meta.get('seed')}")
     if "sha256" in meta and meta["sha256"] != inputs_digest(load_scenario(scenario_path), scenario_path):
-        raise InputError(f"--resume: {scenario_path} (or the card or controller it names) changed since the trial "
-                         f"in {out} began; resume with the files as they were, or start it again in a new --out")
+        raise InputError(f"{R}: {scenario_path} (or the card or controller it names) changed since the trial "
+                         f"in {out} began; resume with the files as they were, or start it again in a new {arg('out')}")
     if not ckpt.exists():
-        raise InputError(f"--resume: {ckpt} not found")
+        raise InputError(f"{R}: {ckpt} not found")
     state = load_state(ckpt)
     why = _misfit(loop.get_state(), state)
     if why:
@@ -380,7 +382,7 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
     out = Path(out)
     traj, ckpt = out / "trajectory.csv", out / CHECKPOINT
     if not resume and traj.exists():
-        raise InputError(f"--out: {out} already holds a trial; use --resume or another folder")
+        raise InputError(f"{arg('out')}: {out} already holds a trial; use {arg('resume=True')} or another folder")
     loop = build(sc, base, seed)
     if resume:
         _resume(loop, out, scenario_path, seed)

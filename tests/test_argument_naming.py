@@ -366,3 +366,61 @@ def test_trial_command_with_campaign_names_the_out_flag(tmp_path, capsys):
                     "campaign does not resume)"), line
     assert _refusal(lambda: run_trial_as_campaign(s, out)).startswith("out: ")
     assert not (out / "campaign").exists()
+
+
+# --- a trial's folder and resumption (bmctl.trial.run_trial) ------------------------------------------
+
+def test_trial_names_out_and_resume_as_python_spells_them(tmp_path):
+    from bmctl.trial import run_trial
+
+    assert {"out", "resume", "seed"} <= set(inspect.signature(run_trial).parameters)
+    s, out = _used_trial_folder(tmp_path)
+    msg = _refusal(lambda: run_trial(s, out))
+    assert msg == f"out: {out} already holds a trial; use resume=True or another folder", msg
+    missing = tmp_path / "none"
+    msg = _refusal(lambda: run_trial(s, missing, resume=True))
+    assert msg == f"resume=True: {missing / 'trial.json'} not found", msg
+
+
+def test_trial_command_names_the_out_and_resume_flags(tmp_path, capsys):
+    s, out = _used_trial_folder(tmp_path)
+    line = _cli_error(capsys, ["trial", s, "--out", out, "--no-progress"])
+    assert line == f"bmctl: error: --out: {out} already holds a trial; use --resume or another folder", line
+    missing = tmp_path / "none"
+    line = _cli_error(capsys, ["trial", s, "--resume", missing, "--no-progress"])
+    assert line == f"bmctl: error: --resume: {missing / 'trial.json'} not found", line
+
+
+# --- ensemble engines (bmctl.parallel) and calibrated parameters (bmctl.calibrate.params) -------------
+
+def test_engine_and_parameter_arguments_are_named_as_python_spells_them():
+    from bmctl.calibrate.params import check_calibratable
+    from bmctl.calibrate.run import run_calibration
+    from bmctl.config import load_card
+    from bmctl.control.design import plant_check
+    from bmctl.parallel import check_engine_args, client_for
+
+    assert {"workers", "scheduler"} <= set(inspect.signature(plant_check).parameters)
+    assert {"workers", "scheduler"} <= set(inspect.signature(client_for).parameters)
+    assert "names" in inspect.signature(run_calibration).parameters
+    assert _refusal(lambda: client_for(workers=-1)) == "workers: must be >= 0 (got -1)"
+    assert _refusal(lambda: check_engine_args(2, "tcp://h:8786")) == (
+        "workers: sets the local Dask workers, which scheduler replaces")
+    assert _refusal(lambda: check_calibratable(load_card(CARD), "process.rpm")).startswith(
+        "names: process.rpm is an operating setting")
+
+
+def test_engine_and_parameter_flags_from_the_commands(tmp_path, capsys):
+    from bmctl.commands._args import LIBRARY_FLAGS
+    from bmctl.parallel import client_for
+
+    with naming(LIBRARY_FLAGS):
+        assert _refusal(lambda: client_for(workers=-1)) == "--workers: must be >= 0 (got -1)"
+    line = _cli_error(capsys, ["whatif", CARD, ROOT / "scenarios" / "schedule-lab-300rpm-12h.toml", "--workers", "2", "--scheduler", "tcp://h:8786",
+                               "--out", tmp_path / "w"])
+    assert line == "bmctl: error: --workers: sets the local Dask workers, which --scheduler replaces", line
+    history = tmp_path / "h.toml"
+    history.write_text('[[segment]]\nhours = 1.0\nrpm = 300.0\n', encoding="utf-8")
+    line = _cli_error(capsys, ["calibrate", CARD, history, "--params", "process.rpm", "--workers", "0",
+                               "--out", tmp_path / "c"])
+    assert line.startswith("bmctl: error: --params: process.rpm is an operating setting"), line

@@ -19,6 +19,7 @@ from typing import Mapping, Sequence
 
 from ..config import ModelCard, close_key, validate
 from ..errors import InputError, quote
+from ..naming import arg
 
 ALIASES = {
     "alpha": "stochastic.alpha",
@@ -80,7 +81,7 @@ def _hint(card: ModelCard, name: str) -> str | None:
 def _unknown(card: ModelCard, name: str) -> InputError:
     """The error of a name that is no field of the card, with the close one and what is allowed."""
     hint = _hint(card, name)
-    return InputError(f"--params: {quote(name)}: no such parameter{f' (did you mean {hint}?)' if hint else ''}; "
+    return InputError(f"{arg('names')}: {quote(name)}: no such parameter{f' (did you mean {hint}?)' if hint else ''}; "
                       f"calibratable: {allowed_text()}")
 
 
@@ -88,7 +89,7 @@ def field_of(name: str) -> tuple[str, str]:
     """(section, field) of a parameter name (an alias or ``section.field``)."""
     full = ALIASES.get(name, name)
     if full.count(".") != 1:
-        raise InputError(f"--params: unknown parameter {name!r} (use alpha, beta, gamma, delta or section.field)")
+        raise InputError(f"{arg('names')}: unknown parameter {name!r} (use alpha, beta, gamma, delta or section.field)")
     sec, fld = full.split(".")
     return sec, fld
 
@@ -106,7 +107,8 @@ def param_unit(name: str) -> str:
 
 
 def check_calibratable(card: ModelCard, name: str) -> None:
-    """Refuse a parameter a calibration must not fit, before any work (one line naming ``--params``).
+    """Refuse a parameter a calibration must not fit, before any work (one line naming the argument:
+    ``names`` from Python, ``--params`` from ``bmctl calibrate``).
 
     A fitted parameter is a continuous model constant with a positive value on the card (the
     fit moves u = ln(value / card value)): see the module for which ones.
@@ -131,15 +133,15 @@ def check_calibratable(card: ModelCard, name: str) -> None:
         raise _unknown(card, name)
     value = getattr(part, fld)
     if isinstance(value, int) and not isinstance(value, bool):
-        raise InputError(f"--params: {full} is an integer (a count), not a continuous parameter; "
+        raise InputError(f"{arg('names')}: {full} is an integer (a count), not a continuous parameter; "
                          f"calibratable: {allowed_text()}")
     if full in NOT_CALIBRATABLE or (sec not in CALIBRATABLE_TABLES and full not in CALIBRATABLE_FIELDS):
         why = NOT_CALIBRATABLE.get(full) or WHY_NOT.get(sec, "not a model parameter")
-        raise InputError(f"--params: {full} is {why}; calibratable: {allowed_text()}")
+        raise InputError(f"{arg('names')}: {full} is {why}; calibratable: {allowed_text()}")
     if isinstance(value, bool) or not isinstance(value, float):
-        raise InputError(f"--params: {full} is not a number; calibratable: {allowed_text()}")
+        raise InputError(f"{arg('names')}: {full} is not a number; calibratable: {allowed_text()}")
     if not value > 0:
-        raise InputError(f"--params: {full} is {value:g} on the card: the fit scales the card's value "
+        raise InputError(f"{arg('names')}: {full} is {value:g} on the card: the fit scales the card's value "
                          f"(u = ln(value / card value)), so it cannot leave {value:g}; state a positive starting value "
                          "in the card")
 
@@ -149,11 +151,11 @@ def parse_params(text: str, card: ModelCard) -> list[str]:
     (:func:`check_calibratable`)."""
     names = [t.strip() for t in text.split(",")]
     if not any(names):
-        raise InputError("--params: no parameter named")
+        raise InputError(f"{arg('names')}: no parameter named")
     if not all(names):
-        raise InputError(f"--params: an empty entry in {quote(text)} (expected names separated by commas)")
+        raise InputError(f"{arg('names')}: an empty entry in {quote(text)} (expected names separated by commas)")
     if len({ALIASES.get(n, n) for n in names}) != len(names):
-        raise InputError(f"--params: a parameter is named twice ({text})")
+        raise InputError(f"{arg('names')}: a parameter is named twice ({text})")
     for n in names:
         check_calibratable(card, n)
     return names
@@ -164,10 +166,10 @@ def get_param(card: ModelCard, name: str) -> float:
     sec, fld = field_of(name)
     part = getattr(card, sec, None)
     if part is None or fld not in type(part).model_fields:
-        raise InputError(f"--params: {name!r}: the card has no field {sec}.{fld}")
+        raise InputError(f"{arg('names')}: {name!r}: the card has no field {sec}.{fld}")
     v = getattr(part, fld)
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise InputError(f"--params: {name!r}: {sec}.{fld} is not a number")
+        raise InputError(f"{arg('names')}: {name!r}: {sec}.{fld} is not a number")
     return float(v)
 
 

@@ -14,7 +14,7 @@ from ..errors import InputError, finite_float
 #: command, so each is one that every command passing the argument spells the same way
 LIBRARY_FLAGS = {"um_per_px": "--um-per-px", "scale_bar_um": "--scale-bar-um", "identify=True": "--identify",
                  "min_particles": "--min-particles", "min_area_px": "--min-area-px", "crop": "--crop",
-                 "at_h": "--at-h", "start": "--start"}
+                 "at_h": "--at-h", "start": "--start", "workers": "--workers", "scheduler": "--scheduler"}
 
 
 

@@ -14,7 +14,8 @@ from __future__ import annotations
 import sys
 import time
 
-from ._args import int_arg, output_path, progress_bar
+from ..naming import naming
+from ._args import LIBRARY_FLAGS, int_arg, output_path, progress_bar
 
 
 def configure(p):
@@ -38,6 +39,7 @@ def configure(p):
                    help="use an image whose measurement verdict is unusable (refused by default, as bmctl estimate does)")
 
 
+@naming({**LIBRARY_FLAGS, "names": "--params"})  # the library's refusals name this command's flags
 def run(args) -> int:
     from tqdm import tqdm
 

@@ -52,7 +52,12 @@ def _check_trial_work(sc, path):
     return card
 
 
-@naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags
+#: the library's arguments as this command's flags (a resumed trial's folder is --resume's; the
+#: library names the folder as out only when it starts one)
+TRIAL_FLAGS = {**LIBRARY_FLAGS, "resume=True": "--resume", "seed": "--seed", "out": "--out"}
+
+
+@naming(TRIAL_FLAGS)  # the library's refusals name this command's flags
 def run(args) -> int:
     from ..io import name_part
     from ..scenario import load_scenario
@@ -82,8 +87,7 @@ def run(args) -> int:
         if args.campaign:
             from ..campaign.simulated import run_trial_as_campaign
 
-            with naming({**LIBRARY_FLAGS, "out": "--out"}):  # with --campaign the folder is --out's (no --resume)
-                summary = run_trial_as_campaign(args.scenario, out, seed=args.seed, progress=progress)
+            summary = run_trial_as_campaign(args.scenario, out, seed=args.seed, progress=progress)
         else:
             summary = run_trial(args.scenario, out, seed=args.seed, resume=args.resume is not None,
                                 progress=progress)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ._args import int_arg, output_path
+from ..naming import naming
+from ._args import LIBRARY_FLAGS, int_arg, output_path
 
 
 def configure(p):
@@ -23,6 +24,7 @@ def configure(p):
                         "--scheduler, whose workers run the plants); same seed, same numbers either way")
 
 
+@naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags
 def run(args) -> int:
     from ..config import load_card
     from ..parallel import check_engine_args

@@ -73,7 +73,7 @@ def test_params_refuses_a_constant_that_is_zero_on_the_card_and_accepts_the_docu
     names = "alpha,beta,gamma,delta,material.bond_threshold_J_per_m,partition.max_strain,thermal.cooling_time_s"
     assert parse_params(names, card) == names.split(",")
     zero = card.model_copy(update={"partition": card.partition.model_copy(update={"equiaxing_efficiency": 0.0})})
-    with pytest.raises(InputError, match=r"^--params: partition.equiaxing_efficiency is 0 on the card"):
+    with pytest.raises(InputError, match=r"^names: partition.equiaxing_efficiency is 0 on the card"):
         parse_params("partition.equiaxing_efficiency", zero)
 
 
@@ -85,7 +85,8 @@ def test_run_calibration_refuses_a_setting_before_any_work(monkeypatch):
 
     monkeypatch.setattr(run_module, "calibrate", work)
     monkeypatch.setattr(moment_start, "moment_start", work)
-    with pytest.raises(InputError, match=r"^--params: process.rpm is an operating setting"):
+    # from Python the message names the argument as run_calibration takes it
+    with pytest.raises(InputError, match=r"^names: process.rpm is an operating setting"):
         run_module.run_calibration(load_card(LAB), LAB, [], ["gamma", "process.rpm"], None)
 
 
