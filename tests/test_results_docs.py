@@ -247,3 +247,39 @@ def test_checker_reads_csv(tmp_path):
 ])
 def test_strictness_rule(text, n):
     assert len(measured_looking(text)) == n, measured_looking(text)
+
+
+#: a table row's verdict on its bound: "≤ N unit ...: met" or "...: not met" (the first such in the row)
+CLAIM = re.compile(r"≤\s*(?:<!--in-->)?([0-9.,]+)(?:<!--/in-->)?[^|:]*?:\s*(not met|met)\b")
+FIRST_MEASURED = re.compile(r"<!--r:[^>]*-->([^<]+)<!--/r-->")
+
+
+def met_claims(text: str) -> list[tuple[int, float, float, bool]]:
+    """(line, measured, bound, claimed met) of every table row that says whether it meets its bound
+    ("≤ N ...: met" / "not met"); measured is the row's first marked number."""
+    out = []
+    for n, line in enumerate(text.splitlines(), 1):
+        if not line.lstrip().startswith("|"):
+            continue
+        claim, measured = CLAIM.search(line), FIRST_MEASURED.search(line)
+        if claim and measured:
+            out.append((n, parse_displayed(measured.group(1))[0], parse_displayed(claim.group(1))[0],
+                        claim.group(2) == "met"))
+    return out
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=_rel)
+def test_met_claims_agree_with_their_numbers(doc):
+    """A row that says its target is met (or not) says so of the number it shows: a rerun that moves
+    the number across the bound must change the words too."""
+    wrong = [f"{_rel(doc)}:{n}: {value:g} against <= {bound:g} claimed {'met' if met else 'not met'}"
+             for n, value, bound, met in met_claims(doc.read_text(encoding="utf-8")) if (value <= bound) != met]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_met_claims_are_found():
+    rows = ["| a | <!--r:f.json:x-->5.2<!--/r--> ms | 1.4 | ≤ <!--in-->5<!--/in--> ms: not met on this machine |",
+            "| b | <!--r:f.json:y-->60.0<!--/r--> s | 1.0 | ≤ <!--in-->90<!--/in--> s wall on two idle cores: met, more |",
+            "| c | <!--r:f.json:z-->12.6<!--/r--> | 14.8 | ≤ <!--in-->10<!--/in--> s: met in wall time |",
+            "prose ≤ <!--in-->10<!--/in--> s: met <!--r:f.json:z-->12.6<!--/r-->"]
+    assert met_claims("\n".join(rows)) == [(1, 5.2, 5.0, False), (2, 60.0, 90.0, True), (3, 12.6, 10.0, True)]
