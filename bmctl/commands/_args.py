@@ -41,6 +41,27 @@ def shipped(folder: str, flag: str) -> Path:
     return path
 
 
+#: the controller of ``design`` and ``campaign init`` when none is given (the shipped MPC)
+DEFAULT_CONTROLLER = "controllers/mpc-default.toml"
+
+
+def controller_path(given) -> Path:
+    """The controller file a command uses: ``given``, else :data:`DEFAULT_CONTROLLER` in the working
+    folder (a user's own copy), else the shipped one (:func:`shipped`).
+
+    Parameters
+    ----------
+    given : str or path-like or None
+        ``--controller`` as given.
+    """
+    if given is not None:
+        return Path(given)
+    local = Path(DEFAULT_CONTROLLER)
+    if local.exists():
+        return local
+    return shipped("controllers", "--controller") / local.name
+
+
 def progress_bar(**kw):
     """A tqdm progress bar on stderr, shown only when stderr is a terminal (``disable=None``) and
     cleared when closed: a log or a pipe gets no bar fragments before the result or an error line.

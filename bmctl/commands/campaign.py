@@ -1,6 +1,6 @@
 """Run a real mill as a campaign: log what ran, add measured samples, get and decide on advice.
 
-``bmctl campaign init DIR --model CARD --controller CONFIG --target d50_um=45`` starts one;
+``bmctl campaign init DIR --model CARD --target d50_um=45 [--controller CONFIG]`` starts one;
 ``log``, ``sample``, ``advise``, ``decide``, ``status`` and ``report`` work on it. Everything is
 kept in ``DIR/campaign.sqlite`` (docs/campaign.md).
 """
@@ -11,7 +11,7 @@ import argparse
 import json
 import sys
 
-from ._args import LIBRARY_FLAGS, float_arg, hours_arg, int_arg, rpm_arg
+from ._args import DEFAULT_CONTROLLER, LIBRARY_FLAGS, controller_path, float_arg, hours_arg, int_arg, rpm_arg
 from ._model import add_identify_flag, progress_printer, warn_window
 
 #: ``init --particles``: equals :data:`bmctl.campaign.workflow.PARTICLES_RANGE` (a test checks), kept here so
@@ -35,7 +35,8 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("init", help="start a campaign in DIR")
     p.add_argument("dir", metavar="DIR", help="a new campaign folder (campaign.sqlite and inputs/ are written there)")
     p.add_argument("--model", required=True, metavar="CARD", help="model card (models/*.toml)")
-    p.add_argument("--controller", required=True, metavar="CONFIG", help="controller config (controllers/*.toml)")
+    p.add_argument("--controller", default=None, metavar="CONFIG",
+                   help=f"controller config (controllers/*.toml; default {DEFAULT_CONTROLLER})")
     p.add_argument("--target", required=True, metavar="K=V[,K=V]",
                    help="target at the batch end, e.g. d50_um=45 or s_mean_um=40,r_mean=0.05")
     p.add_argument("--hours", type=hours_arg("--hours"), default=None, help="batch length (h); default: the card's")
@@ -191,7 +192,7 @@ def _run(args: argparse.Namespace) -> int:
 
     v, d = args.verb, args.dir
     if v == "init":
-        meta = cp.init(d, args.model, args.controller, tg.parse(args.target), hours=args.hours,
+        meta = cp.init(d, args.model, controller_path(args.controller), tg.parse(args.target), hours=args.hours,
                        temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles,
                        identify=args.identify, progress=progress_printer(),
                        estimator=_estimator_changes(args, cp))

@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from ..errors import InputError
 from ..naming import naming
-from ._args import LIBRARY_FLAGS, hours_arg, int_arg, output_path
+from ._args import DEFAULT_CONTROLLER, LIBRARY_FLAGS, controller_path, hours_arg, int_arg, output_path
 from ._model import add_identify_flag, heldout_text, model_for, warn_window
-
-DEFAULT_CONTROLLER = "controllers/mpc-default.toml"
 
 
 def configure(p):
@@ -36,17 +33,6 @@ def configure(p):
     add_identify_flag(p)
 
 
-def _controller_path(arg) -> Path:
-    if arg is not None:
-        return Path(arg)
-    local = Path(DEFAULT_CONTROLLER)
-    if local.exists():
-        return local
-    from ._args import shipped
-
-    return shipped("controllers", "--controller") / local.name
-
-
 @naming(LIBRARY_FLAGS)  # the library's refusals name this command's flags
 def run(args) -> int:
     from ..control.config import MPCConfig, check_ceiling, load_controller, parse_target
@@ -62,7 +48,7 @@ def run(args) -> int:
     args.seed = 0 if args.seed is None else args.seed
     args.plant_particles = 5000 if args.plant_particles is None else args.plant_particles
     target = parse_target(args.target)
-    path = _controller_path(args.controller)
+    path = controller_path(args.controller)
     cfg = load_controller(path)
     if not isinstance(cfg, MPCConfig):
         raise InputError(f"{path}: kind: design needs an mpc controller (got {cfg.kind!r})")

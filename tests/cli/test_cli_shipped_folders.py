@@ -1,7 +1,8 @@
 """The shipped model cards and controller settings reach every installation: a clone reads them
 beside the package, a wheel (``pip install .``, ``pip install git+...``) carries copies inside it
-(``bmctl/_shipped/``). ``bmctl design`` without ``--controller`` and ``bmctl verify`` without
-``--models`` read them; an installation with neither says what is missing in one line, exit 2."""
+(``bmctl/_shipped/``). ``bmctl design`` and ``bmctl campaign init`` without ``--controller`` and
+``bmctl verify`` without ``--models`` read them; an installation with neither says what is missing
+in one line, exit 2."""
 
 from __future__ import annotations
 
@@ -38,13 +39,16 @@ def _install(monkeypatch, tmp_path, packaged: bool) -> Path:
 
 
 @pytest.mark.parametrize("argv, flag, folder", [
-    (["design", str(CARD), "--target", "s_mean_um=35", "--plant-seeds", "0"], "--controller", "controllers"),
-    (["verify", "--quick"], "--models", "models"),
+    (["design", str(CARD), "--target", "s_mean_um=35", "--plant-seeds", "0", "--out", "o"], "--controller",
+     "controllers"),
+    (["verify", "--quick", "--out", "o"], "--models", "models"),
+    (["campaign", "init", "o", "--model", str(CARD), "--target", "s_mean_um=45", "--hours", "2"], "--controller",
+     "controllers"),
 ])
 def test_an_installation_without_the_shipped_folders_names_what_is_missing(tmp_path, monkeypatch, capsys,
                                                                             argv, flag, folder):
     site = _install(monkeypatch, tmp_path, packaged=False)
-    assert main(argv + ["--out", str(site.parent / "o")]) == 2
+    assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "Traceback" not in err[0]
     assert err[0].startswith(f"bmctl: error: {flag}: not given") and f"no shipped {folder}/ folder" in err[0]
@@ -59,7 +63,10 @@ def test_a_wheel_reads_the_copies_it_carries(tmp_path, monkeypatch):
     site = _install(monkeypatch, tmp_path, packaged=True)
     for folder in FOLDERS:
         assert shipped_dir(folder) == site / "bmctl" / "_shipped" / folder
-    assert design._controller_path(None) == site / "bmctl" / "_shipped" / "controllers" / "mpc-default.toml"
+    assert design.controller_path(None) == site / "bmctl" / "_shipped" / "controllers" / "mpc-default.toml"
+    (tmp_path / "controllers").mkdir()  # a copy of one's own in the working folder comes first
+    (tmp_path / "controllers" / "mpc-default.toml").write_bytes((ROOT / "controllers" / "mpc-default.toml").read_bytes())
+    assert design.controller_path(None) == Path("controllers/mpc-default.toml")
     names = sorted(p.name for p in verify.default_cards())
     assert names == sorted(p.name for p in (ROOT / "models").glob("*.toml") if p.suffixes == [".toml"])
     assert all(p.parent == site / "bmctl" / "_shipped" / "models" for p in verify.default_cards())
@@ -89,7 +96,7 @@ def test_the_built_wheel_carries_every_shipped_card_and_controller(tmp_path):
         z.extractall(target)  # a wheel's files install as they are stored (no scripts or data here)
     probe = ("import bmctl, bmctl.shipped as S; from bmctl.commands import design, verify; "
              "from bmctl.plant.plant import default_card; "
-             "print(bmctl.__file__); print(design._controller_path(None)); print(len(verify.default_cards())); "
+             "print(bmctl.__file__); print(design.controller_path(None)); print(len(verify.default_cards())); "
              "print(default_card().card.name)")
     env = {**os.environ, "PYTHONPATH": str(target)}
     run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=tmp_path, env=env)
@@ -99,3 +106,11 @@ def test_the_built_wheel_carries_every_shipped_card_and_controller(tmp_path):
     assert Path(controller) == target / "bmctl" / "_shipped" / "controllers" / "mpc-default.toml"
     assert int(cards) == len([p for p in (ROOT / "models").glob("*.toml") if p.suffixes == [".toml"]])
     assert card_name  # the lab card loads from the copy
+
+
+def test_campaign_init_without_a_controller_starts_with_the_shipped_mpc(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)  # no controllers/ here: the shipped one
+    assert main(["campaign", "init", "c", "--model", str(CARD), "--target", "s_mean_um=45", "--hours", "2"]) == 0
+    copied = tmp_path / "c" / "inputs" / "controller-mpc-default.toml"
+    assert copied.read_bytes() == (ROOT / "controllers" / "mpc-default.toml").read_bytes()
+    assert "controller mpc" in capsys.readouterr().out
