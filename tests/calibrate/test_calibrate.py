@@ -67,7 +67,7 @@ def test_seed_sequences_are_numpy_spawn():
 
 def test_client_for_serial_below_two_workers():
     assert client_for(None, 0) is None and client_for(None, 1) is None
-    with pytest.raises(InputError, match="--workers"):
+    with pytest.raises(InputError, match="^workers: "):  # from Python; the commands name --workers
         client_for(None, -1)
 
 
@@ -153,7 +153,7 @@ def test_named_parameters():
     assert new.stochastic.alpha == 3.0 and new.thermal.softening_max == 0.3
     assert get_param(new, "beta") == card.stochastic.beta
     for bad in ("epsilon", "stochastic.nothing", "card.name", ""):
-        with pytest.raises(InputError, match="--params"):
+        with pytest.raises(InputError, match="^names: "):  # from Python; bmctl calibrate names --params
             parse_params(bad, card)
     with pytest.raises(InputError, match="stochastic.gamma_per_um2"):
         set_params(card, {"gamma": -1.0})
