@@ -26,8 +26,9 @@ FOLDERS = ("models", "controllers")
 
 
 def shipped_dir(folder: str) -> Path | None:
-    """The shipped ``folder`` (``"models"`` or ``"controllers"``): the clone's, else the copy a
-    wheel carries, else ``None`` (an installation without either).
+    """The shipped ``folder`` (``"models"`` or ``"controllers"``): the copy a wheel carries, else
+    the clone's (the folder above the package holds bmctl's ``pyproject.toml``: beside an installed
+    package a folder of that name would be another package's), else ``None``.
 
     Parameters
     ----------
@@ -38,9 +39,10 @@ def shipped_dir(folder: str) -> Path | None:
     -------
     pathlib.Path or None
     """
-    for base in (REPOSITORY, PACKAGED):
-        if (base / folder).is_dir():
-            return base / folder
+    if (PACKAGED / folder).is_dir():
+        return PACKAGED / folder
+    if (REPOSITORY / "pyproject.toml").is_file() and (REPOSITORY / folder).is_dir():
+        return REPOSITORY / folder
     return None
 
 

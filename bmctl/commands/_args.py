@@ -17,8 +17,6 @@ LIBRARY_FLAGS = {"um_per_px": "--um-per-px", "scale_bar_um": "--scale-bar-um", "
                  "at_h": "--at-h", "start": "--start", "workers": "--workers", "scheduler": "--scheduler"}
 
 
-
-
 def shipped(folder: str, flag: str) -> Path:
     """The shipped ``folder`` (``"models"``, ``"controllers"``: a clone's, or the copy a wheel
     carries; :func:`bmctl.shipped.shipped_dir`), or :class:`InputError` naming ``flag`` where this

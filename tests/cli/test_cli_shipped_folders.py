@@ -114,3 +114,19 @@ def test_campaign_init_without_a_controller_starts_with_the_shipped_mpc(tmp_path
     copied = tmp_path / "c" / "inputs" / "controller-mpc-default.toml"
     assert copied.read_bytes() == (ROOT / "controllers" / "mpc-default.toml").read_bytes()
     assert "controller mpc" in capsys.readouterr().out
+
+
+def test_a_folder_beside_an_installed_package_is_not_taken_for_the_shipped_one(tmp_path, monkeypatch):
+    """site-packages may hold another distribution's top-level ``models`` or ``controllers`` package:
+    only a clone (bmctl's pyproject.toml above the package) or the wheel's own copy counts."""
+    from bmctl.shipped import shipped_dir
+
+    site = _install(monkeypatch, tmp_path, packaged=False)
+    (site / "models").mkdir()  # e.g. a package named "models" installed beside bmctl
+    (site / "models" / "__init__.py").write_text("", encoding="utf-8")
+    assert shipped_dir("models") is None
+    (site / "pyproject.toml").write_text("[project]\nname = 'bmctl'\n", encoding="utf-8")  # a clone
+    assert shipped_dir("models") == site / "models"
+    for folder in FOLDERS:  # the wheel's own copy first
+        shutil.copytree(ROOT / folder, site / "bmctl" / "_shipped" / folder)
+    assert shipped_dir("models") == site / "bmctl" / "_shipped" / "models"
