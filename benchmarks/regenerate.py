@@ -5,7 +5,11 @@ writes its ``results/<name>.json`` (``bmctl.results.write_results``). Slow: the 
 hours on two cores; it is not part of the test suite.
 
     python benchmarks/regenerate.py --list              # registered files, their commands and costs
-    python benchmarks/regenerate.py --only NAME [NAME]  # re-run some studies
+    python benchmarks/regenerate.py --only NAME [NAME]  # re-run some studies (shell patterns too:
+                                                        # --only 'hidden_mills*')
+    python benchmarks/regenerate.py --only 'hidden_mills*' --jobs 2
+                                                        # two studies at a time, each one's output in
+                                                        # out/regenerate/NAME.log (timings still alone, last)
     python benchmarks/regenerate.py                     # re-run every study (timings last; not the
                                                         # manual ones, which need an older checkout)
     python benchmarks/regenerate.py --docs              # rewrite the numbers inside the docs' markers
@@ -20,6 +24,7 @@ number is not rewritten: read the diff.
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import math
 import os
 import re
@@ -362,19 +367,65 @@ def refresh_docs(dry_run: bool = False) -> int:
     return changed
 
 
-def run(study: Study) -> bool:
-    print(f"== {study.name}: {study.command}", flush=True)
+#: where ``--jobs`` above 1 writes each study's output (``NAME.log``)
+LOGS = ROOT / "out" / "regenerate"
+
+
+def run(study: Study, log: Path | None = None) -> bool:
+    """Run one study's command from the repository root; its output to ``log`` when given (else
+    this process's own). True when it exits 0."""
+    print(f"== {study.name}: {study.command}" + (f" (output: {log})" if log else ""), flush=True)
     t0 = time.perf_counter()
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), MPLBACKEND="Agg")
-    rc = subprocess.call(study.command, shell=True, cwd=ROOT, env=env)
+    if log is None:
+        rc = subprocess.call(study.command, shell=True, cwd=ROOT, env=env)
+    else:
+        log.parent.mkdir(parents=True, exist_ok=True)
+        with open(log, "w") as f:
+            rc = subprocess.call(study.command, shell=True, cwd=ROOT, env=env, stdout=f, stderr=subprocess.STDOUT)
     print(f"== {study.name}: exit {rc}, {time.perf_counter() - t0:.0f} s", flush=True)
     return rc == 0
+
+
+def run_all(todo: list[Study], jobs: int = 1, logs: Path = LOGS) -> list[str]:
+    """Run the studies, the non-timing ones ``jobs`` at a time (each one's output to
+    ``logs/NAME.log`` when more than one runs), then the timing ones alone, in order; returns the
+    names of those that failed."""
+    if jobs <= 1:
+        return [s.name for s in todo if not run(s)]
+    from concurrent.futures import ThreadPoolExecutor
+
+    quiet = [s for s in todo if not s.timing]
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        ok = list(pool.map(lambda s: run(s, logs / f"{s.name}.log"), quiet))
+    failed = [s.name for s, good in zip(quiet, ok) if not good]
+    return failed + [s.name for s in todo if s.timing and not run(s)]
+
+
+def select(patterns: list[str], registry=None) -> list[Study]:
+    """The registered studies whose names match ``patterns`` (names or shell patterns such as
+    ``hidden_mills*``; a pattern leaves out the manual studies, which run only when named), in the
+    order given, each once; ``ValueError`` naming a pattern that matches none."""
+    registry = REGISTRY if registry is None else registry
+    out, unknown = [], []
+    for pat in patterns:
+        hits = [s for s in registry if s.name == pat or (fnmatch.fnmatchcase(s.name, pat) and not s.manual)]
+        if not hits:
+            unknown.append(pat)
+        out += [s for s in hits if s not in out]
+    if unknown:
+        raise ValueError(", ".join(unknown))
+    return out
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--list", action="store_true", help="list the registered studies")
-    ap.add_argument("--only", nargs="+", metavar="NAME", help="run only these studies")
+    ap.add_argument("--only", nargs="+", metavar="NAME",
+                    help="run only these studies (names or shell patterns, e.g. 'hidden_mills*')")
+    ap.add_argument("--jobs", type=int, default=1, metavar="N",
+                    help="run N studies at a time (the timing ones still alone, last); each one's output goes "
+                         "to out/regenerate/NAME.log (default 1: one after the other, output here)")
     ap.add_argument("--no-timings", action="store_true", help="skip the timing benchmarks")
     ap.add_argument("--docs", action="store_true", help="only rewrite the docs' marked numbers from the files")
     ap.add_argument("--dry-run", action="store_true", help="with --docs: show the changes, write nothing")
@@ -388,17 +439,19 @@ def main(argv=None) -> int:
         n = refresh_docs(a.dry_run)
         print(f"{n} marked numbers {'would change' if a.dry_run else 'changed'}")
         return 0
-    known = {s.name: s for s in REGISTRY}
+    if a.jobs < 1:
+        print(f"regenerate: error: --jobs: must be >= 1 (got {a.jobs})", file=sys.stderr)
+        return 2
     if a.only:
-        unknown = [n for n in a.only if n not in known]
-        if unknown:
-            print(f"regenerate: error: --only: unknown study {', '.join(unknown)} (see --list)", file=sys.stderr)
+        try:
+            todo = select(a.only)
+        except ValueError as exc:
+            print(f"regenerate: error: --only: unknown study {exc} (see --list)", file=sys.stderr)
             return 2
-        todo = [known[n] for n in a.only]
     else:
         auto = [s for s in REGISTRY if not s.manual]
         todo = [s for s in auto if not s.timing] + ([] if a.no_timings else [s for s in auto if s.timing])
-    failed = [s.name for s in todo if not run(s)]
+    failed = run_all(todo, a.jobs)
     if failed:
         print(f"regenerate: failed: {', '.join(failed)}", file=sys.stderr)
         return 1
