@@ -1,6 +1,6 @@
 """Closed-loop campaigns on hidden mills: a scripted operator accepts every advice through the CLI.
 
-    nice python benchmarks/hidden_mills.py [--cases A,B,...] [--particles 5000] [--out out/hidden_mills]
+    nice python benchmarks/hidden_mills.py [--cases A,B,...] [--particles 5000] [--out out/RESULTS_NAME]
     nice python benchmarks/hidden_mills.py --cases H,I,J,K,L --results-name hidden_mills_heldout   # held out
     nice python benchmarks/hidden_mills.py --sample-particles 1000 --results-name NAME   # larger samples
     nice python benchmarks/hidden_mills.py --sample-on-request --results-name NAME   # extra samples when asked
@@ -650,8 +650,9 @@ def _main() -> None:
     ap.add_argument("--workers", type=int_arg("--workers", 1, 256), default=1,
                     help="mills run side by side (default 1); each mill's campaign is seeded by its name, so the "
                          "results are the same for any number, but advice times then share the machine")
-    ap.add_argument("--out", default=str(ROOT / "out" / "hidden_mills"),
-                    help=f"the campaign folders go here (default out/hidden_mills in the repository; a relative path "
+    ap.add_argument("--out", default=None,
+                    help=f"the campaign folders go here (default out/<--results-name> in the repository, so that "
+                         f"runs of different sets can go side by side; a relative path "
                          f"is taken from the current folder). A new or empty folder is used; a folder an earlier run "
                          f"wrote (it holds the {OUT_MARKER} file each run writes) is emptied and reused; a folder "
                          f"holding anything else is refused, never deleted")
@@ -681,7 +682,8 @@ def _main() -> None:
                     help="results file name, letters, digits, _ and - (a subset of the cases or another seed: "
                          "e.g. hidden_mills_seed1)")
     a = ap.parse_args()
-    a.out = resolve_out(a.out)  # once, here: every later use (and every bmctl run) gets this absolute folder
+    # once, here: every later use (and every bmctl run) gets this absolute folder
+    a.out = resolve_out(a.out if a.out is not None else str(ROOT / "out" / a.results_name))
     if a.figure:
         from matplotlib.backend_bases import FigureCanvasBase
 
