@@ -81,9 +81,16 @@ def test_shipped_folders_resolve_from_a_clone():
 
 @pytest.mark.slow
 def test_the_built_wheel_carries_every_shipped_card_and_controller(tmp_path):
-    """Build the wheel as pip does (isolated build), install it without dependencies into a
-    folder of its own, and read the shipped defaults from there, away from the clone."""
-    build = subprocess.run([sys.executable, "-m", "pip", "wheel", str(ROOT), "--no-deps", "-q", "-w", str(tmp_path)],
+    """Build the wheel as pip does (isolated build, from a copy of the sources: pip builds in the
+    source tree), install it without dependencies into a folder of its own, and read the shipped
+    defaults from there, away from the clone."""
+    src = tmp_path / "src"
+    skip = shutil.ignore_patterns("__pycache__", "*.pyc")
+    for folder in ("bmctl", *FOLDERS):
+        shutil.copytree(ROOT / folder, src / folder, ignore=skip)
+    for name in ("setup.py", "pyproject.toml", "README.md"):
+        shutil.copy2(ROOT / name, src / name)
+    build = subprocess.run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps", "-q", "-w", str(tmp_path)],
                            capture_output=True, text=True)
     assert build.returncode == 0, build.stderr[-2000:]
     (wheel,) = tmp_path.glob("bmctl-*.whl")
