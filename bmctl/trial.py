@@ -321,7 +321,7 @@ def _resume(loop: ClosedLoop, out: Path, scenario_path, seed: int) -> None:
     meta = _read_meta(out / "trial.json")
     R = arg("resume=True")
     if meta.get("campaign"):
-        raise InputError(f"{R}: {out} holds a trial run with --campaign, which does not resume; run it again "
+        raise InputError(f"{R}: {out} holds a trial run as a campaign, which does not resume; run it again "
                          f"with the same {arg('seed')} into a new {arg('out')}")
     if meta.get("scenario") != str(Path(scenario_path).resolve()):
         raise InputError(f"{R}: {out} holds a trial of {meta.get('scenario')} with seed {meta.get('seed')}, "

@@ -424,3 +424,20 @@ def test_engine_and_parameter_flags_from_the_commands(tmp_path, capsys):
     line = _cli_error(capsys, ["calibrate", CARD, history, "--params", "process.rpm", "--workers", "0",
                                "--out", tmp_path / "c"])
     assert line.startswith("bmctl: error: --params: process.rpm is an operating setting"), line
+
+
+def test_resuming_a_trial_run_as_a_campaign_is_named_as_the_caller_spells_it(tmp_path, capsys):
+    """The folder of a trial run as a campaign does not resume: from Python the message names
+    resume=True, seed and out; from the command --resume, --seed and --out."""
+    import json as _json
+
+    from bmctl.trial import run_trial
+
+    s, out = _used_trial_folder(tmp_path)
+    (out / "trial.json").write_text(_json.dumps({"campaign": True, "scenario": str(s), "seed": 0}), encoding="utf-8")
+    msg = _refusal(lambda: run_trial(s, out, resume=True))
+    assert msg == (f"resume=True: {out} holds a trial run as a campaign, which does not resume; run it again with "
+                   "the same seed into a new out"), msg
+    line = _cli_error(capsys, ["trial", s, "--resume", out, "--no-progress"])
+    assert line == (f"bmctl: error: --resume: {out} holds a trial run as a campaign, which does not resume; run it "
+                    "again with the same --seed into a new --out"), line
