@@ -128,7 +128,8 @@ def main() -> None:
             f" {k} {v}" for k, v in (("--card", a.card if a.card != "lab-15mm" else None),
                                      ("--repeat", a.repeat if a.repeat != 1 else None),
                                      ("--workers", a.workers), ("--compare", a.compare)) if v is not None)
-        settings = {"card": a.card, "card_change": [list(x) for x in CARDS[a.card]], "identify_args": [x.replace(str(tmp), "TMP") for x in args[2:]],  # TMP: its temporary folder
+        settings = {"card": a.card, "card_change": [list(x) for x in CARDS[a.card]],
+                    "identify_args": [x.replace(str(tmp), "TMP") for x in args[2:]],  # TMP: its temporary folder
                     "fresh_set": {"schedules": 24, "stream": 3, "seeds": [21, 22, 23], "particles": 4000}}
         print(f"wrote {write_results('bench_identify', values, settings=settings, command=cmd)}")
 

@@ -416,7 +416,8 @@ def test_engine_and_parameter_flags_from_the_commands(tmp_path, capsys):
 
     with naming(LIBRARY_FLAGS):
         assert _refusal(lambda: client_for(workers=-1)) == "--workers: must be >= 0 (got -1)"
-    line = _cli_error(capsys, ["whatif", CARD, ROOT / "scenarios" / "schedule-lab-300rpm-12h.toml", "--workers", "2", "--scheduler", "tcp://h:8786",
+    schedule = ROOT / "scenarios" / "schedule-lab-300rpm-12h.toml"
+    line = _cli_error(capsys, ["whatif", CARD, schedule, "--workers", "2", "--scheduler", "tcp://h:8786",
                                "--out", tmp_path / "w"])
     assert line == "bmctl: error: --workers: sets the local Dask workers, which --scheduler replaces", line
     history = tmp_path / "h.toml"

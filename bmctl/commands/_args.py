@@ -26,7 +26,7 @@ def shipped(folder: str, flag: str) -> Path:
     Parameters
     ----------
     folder : str
-        The folder under the repository.
+        ``"models"`` or ``"controllers"``.
     flag : str
         The option that gives the file instead (named in the message).
     """

@@ -878,9 +878,9 @@ def warm_start(card: ModelCard, candidates: Sequence) -> tuple[dict, str]:
         out[k] = base[k] + (val - their[k]) if cf.SPEC[k][0] is None else val
         lo, hi = cf.SPEC[k][1], cf.SPEC[k][2]
         out[k] = min(max(out[k], lo), hi)
-    from .forcard import SHIPPED_DIR
+    from .forcard import is_shipped
 
-    where = (f"models/{near.path.name}" if near.path.resolve().parent == SHIPPED_DIR.resolve() else str(near.path))
+    where = f"models/{near.path.name}" if is_shipped(near.path) else str(near.path)
     return out, f"{where} (card {near.card_name}, the nearest identified card)"
 
 

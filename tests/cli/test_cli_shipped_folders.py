@@ -20,6 +20,8 @@ from bmctl.cli import main
 ROOT = Path(__file__).resolve().parents[2]
 CARD = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
 FOLDERS = ("models", "controllers")
+#: the shipped cards' names (their NAME.moments.toml companions left out)
+CARDS = sorted(p.name for p in (ROOT / "models").glob("*.toml") if p.suffixes == [".toml"])
 
 
 def _install(monkeypatch, tmp_path, packaged: bool) -> Path:
@@ -65,11 +67,11 @@ def test_a_wheel_reads_the_copies_it_carries(tmp_path, monkeypatch):
         assert shipped_dir(folder) == site / "bmctl" / "_shipped" / folder
     assert design.controller_path(None) == site / "bmctl" / "_shipped" / "controllers" / "mpc-default.toml"
     (tmp_path / "controllers").mkdir()  # a copy of one's own in the working folder comes first
-    (tmp_path / "controllers" / "mpc-default.toml").write_bytes((ROOT / "controllers" / "mpc-default.toml").read_bytes())
+    shutil.copy2(ROOT / "controllers" / "mpc-default.toml", tmp_path / "controllers" / "mpc-default.toml")
     assert design.controller_path(None) == Path("controllers/mpc-default.toml")
-    names = sorted(p.name for p in verify.default_cards())
-    assert names == sorted(p.name for p in (ROOT / "models").glob("*.toml") if p.suffixes == [".toml"])
-    assert all(p.parent == site / "bmctl" / "_shipped" / "models" for p in verify.default_cards())
+    cards = verify.default_cards()
+    assert sorted(p.name for p in cards) == CARDS
+    assert all(p.parent == site / "bmctl" / "_shipped" / "models" for p in cards)
 
 
 def test_shipped_folders_resolve_from_a_clone():
@@ -111,7 +113,7 @@ def test_the_built_wheel_carries_every_shipped_card_and_controller(tmp_path):
     module, controller, cards, card_name = run.stdout.split("\n")[:4]
     assert Path(module).is_relative_to(target)
     assert Path(controller) == target / "bmctl" / "_shipped" / "controllers" / "mpc-default.toml"
-    assert int(cards) == len([p for p in (ROOT / "models").glob("*.toml") if p.suffixes == [".toml"]])
+    assert int(cards) == len(CARDS)
     assert card_name  # the lab card loads from the copy
 
 

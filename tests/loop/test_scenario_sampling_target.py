@@ -2,6 +2,7 @@
 range named by the key alone (not by the members of the number-or-window type)."""
 
 import re
+import tomllib
 
 import pytest
 
@@ -77,9 +78,6 @@ def test_other_errors_and_their_count_are_kept():
 def test_a_controller_files_target_is_named_by_its_key_too(tmp_path):
     """The same merge applies to every config file (a controller's [target] is a union too)."""
     from bmctl.control.config import load_controller
-    from bmctl.errors import InputError
-
-    import tomllib
 
     src = (ROOT / "controllers" / "mpc-fast.toml").read_text(encoding="utf-8")
     assert "target" not in tomllib.loads(src)  # its "# [target]" is a comment: the table is added here
