@@ -413,12 +413,15 @@ def summarise(sc: Scenario, loop: ClosedLoop) -> dict:
     """The ``summary.json`` of a finished (or stopped) trial loop."""
     ceiling = loop.cfg.ceiling_c
     from .control.outputs import relative_error
-    from .stats import dvalues
+    from .stats import dvalues, law_size_stats
 
     tm = loop.mill.moments()
     final_true = {k: tm[k] for k in TARGET_KEYS if k in tm}
     if any(k not in final_true for k in sc.target):  # volume-weighted D-values of the plant's population
         final_true.update({k: v for k, v in dvalues(loop.mill.s * 1e6).items() if k in TARGET_KEYS})
+    # the same D-values through the size law of the plant's number mean and std (what the controller steers)
+    law = law_size_stats(tm["s_mean_um"], tm["s_std_um"])
+    final_true_law = {k: float(law[k]) for k in sc.target if k in _DVALUE_NAMES}
     err = {k: relative_error(final_true[k], v) for k, v in sc.target.items()}
     st = loop.stats
     solve = np.array(st["solve_ms"]) if st["solve_ms"] else np.array([0.0])
@@ -426,6 +429,7 @@ def summarise(sc: Scenario, loop: ClosedLoop) -> dict:
         "scenario": sc.scenario.name,
         "target": dict(sc.target),
         "final_true": final_true,
+        "final_true_law": final_true_law,
         "final_estimate": {k: loop.est.get(k) for k in EST_KEYS},
         "final_error": err,
         "max_temperature_c": st["max_T"],

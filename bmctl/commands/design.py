@@ -122,10 +122,15 @@ def run(args) -> int:
 
         for k, v in target.items():
             m = pc[k]["mean"]
-            parts.append(f"{k} {m:.4g} [{pc[k]['min']:.4g}, {pc[k]['max']:.4g}] (moment model {r.outputs[k]:.4g})")
+            law = pc[k].get("law_mean")
+            parts.append(f"{k} {m:.4g} [{pc[k]['min']:.4g}, {pc[k]['max']:.4g}] (moment model {r.outputs[k]:.4g}"
+                         + (f"; size law of the plants' mean and std {law:.4g}" if law is not None else "") + ")")
             dev = abs(m - r.outputs[k]) / max(abs(r.outputs[k]), 1e-12)
             if dev > tol:
-                off.append(f"{k} {100 * dev:.1f} %")
+                off.append(f"{k} {100 * dev:.1f} %" + (
+                    "" if law is None else f" (the model against the size law of the plants' mean and std "
+                    f"{100 * abs(law - r.outputs[k]) / max(abs(r.outputs[k]), 1e-12):.1f} %, that law against the "
+                    f"plants' particles {100 * abs(m - law) / max(abs(law), 1e-12):.1f} %: docs/fidelity.md)"))
         print(f"plant check ({pc['seeds']} plant{'s' if pc['seeds'] != 1 else ''}, seed {args.seed}): "
               + "; ".join(parts)
               + f"; peak T {pc['temperature_peak_c']:.1f} °C")

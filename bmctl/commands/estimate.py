@@ -236,10 +236,9 @@ def run(args) -> int:
     if args.schedule is not None:
         if args.rpm is not None:
             raise InputError("--schedule: cannot be combined with --rpm")
-        segments = Schedule.load(args.schedule).pairs()
-        for h, rpm in segments:
-            if rpm > card.mill.rpm_max:
-                raise InputError(f"{args.schedule}: rpm {rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g}")
+        schedule = Schedule.load(args.schedule)
+        schedule.check_rpm_max(card.mill.rpm_max, str(args.schedule))
+        segments = schedule.pairs()
         total = sum(h for h, _ in segments)
         if total < t_end - 1e-9:
             raise InputError(f"{args.schedule}: covers {total:g} h, the last sample is at {t_end:g} h")

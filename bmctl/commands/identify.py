@@ -41,10 +41,11 @@ def configure(p):
                         "the built-in defaults, keeping the better fit (default); the defaults only; or a "
                         "coefficient file")
     p.add_argument("--evaluations", type=int_arg("--evaluations", 1, 1000), default=None, metavar="N",
-                   help="most residual evaluations of the fit per start (default 40; it also stops after 8 "
-                        "Jacobians per start)")
+                   help="most residual evaluations of each pass of the fit (default 40; it also stops after 8 "
+                        "Jacobians); a start has one pass, two where it leaves a coefficient's bounds")
     p.add_argument("--jacobians", type=int_arg("--jacobians", 1, 1000), default=None, metavar="N",
-                   help="most Jacobians of the fit per start (default 8: the fits level off within 6-8)")
+                   help="most Jacobians of each pass of the fit (default 8: the fits level off within 6-8); a start "
+                        "has one pass, two where it leaves a coefficient's bounds")
     p.add_argument("--quick", action="store_true",
                    help="fewer experiments and held-out schedules, one training seed, M=2000 (a smoke test)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")

@@ -33,15 +33,15 @@ def run(args) -> int:
     if args.schedule is not None:
         if args.hours is not None or args.rpm is not None:
             raise InputError("--schedule: cannot be combined with --hours or --rpm")
-        segments = Schedule.load(args.schedule).pairs()
+        schedule = Schedule.load(args.schedule)
+        schedule.check_rpm_max(card.mill.rpm_max, str(args.schedule))
+        segments = schedule.pairs()
     else:
         if args.hours == 0:
             raise InputError("--hours: must be > 0 (got 0)")
+        if args.rpm is not None and args.rpm > card.mill.rpm_max:
+            raise InputError(f"--rpm: {args.rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g} ({args.model})")
         segments = Schedule.from_card(card, args.hours, args.rpm).pairs()
-    for h, rpm in segments:
-        if rpm > card.mill.rpm_max:
-            src = args.schedule or "--rpm"
-            raise InputError(f"{src}: rpm {rpm:g} exceeds the mill's rpm_max {card.mill.rpm_max:g} ({args.model})")
     if args.every is not None and args.every <= 0:
         raise InputError(f"--every: must be > 0 (got {args.every:g})")
     out = output_path(args.out)

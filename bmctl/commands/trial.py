@@ -115,6 +115,11 @@ def run(args) -> int:
         print(f"  missed by more than {tol:.0%} ({', '.join(missed)})"
               + (f"; binding limits of the first plan: {'; '.join(first) or 'none'}; of the last: "
                  f"{'; '.join(last) or 'none'}" if first or last else ""))
+    law = {k: v for k, v in (summary.get("final_true_law") or {}).items() if k in summary["target"]}
+    if law:  # the controller steers the size law's D-values; the powder's own can differ (docs/fidelity.md)
+        print("  D-values of the plant's particles " + ", ".join(f"{k} {summary['final_true'][k]:.2f}" for k in law)
+              + "; through the size law of their mean and std (what the controller steers) "
+              + ", ".join(f"{k} {v:.2f}" for k, v in law.items()))
     print(f"  wrote {out}/trajectory.csv, summary.json, trial.json, trial.png"
           + ("" if args.campaign else ", checkpoint.npz")
           + (f"; the campaign in {out}/campaign (bmctl campaign report {out}/campaign)" if args.campaign else ""))

@@ -624,7 +624,10 @@ def plant_check(card, segments, target: dict, seeds: int = 3, particles: int = 5
     Returns
     -------
     dict
-        ``{key: {"mean", "min", "max"}}`` for every target key and ``temperature_peak_c``, ``seeds``.
+        ``{key: {"mean", "min", "max"}}`` for every target key and ``temperature_peak_c``, ``seeds``; a
+        D-value key (``d10_um, d50_um, d90_um, span``: the plants' particles, volume-weighted) also
+        has ``law_mean``, the same through the size law of each plant's number mean and std (the
+        closed form the moment model's prediction and the controller use).
     """
     from ..parallel import auto_workers, client_for, close_client, map_seeded, seed_sequences
 
@@ -638,10 +641,15 @@ def plant_check(card, segments, target: dict, seeds: int = 3, particles: int = 5
     finally:
         if client is not None:
             close_client(client)
+    from ..stats import DVALUE_QUANTILES, law_size_stats
+
     out = {"seeds": int(seeds), "particles": int(particles)}
     for k in list(target) + ["s_mean_um", "temperature_c"]:
         v = np.array([m[0][k] for m in members], dtype=float)
         out[k] = {"mean": float(v.mean()), "min": float(v.min()), "max": float(v.max())}
+        if k in DVALUE_QUANTILES or k == "span":  # the plant's particles' D-value; the law's, as the model steers
+            law = [float(law_size_stats(m[0]["s_mean_um"], m[0]["s_std_um"])[k]) for m in members]
+            out[k]["law_mean"] = float(np.mean(law))
     out["temperature_peak_c"] = float(max(m[1] for m in members))
     return out
 

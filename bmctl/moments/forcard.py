@@ -41,7 +41,8 @@ def is_shipped(path: str | Path) -> bool:
 
     Examples
     --------
-    >>> is_shipped("models/alni-1to1-300rpm-lab.moments.toml"), is_shipped("/tmp/x.moments.toml")
+    >>> from bmctl.shipped import models_dir
+    >>> is_shipped(models_dir() / "alni-1to1-300rpm-lab.moments.toml"), is_shipped("/tmp/x.moments.toml")
     (True, False)
     """
     p = Path(path)

@@ -621,7 +621,9 @@ def fit(model: MomentModel, experiments: Sequence[Experiment], free: Sequence[st
     starts : sequence of (label, dict), optional
         Several starting points (each a partial coefficient table over the model's); overrides ``start``.
     max_jacobians : int, optional
-        Most Jacobians per start: a fit that has not converged by then keeps its lowest-cost point.
+        Most Jacobians per pass: a fit that has not converged by then keeps its lowest-cost point. A start
+        whose fit leaves a coefficient's bounds continues in a second, bounded pass with a budget of its
+        own (so at most twice this many per start).
 
     Returns
     -------

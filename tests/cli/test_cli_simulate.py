@@ -116,6 +116,20 @@ def test_bad_schedule(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize("verb", ["simulate", "estimate"])
+def test_schedule_faster_than_the_mill_names_its_segment(tmp_path, capsys, verb):
+    """simulate and estimate said "s.toml: rpm 1500 exceeds ..." where compare and whatif name the segment
+    ("s.toml: segment[1].rpm: ..."), as the one-line error format promises."""
+    sched = tmp_path / "s.toml"
+    sched.write_text("[[segment]]\nhours = 1\nrpm = 300\n[[segment]]\nhours = 2\nrpm = 1500\n", encoding="utf-8")
+    out = tmp_path / "o"
+    extra = (["--samples", str(card_path("alni-1to1-300rpm-lab").parents[1] / "examples" / "samples"), "--times",
+              "0.5,1,2,4,8"] if verb == "estimate" else [])
+    rc, _, err = run([verb, LAB, "--schedule", str(sched), *extra, "--out", str(out)], capsys)
+    assert rc == 2 and err.strip() == f"bmctl: error: {sched}: segment[1].rpm: 1500 exceeds the mill's rpm_max 600", err
+    assert not out.exists()
+
+
 @pytest.mark.slow
 def test_failed_rerun_keeps_previous_outputs(tmp_path, capsys):
     out = tmp_path / "o"

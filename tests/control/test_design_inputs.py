@@ -3,6 +3,7 @@ ceiling against the card), the outputs written as one set, and what the summary 
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from bmctl.cli import main
@@ -295,3 +296,27 @@ def test_a_batch_a_hair_under_five_minutes_says_how_far_under():
     cfg = validate_controller({"kind": "mpc", "interval_h": 0.5}, "c.toml")
     with pytest.raises(InputError, match=r"0\.0833 h \(4\.998 min\) is shorter than the 5 min"):
         check_batch(0.0833, cfg, hours_source="--hours", cfg_source="c.toml")
+
+
+def test_plant_check_gives_d_values_of_the_particles_and_of_the_size_law():
+    """design steers a d50_um target through the size law of (s_mean, s_std) and judged it on the plants'
+    particles alone: a 5 % "disagreement" could not be told apart from the law's misfit to the powder."""
+    from bmctl.config import load_card
+    from bmctl.control.design import _plant_member, plant_check
+    from bmctl.parallel import seed_sequences
+    from scipy.special import gamma
+
+    card = load_card(CARD)
+    segs = [(0.5, 300.0)]
+    pc = plant_check(card, segs, {"d50_um": 45.0, "s_mean_um": 40.0}, seeds=2, particles=600, seed=3)
+    again = [_plant_member((card, tuple(segs), 600), np.random.default_rng(ss))[0] for ss in seed_sequences(3, 2)]
+    law = []
+    for m in again:  # the Weibull of each plant's number mean and std, k = cv^-1.086 (docs/fidelity.md)
+        cv = m["s_std_um"] / m["s_mean_um"]
+        k = max(cv ** -1.086, 1.0)
+        a = 1 + 3 / k  # the volume-weighted law of u = (s / lambda)^k is Gamma(a); its median by Wilson-Hilferty
+        lam = m["s_mean_um"] / gamma(1 + 1 / k)
+        law.append(lam * (a * (1 - 1 / (9 * a)) ** 3) ** (1 / k))
+    assert pc["d50_um"]["law_mean"] == pytest.approx(np.mean(law), rel=1e-6)  # Gamma by A&S 6.1.35 in the code
+    assert pc["d50_um"]["mean"] == pytest.approx(np.mean([m["d50_um"] for m in again]), rel=1e-12)
+    assert "law_mean" not in pc["s_mean_um"]

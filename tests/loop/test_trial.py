@@ -335,3 +335,19 @@ def test_a_plant_factor_past_the_card_limit_is_one_line(small, tmp_path, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"{sc}: plant.gamma_factor: 99 takes the card's stochastic.gamma_per_um2" in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+def test_d50_target_is_judged_on_the_powder_and_shown_through_the_size_law(tmp_path):
+    """A d50_um target is steered as the size law's D50 of (s_mean, s_std) but judged on the plant's own
+    particles; summary.json gave only the latter, so a miss could not be told apart from the law's misfit."""
+    from bmctl.stats import weibull_size_stats
+
+    p = tmp_path / "d50.toml"
+    p.write_text(SMALL.format(root=ROOT).replace("hours = 2", "hours = 1")
+                 .replace("s_mean_um = 50.0", "d50_um = 60.0"), encoding="utf-8")
+    summary = run_trial(p, tmp_path / "o", seed=2)
+    true = summary["final_true"]
+    law = weibull_size_stats(true["s_mean_um"], true["s_std_um"])  # Justus k = cv^-1.086 (docs/fidelity.md)
+    assert summary["final_true_law"] == {"d50_um": pytest.approx(float(law["d50_um"]), rel=1e-12)}
+    assert summary["final_error"]["d50_um"] == pytest.approx((true["d50_um"] - 60.0) / 60.0, rel=1e-9)
+    assert true["d50_um"] != pytest.approx(summary["final_true_law"]["d50_um"], rel=1e-6)
