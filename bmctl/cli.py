@@ -142,15 +142,26 @@ def _safe_streams() -> None:
                 pass
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, a batch scheduler's end of a job), raised where Ctrl-C would be, so
+    the same clean-up runs: no temporary file or half-written output is left behind."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise Terminated()
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit status (0 ok, 2 bad input, 130 interrupted, 141 output pipe closed)."""
+    """Run the CLI; returns the exit status (0 ok, 2 bad input, 130 interrupted, 141 output pipe closed,
+    143 terminated)."""
     _safe_streams()
     try:
         own_process = argv is None
-        if argv is None:  # the bmctl command's own process: the numpy field's heap setting
+        if argv is None:  # the bmctl command's own process: the numpy field's heap setting; SIGTERM as Ctrl-C
             from .heap import keep_heap  # not via bmctl.moments: that imports numpy
 
             keep_heap()
+            signal.signal(signal.SIGTERM, _on_sigterm)
         argv = sys.argv[1:] if argv is None else list(argv)
         parser = build_parser(_modules(_chosen(argv)))
         args = parser.parse_args(argv)
@@ -161,6 +172,7 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
         if own_process:  # the work is done: a Ctrl-C while Python tears down would end it as 130, silently
             signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
         return rc
     except InputError as exc:
         print(f"bmctl: error: {one_line(str(exc))}", file=sys.stderr)
@@ -180,11 +192,12 @@ def main(argv: list[str] | None = None) -> int:
             raise
         words = sys.argv[1:] if argv is None else list(argv)
         resumable = _chosen(words) == ["trial"] and "--campaign" not in words
-        print("bmctl: interrupted (Ctrl-C): no output was left half-written (each file, or the whole set, is "
-              "renamed into place only when complete)"
+        term = _interrupt(exc, Terminated)
+        print(f"bmctl: {'terminated (SIGTERM)' if term else 'interrupted (Ctrl-C)'}: no output was left "
+              "half-written (each file, or the whole set, is renamed into place only when complete)"
               + ("; carry the trial on with --resume DIR and the same --seed" if resumable else ""), file=sys.stderr)
         sys.unraisablehook = _quiet  # objects a library left half-built when interrupted: no traceback after the line
-        return 130
+        return 143 if term else 130
 
 
 def _quiet(unraisable) -> None:
@@ -192,12 +205,12 @@ def _quiet(unraisable) -> None:
     ``__init__`` Ctrl-C cut short), after the one line an interrupted run prints."""
 
 
-def _interrupt(exc: BaseException) -> bool:
-    """Ctrl-C, also where compiled (numba) code reports it as a SystemError caused by a
-    KeyboardInterrupt."""
+def _interrupt(exc: BaseException, kind: type = KeyboardInterrupt) -> bool:
+    """Ctrl-C (or SIGTERM: ``kind`` Terminated), also where compiled (numba) code reports it as a
+    SystemError caused by a KeyboardInterrupt."""
     seen = set()
     while exc is not None and id(exc) not in seen:
-        if isinstance(exc, KeyboardInterrupt):
+        if isinstance(exc, kind):
             return True
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__

@@ -599,8 +599,8 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     :data:`bmctl.io.MAX_DEPTH` raise InputError."""
     from .io import loads_toml, read_input_bytes
 
+    raw = read_input_bytes(path, max_bytes=TOML_MAX_BYTES)  # as given: Path("") would be the current folder
     p = Path(path)
-    raw = read_input_bytes(p, max_bytes=TOML_MAX_BYTES)
     try:
         text = raw.decode("utf-8-sig")  # a byte-order mark (Windows editors) is not part of the TOML
     except UnicodeDecodeError as exc:

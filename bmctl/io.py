@@ -41,6 +41,7 @@ from .errors import InputError
 INPUT_MAX_BYTES = 1 << 30
 
 _pending: list[list[tuple[Path, Path]]] = []  # stack of open output sets: (temporary, destination)
+_created: list[list[Path]] = []  # with _pending: the folders each open set created, outermost first
 
 
 def check_input_file(path: str | os.PathLike, max_bytes: int = INPUT_MAX_BYTES) -> Path:
@@ -56,8 +57,10 @@ def check_input_file(path: str | os.PathLike, max_bytes: int = INPUT_MAX_BYTES) 
     Raises
     ------
     InputError
-        Not found, a folder, not a regular file (FIFO, device, socket), or too large.
+        Empty, not found, a folder, not a regular file (FIFO, device, socket), or too large.
     """
+    if os.fspath(path) == "":  # Path("") is the current folder
+        raise InputError("'': empty path, expected a file")
     p = Path(path)
     try:
         st = os.stat(p)
@@ -387,6 +390,23 @@ def _umask() -> int:
     return mask
 
 
+def _make_folder(folder: Path) -> list[Path]:
+    """Create ``folder`` with its missing ancestors; returns the ones created, outermost first."""
+    missing, p = [], folder
+    while not os.path.lexists(p) and p != p.parent:
+        missing.append(p)
+        p = p.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    return missing[::-1]
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove the folders a failed write created, innermost first, where nothing else was put in them."""
+    for d in reversed(folders):
+        with contextlib.suppress(OSError):
+            d.rmdir()
+
+
 def _destination(path: str | os.PathLike) -> Path:
     """Where a write to ``path`` lands: through a symbolic link to its target."""
     p = Path(path)
@@ -401,7 +421,7 @@ def atomic_path(path: str | os.PathLike, suffix: str = ""):
 
     The file gets the permissions of a new file under the user's umask (``0o666 & ~umask``).
     Errors name ``path``, never the temporary file. Inside :func:`output_set` the rename waits
-    for the whole set.
+    for the whole set. A failed write removes the folders it created where they stayed empty.
 
     Parameters
     ----------
@@ -412,8 +432,12 @@ def atomic_path(path: str | os.PathLike, suffix: str = ""):
         format from it).
     """
     path = _destination(path)
+    created: list[Path] = []  # folders this write made: removed again if it fails (outside a set)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        created = _make_folder(path.parent)
+        if _created:
+            _created[-1].extend(created)  # the set removes them if it fails
+            created = []
         if path.is_dir():
             raise IsADirectoryError(21, "is a folder, cannot be written as a file", str(path))
         if path.exists() and not path.is_file():  # a rename would replace the pipe or device itself
@@ -422,6 +446,7 @@ def atomic_path(path: str | os.PathLike, suffix: str = ""):
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
         os.fchmod(fd, 0o666 & ~_umask())
     except OSError as exc:  # name the destination, not the temporary file
+        _remove_empty(created)
         raise OSError(exc.errno, exc.strerror, str(path)) from None
     os.close(fd)
     try:
@@ -436,6 +461,7 @@ def atomic_path(path: str | os.PathLike, suffix: str = ""):
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        _remove_empty(created)
         raise
 
 
@@ -444,7 +470,7 @@ def output_set():
     """Write several files as one set: each is renamed into place only when all are written.
 
     A failure inside the block (an exception, Ctrl-C) removes every temporary file of the set
-    and leaves the destinations as they were.
+    and the folders it created that stayed empty, and leaves the destinations as they were.
 
     Examples
     --------
@@ -458,16 +484,20 @@ def output_set():
     'a'
     """
     _pending.append([])
+    _created.append([])
     try:
         yield
     except BaseException:
         for tmp, _ in _pending.pop():
             with contextlib.suppress(FileNotFoundError):
                 os.unlink(tmp)
+        _remove_empty(_created.pop())  # the folders the set made, where they stayed empty
         raise
     todo = _pending.pop()
+    made = _created.pop()
     if _pending:  # a set inside a set commits with the outer one
         _pending[-1].extend(todo)
+        _created[-1].extend(made)
         return
     for i, (tmp, dest) in enumerate(todo):
         try:

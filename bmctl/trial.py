@@ -73,6 +73,30 @@ class MicrographSensor:
         return np.asarray(tab.s_um), np.asarray(tab.r)
 
 
+def check_resolvable(sc: Scenario, scenario_path, card: ModelCard) -> None:
+    """Refuse a pixel size at which the starting powder cannot be measured, before the trial's folder
+    is made (the first sample failed after the folder and its checkpoint were written).
+
+    The starting powder is the card's ``[initial]`` law (a normal law cut at a tenth of its mean, as
+    the plant draws it), read at 1000 quantiles: no random draw."""
+    um = sc.sampling.um_per_px
+    if um is None:
+        return
+    from scipy.stats import norm
+
+    from .measure.sampler import MAX_DRAWS_FACTOR, MIN_AREA_PX, resolvable_share
+
+    m, sd = card.initial.s_mean_um, card.initial.s_std_um
+    q = (np.arange(1000) + 0.5) / 1000
+    f_lo = norm.cdf((0.1 * m - m) / sd) if sd > 0 else 0.0
+    s_um = m + sd * norm.ppf(f_lo + q * (1.0 - f_lo)) if sd > 0 else np.full(q.size, m)
+    share = resolvable_share(s_um, um)
+    if share * MAX_DRAWS_FACTOR < 1.0:
+        raise InputError(f"{scenario_path}: sampling.um_per_px: at {um:g} µm/px {100 * share:.2g} % of the starting "
+                         f"powder's particles span the {MIN_AREA_PX} px a particle needs to be measured; "
+                         "give a finer pixel size")
+
+
 def _plant_card(sc: Scenario, base: Path) -> ModelCard:
     card = load_card(resolve(sc.plant.model or sc.model, base))
     return with_factors(card, sc.plant.gamma_factor, sc.plant.delta_factor)
@@ -383,6 +407,7 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
     traj, ckpt = out / "trajectory.csv", out / CHECKPOINT
     if not resume and traj.exists():
         raise InputError(f"{arg('out')}: {out} already holds a trial; use {arg('resume=True')} or another folder")
+    check_resolvable(sc, scenario_path, _plant_card(sc, base))
     loop = build(sc, base, seed)
     if resume:
         _resume(loop, out, scenario_path, seed)

@@ -30,14 +30,15 @@ def _band_indices(w: np.ndarray, n: int) -> np.ndarray:
 
 
 def _measure(inputs, um_per_px, accept_unusable: bool = False, scale_name: str = "um_per_px",
-             accept_name: str = "accept_unusable=True"):
+             accept_name: str = "accept_unusable=True", scale_bar_um: float | None = None):
     """Pooled particle table, each particle's image, its position, per-input reports of images and
     tables (as ``bmctl measure``) and each input's particle count (in the order of ``inputs``).
 
     An image (or a table's image, by its ``measure.json``) with the verdict ``unusable`` is
     refused unless ``accept_unusable``; doubtful ones are listed in the reports' ``verdict_warnings``.
     The messages name ``um_per_px`` as ``scale_name`` and the way to accept an unusable image as
-    ``accept_name`` (:func:`bmctl.campaign.workflow.arg`).
+    ``accept_name`` (:func:`bmctl.campaign.workflow.arg`). ``scale_bar_um``: the length on the
+    images' scale bar, as ``bmctl measure --scale-bar-um``.
     """
     from ..measure.micrograph import check_verdicts, measure_micrograph, table_reports
     from ..measure.scale import check_scale
@@ -59,7 +60,7 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False, scale_name: str =
             if where is not None:
                 name, x, y = where
         else:
-            res = measure_micrograph(item, um_per_px=scale)
+            res = measure_micrograph(item, um_per_px=scale, scale_bar_um=scale_bar_um)
             t, name, x, y = res.table, str(item), res.x_um, res.y_um
             rep = res.report()
             rep["verdict_warnings"] = check_verdicts([rep], accept_unusable, accept_name)

@@ -179,10 +179,12 @@ def run_trial_as_campaign(scenario_path, out, seed: int = 0, progress=None) -> d
     """
     from .. import io
     from ..scenario import load_scenario
-    from ..trial import figures, start_truth, summarise, trajectory_header, trajectory_row
+    from ..trial import (_plant_card, check_resolvable, figures, start_truth, summarise, trajectory_header,
+                         trajectory_row)
 
     sc = load_scenario(scenario_path)
     check_scenario(sc, scenario_path)
+    check_resolvable(sc, scenario_path, _plant_card(sc, Path(scenario_path).resolve().parent))
     out = Path(out)
     traj, folder = out / "trajectory.csv", out / CAMPAIGN_DIR
     if traj.exists() or folder.exists():

@@ -542,6 +542,8 @@ def init(folder, model, controller, target, hours: float | None = None, temperat
     folder = Path(folder)
     inp = folder / INPUTS
     made = [p for p in (folder, inp) if not p.exists()]
+    if os.path.lexists(inp) and not inp.is_dir():  # "inputs: File exists" from mkdir said nothing more
+        raise InputError(f"{inp}: is a file, not a folder (the campaign keeps copies of its inputs there)")
     files = {"card": (card_p, inp / card_p.name), "controller": (ctrl_p, inp / f"controller-{ctrl_p.name}")}
     if coeffs_path(card_p).exists():
         files["moments"] = (coeffs_path(card_p), coeffs_path(inp / card_p.name))
@@ -745,7 +747,7 @@ def log(folder, rpm: float, hours: float, milling: float = 1.0, temperature_c: f
 
 
 def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign: Campaign | None = None,
-           accept_unusable: bool = False) -> dict:
+           accept_unusable: bool = False, scale_bar_um: float | None = None) -> dict:
     """Measure a sample taken at batch time ``at_h`` (images and/or particle tables, as
     ``bmctl measure``), store its particles and update the estimator (now if ``at_h`` is
     logged, else when the log reaches it). An image whose measurement verdict is ``unusable``
@@ -766,6 +768,10 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
         An open campaign to use (and leave open); default: ``folder`` is opened and closed.
     accept_unusable : bool, optional
         Keep an image (or a table's image) whose verdict is ``unusable`` (as ``--accept-unusable``).
+    scale_bar_um : float, optional
+        The length written on the images' scale bar (µm), which then gives their pixel size (as
+        ``bmctl measure --scale-bar-um``). ``um_per_px`` and ``scale_bar_um`` are refused where every
+        input is a table.
 
     Returns
     -------
@@ -782,6 +788,15 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
     if not inputs:
         raise InputError("sample: give at least one image or particle table")
     inputs = list(inputs)
+    for given, name in ((um_per_px, "um_per_px"), (scale_bar_um, "scale_bar_um")):
+        if given is not None:  # a value out of range is said first, as for an image
+            from ..measure.scale import check_scale
+
+            check_scale(given, name)
+        if given is not None and all(not isinstance(i, (str, os.PathLike)) or Path(i).suffix.lower() == ".csv"
+                                     for i in inputs):  # a pixel size nothing would use (tables in memory too)
+            raise InputError(f"{arg(name)}: every input is a particle table (sizes in µm already); it applies "
+                             "to micrographs only")
     refuse_repeats(inputs, "sample: ")
     digests = [_digest(i) for i in inputs]
     _refuse_same_bytes(inputs, digests)
@@ -789,7 +804,7 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
         db.refuse_read_only(folder)
     # before the lock: may take seconds
     table, images, x, y, reports, counts = _measure(inputs, um_per_px, accept_unusable, arg("um_per_px"),
-                                                       arg("accept_unusable=True"))
+                                                       arg("accept_unusable=True"), scale_bar_um)
     c = campaign or Campaign(folder)
     try:
         if at_h > c.meta["hours"] + 1e-6:

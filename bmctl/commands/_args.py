@@ -93,6 +93,11 @@ def output_path(path, name: str = "--out", folder: bool = True) -> Path:
     folder : bool, optional
         True for an output folder, False for an output file.
     """
+    raw = os.fspath(path)
+    if raw == "":  # Path("") is the current folder
+        raise InputError(f"{name}: empty path")
+    if not folder and raw.endswith(("/", os.sep)):  # Path drops the slash: a file would be written under that name
+        raise InputError(f"{name}: {raw} ends in '/', naming a folder; expected a file")
     p = Path(path)
     real = Path(os.path.realpath(p))
     shown = p if real == p.absolute() else f"{p} (-> {real})"

@@ -11,7 +11,8 @@ import argparse
 import json
 import sys
 
-from ._args import DEFAULT_CONTROLLER, LIBRARY_FLAGS, controller_path, float_arg, hours_arg, int_arg, rpm_arg
+from ._args import (DEFAULT_CONTROLLER, LIBRARY_FLAGS, controller_path, float_arg, hours_arg, int_arg, output_path,
+                    rpm_arg)
 from ._model import add_identify_flag, progress_printer, warn_window
 
 #: ``init --particles``: equals :data:`bmctl.campaign.workflow.PARTICLES_RANGE` (a test checks), kept here so
@@ -70,6 +71,9 @@ def configure(parser: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="IMAGE_OR_TABLE", help="micrographs and/or particle tables (.csv)")
     p.add_argument("--um-per-px", type=float_arg("--um-per-px", 0, strict=True), default=None, metavar="X",
                    help="pixel size (overrides the image metadata)")
+    p.add_argument("--scale-bar-um", type=float_arg("--scale-bar-um", 0, strict=True), default=None, metavar="L",
+                   help="length written on the images' scale bar (µm): the pixel size from the bar found "
+                        "(as bmctl measure)")
     p.add_argument("--accept-unusable", action="store_true",
                    help="use images whose measurement verdict is unusable (default: refused)")
     p = sub.add_parser("advise", help="estimate, recommended next action, plan to the batch end, and why")
@@ -189,8 +193,13 @@ def _estimator_changes(args: argparse.Namespace, cp) -> dict | None:
 def _run(args: argparse.Namespace) -> int:
     from .. import campaign as cp
     from ..campaign import targets as tg
+    from ..errors import InputError
 
     v, d = args.verb, args.dir
+    if d == "":  # Path("") is the current folder
+        raise InputError("DIR: empty path")
+    if getattr(args, "out", None) is not None:
+        output_path(args.out, "--out", folder=False)
     if v == "init":
         meta = cp.init(d, args.model, controller_path(args.controller), tg.parse(args.target), hours=args.hours,
                        temperature_max_c=args.temperature_max_c, seed=args.seed, particles=args.particles,
@@ -214,7 +223,8 @@ def _run(args: argparse.Namespace) -> int:
         print(f"estimate at {est['t_h']:g} h: s_mean_um {_band(est, 's_mean_um')}; temperature_c "
               f"{_band(est, 'temperature_c', '{:.1f}')}")
     elif v == "sample":
-        r = cp.sample(d, args.at_h, args.inputs, args.um_per_px, accept_unusable=args.accept_unusable)
+        r = cp.sample(d, args.at_h, args.inputs, args.um_per_px, accept_unusable=args.accept_unusable,
+                      scale_bar_um=args.scale_bar_um)
         for w in r.get("warnings", []):
             print(f"bmctl: warning: {w}", file=sys.stderr)
         print(f"sample {r['sample_id']} at {r['t_h']:g} h: {r['n']} particles, median s = {r['s_median_um']:.4g} µm, "

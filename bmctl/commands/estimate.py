@@ -84,12 +84,14 @@ def _number_key(path: Path) -> list:
 
 def _sample_files(paths: list[str], images: bool, folders: list | None = None) -> list[Path]:
     """The sample files; ``folders`` collects (folder, its files in name order) for
-    :func:`_folder_order_doubts`."""
+    :func:`_folder_order_doubts`. A folder's hidden files (``.x.csv``, the ``._x.csv`` macOS leaves on
+    other file systems) are not samples."""
     files: list[Path] = []
     suffixes = IMAGE_SUFFIXES if images else (".csv",)
     for p in map(Path, paths):
         if p.is_dir():
-            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in suffixes)
+            found = sorted(f for f in p.iterdir()
+                           if f.is_file() and f.suffix.lower() in suffixes and not f.name.startswith("."))
             if not found:
                 kind = "micrographs (" + ", ".join(IMAGE_SUFFIXES) + ")" if images else "particle tables (.csv)"
                 raise InputError(f"{p}: no {kind} in this folder")
@@ -268,6 +270,11 @@ def run(args) -> int:
         settings = FilterSettings(n_particles=args.particles, law=LawSettings(**law_kw))
 
     samples, warned = [], _folder_order_doubts(folders, times)
+    if args.schedule is None and t_end > card.process.hours + 1e-9:  # said, as the other verbs refuse it
+        warned.append(f"--times: the last sample ({t_end:g} h) is past the card's {card.process.hours:g} h batch; "
+                      f"its process ({'--rpm ' if args.rpm is not None else ''}"
+                      f"{args.rpm if args.rpm is not None else card.process.rpm:g} rpm) is taken to go on to "
+                      f"{t_end:g} h: give --schedule for what the mill ran")
     for f, t, temp in zip(files, times, temps):  # every input is read before the model is built
         tab, doubts = _read_sample(f, args.um_per_px, args.accept_unusable)
         warned += doubts

@@ -30,7 +30,8 @@ def run(args) -> int:
     card = load_card(args.model)
     rpm = card.process.rpm if args.rpm is None else args.rpm
     if rpm <= 0 or rpm > card.mill.rpm_max:
-        raise InputError(f"--rpm: must be in (0, {card.mill.rpm_max:g}] (got {rpm:g})")
+        src = "--rpm" if args.rpm is not None else f"{args.model}: process.rpm (give --rpm)"
+        raise InputError(f"{src}: must be in (0, {card.mill.rpm_max:g}] (got {rpm:g})")
     if args.horizon <= 0:
         raise InputError(f"--horizon: must be > 0 (got {args.horizon:g})")
     from ..work import check_work, moment_work

@@ -219,9 +219,11 @@ def run(args: argparse.Namespace) -> int:
 
     scale = check_scale(args.um_per_px) if args.um_per_px is not None else None
     bar_um = check_scale(args.scale_bar_um, "scale_bar_um") if args.scale_bar_um is not None else None
+    for given, flag in ((scale, "--um-per-px"), (bar_um, "--scale-bar-um")):
+        if given is not None and all(_is_table(p) for p in args.inputs):  # a pixel size nothing would use
+            raise InputError(f"{flag}: every input is a particle table (.csv, sizes in µm already); it applies "
+                             "to micrographs only")
     if args.out is not None:
-        if args.out == "":
-            raise InputError("--out: empty path")
         output_path(args.out, folder=False)
         _check_output_names(args)
     tables, locs, lines, results, reports, warned = [], [], [], [], [], []

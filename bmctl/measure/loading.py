@@ -262,7 +262,8 @@ def _damaged(path: str, exc: Exception) -> str:
             png = fh.read(len(PNG_MAGIC)) == PNG_MAGIC
     except OSError:
         png = False
-    return f"a damaged or truncated {'PNG' if png else 'file'}: {exc or type(exc).__name__}"
+    said = (str(exc).strip().splitlines() or [""])[0] or type(exc).__name__  # a reader's first line only
+    return f"a damaged or truncated {'PNG' if png else 'file'}: {said}"
 
 
 #: the gray levels Pillow decodes a PNG's 2- and 4-bit gray samples to are the samples times these
@@ -463,6 +464,7 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     check_input_file(p)  # a regular file of a sane size (no FIFO, no device)
     head = image_header(p)
     check_header(head, name)
+    verify_image(p, name)  # not an image, a damaged PNG: said as measure says it
     tiff = is_tiff(p)
     try:
         img = _decode(p, head)
@@ -470,8 +472,10 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
         keyed = not tiff and head.colour_key is not False and _transparent_colour(p)
     except Image.DecompressionBombError as exc:
         raise _too_large(name, _bomb_pixels(exc)) from None
-    except Exception as exc:  # imageio/PIL/tifffile raise many types
-        raise InputError(f"{name}: cannot read image ({type(exc).__name__})") from None
+    except Image.UnidentifiedImageError:
+        raise InputError(f"{name}: cannot read image (not an image file Pillow can read)") from None
+    except Exception as exc:  # imageio/PIL/tifffile raise many types: said as verify_image says them
+        raise InputError(f"{name}: cannot read image ({_damaged(p, exc)})") from None
     if keyed:
         raise InputError(f"{name}: {TRANSPARENT}")
     return _orient(as_gray_float(img, name, own_range=True), head.orientation)

@@ -71,6 +71,34 @@ def _draw(s, r, m, rng, section):
     return s[idx], r[idx]
 
 
+def resolvable_share(s_um, um_per_px: float, min_area_px: int = MIN_AREA_PX, section: bool = False) -> float:
+    """Share of a sample's draws from a population that are large enough to measure at ``um_per_px``
+    (an area of at least ``min_area_px``), as :func:`micrograph_sample` draws them.
+
+    Parameters
+    ----------
+    s_um : array_like
+        Particle sizes (µm).
+    um_per_px : float
+        Pixel size (µm).
+    min_area_px : int, optional
+        Detection limit (px of area).
+    section : bool, optional
+        Planar sections (drawn in proportion to s, at a uniform height through the sphere).
+
+    Examples
+    --------
+    >>> resolvable_share([40.0, 40.0], 1.0), resolvable_share([40.0, 4.0], 1.0)
+    (1.0, 0.5)
+    """
+    s = np.asarray(s_um, dtype=float)
+    d_min = float(um_per_px) * np.sqrt(4.0 * min_area_px / np.pi)  # pi d^2 / 4 >= min_area_px px^2
+    if not section:
+        return float(np.mean(s >= d_min))
+    # a section at height u (uniform) of a sphere of diameter s is s sqrt(1 - u^2) across: >= d_min for u below
+    return float(np.sum(s / s.sum() * np.sqrt(np.clip(1.0 - (d_min / s) ** 2, 0.0, 1.0))))
+
+
 def micrograph_sample(
     s_um,
     r,

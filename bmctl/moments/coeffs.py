@@ -203,6 +203,17 @@ def read_file(path: str | Path) -> CoeffFile:
         out.card_name = name
         if "values" in card:
             out.values = _numbers(card["values"], f"{path}: card.values")
+        fp = card.get("fingerprint")
+        if fp is not None:  # the short name of card.values: an edit of one without the other is caught
+            from ..cards import fingerprint
+
+            if not isinstance(fp, str):
+                raise InputError(f"{path}: card.fingerprint: expected a string such as \"sha256:...\" (got {fp!r})")
+            if out.values is None:
+                raise InputError(f"{path}: card.fingerprint: given without the card.values it names")
+            if fp != fingerprint(out.values):
+                raise InputError(f"{path}: card.fingerprint: {fp} is not the fingerprint of its card.values "
+                                 f"({fingerprint(out.values)}): the file was edited; re-identify the card")
     val = data.get("validation", {})
     if isinstance(val, dict):
         for key, attr in (("mean", "heldout_mean"), ("max", "heldout_max")):

@@ -129,9 +129,15 @@ def test_a_failed_init_keeps_a_file_made_in_inputs_meanwhile(tmp_path, capsys, m
 
 # --- the stored scale -------------------------------------------------------------------------------------
 def test_um_per_px_is_stored_only_when_an_image_was_measured_with_it(tmp_path, capsys):
+    """A pixel size given with tables alone was taken and silently not used (bmctl estimate refused it)."""
     d = tmp_path / "c"
     _init(d)
-    assert main(["campaign", "sample", str(d), "--at-h", "0", "--um-per-px", "3", str(TABLE)]) == 0
+    capsys.readouterr()
+    for flag in ("--um-per-px", "--scale-bar-um"):
+        assert main(["campaign", "sample", str(d), "--at-h", "0", flag, "3", str(TABLE)]) == 2
+        assert _err_line(capsys).strip() == (f"bmctl: error: {flag}: every input is a particle table (sizes in µm "
+                                     "already); it applies to micrographs only")
+    assert main(["campaign", "sample", str(d), "--at-h", "0", str(TABLE)]) == 0
     assert main(["campaign", "sample", str(d), "--at-h", "0", "--um-per-px", "1.5", str(IMAGE)]) == 0
     assert _rows(d, "SELECT id, um_per_px FROM samples ORDER BY id") == [(1, None), (2, 1.5)]
 

@@ -208,6 +208,25 @@ def test_a_late_write_failure_leaves_no_half_set_and_names_the_real_file(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.txt"]  # no a, b, nor temporary files
 
 
+def test_a_failed_write_removes_the_folders_it_made_and_keeps_the_others(tmp_path):
+    """A write into new folders that failed (Ctrl-C, a full disk) left them behind, empty."""
+    with pytest.raises(KeyboardInterrupt):
+        with io.atomic_path(tmp_path / "new" / "deeper" / "a.csv"):
+            raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(OSError):
+        with io.output_set():
+            io.write_text(tmp_path / "kept" / "x" / "a.txt", "a")
+            io.write_text(tmp_path / "y" / "b.txt", "b")
+            (tmp_path / "y" / "user.txt").write_text("not ours", encoding="utf-8")  # put there meanwhile
+            raise OSError(28, "No space left on device", "c.txt")
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == ["kept", "y", "y/user.txt"]
+    with io.output_set():  # a set that succeeds keeps what it made
+        io.write_text(tmp_path / "z" / "c.txt", "c")
+    assert (tmp_path / "z" / "c.txt").read_text(encoding="utf-8") == "c"
+
+
 @pytest.mark.slow
 def test_simulate_with_an_output_name_that_is_a_folder_writes_nothing(tmp_path, capsys):
     out = tmp_path / "o"

@@ -1,0 +1,185 @@
+"""Inputs a user can get wrong, each refused in one line before any work (or said as a warning): an
+output path that is empty or names a folder where a file is meant, an image that is not one, hidden
+files in a samples folder, a pixel size only tables would receive, a coefficient file whose card
+fingerprint was edited, a trial sampling at a pixel size that resolves no particle."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from bmctl.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+LAB = ROOT / "models" / "alni-1to1-300rpm-lab.toml"
+SAMPLES = ROOT / "examples" / "samples"
+TABLE = SAMPLES / "lab-300rpm-2h.csv"
+TIMES = "0.5,1,2,4,8"
+
+
+def _refused(capsys, argv) -> str:
+    rc = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and err.startswith("bmctl: error: "), (rc, err)
+    return err.strip()[len("bmctl: error: "):]
+
+
+@pytest.mark.parametrize("argv,flag", [
+    (["measure", TABLE, "--out", "{d}/newdir/"], "--out"),
+    (["estimate", LAB, "--samples", SAMPLES, "--times", TIMES, "--out", "{d}/e.csv/"], "--out"),
+    (["estimate", LAB, "--samples", SAMPLES, "--times", TIMES, "--write-card", "{d}/c.toml/"], "--write-card"),
+])
+def test_a_file_output_ending_in_a_slash_is_refused(tmp_path, capsys, argv, flag):
+    """Path("newdir/") drops the slash: measure wrote a table *file* named newdir and its measure.json
+    into the current folder."""
+    argv = [a.format(d=tmp_path) if isinstance(a, str) else a for a in argv]
+    line = _refused(capsys, argv)
+    assert line.startswith(f"{flag}: ") and "ends in '/', naming a folder; expected a file" in line, line
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv,said", [
+    (["simulate", LAB, "--out", ""], "--out: empty path"),
+    (["design", LAB, "--target", "s_mean_um=45", "--out", ""], "--out: empty path"),
+    (["campaign", "init", "", "--model", LAB, "--target", "d50_um=45"], "DIR: empty path"),
+    (["simulate", ""], "'': empty path, expected a file"),
+])
+def test_an_empty_path_is_refused_not_read_as_the_current_folder(tmp_path, capsys, monkeypatch, argv, said):
+    monkeypatch.chdir(tmp_path)
+    assert _refused(capsys, argv) == said
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_image_that_is_not_one_is_named_as_measure_names_it(tmp_path, capsys):
+    """estimate and campaign sample said "z.png: cannot read image (OSError)"."""
+    empty = tmp_path / "z.png"
+    empty.write_bytes(b"")
+    line = _refused(capsys, ["estimate", LAB, "--samples", empty, "--times", "1", "--um-per-px", "1",
+                             "--out", tmp_path / "o" / "e.csv"])
+    assert line == f"{empty}: cannot read image (not an image file Pillow can read)", line
+    png = tmp_path / "cut.png"
+    import numpy as np
+    from PIL import Image
+
+    Image.fromarray(np.zeros((64, 64), np.uint8)).save(png)
+    png.write_bytes(png.read_bytes()[:60])
+    line = _refused(capsys, ["estimate", LAB, "--samples", png, "--times", "1", "--um-per-px", "1",
+                             "--out", tmp_path / "o" / "e.csv"])
+    assert line.startswith(f"{png}: cannot read image (a damaged or truncated PNG: "), line
+    assert not (tmp_path / "o").exists()
+
+
+def test_hidden_files_in_a_samples_folder_are_not_samples(tmp_path, capsys):
+    """A ._x.csv (macOS on other file systems) made "--times: 5 time(s) for 6 sample(s)"."""
+    folder = tmp_path / "samples"
+    shutil.copytree(SAMPLES, folder)
+    (folder / "._lab-300rpm-2h.csv").write_bytes(b"\x00\x05\x16\x07")
+    rc = main(["estimate", str(LAB), "--samples", str(folder), "--times", TIMES, "--particles", "100",
+               "--no-progress", "--out", str(tmp_path / "e.csv")])
+    assert rc == 0, capsys.readouterr().err
+
+
+def test_estimate_past_the_cards_batch_says_it_holds_its_process(tmp_path, capsys):
+    rc = main(["estimate", str(LAB), "--samples", str(SAMPLES), "--times", "0.5,1,2,4,13", "--particles", "100",
+               "--no-progress", "--out", str(tmp_path / "e.csv")])
+    err = capsys.readouterr().err
+    assert rc == 0
+    assert ("bmctl: warning: --times: the last sample (13 h) is past the card's 12 h batch; its process (300 rpm) "
+            "is taken to go on to 13 h: give --schedule for what the mill ran") in err.splitlines(), err
+
+
+@pytest.mark.parametrize("flag", ["--um-per-px", "--scale-bar-um"])
+def test_measure_refuses_a_pixel_size_only_tables_would_get(tmp_path, capsys, flag):
+    line = _refused(capsys, ["measure", TABLE, flag, "2", "--out", tmp_path / "t.csv"])
+    assert line == f"{flag}: every input is a particle table (.csv, sizes in µm already); it applies to micrographs only"
+
+
+def test_campaign_sample_passes_the_scale_bar_to_the_measurement(tmp_path, monkeypatch):
+    """campaign sample's own refusal told the user to give --scale-bar-um, which it did not take."""
+    from bmctl import campaign as cp
+    from bmctl.measure import micrograph
+
+    seen = {}
+    real = micrograph.measure_micrograph
+
+    def spy(item, **kw):
+        seen.update(kw)
+        return real(item, **{**kw, "scale_bar_um": None})  # the example's scale is in its metadata
+
+    d = tmp_path / "c"
+    cp.init(d, LAB, ROOT / "controllers" / "recipe-300rpm-continuous.toml", {"d50_um": 45.0}, hours=2.0,
+            particles=60)
+    monkeypatch.setattr(micrograph, "measure_micrograph", spy)
+    cp.sample(d, 0.0, [ROOT / "examples" / "micrograph-2h.tif"], scale_bar_um=12.5)
+    assert seen == {"um_per_px": None, "scale_bar_um": 12.5}
+
+
+def test_campaign_init_names_an_inputs_file_in_the_way(tmp_path, capsys):
+    d = tmp_path / "c"
+    d.mkdir()
+    (d / "inputs").write_text("mine\n", encoding="utf-8")
+    line = _refused(capsys, ["campaign", "init", d, "--model", LAB, "--target", "d50_um=45"])
+    assert line == f"{d / 'inputs'}: is a file, not a folder (the campaign keeps copies of its inputs there)"
+    assert sorted(p.name for p in d.iterdir()) == ["inputs"]
+
+
+def test_linearize_of_a_card_without_a_process_speed_names_the_card(tmp_path, capsys):
+    card = tmp_path / "c.toml"
+    text = LAB.read_text(encoding="utf-8")
+    assert "\nrpm = 300" in text
+    card.write_text(text.replace("\nrpm = 300", "\nrpm = 0", 1), encoding="utf-8")
+    line = _refused(capsys, ["linearize", card, "--out", tmp_path / "o"])
+    assert line == f"{card}: process.rpm (give --rpm): must be in (0, 600] (got 0)", line
+
+
+@pytest.mark.parametrize("edit,said", [
+    (lambda fp: fp[:-1] + ("0" if fp[-1] != "0" else "1"), "is not the fingerprint of its card.values"),
+    (lambda fp: 42, "card.fingerprint: expected a string"),
+])
+def test_an_edited_card_fingerprint_is_refused(tmp_path, edit, said):
+    """card show said "its card fingerprint matches this card" of a file whose fingerprint had been edited:
+    only card.values were compared."""
+    import tomllib
+
+    from bmctl.errors import InputError
+    from bmctl.moments.coeffs import read_file
+
+    src = LAB.with_name(LAB.stem + ".moments.toml")
+    text = src.read_text(encoding="utf-8")
+    fp = tomllib.loads(text)["card"]["fingerprint"]
+    new = edit(fp)
+    path = tmp_path / src.name
+    path.write_text(text.replace(f'fingerprint = "{fp}"', f"fingerprint = {new!r}" if isinstance(new, str)
+                                 else f"fingerprint = {new}"), encoding="utf-8")
+    assert read_file(src).values  # the shipped file reads
+    with pytest.raises(InputError, match=said):
+        read_file(path)
+
+
+@pytest.mark.parametrize("campaign", [False, True])
+def test_a_trial_at_a_pixel_size_that_resolves_nothing_is_refused_before_its_folder(tmp_path, capsys, campaign):
+    """The first sample failed ("population: only 0 of 40000 particles are resolvable") after the folder
+    and its checkpoint were written, naming neither file nor field, and every rerun into it was refused."""
+    sc = tmp_path / "s.toml"
+    text = (ROOT / "scenarios" / "trial-lab-recipe.toml").read_text(encoding="utf-8")
+    text = text.replace('model = "', f'model = "{ROOT}/').replace('config = "', f'config = "{ROOT}/')
+    sc.write_text(text.replace("hours = 12", "hours = 1") + "\n[sampling]\num_per_px = 100\n", encoding="utf-8")
+    out = tmp_path / "t"
+    line = _refused(capsys, ["trial", sc, "--out", out, "--no-progress", *(["--campaign"] if campaign else [])])
+    assert line.startswith(f"{sc}: sampling.um_per_px: at 100 µm/px 0 % of the starting powder's particles"), line
+    assert not out.exists()
+
+
+def test_resolvable_share_of_sections_against_the_sphere_law():
+    """A planar section at a uniform height through a sphere of diameter s is s sqrt(1 - u^2) across,
+    the sphere drawn in proportion to s: for equal spheres the share above d is sqrt(1 - (d/s)^2)."""
+    import numpy as np
+
+    from bmctl.measure.sampler import MIN_AREA_PX, resolvable_share
+
+    d_min = np.sqrt(4 * MIN_AREA_PX / np.pi)  # at 1 µm/px
+    s = np.full(10, 2 * d_min)
+    assert resolvable_share(s, 1.0, section=True) == pytest.approx(np.sqrt(1 - 0.25), rel=1e-12)
+    assert resolvable_share(s, 1.0) == 1.0 and resolvable_share(s, 2.01) == 0.0
