@@ -75,26 +75,38 @@ class MicrographSensor:
 
 def check_resolvable(sc: Scenario, scenario_path, card: ModelCard) -> None:
     """Refuse a pixel size at which the starting powder cannot be measured, before the trial's folder
-    is made (the first sample failed after the folder and its checkpoint were written).
-
-    The starting powder is the card's ``[initial]`` law (a normal law cut at a tenth of its mean, as
-    the plant draws it), read at 1000 quantiles: no random draw."""
+    is made (the first sample failed after the folder and its checkpoint were written), and, with
+    ``render``, one whose particles a rendered field cannot hold (the renderer drew them for minutes
+    and gigabytes). The starting powder is :func:`initial_sizes`."""
     um = sc.sampling.um_per_px
     if um is None:
         return
-    from scipy.stats import norm
+    from .measure.sampler import MAX_DRAWS_FACTOR, MIN_AREA_PX, RENDER_PARTICLE_MAX_PX, resolvable_share
 
-    from .measure.sampler import MAX_DRAWS_FACTOR, MIN_AREA_PX, resolvable_share
-
-    m, sd = card.initial.s_mean_um, card.initial.s_std_um
-    q = (np.arange(1000) + 0.5) / 1000
-    f_lo = norm.cdf((0.1 * m - m) / sd) if sd > 0 else 0.0
-    s_um = m + sd * norm.ppf(f_lo + q * (1.0 - f_lo)) if sd > 0 else np.full(q.size, m)
+    s_um = initial_sizes(card)
     share = resolvable_share(s_um, um)
     if share * MAX_DRAWS_FACTOR < 1.0:
         raise InputError(f"{scenario_path}: sampling.um_per_px: at {um:g} µm/px {100 * share:.2g} % of the starting "
                          f"powder's particles span the {MIN_AREA_PX} px a particle needs to be measured; "
                          "give a finer pixel size")
+    big = float(np.quantile(s_um, 0.99)) / um
+    if sc.sampling.render and big > RENDER_PARTICLE_MAX_PX:  # the field is cut at its largest side
+        raise InputError(f"{scenario_path}: sampling.um_per_px: at {um:g} µm/px the starting powder's largest "
+                         f"particles are {big:.3g} px across; a rendered micrograph holds them up to "
+                         f"{RENDER_PARTICLE_MAX_PX:.0f} px: give a coarser pixel size, or render = false")
+
+
+def initial_sizes(card: ModelCard, n: int = 1000) -> np.ndarray:
+    """The card's starting powder's sizes (µm) at ``n`` quantiles of its ``[initial]`` law: a normal law
+    cut at a tenth of its mean, as the plant draws it; no random draw."""
+    from scipy.stats import norm
+
+    m, sd = card.initial.s_mean_um, card.initial.s_std_um
+    if sd <= 0:
+        return np.full(n, float(m))
+    q = (np.arange(n) + 0.5) / n
+    f_lo = norm.cdf((0.1 * m - m) / sd)
+    return m + sd * norm.ppf(f_lo + q * (1.0 - f_lo))
 
 
 def _plant_card(sc: Scenario, base: Path) -> ModelCard:

@@ -183,3 +183,36 @@ def test_resolvable_share_of_sections_against_the_sphere_law():
     s = np.full(10, 2 * d_min)
     assert resolvable_share(s, 1.0, section=True) == pytest.approx(np.sqrt(1 - 0.25), rel=1e-12)
     assert resolvable_share(s, 1.0) == 1.0 and resolvable_share(s, 2.01) == 0.0
+
+
+def _render_scenario(tmp_path, extra: str) -> Path:
+    sc = tmp_path / "r.toml"
+    sc.write_text(f'model = "{ROOT}/models/alni-1to1-300rpm-lab.toml"\nhours = 1\ntarget = {{ s_mean_um = 45.0 }}\n'
+                  '[scenario]\nname = "r"\ndescription = "rendered samples"\n'
+                  f'[controller]\nconfig = "{ROOT}/controllers/recipe-300rpm-continuous.toml"\n'
+                  f"[sampling]\n{extra}\n", encoding="utf-8")
+    return sc
+
+
+def test_a_rendered_trial_whose_particles_no_field_holds_is_refused(tmp_path, capsys):
+    """At 1e-4 µm/px the renderer drew 400,000-px particles for minutes and gigabytes, unrefused."""
+    sc = _render_scenario(tmp_path, "render = true\num_per_px = 0.0001")
+    line = _refused(capsys, ["trial", sc, "--out", tmp_path / "t", "--no-progress"])
+    assert line.startswith(f"{sc}: sampling.um_per_px: at 0.0001 µm/px the starting powder's largest particles are "), line
+    assert line.endswith("give a coarser pixel size, or render = false")
+
+
+def test_the_work_of_a_trial_counts_its_rendered_samples(tmp_path, capsys):
+    """The budget ignored render = true: a trial estimated at under 2 CPU s took about 9."""
+    from bmctl.commands.trial import _check_trial_work
+    from bmctl.errors import InputError
+    from bmctl.scenario import load_scenario
+
+    plain = _render_scenario(tmp_path, "render = false")
+    (tmp_path / "b").mkdir()
+    rendered = _render_scenario(tmp_path / "b", "render = true")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("BMCTL_BUDGET_CPU_H", str(10 / 3600))  # 10 CPU s
+        _check_trial_work(load_scenario(plain), plain)
+        with pytest.raises(InputError, match="sampling.render/sampling.um_per_px: the run would take"):
+            _check_trial_work(load_scenario(rendered), rendered)

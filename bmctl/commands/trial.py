@@ -41,14 +41,29 @@ def _check_trial_work(sc, path):
     base = Path(path).resolve().parent
     card = load_card(resolve(sc.plant.model or sc.model, base))
     with_factors(card, sc.plant.gamma_factor, sc.plant.delta_factor, source=f"{path}: plant")  # a card it allows
+    from ..trial import check_resolvable
+
+    check_resolvable(sc, path, card)  # a pixel size at which no sample can be taken: said as such
     cfg = load_controller(resolve(sc.controller.config, base))
     work = simulation_work(card, [(sc.hours, card.mill.rpm_max)], sc.plant.particles, sc.sampling.every_h, raster=False)
     samples = sc.hours / sc.sampling.every_h + 1
     work["cpu_s"] += samples * sc.estimator.particles * FILTER_CPU_S_PER_PARTICLE
     work = add(work, filter_work(sc.hours, sc.estimator.particles))  # the filter's propagation between samples
+    # each sample renders and segments whole micrographs (the starting powder's field), counted at measure's
+    # cost per pixel: above the rendered samples' own (0.1-0.4 of it on the lab card at 0.5-2 µm/px)
+    if sc.sampling.render:
+        from ..measure.sampler import render_field
+        from ..trial import initial_sizes
+        from ..work import MEASURE_CPU_S_PER_PX, MEASURE_PEAK_BYTES_PER_PX
+
+        _, side, per_image = render_field(initial_sizes(card), sc.sampling.um_per_px)
+        images = -(-sc.sampling.particles // per_image)
+        work["cpu_s"] += samples * images * side * side * MEASURE_CPU_S_PER_PX
+        work["memory_bytes"] = max(work["memory_bytes"], side * side * MEASURE_PEAK_BYTES_PER_PX)
     if cfg.kind != "recipe":
         work["cpu_s"] += SOLVE_CPU_S * sc.hours / (getattr(cfg, "interval_h", None) or 0.5)
-    check_work(work, f"{path}: hours/plant.particles/sampling.every_h/estimator.particles")
+    check_work(work, f"{path}: hours/plant.particles/sampling.every_h/estimator.particles"
+                     + ("/sampling.render/sampling.um_per_px" if sc.sampling.render else ""))
     return card
 
 

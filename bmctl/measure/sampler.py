@@ -193,20 +193,43 @@ def _fast_sample(s, r, n, rng, um_per_px, noise, section, min_area_px) -> Partic
     return ParticleTable.concat(parts).take(np.arange(n))
 
 
-def _render_sample(s, r, n, rng, um_per_px, section, min_area_px) -> ParticleTable:
+RENDER_SIDE_PX = (256, 2048)  # the rendered field's side: six times the 99th percentile particle, within these
+#: the largest particle (its 99th percentile, px across) a rendered field of the largest side holds as drawn
+RENDER_PARTICLE_MAX_PX = RENDER_SIDE_PX[1] / 6
+
+
+def render_field(s_um, um_per_px: float | None) -> tuple[float, int, int]:
+    """The rendered path's field for a population: (µm per px, side in px, particles per image).
+
+    Parameters
+    ----------
+    s_um : array_like
+        Particle sizes (µm).
+    um_per_px : float or None
+        Pixel size (None: the median particle ``RENDER_MEDIAN_PX`` px across).
+
+    Examples
+    --------
+    >>> render_field([40.0] * 10, 1.0)
+    (1.0, 256, 10)
+    """
+    s = np.asarray(s_um, dtype=float)
     if um_per_px is None:
         um_per_px = float(np.median(s)) / RENDER_MEDIAN_PX
-    s_px_all = s / um_per_px
-    side = int(np.clip(np.ceil(6 * np.quantile(s_px_all, 0.99)), 256, 2048))
+    s_px = s / um_per_px
+    side = int(np.clip(np.ceil(6 * np.quantile(s_px, 0.99)), *RENDER_SIDE_PX))
+    mean_area = float(np.mean(np.pi * s_px**2 / 4.0)) * 1.3  # particles per image: ~25 % of the field covered
+    return float(um_per_px), side, int(np.clip(0.25 * side * side / mean_area, 4, 400))
+
+
+def _render_sample(s, r, n, rng, um_per_px, section, min_area_px) -> ParticleTable:
+    um_per_px, side, m = render_field(s, um_per_px)
     parts, got, drawn = [], 0, 0
     while got < n:
         if drawn >= MAX_DRAWS_FACTOR * n:
             raise InputError(
                 f"population: only {got} of {drawn} rendered particles were measured at {um_per_px:g} µm/px; need {n}"
             )
-        # particles per image: ~25 % of the field covered
-        mean_area = float(np.mean(np.pi * s_px_all**2 / 4.0)) * 1.3
-        m = int(np.clip(0.25 * side * side / mean_area, 4, 400))
         ss, rr = _draw(s, r, m, rng, section)
         drawn += m
         shapes = shapes_for(ss / um_per_px, rr, rng)
