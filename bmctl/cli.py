@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import signal
 import sys
 
@@ -142,6 +143,33 @@ def _safe_streams() -> None:
                 pass
 
 
+#: a value that starts with a minus and a digit but is not one number (``-5,60,,``: a list of readings)
+_NEGATIVE_LIST = re.compile(r"^-\.?\d[\d.,:eE+-]*$")
+
+
+def _negative_lists(argv: list[str]) -> list[str]:
+    """``--temperatures -5,60`` as ``--temperatures=-5,60``: argparse takes a value that starts with a
+    minus and is not a plain number for an option ("expected one argument"); a plain negative number
+    it reads as a value already.
+
+    Examples
+    --------
+    >>> _negative_lists(["estimate", "c.toml", "--temperatures", "-5,60", "--rpm", "-3"])
+    ['estimate', 'c.toml', '--temperatures=-5,60', '--rpm', '-3']
+    """
+    out: list[str] = []
+    for i, tok in enumerate(argv):
+        if tok == "--":  # the end of the options: the rest as given
+            return out + list(argv[i:])
+        prev = out[-1] if out else ""
+        if (prev.startswith("--") and "=" not in prev and _NEGATIVE_LIST.match(tok)
+                and not re.fullmatch(r"-\d+|-\d*\.\d+", tok)):
+            out[-1] = f"{prev}={tok}"
+        else:
+            out.append(tok)
+    return out
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM (``kill``, ``timeout``, a batch scheduler's end of a job), raised where Ctrl-C would be, so
     the same clean-up runs: no temporary file or half-written output is left behind."""
@@ -162,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
 
             keep_heap()
             signal.signal(signal.SIGTERM, _on_sigterm)
-        argv = sys.argv[1:] if argv is None else list(argv)
+        argv = _negative_lists(sys.argv[1:] if argv is None else list(argv))
         parser = build_parser(_modules(_chosen(argv)))
         args = parser.parse_args(argv)
         from .work import set_budget

@@ -216,3 +216,20 @@ def test_the_work_of_a_trial_counts_its_rendered_samples(tmp_path, capsys):
         _check_trial_work(load_scenario(plain), plain)
         with pytest.raises(InputError, match="sampling.render/sampling.um_per_px: the run would take"):
             _check_trial_work(load_scenario(rendered), rendered)
+
+
+def test_a_list_flag_takes_a_value_that_starts_with_a_minus(tmp_path, capsys):
+    """`--temperatures -5,,,,` gave "argument --temperatures: expected one argument" (argparse reads a
+    value starting with a minus as an option unless it is one plain number); -5 °C is a valid reading."""
+    rc = main(["estimate", str(LAB), "--samples", str(SAMPLES), "--times", TIMES, "--temperatures", "-5,,,,",
+               "--particles", "100", "--no-progress", "--out", str(tmp_path / "e.csv")])
+    assert rc == 0, capsys.readouterr().err
+    assert main(["estimate", str(LAB), "--samples", str(SAMPLES), "--times", TIMES, "--particles", "100",
+                 "--no-progress", "--out", str(tmp_path / "none.csv")]) == 0
+    import csv
+
+    def first_t(name):
+        rows = list(csv.DictReader((tmp_path / name).read_text(encoding="utf-8").splitlines()))
+        return float(rows[0]["temperature_c"])
+
+    assert first_t("e.csv") < first_t("none.csv") - 5  # the -5 °C reading at 0.5 h was read
