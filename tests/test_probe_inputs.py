@@ -233,3 +233,18 @@ def test_a_list_flag_takes_a_value_that_starts_with_a_minus(tmp_path, capsys):
         return float(rows[0]["temperature_c"])
 
     assert first_t("e.csv") < first_t("none.csv") - 5  # the -5 °C reading at 0.5 h was read
+
+
+@pytest.mark.parametrize("field,value", [("initial_spread", "nan"), ("roughening", "-1.0"), ("adapt_rate", "50.0"),
+                                         ("process_noise_per_sqrt_h", "[nan, 0.15, 0.8, 0.8]"),
+                                         ("sigma_temperature_c", "inf"), ("param_prior_log_std", "-1.0")])
+def test_a_filter_setting_out_of_its_range_is_refused_before_the_trial_writes(tmp_path, capsys, field, value):
+    """FilterSettings took NaN, inf and negative values: the trial wrote its folder and then failed on a NaN
+    estimate (or ran to the end on nonsense), and every rerun into the folder was refused."""
+    sc = _render_scenario(tmp_path, "render = false")
+    sc.write_text(sc.read_text(encoding="utf-8") + f"[estimator]\nparticles = 100\n[estimator.pf]\n{field} = {value}\n",
+                  encoding="utf-8")
+    out = tmp_path / "t"
+    line = _refused(capsys, ["trial", sc, "--out", out, "--no-progress"])
+    assert line.startswith(f"{sc}: estimator: pf.{field}"), line
+    assert not out.exists()

@@ -60,7 +60,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field, field_validator
 
-from ..config import Strict
+from ..config import Range, Strict
 from ..errors import InputError, require_generator
 from ..moments.model import ENERGY_NAME, MomentModel
 from ..limits import INPUT_ROUNDING, RPM_MAX, is_rpm_milling, rpm_rounding
@@ -73,6 +73,11 @@ N_PARTICLES_MIN = 10  # the fewest filter particles
 READING_MIN_C = -50.0
 GAIN_MIN = 0.05  # the smallest vial heating gain over the card's thermal law
 FEED_VAR_FLOOR = 1e-10  # the variance of a log moment the feed's sample does not fit (its prior is the card's)
+
+
+#: a log moment's noise per sqrt(hour): > 0 and finite (10: a factor e^10 an hour, far past any use)
+_Noise = Range(0.0, 10.0, lo_open=True)
+_NoiseFloor = Range(0.0, 10.0)
 
 
 class FilterSettings(Strict):
@@ -160,11 +165,11 @@ class FilterSettings(Strict):
     n_particles: Annotated[int, Field(ge=N_PARTICLES_MIN)] = 2000
     ess_fraction: Annotated[float, Field(gt=0, le=1)] = 0.5
     scheme: str = "systematic"
-    process_noise_per_sqrt_h: tuple[float, float, float, float] = (0.15, 0.15, 0.8, 0.8)
+    process_noise_per_sqrt_h: tuple[_Noise, _Noise, _Noise, _Noise] = (0.15, 0.15, 0.8, 0.8)
     adapt: bool = True
-    adapt_rate: float = 0.3
-    process_noise_floor: tuple[float, float, float, float] = (0.05, 0.08, 0.2, 0.2)
-    process_noise_max: float = 1.5
+    adapt_rate: Range(0.0, 1.0, lo_open=True) = 0.3
+    process_noise_floor: tuple[_NoiseFloor, _NoiseFloor, _NoiseFloor, _NoiseFloor] = (0.05, 0.08, 0.2, 0.2)
+    process_noise_max: _Noise = 1.5
     size_drift_prior_per_h: Annotated[float, Field(ge=0, le=1)] = 0.0
     size_drift_walk_per_sqrt_h: Annotated[float, Field(ge=0, le=1)] = 0.0
     rest_noise_fraction: Annotated[float, Field(ge=0, le=1)] = 1.0
@@ -172,18 +177,18 @@ class FilterSettings(Strict):
     thermal_gain_prior_std: Annotated[float, Field(ge=0, le=2)] = 0.3
     thermal_gain_walk_per_sqrt_h: Annotated[float, Field(ge=0, le=1)] = 0.05
     thermal_gain_jump_prob: Annotated[float, Field(ge=0, lt=1)] = 0.02
-    param_prior_log_std: float = 0.4
+    param_prior_log_std: Range(0.0, 3.0) = 0.4
     energy_prior_log_std: Annotated[float, Field(ge=0, le=2)] = 0.0
-    param_walk_per_sqrt_h: float = 0.01
-    roughening: float = 0.05
-    initial_spread: float = 0.02
+    param_walk_per_sqrt_h: Range(0.0, 1.0) = 0.01
+    roughening: Range(0.0, 1.0) = 0.05
+    initial_spread: Range(0.0, 1.0) = 0.02
     feed_log_std: Annotated[float, Field(ge=0, le=3)] = 1.0
     learning_rate: Annotated[float, Field(gt=0, le=1)] = 1.0
     calibrate_learning_rate: bool = True
     defensive: Annotated[float, Field(ge=0, lt=1)] = 0.1
     proposal: Literal["guided", "bootstrap"] = "guided"
     law: LawSettings = Field(default_factory=LawSettings)
-    sigma_temperature_c: Annotated[float, Field(gt=0)] = 2.0
+    sigma_temperature_c: Range(0.0, 100.0, lo_open=True) = 2.0
 
     @field_validator("scheme")
     @classmethod

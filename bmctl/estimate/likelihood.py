@@ -245,6 +245,12 @@ class LawSettings:
         return np.asarray(LAW_MISFIT[self.size_law] if self.misfit is None else self.misfit, dtype=float)
 
     def __post_init__(self):
+        for name in ("sigma_log_s", "sigma_r", "ds_log", "dr"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"{name} must be a finite number (got {v!r})")
+        if self.misfit is not None and not all(isinstance(v, (int, float)) and math.isfinite(v) for v in self.misfit):
+            raise ValueError(f"misfit: four finite numbers (got {self.misfit!r})")
         if self.size_law not in SIZE_LAWS:
             raise ValueError(f"size_law must be one of {SIZE_LAWS} (got {self.size_law!r})")
         if not (self.ds_log > 0 and self.dr > 0 and 1 / self.dr == round(1 / self.dr)):

@@ -54,7 +54,7 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from pydantic import Field, model_validator
 from typing import Annotated
 
-from ..config import NonNeg, Pos, Strict
+from ..config import Finite, NonNeg, Pos, Strict
 from .filter import (N_MOMENTS, Estimate, ParticleFilter, check_predict, check_update, check_x0, learning_rates,
                      model_step)
 from .likelihood import LawSettings, fit_sample
@@ -126,7 +126,7 @@ class UKFSettings(Strict):
     sigma_temperature_c: Pos = 2.0
     alpha: Annotated[float, Field(gt=0, le=1)] = 1.0
     beta: NonNeg = 2.0
-    kappa: float = 0.0
+    kappa: Finite = 0.0
     jitter_rel: Annotated[float, Field(gt=0, lt=1)] = 1e-9
     log_mult_max: Pos = math.log(20.0)
 
