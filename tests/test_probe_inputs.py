@@ -5,6 +5,7 @@ fingerprint was edited, a trial sampling at a pixel size that resolves no partic
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -248,3 +249,59 @@ def test_a_filter_setting_out_of_its_range_is_refused_before_the_trial_writes(tm
     line = _refused(capsys, ["trial", sc, "--out", out, "--no-progress"])
     assert line.startswith(f"{sc}: estimator: pf.{field}"), line
     assert not out.exists()
+
+
+# --- the Python API ---------------------------------------------------------------------------------
+@pytest.fixture
+def fresh_campaign(tmp_path):
+    from bmctl import campaign as cp
+
+    d = tmp_path / "c"
+    cp.init(d, LAB, ROOT / "controllers" / "recipe-300rpm-continuous.toml", {"d50_um": 45.0}, hours=2.0,
+            particles=60)
+    return d
+
+
+def test_decide_takes_only_a_bool_and_a_missing_note(fresh_campaign):
+    """decide(d, "no") was recorded as an acceptance ("no" is truthy); note=None failed in SQLite."""
+    from bmctl import campaign as cp
+
+    cp.advise(fresh_campaign)
+    for accept in ("no", 1, None):
+        with pytest.raises(TypeError, match="decide: accept must be True or False"):
+            cp.decide(fresh_campaign, accept)
+    with pytest.raises(TypeError, match="decide: note must be a str"):
+        cp.decide(fresh_campaign, True, note=3)
+    assert cp.decide(fresh_campaign, True, note=None)["accepted"] is True
+
+
+def test_sample_takes_one_input_and_checks_a_table_given_by_its_columns(fresh_campaign):
+    """A path given alone was read character by character ("sample: /: given twice"); a table with a NaN
+    failed in SQLite; an empty table's refusal quoted its whole repr."""
+    import math
+
+    from bmctl import campaign as cp
+    from bmctl.errors import InputError
+    from bmctl.measure.tables import ParticleTable
+
+    with pytest.raises(InputError, match=r"^inputs\[0\] \(a table\): particle 1: area_um2 = nan"):
+        cp.sample(fresh_campaign, 0.0, [ParticleTable.from_size_aspect([math.nan, 40.0], [0.1, 0.1])])
+    with pytest.raises(InputError, match=r"^inputs\[0\] \(a table\): no particles found"):
+        cp.sample(fresh_campaign, 0.0, [ParticleTable.empty()])
+    assert cp.sample(fresh_campaign, 0.0, str(TABLE))["n"] == 300
+
+
+@pytest.mark.parametrize("u_prev,said", [([5000.0, 1.0], "u_prev: rpm must be in [0, 600]"),
+                                         ([300.0, 1.5], "u_prev: milling must be in [0, 1]")])
+@pytest.mark.parametrize("controller", ["lqr-baseline", "mpc-fast", "mpc-default"])
+def test_a_plan_from_an_input_the_mill_cannot_run_is_refused(controller, u_prev, said):
+    """A plan from u_prev = 5000 rpm on a 600 rpm mill was made as if the mill had run it."""
+    from bmctl.control import make_controller
+    from bmctl.errors import InputError
+    from bmctl.moments.model import make_moment_model
+
+    model = make_moment_model(LAB)
+    ctrl = make_controller(ROOT / "controllers" / f"{controller}.toml", model)
+    ctrl.set_target({"s_mean_um": 45.0})
+    with pytest.raises(InputError, match=re.escape(said)):
+        ctrl.plan(model.x0(), 0.0, u_prev=u_prev)

@@ -4,6 +4,7 @@ schedule to the batch end, the predicted end-state band and why (reachability, b
 from __future__ import annotations
 
 import math
+import os
 import re
 from pathlib import Path
 
@@ -44,11 +45,13 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False, scale_name: str =
     from ..measure.scale import check_scale
     from ..measure.tables import ParticleTable, read_table_with_locations
 
+    from ..measure.tables import check_table
+
     scale = check_scale(um_per_px, scale_name) if um_per_px is not None else None
     tables, images, xs, ys, reports, counts = [], [], [], [], [], []
-    for item in inputs:
-        if isinstance(item, ParticleTable):
-            t, name = item, "(table)"
+    for i, item in enumerate(inputs):
+        if isinstance(item, ParticleTable):  # a table given by its columns: checked as a file's rows are
+            t, name = check_table(item, f"inputs[{i}] (a table)"), "(table)"
             x = y = np.full(len(t), np.nan)
             reports.append({"table": name, "count": len(t)})
         elif Path(item).suffix.lower() == ".csv":
@@ -72,7 +75,8 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False, scale_name: str =
         ys.append(np.asarray(y, float))
     table = ParticleTable.concat(tables)
     if len(table) == 0:
-        raise InputError(f"{inputs[0]}: no particles found (check the scale or the table)")
+        first = inputs[0] if isinstance(inputs[0], (str, os.PathLike)) else "inputs[0] (a table)"
+        raise InputError(f"{first}: no particles found (check the scale or the table)")
     return table, images, np.concatenate(xs), np.concatenate(ys), reports, counts
 
 

@@ -759,7 +759,7 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
         The campaign folder.
     at_h : float
         Batch time the sample was taken at (h, at most the batch end).
-    inputs : sequence of path-like or ParticleTable
+    inputs : sequence of path-like or ParticleTable, or one of them
         Micrographs and/or particle tables (CSV as ``bmctl measure`` writes, or in memory), pooled.
     um_per_px : float, optional
         The images' pixel size (µm; default: read from each image, as ``bmctl measure``); tables are
@@ -785,9 +785,11 @@ def sample(folder, at_h: float, inputs, um_per_px: float | None = None, campaign
     refused: it would read as a sample larger than it is.
     """
     at_h = _finite(at_h, arg("at_h"), 0)
+    if isinstance(inputs, (str, os.PathLike)) or not hasattr(inputs, "__iter__"):  # one input, not a list of them
+        inputs = [inputs]
+    inputs = list(inputs)
     if not inputs:
         raise InputError("sample: give at least one image or particle table")
-    inputs = list(inputs)
     for given, name in ((um_per_px, "um_per_px"), (scale_bar_um, "scale_bar_um")):
         if given is not None:  # a value out of range is said first, as for an image
             from ..measure.scale import check_scale
@@ -1238,6 +1240,11 @@ def decide(folder, accept: bool, rpm: float | None = None, milling: float | None
         interval), the ``rpm`` and ``milling`` that will be run, and ``replaces`` (earlier decisions
         on the same advice, which this one replaces).
     """
+    if not isinstance(accept, (bool, np.bool_)):  # "no" is truthy: it was recorded as an acceptance
+        raise TypeError(f"decide: accept must be True or False (got {accept!r})")
+    note = "" if note is None else note
+    if not isinstance(note, str):
+        raise TypeError(f"decide: note must be a str (got {type(note).__name__})")
     if accept and (rpm is not None or milling is not None):
         raise InputError(f"decide: {arg('rpm')}/{arg('milling')} go with {arg('accept=False')} (an accepted advice "
                          "is run as recommended)")

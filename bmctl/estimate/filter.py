@@ -417,12 +417,15 @@ def check_update(model, s_um, r, temperature_c,
     Raises
     ------
     bmctl.errors.InputError
-        No particles, unequal numbers of s and r, a size outside 1e-3 .. 1e4 um, r outside [0, 1),
+        No particles, s_um or r alone, unequal numbers of s and r, a size outside 1e-3 .. 1e4 um, r outside [0, 1),
         a reading that is not finite or outside [-50 degC, the card's melting limit].
     TypeError
         A sample or reading that is not numbers.
     """
     raster = None
+    if (s_um is None) != (r is None):  # r alone was ignored: an update without the sample it was given
+        raise InputError("s_um, r: a sample needs one or more particles with one s and one r each (got "
+                         f"{'r' if s_um is None else 's_um'} only)")
     if s_um is not None:
         try:
             s = np.asarray(s_um, dtype=float).ravel()

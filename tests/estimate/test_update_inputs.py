@@ -87,6 +87,7 @@ def _bad_samples():
         ("lengths", s, r[:-1], r"^s_um, r: a sample needs one or more particles with one s and one r each"),
         ("empty", [], [], r"^s_um, r: a sample needs one or more particles"),
         ("no r", s, None, r"^s_um, r: a sample needs one or more particles"),
+        ("no s", None, r, r"^s_um, r: a sample needs one or more particles .* \(got r only\)"),  # r was ignored
     ]
 
 
