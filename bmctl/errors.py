@@ -44,6 +44,29 @@ def require_generator(rng, name: str) -> None:
                         f"got {type(rng).__name__}")
 
 
+def require_whole(value, name: str, lo: int = 0) -> int:
+    """A whole number >= ``lo`` for the argument ``name`` (a seed, a count), as an int: a bool, a float
+    (1.5 was cut to 1), a string or None is a TypeError and one below ``lo`` an InputError, each
+    naming it.
+
+    >>> require_whole(3, "seeds", 1)
+    3
+    >>> require_whole(1.5, "seeds", 1)
+    Traceback (most recent call last):
+    ...
+    TypeError: seeds: must be a whole number >= 1 (got float 1.5)
+    """
+    import numbers
+
+    import numpy as np
+
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name}: must be a whole number >= {lo} (got {type(value).__name__} {value!r})")
+    if int(value) < lo:
+        raise InputError(f"{name}: must be >= {lo} (got {int(value)})")
+    return int(value)
+
+
 def finite_float(text: str, where: str) -> float:
     """Parse one finite number given by the user, or raise a one-line :class:`InputError`.
 

@@ -413,6 +413,11 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
     >>> summary["steps"]
     24
     """
+    from .errors import require_whole
+
+    seed = require_whole(seed, arg("seed"), 0)  # None drew from the OS: a trial nobody could repeat
+    if max_steps is not None:
+        max_steps = require_whole(max_steps, "max_steps", 1)
     sc = load_scenario(scenario_path)
     base = Path(scenario_path).resolve().parent
     out = Path(out)

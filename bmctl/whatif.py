@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -69,8 +70,8 @@ def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[f
 
     Parameters
     ----------
-    card : ModelCard
-        The plant's model card.
+    card : ModelCard or path-like
+        The plant's model card (or its file).
     name : str
         Label of the schedule.
     segments : Schedule or sequence of (hours, rpm)
@@ -104,9 +105,18 @@ def run_schedule_ensemble(card: ModelCard, name: str, segments: Sequence[tuple[f
     """
     from .parallel import map_seeded
 
+    from .config import load_card
+    from .errors import require_whole
+
+    if isinstance(card, (str, os.PathLike)):
+        card = load_card(card)
+    elif not isinstance(card, ModelCard):
+        raise TypeError(f"card: must be a ModelCard or a card file's path (got {type(card).__name__})")
+    seeds, particles = require_whole(seeds, "seeds", 1), require_whole(particles, "particles", 2)
+    base_seed = require_whole(base_seed, "base_seed", 0)
     segments = as_schedule(segments).pairs()
     hours = sum(h for h, _ in segments)
-    task = _MemberTask(card, tuple((float(h), float(rpm)) for h, rpm in segments), int(particles), float(every_h))
+    task = _MemberTask(card, tuple((float(h), float(rpm)) for h, rpm in segments), particles, float(every_h))
     # plant k: child k of SeedSequence(base_seed), whatever the workers; neighbouring seeds share no plant
     members = map_seeded(_member, [task] * seeds, np.random.SeedSequence(base_seed).spawn(seeds), client)
     t_h = members[-1][0] if members else None

@@ -9,6 +9,7 @@ import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bmctl.cli import main
@@ -305,3 +306,83 @@ def test_a_plan_from_an_input_the_mill_cannot_run_is_refused(controller, u_prev,
     ctrl.set_target({"s_mean_um": 45.0})
     with pytest.raises(InputError, match=re.escape(said)):
         ctrl.plan(model.x0(), 0.0, u_prev=u_prev)
+
+
+@pytest.mark.parametrize("edit,said", [
+    (lambda st: st.update(queue=[np.array([10 ** 6]), np.array([0]), np.array([1])]), "queue must be three"),
+    (lambda st: st.update(queue=[np.array([0, 1]), np.array([1]), np.array([2])]), "queue must be three"),
+    (lambda st: st["s"].__setitem__(0, np.nan), "every s must be finite"),
+    (lambda st: st["s"].__setitem__(0, -1e-6), "every s must be finite and > 0"),
+    (lambda st: st.update(t_s=float("nan")), "t_s >= 0"),
+])
+def test_a_plant_state_the_events_cannot_run_is_refused_whole(edit, said):
+    """Plant.set_state took queue indices out of range (the compiled events then read and wrote past the
+    arrays), NaN sizes and a NaN clock."""
+    import numpy as np
+
+    from bmctl.plant.plant import Plant
+
+    plant = Plant(LAB, np.random.default_rng(0), 200)
+    plant.advance(300.0, 0.05)
+    state = plant.get_state()
+    state["s"] = np.array(state["s"])
+    edit(state)
+    before = plant.get_state()
+    with pytest.raises(ValueError, match=said):
+        plant.set_state(state)
+    after = plant.get_state()
+    assert np.array_equal(after["s"], before["s"]) and after["t_s"] == before["t_s"]
+
+
+@pytest.mark.parametrize("kw,exc,said", [
+    ({"rpm": "300", "hours": 0.1}, TypeError, "rpm: must be a number"),
+    ({"rpm": None, "hours": 0.1}, TypeError, "rpm: must be a number"),
+    ({"rpm": [300.0], "hours": 0.1}, TypeError, "rpm: must be a number"),
+    ({"rpm": 300.0, "hours": 1e9}, "input", "hours: must be in [0, 1000]"),
+])
+def test_plant_advance_names_a_bad_argument(kw, exc, said):
+    """Types gave numpy's "ufunc 'isfinite' not supported"; 1e9 h was taken (about 12 h of work)."""
+    from bmctl.errors import InputError
+    from bmctl.plant.plant import Plant
+
+    plant = Plant(LAB, np.random.default_rng(0), 100)
+    with pytest.raises(InputError if exc == "input" else exc, match=re.escape(said)):
+        plant.advance(**kw)
+    with pytest.raises(TypeError, match="card: must be a ModelCard or a card file's path"):
+        Plant(5, np.random.default_rng(0), 100)
+
+
+@pytest.mark.parametrize("kw,exc,said", [
+    ({"seeds": 0}, "input", "seeds: must be >= 1"), ({"seeds": 1.5}, TypeError, "seeds: must be a whole number"),
+    ({"seeds": True}, TypeError, "seeds: must be a whole number"),
+    ({"particles": 2.7}, TypeError, "particles: must be a whole number"),
+    ({"particles": "200"}, TypeError, "particles: must be a whole number"),
+    ({"base_seed": -1}, "input", "base_seed: must be >= 0"),
+])
+def test_run_schedule_ensemble_names_a_bad_count(kw, exc, said):
+    """seeds=0 gave "need at least one array to concatenate", particles=2.7 ran 2 particles, base_seed=-1
+    numpy's SeedSequence error."""
+    from bmctl.errors import InputError
+    from bmctl.whatif import run_schedule_ensemble
+
+    args = {"seeds": 1, "particles": 100, **kw}
+    with pytest.raises(InputError if exc == "input" else exc, match=re.escape(said)):
+        run_schedule_ensemble(LAB, "s", [(0.1, 300.0)], **args)
+    res = run_schedule_ensemble(str(LAB), "s", [(0.1, 300.0)], seeds=1, particles=100)  # a path is a card
+    assert res.traj["s_mean_um"].shape[0] == 1
+
+
+@pytest.mark.parametrize("kw,exc,said", [
+    ({"seed": None}, TypeError, "seed: must be a whole number"), ({"seed": -1}, "input", "seed: must be >= 0"),
+    ({"seed": "1"}, TypeError, "seed: must be a whole number"),
+    ({"seed": 0, "max_steps": 1.5}, TypeError, "max_steps: must be a whole number"),
+    ({"seed": 0, "max_steps": -1}, "input", "max_steps: must be >= 1"),
+])
+def test_run_trial_names_a_bad_seed_or_step_count(tmp_path, kw, exc, said):
+    """seed=None ran a trial nobody could repeat; max_steps=1.5 was ignored and the whole trial ran."""
+    from bmctl.errors import InputError
+    from bmctl.trial import run_trial
+
+    with pytest.raises(InputError if exc == "input" else exc, match=re.escape(said)):
+        run_trial(ROOT / "scenarios" / "trial-lab-recipe.toml", tmp_path / "t", **kw)
+    assert not (tmp_path / "t").exists()

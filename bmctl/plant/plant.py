@@ -90,8 +90,8 @@ class Plant:
 
     Parameters
     ----------
-    card : ModelCard
-        Calibrated parameters (see ``models/``).
+    card : ModelCard or path-like
+        Calibrated parameters (see ``models/``), or the card file.
     rng : numpy.random.Generator
         The single source of randomness of this plant.
     particles : int, optional
@@ -121,6 +121,10 @@ class Plant:
                  kernels: Kernels | None = None, engine: str = "numba"):
         if engine not in ENGINES:
             raise InputError(f"engine: must be one of {', '.join(ENGINES)} (got {engine!r})")
+        if isinstance(card, (str, os.PathLike)):  # a card file, as make_plant takes it
+            card = load_card(card)
+        elif not isinstance(card, ModelCard):
+            raise TypeError(f"card: must be a ModelCard or a card file's path (got {type(card).__name__})")
         self.card = card
         self.kernels: Kernels = PaperKernels(card.simulation.samplers) if kernels is None else kernels
         self.engine = engine
@@ -494,8 +498,13 @@ class Plant:
         s, r = np.array(snap["s"], dtype=float), np.array(snap["r"], dtype=float)
         if s.ndim != 1 or s.shape != r.shape:
             raise ValueError(f"state: s and r must be 1-D arrays of one length (got shapes {s.shape} and {r.shape})")
+        if not (np.all(np.isfinite(s)) and np.all(s > 0) and np.all((r >= 0) & (r < 1))):
+            raise ValueError("state: every s must be finite and > 0 (m) and every r in [0, 1)")
         values = (float(snap["t_s"]), float(snap["temperature_C"]), float(snap["hardening"]),
-                  float(snap["total_area"]), EventCounts(*snap["counts"]))
+                  float(snap["total_area"]), EventCounts(*(int(c) for c in snap["counts"])))
+        if not (all(map(math.isfinite, values[:4])) and values[0] >= 0 and 0 <= values[2] <= 1 and values[3] > 0):
+            raise ValueError(f"state: t_s >= 0, temperature_C, hardening in [0, 1] and total_area > 0 must be finite "
+                             f"(got {values[:4]})")
         self.rng.bit_generator.state = snap["rng"]  # refuses a foreign state before anything else is set
         self.s, self.r = s, r
         self.t_s, self.temperature_C, self.hardening, self.total_area, self.counts = values
@@ -517,6 +526,11 @@ class Plant:
         if not isinstance(state, dict) or "queue" not in state:
             raise ValueError("state: lacks queue (expected a dict from Plant.get_state)")
         queue = tuple(np.asarray(q, dtype=np.int64) for q in state["queue"])
+        m = np.asarray(state.get("s", ())).size  # the slots of the state's population
+        # the compiled events read and write the slots the queue names: unchecked, a bad index is memory
+        if (len(queue) != 3 or any(q.ndim != 1 or q.shape != queue[0].shape for q in queue)
+                or any(q.size and (int(q.min()) < 0 or int(q.max()) >= m) for q in queue)):
+            raise ValueError(f"state: queue must be three 1-D index arrays of one length, each index in [0, {m})")
         self.restore(state)
         self._queue = queue
 
@@ -571,13 +585,17 @@ def _first_round(i: np.ndarray, j: np.ndarray, v: np.ndarray, M: int) -> np.ndar
 
 
 def _check_input(rpm: float, hours: float, milling: float, rpm_max: float) -> None:
+    from ..limits import HOURS_MAX
+
     for name, val in (("rpm", rpm), ("hours", hours), ("milling", milling)):
-        if not np.isfinite(val):
+        if isinstance(val, (bool, np.bool_)) or not isinstance(val, numbers.Real):  # "300", None, [300], 3j
+            raise TypeError(f"{name}: must be a number (got {type(val).__name__})")
+        if not math.isfinite(val):
             raise InputError(f"{name}: must be a finite number (got {val})")
     if rpm < 0 or rpm > rpm_max:
         raise InputError(f"rpm: must be in [0, {rpm_max:g}] (got {rpm:g})")
-    if hours < 0:
-        raise InputError(f"hours: must be >= 0 (got {hours:g})")
+    if not 0 <= hours <= HOURS_MAX:  # one batch at most: a typo of 1e9 h ran for half a day
+        raise InputError(f"hours: must be in [0, {HOURS_MAX:g}] (got {hours:g})")
     if not 0 <= milling <= 1:
         raise InputError(f"milling: must be in [0, 1] (got {milling:g})")
 
