@@ -46,9 +46,9 @@ import numpy as np
 # and long_total below).
 from .config import Schedule as ScheduleFile
 from .config import Segment as SegmentSpec  # noqa: F401  (bmctl.calibrate.history, the docs)
-from .config import card_schedule, load
+from .config import card_schedule, load, validate
 from .errors import InputError
-from .io import toml_string
+from .io import loads_toml, toml_string
 from .limits import HOURS_MAX, PHASE_MIN_MINUTES, RPM_MAX
 from .physics.constants import TIME_EPS_H
 
@@ -269,6 +269,19 @@ class Schedule:
         name : str, optional
             Label.
         """
+        try:
+            U = np.asarray(U, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError("U: must be (rpm, milling) numbers per interval") from None
+        if U.ndim == 1 and U.size % 2 == 0:  # flat (rpm, milling, rpm, milling, ...), as read before
+            U = U.reshape(-1, 2)
+        if U.ndim != 2 or U.shape[1] != 2 or not np.all(np.isfinite(U)):
+            raise InputError(f"U: must be finite (rpm, milling) per interval, shape (N, 2) (got shape {U.shape})")
+        if U.size and (U[:, 0].min() < 0 or not (0 <= U[:, 1].min() and U[:, 1].max() <= 1)):
+            raise InputError("U: rpm must be >= 0 and milling in [0, 1] (a share over 1 lengthened the interval)")
+        if not (isinstance(interval_h, (int, float, np.floating, np.integer)) and math.isfinite(interval_h)
+                and interval_h > 0):
+            raise InputError(f"interval_h: must be a finite number > 0 (got {interval_h!r})")
         segs: list[list[float]] = []
 
         def add(hours, rpm):
@@ -279,7 +292,7 @@ class Schedule:
             else:
                 segs.append([hours, rpm])
 
-        for rpm, m in np.asarray(U, dtype=float).reshape(-1, 2):
+        for rpm, m in U:
             r = round(float(rpm), rpm_decimals) if rpm_decimals is not None else float(rpm)
             if m <= 0 or r <= 0:
                 add(interval_h, 0.0)
@@ -396,14 +409,26 @@ class Schedule:
         return out
 
     def scaled(self, factor: float) -> "Schedule":
-        """Every segment's length times ``factor``."""
-        return Schedule(tuple(Segment(s.hours * factor, s.rpm, s.milling) for s in self.segments), self.name)
+        """Every segment's length times ``factor`` (finite, > 0), held to :meth:`from_pairs`'s limits.
+
+        Examples
+        --------
+        >>> Schedule.from_pairs([(1.0, 300.0), (0.5, 0.0)]).scaled(2).pairs()
+        [(2.0, 300.0), (1.0, 0.0)]
+        """
+        if isinstance(factor, bool) or not isinstance(factor, (int, float, np.floating, np.integer)) \
+                or not (math.isfinite(factor) and factor > 0):
+            raise InputError(f"factor: must be a finite number > 0 (got {factor!r})")
+        return Schedule.from_pairs([(s.hours * factor, s.rpm, s.milling) for s in self.segments], self.name)
 
     def toml(self) -> str:
         """TOML text of the schedule (the ``bmctl simulate --schedule`` format) that :meth:`load` reads
         back to the same schedule: numbers as :func:`toml_number` writes them (``hours`` to 10
         significant digits, ``rpm`` as ``%g``, more digits only where those would change the value),
-        the name as :func:`bmctl.io.toml_string` quotes it.
+        the name as :func:`bmctl.io.toml_string` quotes it. A schedule that a file cannot hold (a
+        piece under a file's shortest segment, 1 s; a share that leaves a phase under 6 s; a name of
+        two lines) is refused (:class:`~bmctl.errors.InputError` naming the segment and field)
+        rather than written as a file that :meth:`load` would refuse.
 
         Examples
         --------
@@ -426,7 +451,10 @@ class Schedule:
                       f"rpm = {toml_number(s.rpm)}"]
             if s.milling != 1.0:
                 lines.append(f"milling = {toml_number(s.milling, '.10g')}")
-        return "\n".join(lines) + "\n"
+        text = "\n".join(lines) + "\n"
+        # a schedule a file cannot hold (a piece under 1 s, a name of two lines) is refused, not written
+        validate(ScheduleFile, loads_toml(text, "toml()"), "Schedule.toml()")
+        return text
 
 
 def checked_segment(i: int, values: Sequence[float]) -> Segment:

@@ -417,7 +417,7 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
 
     seed = require_whole(seed, arg("seed"), 0)  # None drew from the OS: a trial nobody could repeat
     if max_steps is not None:
-        max_steps = require_whole(max_steps, "max_steps", 1)
+        max_steps = require_whole(max_steps, "max_steps", 0)
     sc = load_scenario(scenario_path)
     base = Path(scenario_path).resolve().parent
     out = Path(out)

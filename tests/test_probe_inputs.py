@@ -376,7 +376,7 @@ def test_run_schedule_ensemble_names_a_bad_count(kw, exc, said):
     ({"seed": None}, TypeError, "seed: must be a whole number"), ({"seed": -1}, "input", "seed: must be >= 0"),
     ({"seed": "1"}, TypeError, "seed: must be a whole number"),
     ({"seed": 0, "max_steps": 1.5}, TypeError, "max_steps: must be a whole number"),
-    ({"seed": 0, "max_steps": -1}, "input", "max_steps: must be >= 1"),
+    ({"seed": 0, "max_steps": -1}, "input", "max_steps: must be >= 0"),
 ])
 def test_run_trial_names_a_bad_seed_or_step_count(tmp_path, kw, exc, said):
     """seed=None ran a trial nobody could repeat; max_steps=1.5 was ignored and the whole trial ran."""
@@ -386,3 +386,27 @@ def test_run_trial_names_a_bad_seed_or_step_count(tmp_path, kw, exc, said):
     with pytest.raises(InputError if exc == "input" else exc, match=re.escape(said)):
         run_trial(ROOT / "scenarios" / "trial-lab-recipe.toml", tmp_path / "t", **kw)
     assert not (tmp_path / "t").exists()
+
+
+@pytest.mark.parametrize("make,said", [
+    (lambda S: S.from_pairs([(0.0001, 300.0)]).toml(), "Schedule.toml(): segment[0].hours"),
+    (lambda S: S.from_pairs([(0.5, 300.0, 0.0001)]).toml(), "Schedule.toml(): segment[0].milling: mills 0.18 s"),
+    (lambda S: S.from_pairs([(1.0, 300.0)], name="a\nb").toml(), "Schedule.toml(): name: text with a control"),
+    (lambda S: S.from_pairs([(1.0, 300.0)]).scaled(-2), "factor: must be a finite number > 0"),
+    (lambda S: S.from_pairs([(1.0, 300.0)]).scaled(float("nan")), "factor: must be a finite number > 0"),
+    (lambda S: S.from_pairs([(1.0, 300.0)]).scaled(1e6), "segment[0].hours: 1e+06 h is outside [0, 1000 h]"),
+    (lambda S: S.from_inputs([[300.0, 1.5]], 0.5), "U: rpm must be >= 0 and milling in [0, 1]"),
+    (lambda S: S.from_inputs([[-300.0, 1.0]], 0.5), "U: rpm must be >= 0"),
+    (lambda S: S.from_inputs([[300.0, 1.0]], -1.0), "interval_h: must be a finite number > 0"),
+    (lambda S: S.from_inputs([[300.0, 1.0, 2.0]], 0.5), "U: must be finite (rpm, milling) per interval"),
+])
+def test_a_schedule_is_refused_where_a_file_could_not_hold_it(make, said):
+    """toml() wrote files Schedule.load refused (docs/loop.md: "toml() writes it back so that
+    Schedule.load reads the same numbers"); scaled(-2) gave negative hours; from_inputs turned a 1.5
+    share into a 0.75 h segment of a 0.5 h interval and -300 rpm into a rest."""
+    from bmctl.errors import InputError
+    from bmctl.schedule import Schedule
+
+    with pytest.raises(InputError, match=re.escape(said)):
+        make(Schedule)
+    assert Schedule.from_inputs(np.array([300.0, 0.5, 0.0, 0.0]), 0.5).pairs() == [(0.25, 300.0), (0.75, 0.0)]
