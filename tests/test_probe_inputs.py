@@ -410,3 +410,17 @@ def test_a_schedule_is_refused_where_a_file_could_not_hold_it(make, said):
     with pytest.raises(InputError, match=re.escape(said)):
         make(Schedule)
     assert Schedule.from_inputs(np.array([300.0, 0.5, 0.0, 0.0]), 0.5).pairs() == [(0.25, 300.0), (0.75, 0.0)]
+
+
+def test_a_table_whose_s_um_disagrees_with_its_area_is_refused(tmp_path):
+    """area_um2 1256.6 (s = 40 µm) beside s_um = 10 was read as 40 µm without a word."""
+    from bmctl.errors import InputError
+    from bmctl.measure.tables import read_table
+
+    t = tmp_path / "t.csv"
+    t.write_text("area_um2,perimeter_um,s_um,r\n1256.637,125.7,40.0,0.0003\n1256.637,125.7,10,0.5\n", encoding="utf-8")
+    with pytest.raises(InputError, match=r"row 3, column s_um: 10 µm disagrees with area_um2's s = 2 sqrt\(A/pi\) = 40"):
+        read_table(t)
+    t.write_text("area_um2,perimeter_um,s_um,r\n1256.637,125.7,40.0,0.0003\n", encoding="utf-8")
+    assert read_table(t).s_um[0] == pytest.approx(40.0, rel=1e-6)
+    assert read_table(TABLE).s_um.size == 300  # the tables measure writes agree with themselves

@@ -1,9 +1,9 @@
 """Per-particle tables: area, perimeter, size s (eqn 1) and aspect ratio r (eqn 3), in micrometres.
 
 A particle table CSV has a header and one row per particle, either with columns
-``area_um2,perimeter_um`` (s and r are derived; extra columns, ``s_um`` and ``r`` too,
-are ignored) or with columns ``s_um,r`` (area and perimeter are derived). Tables are
-written with the four columns ``area_um2,perimeter_um,s_um,r``, by ``bmctl measure`` preceded by
+``area_um2,perimeter_um`` (s and r are derived; extra columns, ``r`` too, are ignored, and an
+``s_um`` beside them must agree with the area's size) or with columns ``s_um,r`` (area and
+perimeter are derived). Tables are written with the four columns ``area_um2,perimeter_um,s_um,r``, by ``bmctl measure`` preceded by
 ``particle_id,image,x_um,y_um`` (the centroid); readers accept both layouts.
 
 Isoperimetric bound: every closed curve of area A has L >= 2 sqrt(pi A) = pi s, i.e.
@@ -27,6 +27,8 @@ from ..io import write_csv
 from ..plant.events import aspect_from_perimeter, perimeter_from_aspect, size_from_area
 
 COLUMNS = ("area_um2", "perimeter_um", "s_um", "r")
+#: how far a table's s_um may lie from its area_um2's size (relative): the six digits measure writes, and more
+SIZE_COLUMNS_RTOL = 1e-3
 LOCATION_COLUMNS = ("particle_id", "image", "x_um", "y_um")  # written first by `bmctl measure`
 ISOPERIMETRIC_TOL = 0.05  # relative shortfall of L below pi s accepted (and raised to pi s)
 #: physical range of a particle size: 1 nm to 10 mm (a powder particle outside it is a unit or scale error)
@@ -233,6 +235,8 @@ def _parse_table(p: str, text: str) -> ParticleTable:
     else:
         raise InputError(f"{p}: missing columns: need area_um2,perimeter_um or s_um,r (header has {quote(','.join(header))})")
     idx = [header.index(c) for c in cols]
+    # s_um beside area_um2 (the four columns measure writes): read from the area, so it must agree with it
+    also_s = header.index("s_um") if cols[0] == "area_um2" and "s_um" in header else None
     vals = []
     for (lineno, _), row in zip(lines[1:], reader):
         if len(row) != len(header) and not (len(row) > len(header) and not "".join(row[len(header):]).strip()):
@@ -241,6 +245,12 @@ def _parse_table(p: str, text: str) -> ParticleTable:
         if a <= 0:
             raise InputError(f"{p}: row {lineno}, column {cols[0]}: must be > 0 (got {a:g})")
         s_um = a if cols[0] == "s_um" else float(size_from_area(a))
+        if also_s is not None and row[also_s].strip():
+            given = _parse(p, lineno, "s_um", row[also_s])
+            if not abs(given - s_um) <= SIZE_COLUMNS_RTOL * s_um:
+                raise InputError(f"{p}: row {lineno}, column s_um: {given:g} µm disagrees with area_um2's s = "
+                                 f"2 sqrt(A/pi) = {s_um:.6g} µm (eqn 1); the size is read from the area: drop "
+                                 f"s_um, or give s_um,r alone")
         if not S_MIN_UM <= s_um <= S_MAX_UM:
             got = f"{a:g}" if cols[0] == "s_um" else f"{a:g} µm², s = {s_um:.3g} µm"
             raise InputError(f"{p}: row {lineno}, column {cols[0]}: size outside the physical range "
