@@ -424,3 +424,14 @@ def test_a_table_whose_s_um_disagrees_with_its_area_is_refused(tmp_path):
     t.write_text("area_um2,perimeter_um,s_um,r\n1256.637,125.7,40.0,0.0003\n", encoding="utf-8")
     assert read_table(t).s_um[0] == pytest.approx(40.0, rel=1e-6)
     assert read_table(TABLE).s_um.size == 300  # the tables measure writes agree with themselves
+
+
+def test_write_table_never_writes_a_row_read_table_refuses(tmp_path):
+    """A table with NaN or r = 1 was written as rows (nan,nan,nan,0.1) its own reader then refused."""
+    from bmctl.errors import InputError
+    from bmctl.measure.tables import ParticleTable, write_table
+
+    for s, r in (([np.nan, 40.0], [0.1, 0.1]), ([10.0], [1.0])):
+        with pytest.raises(InputError, match="write_table: "):
+            write_table(tmp_path / "t.csv", ParticleTable.from_size_aspect(s, r))
+        assert not (tmp_path / "t.csv").exists()

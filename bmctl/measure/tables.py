@@ -370,7 +370,13 @@ def write_table(path: str | os.PathLike, table: ParticleTable, locations: Partic
     table : ParticleTable
     locations : ParticleLocations, optional
         One entry per row of ``table``.
+
+    Raises
+    ------
+    bmctl.errors.InputError
+        A row :func:`read_table` would refuse (not finite, s or r out of range): nothing is written.
     """
+    check_table(table, f"write_table: {os.fspath(path)}")  # never a file its own reader refuses
     if locations is None:
         write_csv(path, COLUMNS, table.rows(), fmt="{:.7g}")
         return
