@@ -64,13 +64,18 @@ def weighted_quantile(x: np.ndarray, q, weights: np.ndarray | None = None) -> np
     w = np.ones_like(x) if weights is None else np.asarray(weights, dtype=float).ravel()
     if x.size == 0 or w.shape != x.shape:
         raise ValueError("weighted_quantile: need a non-empty sample and one weight per value")
+    qa = np.asarray(q, dtype=float)
+    if not np.all((qa >= 0) & (qa <= 1)):  # NaN too: interp clamped 1.5 to the largest value
+        raise ValueError(f"weighted_quantile: q must be in [0, 1] (got {q!r})")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(w)) and np.all(w >= 0)):  # a NaN sorted last, unseen
+        raise ValueError("weighted_quantile: values and weights must be finite, and weights >= 0")
     order = np.argsort(x, kind="stable")
     xs, ws = x[order], w[order]
     total = ws.sum()
     if not total > 0:
         raise ValueError("weighted_quantile: the weights sum to zero")
     c = (np.cumsum(ws) - 0.5 * ws) / total
-    return np.interp(np.asarray(q, dtype=float), c, xs)
+    return np.interp(qa, c, xs)
 
 
 def weighted_mean(s: np.ndarray, power: int) -> float:
@@ -213,6 +218,13 @@ def _ops(*args: Any):
     return np
 
 
+def _check_mean_std(where: str, mean, std) -> None:
+    """Refuse a number mean that is not finite and > 0 or a std that is not finite and >= 0."""
+    m, sd = np.asarray(mean, dtype=float), np.asarray(std, dtype=float)
+    if not (np.all(np.isfinite(m)) and np.all(np.isfinite(sd)) and np.all(m > 0) and np.all(sd >= 0)):
+        raise ValueError(f"{where}: mean must be finite and > 0, std finite and >= 0 (got mean {mean!r}, std {std!r})")
+
+
 def lognormal_params(mean, std):
     """(mu, sigma) of the log-normal with number-weighted mean and std (same unit as s).
 
@@ -224,6 +236,8 @@ def lognormal_params(mean, std):
         Number-weighted mean and standard deviation (> 0).
     """
     xp = _ops(mean, std)
+    if xp is np:
+        _check_mean_std("lognormal_params", mean, std)
     var_ln = xp.log(1 + (std / mean) ** 2)
     return xp.log(mean) - 0.5 * var_ln, xp.sqrt(var_ln)
 
@@ -308,6 +322,8 @@ def weibull_params(mean, std):
         Number-weighted mean and standard deviation (> 0).
     """
     xp = _ops(mean, std)
+    if xp is np:  # a size law of a negative mean gave complex D-values
+        _check_mean_std("weibull_params", mean, std)
     k = (std / mean) ** -1.086
     k = xp.fmax(k, WEIBULL_K_MIN) if xp is not np else np.maximum(k, WEIBULL_K_MIN)
     return k, mean / _gamma1p(1.0 / k, xp)

@@ -437,3 +437,20 @@ def test_write_table_never_writes_a_row_read_table_refuses(tmp_path):
         with pytest.raises(InputError, match="write_table: "):
             write_table(tmp_path / "t.csv", table)
         assert not (tmp_path / "t.csv").exists()
+
+
+@pytest.mark.parametrize("call,said", [
+    (lambda st: st.weighted_quantile([1.0, 2.0, 3.0], 1.5), "q must be in [0, 1]"),
+    (lambda st: st.weighted_quantile([1.0, np.nan, 3.0], 0.5), "values and weights must be finite"),
+    (lambda st: st.weighted_quantile([1.0, 2.0, 3.0], 0.5, [1.0, -1.0, 1.0]), "weights >= 0"),
+    (lambda st: st.law_size_stats(-40.0, 4.0), "mean must be finite and > 0"),
+    (lambda st: st.lognormal_size_stats(0.0, 4.0), "mean must be finite and > 0"),
+])
+def test_size_statistics_refuse_what_they_cannot_describe(call, said):
+    """weighted_quantile(.., 1.5) gave the largest value, a NaN was skipped, a negative weight taken;
+    law_size_stats(-40, 4) gave complex D-values and lognormal_size_stats(0, 4) a ZeroDivisionError."""
+    from bmctl import stats
+
+    with pytest.raises(ValueError, match=re.escape(said)):
+        call(stats)
+    assert float(stats.weighted_quantile([1.0, 2.0, 3.0], 0.5)) == 2.0
