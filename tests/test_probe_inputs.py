@@ -454,3 +454,47 @@ def test_size_statistics_refuse_what_they_cannot_describe(call, said):
     with pytest.raises(ValueError, match=re.escape(said)):
         call(stats)
     assert float(stats.weighted_quantile([1.0, 2.0, 3.0], 0.5)) == 2.0
+
+
+@pytest.mark.parametrize("call,exc,said", [
+    (lambda m, ctl: m.step(m.x0(), [300.0, 1.0], None), TypeError, "dt_h: must be a number of hours"),
+    (lambda m, ctl: m.step(m.x0(), [300.0, 1.0], 0.5, substeps=2.7), TypeError, "substeps: must be a whole number"),
+    (lambda m, ctl: m.simulate(m.x0(), np.zeros((0, 2)), -1.0), "input", "dt_h: must be a finite number > 0"),
+    (lambda m, ctl: ctl.make_controller(ROOT / "controllers" / "mpc-fast.toml", None), TypeError,
+     "model: must be a moment model"),
+    (lambda m, ctl: ctl.make_controller(ROOT / "controllers" / "mpc-fast.toml", m).set_target("d50_um=45"),
+     TypeError, "target: a dict such as"),
+])
+def test_model_and_controller_arguments_are_named(call, exc, said):
+    """dt_h=None gave float()'s message, substeps=2.7 ran 2, a negative dt_h passed with an empty U,
+    a controller on model None failed deep inside, and a target given as text was read as characters."""
+    from bmctl import control
+    from bmctl.errors import InputError
+    from bmctl.moments.model import make_moment_model
+
+    with pytest.raises(InputError if exc == "input" else exc, match=re.escape(said)):
+        call(make_moment_model(LAB), control)
+
+
+def test_particle_filter_takes_its_settings_as_a_dict_and_names_a_missing_model():
+    from bmctl.estimate import ParticleFilter
+    from bmctl.moments.model import make_moment_model
+
+    pf = ParticleFilter(make_moment_model(LAB), np.random.default_rng(0), {"n_particles": 100})
+    assert pf.settings.n_particles == 100
+    with pytest.raises(TypeError, match="model: must be a moment model"):
+        ParticleFilter(None, np.random.default_rng(0))
+    with pytest.raises(TypeError, match="settings: must be a FilterSettings or a dict"):
+        ParticleFilter(make_moment_model(LAB), np.random.default_rng(0), 100)
+
+
+@pytest.mark.parametrize("kw,said", [({"min_area_px": -5}, "min_area_px: expected a number of px >= 1"),
+                                     ({"min_area_px": float("nan")}, "min_area_px: expected a number of px >= 1"),
+                                     ({"crop": (0, 5)}, "crop: expected (y0, y1, x0, x1)"),
+                                     ({"crop": (0.5, 100.5, 0, 300)}, "crop: expected (y0, y1, x0, x1)")])
+def test_measure_micrograph_names_a_bad_detection_limit_or_crop(kw, said):
+    from bmctl.errors import InputError
+    from bmctl.measure.micrograph import measure_micrograph
+
+    with pytest.raises(InputError, match=re.escape(said)):
+        measure_micrograph(ROOT / "examples" / "micrograph-2h.tif", **kw)

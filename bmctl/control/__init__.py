@@ -50,6 +50,8 @@ def make_controller(config, model, target=None):
     >>> plan.u_apply.tolist()
     [300.0, 1.0]
     """
+    if not (hasattr(model, "x0") and hasattr(model, "rpm_max")):  # None gave an AttributeError deep inside
+        raise TypeError(f"model: must be a moment model (bmctl.moments.make_moment_model), got {type(model).__name__}")
     if isinstance(config, (str, Path)):
         cfg = load_controller(config)
     elif isinstance(config, dict):

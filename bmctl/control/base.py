@@ -337,6 +337,9 @@ class Reference:
             return cls([(0.0, dict(target))])
         if callable(target):
             return _CallableReference(target)
+        if isinstance(target, (str, bytes)):  # "d50_um=45" was read as a list of characters
+            raise TypeError(f"target: a dict such as {{'d50_um': 45.0}}, a list of (from_h, dict), a callable or a "
+                            f"Reference (got the text {target!r}; bmctl.campaign.targets.parse reads text)")
         return cls(list(target))
 
     @classmethod

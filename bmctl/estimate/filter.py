@@ -474,7 +474,8 @@ class ParticleFilter:
         ``step(X, u, dt_h, P)`` for X of shape (N, nx) and P of shape (N, np).
     rng : numpy.random.Generator
         The single source of randomness (resampling included).
-    settings : FilterSettings, optional
+    settings : FilterSettings or dict, optional
+        The settings (a dict of its fields is validated as a scenario's ``[estimator.pf]``).
     x0 : array, optional
         Initial moment state (default ``model.x0()``); one state, finite, hardening in [0, 1] and
         temperature >= -273.15 °C (else :class:`bmctl.errors.InputError`; not numbers: ``TypeError``).
@@ -495,6 +496,13 @@ class ParticleFilter:
 
     def __init__(self, model, rng: np.random.Generator, settings: FilterSettings | None = None, x0=None):
         require_generator(rng, "rng")
+        if not (hasattr(model, "x0") and hasattr(model, "p0")):  # None gave an AttributeError further in
+            raise TypeError(f"model: must be a moment model (bmctl.moments.make_moment_model), got "
+                            f"{type(model).__name__}")
+        if isinstance(settings, dict):  # a scenario's [estimator.pf] table as it reads
+            settings = FilterSettings.model_validate(settings)
+        elif settings is not None and not isinstance(settings, FilterSettings):
+            raise TypeError(f"settings: must be a FilterSettings or a dict of its fields, got {type(settings).__name__}")
         self.model = model
         self.rng = rng
         self.settings = settings or FilterSettings()

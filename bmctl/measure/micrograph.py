@@ -8,6 +8,7 @@ number was obtained.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 from dataclasses import dataclass
 
@@ -179,6 +180,10 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
     mask = None
     if crop is not None:
         crop = parse_crop(crop) if isinstance(crop, str) else crop
+        if (not isinstance(crop, (tuple, list)) or len(crop) != 4
+                or any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) for c in crop)):
+            raise InputError(f"{arg('crop')}: expected (y0, y1, x0, x1) whole pixel numbers or 'Y0:Y1,X0:X1' "
+                             f"(got {crop!r})")
         if info_row is not None or banner is not None:
             mask = np.ones(img.shape, dtype=bool)
             if info_row is not None:
@@ -192,6 +197,9 @@ def measure_micrograph(source, *, um_per_px=None, scale_bar_um=None, keep_info_b
     auto = isinstance(min_area_px, str)
     if auto and min_area_px != "auto":
         raise InputError(f"{arg('min_area_px')}: expected a number of px or 'auto' (got {min_area_px!r})")
+    if not auto and (isinstance(min_area_px, bool) or not isinstance(min_area_px, (int, np.integer, float))
+                     or not (math.isfinite(min_area_px) and min_area_px >= 1)):  # -5 was taken, NaN a ValueError
+        raise InputError(f"{arg('min_area_px')}: expected a number of px >= 1 or 'auto' (got {min_area_px!r})")
     floor = MIN_AREA_PX if auto else int(min_area_px)
     seg = segment(img, min_area_px=floor, crop=crop, mask=mask, name=name, **segment_kw)
     used = floor

@@ -49,6 +49,13 @@ def rkc_stages(rate_max_per_h: float, sub_h: float) -> int:
     return s
 
 
+def _hours(dt_h) -> float:
+    """``dt_h`` as a float, a value that is not a number named (``float(None)`` named nothing)."""
+    if isinstance(dt_h, bool) or not isinstance(dt_h, (int, float, np.integer, np.floating)):
+        raise TypeError(f"dt_h: must be a number of hours (got {type(dt_h).__name__})")
+    return float(dt_h)
+
+
 class MomentModel:
     """Moment model of the milled powder: size and shape moments, vial temperature, hardening.
 
@@ -155,13 +162,13 @@ class MomentModel:
 
     def _step(self, x: np.ndarray, u: np.ndarray, dt_h: float, p=None, substeps: int | None = None) -> np.ndarray:
         """:meth:`step` of checked arrays."""
-        dt_h = float(dt_h)
+        dt_h = _hours(dt_h)
         p = _arr(self._p(p))
         n, st = self._integration(dt_h)
-        if substeps is not None and int(substeps) != n:
-            n = int(substeps)
-            if n < 1:
-                raise InputError(f"substeps: must be >= 1 (got {substeps})")
+        if substeps is not None and substeps != n:
+            from ..errors import require_whole
+
+            n = require_whole(substeps, "substeps", 1)  # 2.7 was cut to 2
             st = rkc_stages(self.const.rate_max_per_h, dt_h / n)
         out = eq.step(eq.NP, self.const, self.coeffs, _cols(x), _cols(u), _cols(p), dt_h, n, st)
         return eq.NP.stack(out)
@@ -193,6 +200,8 @@ class MomentModel:
         """
         U = np.atleast_2d(np.asarray(U, dtype=float))
         x0 = np.asarray(x0, dtype=float)
+        dt_h = _hours(dt_h)
+        self._integration(dt_h)  # dt_h > 0 and finite, even for an empty U
         self._check_state(x0, "x0")
         self._check_values(x0, "x0")
         if p is not None:
@@ -344,7 +353,7 @@ class MomentModel:
         >>> bool(C[0, 0] > 1 and C[1, 0] < 1e-4)  # the rest: none (the rates are smooth at rpm 0)
         True
         """
-        dt_h = float(dt_h)
+        dt_h = _hours(dt_h)
         U = np.atleast_2d(np.asarray(U, dtype=float))
         x0 = np.asarray(x0, dtype=float)
         if x0.shape != (self.nx,):
