@@ -43,9 +43,7 @@ def _measure(inputs, um_per_px, accept_unusable: bool = False, scale_name: str =
     """
     from ..measure.micrograph import check_verdicts, measure_micrograph, table_reports
     from ..measure.scale import check_scale
-    from ..measure.tables import ParticleTable, read_table_with_locations
-
-    from ..measure.tables import check_table
+    from ..measure.tables import ParticleTable, check_table, read_table_with_locations
 
     scale = check_scale(um_per_px, scale_name) if um_per_px is not None else None
     tables, images, xs, ys, reports, counts = [], [], [], [], [], []

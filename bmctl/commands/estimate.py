@@ -272,8 +272,8 @@ def run(args) -> int:
     samples, warned = [], _folder_order_doubts(folders, times)
     if args.schedule is None and t_end > card.process.hours + 1e-9:  # said, as the other verbs refuse it
         warned.append(f"--times: the last sample ({t_end:g} h) is past the card's {card.process.hours:g} h batch; "
-                      f"its process ({'--rpm ' if args.rpm is not None else ''}"
-                      f"{args.rpm if args.rpm is not None else card.process.rpm:g} rpm) is taken to go on to "
+                      f"its process ({args.rpm if args.rpm is not None else card.process.rpm:g} rpm"
+                      f"{', --rpm' if args.rpm is not None else ''}) is taken to go on to "
                       f"{t_end:g} h: give --schedule for what the mill ran")
     for f, t, temp in zip(files, times, temps):  # every input is read before the model is built
         tab, doubts = _read_sample(f, args.um_per_px, args.accept_unusable)
