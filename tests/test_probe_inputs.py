@@ -498,3 +498,24 @@ def test_measure_micrograph_names_a_bad_detection_limit_or_crop(kw, said):
 
     with pytest.raises(InputError, match=re.escape(said)):
         measure_micrograph(ROOT / "examples" / "micrograph-2h.tif", **kw)
+
+
+def test_a_full_disk_is_named_when_a_campaign_cannot_be_opened(fresh_campaign, monkeypatch):
+    """On a full disk `campaign status` said only "cannot be read as a bmctl campaign database (disk I/O
+    error)", as if the database were damaged."""
+    import os
+    import sqlite3
+    from types import SimpleNamespace
+
+    from bmctl.campaign import db
+    from bmctl.errors import InputError
+
+    def no_room(*a, **k):
+        raise sqlite3.OperationalError("disk I/O error")
+
+    monkeypatch.setattr(db.sqlite3, "connect", no_room)
+    with pytest.raises(InputError, match=r"\(disk I/O error\)$"):  # a disk with room: nothing more is claimed
+        db.open_db(fresh_campaign, read_only=True)
+    monkeypatch.setattr(os, "statvfs", lambda p: SimpleNamespace(f_bavail=0, f_frsize=4096))
+    with pytest.raises(InputError, match=r"\(disk I/O error\); the disk is full"):
+        db.open_db(fresh_campaign, read_only=True)

@@ -198,6 +198,16 @@ def _busy(exc: Exception) -> bool:
     return "locked" in str(exc) or "busy" in str(exc)
 
 
+def _disk_full(path: Path) -> bool:
+    """Whether the file system that holds ``path`` has no room left (a read of a write-ahead-log
+    database then fails with SQLite's "disk I/O error")."""
+    try:
+        st = os.statvfs(path.parent)
+    except (OSError, AttributeError):  # no statvfs (Windows), or the folder went away
+        return False
+    return st.f_bavail * st.f_frsize < 64 * 1024
+
+
 def _connect_read_only(path: Path, fallback: bool = True) -> sqlite3.Connection:
     """A read-only connection (``mode=ro``), for a campaign the user may not write (an archive, a
     share mounted read-only) and to recognise a file before anything writes to it; ``immutable``
@@ -372,7 +382,10 @@ def open_db(folder: str | Path, read_only: bool = False) -> sqlite3.Connection:
     except sqlite3.DatabaseError as exc:
         if con is not None:
             con.close()
-        raise InputError(f"{path}: cannot be read as a bmctl campaign database ({exc})") from None
+        full = "disk I/O error" in str(exc) and _disk_full(path)  # SQLite needs room for its index even to read
+        raise InputError(f"{path}: cannot be read as a bmctl campaign database ({exc})"
+                         + ("; the disk is full: SQLite needs room beside the database even to read it (free some "
+                            "and try again; the database itself is not damaged by this)" if full else "")) from None
     except BaseException:
         if con is not None:
             con.close()
