@@ -519,3 +519,14 @@ def test_a_full_disk_is_named_when_a_campaign_cannot_be_opened(fresh_campaign, m
     monkeypatch.setattr(os, "statvfs", lambda p: SimpleNamespace(f_bavail=0, f_frsize=4096))
     with pytest.raises(InputError, match=r"\(disk I/O error\); the disk is full"):
         db.open_db(fresh_campaign, read_only=True)
+
+
+def test_card_show_of_a_card_without_a_process_speed_says_where_its_table_is(tmp_path, capsys):
+    """With process.rpm = 0 the table showed 150-375 rpm, as if the card said 300, without a word."""
+    card = tmp_path / "c.toml"
+    card.write_text(LAB.read_text(encoding="utf-8").replace("\nrpm = 300", "\nrpm = 0", 1), encoding="utf-8")
+    assert main(["card", "show", str(card)]) == 0
+    err = capsys.readouterr().err
+    assert "bmctl: note: the card's process.rpm is 0 (no recipe speed): the table is around half its rpm_max " \
+           "(300 rpm)" in err, err
+    assert main(["card", "show", str(LAB)]) == 0 and "process.rpm is 0" not in capsys.readouterr().err

@@ -5,6 +5,8 @@ the card's moment coefficients and the operating window they were calibrated for
 
 from __future__ import annotations
 
+import sys
+
 from ._args import float_arg
 
 
@@ -20,7 +22,7 @@ def configure(p):
     show.add_argument("model", metavar="CARD.toml", help="model card")
     show.add_argument("--rpm", type=_rpm_list, default=None, metavar="R1,R2,...",
                       help="speeds of the table, each at least 1 rpm (default: the card's rpm x 0.5, 0.75, 1, 1.25 "
-                           "and rpm_max)")
+                           "and rpm_max; half of rpm_max for a card whose rpm is 0)")
 
 
 #: the slowest speed the report shows: below it a planetary mill does not mill (their slowest settings are tens of rpm)
@@ -128,4 +130,7 @@ def run(args) -> int:
                 raise InputError(f"--rpm: {r:g} exceeds the mill's rpm_max {card.mill.rpm_max:g} ({args.model})")
     win = st.file.window if st.ok else None
     print(format_report(card_report(card, args.rpm, win), st))
+    if args.rpm is None and card.process.rpm <= 0:  # report_rpms centres the table on rpm_max / 2 then
+        print(f"bmctl: note: the card's process.rpm is 0 (no recipe speed): the table is around half its rpm_max "
+              f"({card.mill.rpm_max / 2:g} rpm); give --rpm for the speeds you mean", file=sys.stderr)
     return 0
