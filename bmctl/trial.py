@@ -424,8 +424,8 @@ def run_trial(scenario_path: str | Path, out: str | Path, seed: int = 0, resume:
     traj, ckpt = out / "trajectory.csv", out / CHECKPOINT
     if not resume and traj.exists():
         raise InputError(f"{arg('out')}: {out} already holds a trial; use {arg('resume=True')} or another folder")
-    check_resolvable(sc, scenario_path, _plant_card(sc, base))
     loop = build(sc, base, seed)
+    check_resolvable(sc, scenario_path, loop.mill.card)  # before the folder is made
     if resume:
         _resume(loop, out, scenario_path, seed)
     else:

@@ -292,8 +292,8 @@ def test_sample_takes_one_input_and_checks_a_table_given_by_its_columns(fresh_ca
     assert cp.sample(fresh_campaign, 0.0, str(TABLE))["n"] == 300
 
 
-@pytest.mark.parametrize("u_prev,said", [([5000.0, 1.0], "u_prev: rpm must be in [0, 600]"),
-                                         ([300.0, 1.5], "u_prev: milling must be in [0, 1]")])
+@pytest.mark.parametrize("u_prev,said", [([5000.0, 1.0], "u_prev: rpm must be a number in [0, 600]"),
+                                         ([300.0, 1.5], "u_prev: milling must be a number in [0, 1]")])
 @pytest.mark.parametrize("controller", ["lqr-baseline", "mpc-fast", "mpc-default"])
 def test_a_plan_from_an_input_the_mill_cannot_run_is_refused(controller, u_prev, said):
     """A plan from u_prev = 5000 rpm on a 600 rpm mill was made as if the mill had run it."""

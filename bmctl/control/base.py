@@ -427,20 +427,17 @@ def check_gamma_delta(model, p) -> np.ndarray:
     return check_p(model, p)[:2]
 
 
-def check_u_prev(u_prev, rpm_max: float | None = None) -> np.ndarray | None:
-    """The input applied last, ``(rpm, milling)``: finite, rpm in [0, ``rpm_max``] and milling in [0, 1]
-    (within a solver's rounding); a plan from 5000 rpm on a 600 rpm mill was made as if it had run."""
+def check_u_prev(u_prev, model=None) -> np.ndarray | None:
+    """The input applied last, ``(rpm, milling)``: finite and, with ``model``, within the ranges its
+    own inputs are held to (``MomentModel._check_inputs``: rpm in [0, rpm_max], milling in [0, 1]); a
+    plan from 5000 rpm on a 600 rpm mill was made as if it had run."""
     if u_prev is None:
         return None
     u = np.asarray(u_prev, dtype=float).reshape(-1)
     if u.shape != (2,) or not np.all(np.isfinite(u)):
         raise InputError(f"u_prev: expected (rpm, milling) (got {np.asarray(u_prev).tolist()!r})")
-    from ..limits import INPUT_ROUNDING, rpm_rounding
-
-    if rpm_max is not None and not -rpm_rounding(rpm_max) <= u[0] <= rpm_max + rpm_rounding(rpm_max):
-        raise InputError(f"u_prev: rpm must be in [0, {rpm_max:g}], the mill's rpm_max (got {u[0]:g})")
-    if not -INPUT_ROUNDING <= u[1] <= 1 + INPUT_ROUNDING:
-        raise InputError(f"u_prev: milling must be in [0, 1] (got {u[1]:g})")
+    if model is not None:
+        model._check_inputs(u, "u_prev")
     return u
 
 

@@ -82,7 +82,7 @@ class _Base:
     def _check(x_est, t_h, model, p, u_prev):
         x0 = check_x(x_est)
         pp = check_gamma_delta(model, p)
-        up = check_u_prev(u_prev, model.rpm_max)
+        up = check_u_prev(u_prev, model)
         t = float(t_h)
         if not math.isfinite(t) or t < 0:
             raise InputError(f"t_h: must be a finite number >= 0 (got {t_h})")

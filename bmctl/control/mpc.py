@@ -175,7 +175,7 @@ class MPCController(CompiledSolvers):
             sc = list(scenarios or [])[: self.n_scen - 1]
             sc += [(x0, pp)] * (self.n_scen - 1 - len(sc))
             self._scen = [(check_x(a), check_gamma_delta(self.model, b)) for a, b in sc]
-        up = check_u_prev(u_prev, self.model.rpm_max)
+        up = check_u_prev(u_prev, self.model)
         t = float(t_h)
         if not math.isfinite(t) or t < 0:
             raise InputError(f"t_h: must be a finite number >= 0 (got {t_h})")

@@ -140,7 +140,7 @@ class PlanController:
         """
         x0 = check_x(x_est)
         pp = check_p(self.model, p)
-        up = check_u_prev(u_prev, self.model.rpm_max)
+        up = check_u_prev(u_prev, self.model)
         t = float(t_h)
         if not math.isfinite(t) or t < 0:
             raise InputError(f"t_h: must be a finite number >= 0 (got {t_h})")

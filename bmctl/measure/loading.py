@@ -464,7 +464,6 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
     check_input_file(p)  # a regular file of a sane size (no FIFO, no device)
     head = image_header(p)
     check_header(head, name)
-    verify_image(p, name)  # not an image, a damaged PNG: said as measure says it
     tiff = is_tiff(p)
     try:
         img = _decode(p, head)
@@ -472,9 +471,8 @@ def load_image(path: str | os.PathLike) -> np.ndarray:
         keyed = not tiff and head.colour_key is not False and _transparent_colour(p)
     except Image.DecompressionBombError as exc:
         raise _too_large(name, _bomb_pixels(exc)) from None
-    except Image.UnidentifiedImageError:
-        raise InputError(f"{name}: cannot read image (not an image file Pillow can read)") from None
-    except Exception as exc:  # imageio/PIL/tifffile raise many types: said as verify_image says them
+    except Exception as exc:  # imageio/PIL/tifffile raise many types
+        verify_image(p, name)  # not an image, a damaged PNG: said as measure says it (measure verified it first)
         raise InputError(f"{name}: cannot read image ({_damaged(p, exc)})") from None
     if keyed:
         raise InputError(f"{name}: {TRANSPARENT}")
